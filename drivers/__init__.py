@@ -1,0 +1,1 @@
+"""Serial device drivers and their simulated twins (no imports from ``survey``)."""

@@ -1,0 +1,1 @@
+"""The application: CLI, file formats, project store, exports."""

@@ -1,0 +1,77 @@
+"""Unit conversions between the SI used inside the code and the units people use at the edges.
+
+Everything inside ``trolley`` is SI (m, s, rad, rad/s, rad/sqrt(s), m/s^2). Degrees, deg/h,
+deg/sqrt(h), mm and micro-g appear only in files, on the command line and in sheets, and are
+converted here and nowhere else.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: Earth rotation rate (WGS-84), rad/s.
+EARTH_RATE_RAD_S = 7.292115e-5
+#: Standard gravity, m/s^2 (used only to convert micro-g figures).
+STANDARD_GRAVITY_M_S2 = 9.80665
+
+_DEG = np.pi / 180.0
+_HOUR_S = 3600.0
+
+
+def deg_to_rad(x):
+    """Degrees to radians."""
+    return np.asarray(x, dtype=float) * _DEG if np.ndim(x) else float(x) * _DEG
+
+
+def rad_to_deg(x):
+    """Radians to degrees."""
+    return np.asarray(x, dtype=float) / _DEG if np.ndim(x) else float(x) / _DEG
+
+
+def deg_h_to_rad_s(x):
+    """Gyro bias: deg/h to rad/s."""
+    return deg_to_rad(x) / _HOUR_S
+
+
+def rad_s_to_deg_h(x):
+    """Gyro bias: rad/s to deg/h."""
+    return rad_to_deg(x) * _HOUR_S
+
+
+def deg_sqrt_h_to_rad_sqrt_s(x):
+    """Angle random walk: deg/sqrt(h) to rad/sqrt(s)."""
+    return deg_to_rad(x) / np.sqrt(_HOUR_S)
+
+
+def rad_sqrt_s_to_deg_sqrt_h(x):
+    """Angle random walk: rad/sqrt(s) to deg/sqrt(h)."""
+    return rad_to_deg(x) * np.sqrt(_HOUR_S)
+
+
+def mm_to_m(x):
+    """Millimetres to metres."""
+    return np.asarray(x, dtype=float) * 1e-3 if np.ndim(x) else float(x) * 1e-3
+
+
+def m_to_mm(x):
+    """Metres to millimetres."""
+    return np.asarray(x, dtype=float) * 1e3 if np.ndim(x) else float(x) * 1e3
+
+
+def ug_to_m_s2(x):
+    """Accelerometer bias: micro-g to m/s^2."""
+    return np.asarray(x, dtype=float) * 1e-6 * STANDARD_GRAVITY_M_S2 if np.ndim(x) else float(x) * 1e-6 * STANDARD_GRAVITY_M_S2
+
+
+def m_s2_to_ug(x):
+    """Accelerometer bias: m/s^2 to micro-g."""
+    return np.asarray(x, dtype=float) / (1e-6 * STANDARD_GRAVITY_M_S2) if np.ndim(x) else float(x) / (1e-6 * STANDARD_GRAVITY_M_S2)
+
+
+def arcsec_to_rad(x):
+    """Arc seconds to radians."""
+    return deg_to_rad(x) / 3600.0
+
+
+def gon_to_rad(x):
+    """Gon (grads) to radians."""
+    return np.asarray(x, dtype=float) * (np.pi / 200.0) if np.ndim(x) else float(x) * (np.pi / 200.0)
