@@ -1,0 +1,94 @@
+"""In-memory form of a raw stop-and-go session (FORMATS.md section 1), as arrays.
+
+The survey layer reads and writes the session folder; the science works on these containers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from trolley.sensors import ImuFigures, OdometerFigures
+
+
+@dataclass(frozen=True)
+class TrolleyGeometry:
+    """Trolley geometry from ``session.toml [trolley]``.
+
+    Attributes
+    ----------
+    prism_lever_arm_m : prism position in the trolley FRD frame from the track reference point.
+    imu_misalignment_rad : nominal IMU-to-trolley mounting angles (roll, pitch, yaw about FRD), rad.
+    rail_spacing_m : distance between the rail centre lines (cant = rail_spacing * sin(roll)).
+    nominal_gauge_m : nominal track gauge.
+    """
+
+    prism_lever_arm_m: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -0.60]))
+    imu_misalignment_rad: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rail_spacing_m: float = 1.500
+    nominal_gauge_m: float = 1.435
+
+
+@dataclass(frozen=True)
+class SessionMeta:
+    """Metadata of a raw session (``session.toml``), in SI units.
+
+    Attributes
+    ----------
+    latitude_rad, height_m : site, for the Earth-rate terms.
+    trolley : trolley geometry.
+    imu : IMU datasheet figures (the filters' Q and P0 come from these).
+    odometer : odometer figures.
+    fix_sigma_m : default 1-sigma of a total-station fix per axis.
+    static_s : length of the initial static period.
+    initial_heading_rad : heading to use instead of gyrocompassing, or NaN.
+    design_alignment : path of the LandXML design, relative to the session folder, or None.
+    """
+
+    latitude_rad: float
+    height_m: float = 0.0
+    trolley: TrolleyGeometry = field(default_factory=TrolleyGeometry)
+    imu: ImuFigures | None = None
+    odometer: OdometerFigures = field(default_factory=OdometerFigures)
+    fix_sigma_m: float = 0.0006
+    static_s: float = 900.0
+    initial_heading_rad: float = float("nan")
+    design_alignment: str | None = None
+
+
+@dataclass
+class Fixes:
+    """Total-station prism fixes: one row per measurement (grid E, N, H; sigmas per axis)."""
+
+    t_s: np.ndarray
+    point: np.ndarray  # labels (object array of str)
+    enh_m: np.ndarray  # (n, 3) E, N, H
+    sigma_m: np.ndarray  # (n, 3)
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+
+@dataclass
+class RawSession:
+    """A whole raw session as arrays (FORMATS.md section 1).
+
+    Attributes
+    ----------
+    meta : session metadata.
+    imu_t_s : (N,) IMU sample times; imu_w_rad_s, imu_f_m_s2 : (N, 3) angular rate and specific
+        force in the IMU's FRD frame as measured.
+    odo_t_s, odo_distance_m : cumulative odometer distance.
+    fixes : prism fixes.
+    gauge_t_s, gauge_m : gauge sensor, or None.
+    """
+
+    meta: SessionMeta
+    imu_t_s: np.ndarray
+    imu_w_rad_s: np.ndarray
+    imu_f_m_s2: np.ndarray
+    odo_t_s: np.ndarray
+    odo_distance_m: np.ndarray
+    fixes: Fixes
+    gauge_t_s: np.ndarray | None = None
+    gauge_m: np.ndarray | None = None
