@@ -1,0 +1,216 @@
+"""Free-station resection against hand-built geometry (trolley/resection.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from trolley import units
+from trolley.resection import (
+    InstrumentSigmas,
+    PolarModel,
+    PolarObservations,
+    ResectionConfig,
+    ResectionError,
+    observation_jacobian,
+    observations_from_station,
+    overlap_check,
+    point_from_observation,
+    resect,
+    suggest_point_to_drop,
+)
+
+STATION = np.array([500123.456, 3100456.789, 45.678])
+ORIENTATION = 2.5
+
+
+def cpiii_layout(station=STATION, pairs=4, spacing_m=60.0, half_width_m=3.2, offset_m=1.0):
+    """Four CPIII pairs on both sides of a straight track running north-east, the station on the axis."""
+    heading = np.deg2rad(35.0)
+    fwd = np.array([np.sin(heading), np.cos(heading)])
+    right = np.array([np.cos(heading), -np.sin(heading)])
+    along = (np.arange(pairs) - (pairs - 1) / 2.0) * spacing_m
+    pts, ids = [], []
+    for k, s in enumerate(along):
+        for side, sgn in (("L", -1.0), ("R", 1.0)):
+            en = station[:2] + s * fwd + sgn * half_width_m * right + offset_m * right
+            pts.append([en[0], en[1], station[2] + 0.8 * sgn - 1.2])
+            ids.append(f"CP{k:02d}{side}")
+    return ids, np.array(pts)
+
+
+def noisy(obs: PolarObservations, sigmas: InstrumentSigmas, rng) -> PolarObservations:
+    n = len(obs)
+    return PolarObservations(
+        np.mod(obs.hz_rad + rng.normal(0, sigmas.direction_rad, n), 2 * np.pi),
+        obs.zenith_rad + rng.normal(0, sigmas.zenith_rad, n),
+        obs.slope_distance_m + rng.normal(0, 1, n) * sigmas.distance_sigma_m(obs.slope_distance_m))
+
+
+def test_forward_hand_computed():
+    # a target 30 m east, 40 m north and 2 m up; no curvature: hz = atan2(30, 40) - orientation
+    st_ = np.array([10.0, 20.0, 1.0])
+    obs = observations_from_station(st_, 0.1, st_ + [30.0, 40.0, 2.0], PolarModel(curvature_refraction=False))
+    assert obs.hz_rad[0] == pytest.approx(np.arctan2(30, 40) - 0.1, abs=1e-15)
+    assert obs.zenith_rad[0] == pytest.approx(np.arctan2(50.0, 2.0), abs=1e-15)
+    assert obs.slope_distance_m[0] == pytest.approx(np.sqrt(2504.0), abs=1e-12)
+    # curvature and refraction lower a target 90 m away by (1 - 0.13) 90^2 / (2 R) = 0.55 mm
+    m = PolarModel()
+    flat = observations_from_station(np.zeros(3), 0.0, [0.0, 90.0, 0.0], m)
+    assert 90.0 * (flat.zenith_rad[0] - np.pi / 2) == pytest.approx(0.87 * 8100 / (2 * 6.378e6), rel=1e-6)
+
+
+def test_inverse_and_jacobian():
+    ids, pts = cpiii_layout()
+    obs = observations_from_station(STATION, ORIENTATION, pts)
+    np.testing.assert_allclose(point_from_observation(STATION, ORIENTATION, obs), pts, atol=1e-8)
+    j = observation_jacobian(STATION, pts)
+    eps = 1e-4
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        plus = observations_from_station(STATION, ORIENTATION, pts + d).as_array()
+        minus = observations_from_station(STATION, ORIENTATION, pts - d).as_array()
+        np.testing.assert_allclose((plus - minus) / (2 * eps), j[:, :, k], rtol=1e-5, atol=1e-9)
+
+
+def test_exact_observations_recover_station():
+    ids, pts = cpiii_layout()
+    res = resect(ids, pts, observations_from_station(STATION, ORIENTATION, pts))
+    np.testing.assert_allclose(res.station_enh_m, STATION, atol=1e-8)
+    assert res.orientation_rad == pytest.approx(ORIENTATION, abs=1e-11)
+    assert res.dof == 24 - 4
+    assert res.sigma0 < 1e-3
+    assert res.flagged_points == () and suggest_point_to_drop(res) is None
+
+
+def test_noisy_observations_within_sigma():
+    ids, pts = cpiii_layout()
+    rng = np.random.default_rng(7)
+    sig = InstrumentSigmas()
+    chi2 = []
+    for _ in range(20):
+        res = resect(ids, pts, noisy(observations_from_station(STATION, ORIENTATION, pts), sig, rng))
+        e = np.r_[res.station_enh_m - STATION, (res.orientation_rad - ORIENTATION + np.pi) % (2 * np.pi) - np.pi]
+        chi2.append(e @ np.linalg.solve(res.covariance, e))
+    # each error is ~chi2(4) in its own covariance; the sum of 20 is chi2(80)
+    assert stats.chi2.ppf(1e-4, 80) < sum(chi2) < stats.chi2.ppf(1 - 1e-4, 80)
+    # sub-millimetre station from 8 CPIII points, as in practice
+    assert np.all(res.station_sigma_m < 0.0005)
+
+
+def test_one_bad_point_is_flagged_and_dropping_it_cleans_up():
+    ids, pts = cpiii_layout()
+    rng = np.random.default_rng(3)
+    sig = InstrumentSigmas()
+    wrong = pts.copy()
+    wrong[5] += [0.005 * np.cos(0.3), 0.005 * np.sin(0.3), 0.0]  # the prism is 5 mm away from its coordinates
+    obs = noisy(observations_from_station(STATION, ORIENTATION, wrong), sig, rng)
+    res = resect(ids, pts, obs)
+    assert suggest_point_to_drop(res) == ids[5]
+    assert res.residuals[5].flagged and "standardized" in res.residuals[5].reason
+    assert res.sigma0 > 3.0
+    # horizontal residual of the bad point: most of the 5 mm shows up there
+    r5 = res.residuals[5]
+    assert np.hypot(r5.across_m, r5.along_m) > 0.003
+    clean = resect(ids, pts, obs, exclude=[ids[5]])
+    # only noise left: no |w| beyond 4 (false-alarm chance 21 x 6e-5 ~ 0.1 %)
+    assert max(r.max_standardized for r in clean.residuals) < 4.0
+    assert clean.excluded == (ids[5],)
+    assert len(clean.residuals) == 7
+    assert clean.sigma0 < 2.0
+    np.testing.assert_array_less(np.abs(clean.station_enh_m - STATION), 5 * clean.station_sigma_m)
+
+
+def test_height_error_flagged_by_zenith():
+    ids, pts = cpiii_layout()
+    wrong = pts.copy()
+    wrong[2, 2] += 0.005
+    res = resect(ids, pts, observations_from_station(STATION, ORIENTATION, wrong))
+    assert suggest_point_to_drop(res) == ids[2]
+    assert res.residuals[2].height_m == pytest.approx(0.005, abs=0.0015)
+
+
+def test_three_points_minimum_and_errors():
+    ids, pts = cpiii_layout()
+    obs = observations_from_station(STATION, ORIENTATION, pts[:3])
+    res = resect(ids[:3], pts[:3], obs)
+    np.testing.assert_allclose(res.station_enh_m, STATION, atol=1e-7)
+    assert res.dof == 5
+    with pytest.raises(ResectionError, match="3 distinct"):
+        resect(ids[:2], pts[:2], observations_from_station(STATION, ORIENTATION, pts[:2]))
+    with pytest.raises(ResectionError, match="3 distinct"):
+        resect(ids[:3], pts[:3], obs, exclude=[ids[0]])
+    with pytest.raises(ResectionError, match="length"):
+        resect(ids[:4], pts[:3], obs)
+
+
+def test_missing_distance_uses_direction_only():
+    ids, pts = cpiii_layout()
+    obs = observations_from_station(STATION, ORIENTATION, pts)
+    obs.slope_distance_m[[1, 4]] = np.nan
+    res = resect(ids, pts, obs)
+    np.testing.assert_allclose(res.station_enh_m, STATION, atol=1e-7)
+    assert res.dof == 22 - 4
+    assert np.isnan(res.residuals[1].distance_m)
+
+
+def test_metric_tolerance_flag():
+    ids, pts = cpiii_layout()
+    wrong = pts.copy()
+    wrong[0, 2] += 0.004
+    cfg = ResectionConfig(max_standardized_residual=1e9, max_point_residual_m=0.002)
+    res = resect(ids, pts, observations_from_station(STATION, ORIENTATION, wrong), cfg)
+    assert res.flagged_points == (ids[0],)
+    assert "mm >" in res.residuals[0].reason
+
+
+def test_overlap_check():
+    chk = overlap_check("S12", [100.0, 200.0, 10.0], [100.0012, 199.9990, 10.0005], tolerance_m=0.002)
+    np.testing.assert_allclose(chk.difference_enh_mm, [1.2, -1.0, 0.5], atol=1e-6)
+    assert chk.horizontal_m == pytest.approx(np.hypot(0.0012, 0.0010))
+    assert chk.within_tolerance
+    assert not overlap_check("S12", [0, 0, 0], [0, 0, 0.0025]).within_tolerance
+
+
+def test_overlap_of_a_trolley_point_from_two_resected_stations():
+    # the same prism measured from two free stations 120 m apart agrees within the combined sigma
+    rng = np.random.default_rng(11)
+    sig = InstrumentSigmas()
+    prism = STATION + [40.0, 30.0, 0.6]
+    found = []
+    for k, base in enumerate([STATION, STATION + [120 * np.sin(0.61), 120 * np.cos(0.61), 0.5]]):
+        ids, pts = cpiii_layout(station=base)
+        res = resect(ids, pts, noisy(observations_from_station(base, 0.7 * k, pts), sig, rng))
+        o = noisy(observations_from_station(base, 0.7 * k, prism), sig, rng)
+        found.append(point_from_observation(res.station_enh_m, res.orientation_rad, o)[0])
+    chk = overlap_check("prism", found[0], found[1])
+    assert chk.within_tolerance
+    assert np.all(np.abs(chk.difference_enh_m) < 0.002)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(n_points=st.integers(3, 10), seed=st.integers(0, 2**31 - 1),
+       orientation=st.floats(0.0, 2 * np.pi, exclude_max=True),
+       spread_deg=st.floats(120.0, 360.0))
+def test_sigma0_near_one_on_correctly_weighted_noise(n_points, seed, orientation, spread_deg):
+    rng = np.random.default_rng(seed)
+    az = np.deg2rad(rng.uniform(0.0, spread_deg, n_points))
+    r = rng.uniform(15.0, 120.0, n_points)
+    pts = np.column_stack([STATION[0] + r * np.sin(az), STATION[1] + r * np.cos(az),
+                           STATION[2] + rng.uniform(-3.0, 3.0, n_points)])
+    ids = [f"P{i}" for i in range(n_points)]
+    sig = InstrumentSigmas()
+    exact = observations_from_station(STATION, orientation, pts)
+    reps = 25
+    vpv = 0.0
+    for _ in range(reps):
+        res = resect(ids, pts, noisy(exact, sig, rng))
+        vpv += res.sigma0**2 * res.dof
+    dof_total = reps * (3 * n_points - 4)
+    # the weighted square sum of residuals is chi2(dof): sigma0^2 averages 1
+    assert stats.chi2.ppf(1e-5, dof_total) < vpv < stats.chi2.ppf(1 - 1e-5, dof_total)
+    s0 = np.sqrt(vpv / dof_total)
+    assert 0.6 < s0 < 1.4

@@ -1,0 +1,477 @@
+"""Free-station resection on CPIII control points, and the polar observation model it rests on.
+
+A total station set up anywhere near the track measures horizontal directions, zenith angles and
+slope distances to three or more CPIII prisms of known grid coordinates (eight, four pairs, is the
+Chinese practice). A weighted least-squares adjustment (Gauss-Newton through
+``scipy.optimize.least_squares`` with the analytic Jacobian) gives the station position E, N, H and
+the orientation of the horizontal circle, their covariance, per-point residuals and the a posteriori
+sigma0. Outliers are found by Baarda's data snooping: each observation's residual divided by its own
+sigma, sqrt(q_vv), gives a standardized residual w ~ N(0, 1); a point whose largest |w| exceeds the
+tolerance is flagged. Nothing is dropped automatically: the crew decides, ``suggest_point_to_drop``
+names the candidate, and ``resect(..., exclude=...)`` recomputes without it.
+
+Conventions (``docs/conventions.md``, section "Total station"):
+
+- grid E, N, H (H up); azimuth clockwise from grid north, ``az = atan2(dE, dN)``;
+- ``hz`` horizontal circle reading, clockwise, ``hz = az - orientation`` in [0, 2 pi): the
+  orientation unknown is the grid azimuth of the circle's zero direction;
+- ``zenith`` from the zenith (pi/2 = horizontal), face I; face II must be reduced beforehand;
+- slope distance from the instrument's axis point to the prism, already corrected for prism
+  constant and atmosphere; the station height H is the height of the instrument's axis point;
+- Earth curvature and refraction (coefficient k) lower the apparent height difference by
+  (1 - k) hd^2 / (2 R), as instruments model it; it is 0.5 mm at 90 m and can be switched off.
+
+References
+----------
+Ghilani, C. D. (2017). Adjustment Computations, 6th ed., ch. 15 (resection), ch. 21 (blunder
+detection). Baarda, W. (1968). A testing procedure for use in geodetic networks.
+"""
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from trolley import units
+
+TWO_PI = 2.0 * np.pi
+
+
+class ResectionError(ValueError):
+    """The resection cannot be computed (too few points, bad geometry, inconsistent input)."""
+
+
+@dataclass(frozen=True)
+class InstrumentSigmas:
+    """A priori 1-sigma of one total-station observation.
+
+    Attributes
+    ----------
+    direction_rad : horizontal direction (default 0.5 arc second).
+    zenith_rad : zenith angle (default 0.5 arc second).
+    distance_m : constant part of the distance sigma (default 0.6 mm).
+    distance_scale : part proportional to the distance (default 1 ppm = 1e-6).
+    """
+
+    direction_rad: float = units.arcsec_to_rad(0.5)
+    zenith_rad: float = units.arcsec_to_rad(0.5)
+    distance_m: float = 0.0006
+    distance_scale: float = 1e-6
+
+    def distance_sigma_m(self, distance_m: np.ndarray) -> np.ndarray:
+        """Sigma of slope distances ``distance_m`` (constant + ppm part, added linearly as datasheets do)."""
+        return self.distance_m + self.distance_scale * np.abs(np.asarray(distance_m, dtype=float))
+
+
+@dataclass(frozen=True)
+class PolarModel:
+    """Earth curvature and refraction in the polar observation model.
+
+    Attributes
+    ----------
+    refraction_k : coefficient of refraction (0.13 is the usual instrument default).
+    earth_radius_m : radius of the Earth used for the curvature term.
+    curvature_refraction : apply the (1 - k) hd^2 / (2 R) height correction.
+    """
+
+    refraction_k: float = 0.13
+    earth_radius_m: float = 6.378e6
+    curvature_refraction: bool = True
+
+    @property
+    def height_drop_per_m2(self) -> float:
+        """c in dH_apparent = dH - c hd^2, in 1/m."""
+        if not self.curvature_refraction:
+            return 0.0
+        return (1.0 - self.refraction_k) / (2.0 * self.earth_radius_m)
+
+
+@dataclass(frozen=True)
+class ResectionConfig:
+    """Weights, model and outlier tolerance of a free-station resection.
+
+    Attributes
+    ----------
+    sigmas : a priori instrument sigmas.
+    model : curvature and refraction model (must match the one the observations follow).
+    max_standardized_residual : flag a point when one of its observations has |w| above this
+        (3.29 is the two-sided 0.1 % critical value of data snooping).
+    max_point_residual_m : flag a point when its residual across, along or in height exceeds this
+        (None: no metric tolerance).
+    """
+
+    sigmas: InstrumentSigmas = field(default_factory=InstrumentSigmas)
+    model: PolarModel = field(default_factory=PolarModel)
+    max_standardized_residual: float = 3.29
+    max_point_residual_m: float | None = 0.002
+
+
+@dataclass
+class PolarObservations:
+    """Polar observations from one station, one row per pointing (face I).
+
+    A NaN marks an observation that was not taken (e.g. a direction without distance).
+    """
+
+    hz_rad: np.ndarray
+    zenith_rad: np.ndarray
+    slope_distance_m: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.hz_rad = np.atleast_1d(np.asarray(self.hz_rad, dtype=float))
+        self.zenith_rad = np.atleast_1d(np.asarray(self.zenith_rad, dtype=float))
+        self.slope_distance_m = np.atleast_1d(np.asarray(self.slope_distance_m, dtype=float))
+        if not (self.hz_rad.shape == self.zenith_rad.shape == self.slope_distance_m.shape):
+            raise ResectionError("hz, zenith and slope distance arrays differ in length")
+
+    def __len__(self) -> int:
+        return int(self.hz_rad.shape[0])
+
+    def as_array(self) -> np.ndarray:
+        """(n, 3) array of hz, zenith, slope distance."""
+        return np.column_stack([self.hz_rad, self.zenith_rad, self.slope_distance_m])
+
+
+@dataclass(frozen=True)
+class PointResidual:
+    """Residuals of one pointing (observed minus computed from the adjusted station).
+
+    Attributes
+    ----------
+    point_id : CPIII point id.
+    hz_rad, zenith_rad, distance_m : residuals of the three observations (NaN if not observed).
+    across_m, along_m, height_m : the same residuals as a displacement of the target: horizontal
+        across the line of sight (positive to the right seen from the station), horizontal along
+        it (positive away from the station) and up.
+    standardized : |w| of hz, zenith, distance (NaN if not observed or no redundancy).
+    max_standardized : largest |w| of the three.
+    flagged : the point exceeds a tolerance of the configuration.
+    reason : why it is flagged ("" when not).
+    """
+
+    point_id: str
+    hz_rad: float
+    zenith_rad: float
+    distance_m: float
+    across_m: float
+    along_m: float
+    height_m: float
+    standardized: tuple[float, float, float]
+    max_standardized: float
+    flagged: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class Resection:
+    """Result of a free-station resection.
+
+    Attributes
+    ----------
+    station_enh_m : (3,) E, N, H of the instrument's axis point.
+    orientation_rad : grid azimuth of the horizontal circle's zero, in [0, 2 pi).
+    covariance : (4, 4) a priori covariance of (E, N, H, orientation) (instrument sigmas trusted).
+    sigma0 : a posteriori standard deviation of unit weight (1 when the sigmas are right).
+    dof : degrees of freedom (observations minus 4).
+    residuals : one entry per pointing, in input order (excluded points are not listed).
+    excluded : point ids left out of this solution.
+    """
+
+    station_enh_m: np.ndarray
+    orientation_rad: float
+    covariance: np.ndarray
+    sigma0: float
+    dof: int
+    residuals: tuple[PointResidual, ...]
+    excluded: tuple[str, ...] = ()
+
+    @property
+    def covariance_aposteriori(self) -> np.ndarray:
+        """Covariance scaled by sigma0^2 (when dof > 0)."""
+        return self.covariance * (self.sigma0**2 if self.dof > 0 else 1.0)
+
+    @property
+    def station_sigma_m(self) -> np.ndarray:
+        """(3,) a priori 1-sigma of E, N, H."""
+        return np.sqrt(np.diag(self.covariance)[:3])
+
+    @property
+    def orientation_sigma_rad(self) -> float:
+        """A priori 1-sigma of the orientation."""
+        return float(np.sqrt(self.covariance[3, 3]))
+
+    @property
+    def flagged_points(self) -> tuple[str, ...]:
+        """Ids of flagged points, worst first."""
+        bad = [r for r in self.residuals if r.flagged]
+        bad.sort(key=lambda r: -np.nan_to_num(r.max_standardized, nan=0.0))
+        return tuple(dict.fromkeys(r.point_id for r in bad))
+
+
+@dataclass(frozen=True)
+class OverlapCheck:
+    """A point measured from two station setups.
+
+    Attributes
+    ----------
+    point_id : the point.
+    difference_enh_m : (3,) second minus first, E, N, H.
+    horizontal_m : horizontal length of the difference.
+    within_tolerance : all of |dE|, |dN|, |dH| within the tolerance.
+    tolerance_m : the tolerance used.
+    """
+
+    point_id: str
+    difference_enh_m: np.ndarray
+    horizontal_m: float
+    within_tolerance: bool
+    tolerance_m: float
+
+    @property
+    def difference_enh_mm(self) -> np.ndarray:
+        """The difference in mm (for display)."""
+        return units.m_to_mm(self.difference_enh_m)
+
+
+def wrap_to_pi(angle_rad: np.ndarray) -> np.ndarray:
+    """Angles wrapped to [-pi, pi)."""
+    return (np.asarray(angle_rad, dtype=float) + np.pi) % TWO_PI - np.pi
+
+
+def _polar_parts(station: np.ndarray, points: np.ndarray, model: PolarModel):
+    d = np.atleast_2d(points) - station[None, :]
+    u, v, w = d[:, 0], d[:, 1], d[:, 2]
+    hd = np.hypot(u, v)
+    c = model.height_drop_per_m2
+    a = w - c * hd**2  # apparent height difference seen in the instrument's horizon
+    sd = np.hypot(hd, a)
+    return u, v, hd, a, sd, c
+
+
+def observations_from_station(station: np.ndarray, orientation: float, points: np.ndarray,
+                              model: PolarModel = PolarModel()) -> PolarObservations:
+    """Polar observations (hz, zenith, slope distance) of ``points`` from a station.
+
+    Parameters
+    ----------
+    station : (3,) E, N, H of the instrument's axis point, m.
+    orientation : grid azimuth of the horizontal circle's zero, rad.
+    points : (n, 3) or (3,) target E, N, H, m.
+    model : curvature and refraction.
+
+    Returns
+    -------
+    PolarObservations with hz in [0, 2 pi), zenith in (0, pi), slope distance in m.
+    """
+    station = np.asarray(station, dtype=float)
+    u, v, hd, a, sd, _ = _polar_parts(station, np.asarray(points, dtype=float), model)
+    hz = np.mod(np.arctan2(u, v) - orientation, TWO_PI)
+    return PolarObservations(hz, np.arctan2(hd, a), sd)
+
+
+def point_from_observation(station: np.ndarray, orientation: float, obs: PolarObservations,
+                           model: PolarModel = PolarModel()) -> np.ndarray:
+    """Target coordinates from polar observations: the exact inverse of ``observations_from_station``.
+
+    Returns
+    -------
+    (n, 3) E, N, H, m.
+    """
+    station = np.asarray(station, dtype=float)
+    hd = obs.slope_distance_m * np.sin(obs.zenith_rad)
+    a = obs.slope_distance_m * np.cos(obs.zenith_rad)
+    az = obs.hz_rad + orientation
+    return np.column_stack([station[0] + hd * np.sin(az), station[1] + hd * np.cos(az),
+                            station[2] + a + model.height_drop_per_m2 * hd**2])
+
+
+def observation_jacobian(station: np.ndarray, points: np.ndarray,
+                         model: PolarModel = PolarModel()) -> np.ndarray:
+    """d(hz, zenith, slope distance) / d(target E, N, H), one 3x3 block per point.
+
+    The derivative with respect to the station position is its negative; d hz / d orientation = -1.
+
+    Returns
+    -------
+    (n, 3, 3) array.
+    """
+    u, v, hd, a, sd, c = _polar_parts(np.asarray(station, dtype=float), np.asarray(points, dtype=float), model)
+    n = u.shape[0]
+    zero = np.zeros(n)
+    g_hd = np.stack([u / hd, v / hd, zero], axis=1)
+    g_a = np.stack([-2.0 * c * u, -2.0 * c * v, np.ones(n)], axis=1)
+    g_hz = np.stack([v / hd**2, -u / hd**2, zero], axis=1)
+    g_z = (a[:, None] * g_hd - hd[:, None] * g_a) / sd[:, None] ** 2
+    g_sd = (hd[:, None] * g_hd + a[:, None] * g_a) / sd[:, None]
+    return np.stack([g_hz, g_z, g_sd], axis=1)
+
+
+def _initial_station(points: np.ndarray, obs: np.ndarray, model: PolarModel) -> np.ndarray:
+    """Closed-form start: a 2-D similarity (Helmert) fit of the polar sketch to the grid, then H."""
+    ok = np.all(np.isfinite(obs), axis=1)
+    if np.count_nonzero(ok) < 2:
+        raise ResectionError("need at least 2 pointings with direction, zenith and distance")
+    p, o = points[ok], obs[ok]
+    hd = o[:, 2] * np.sin(o[:, 1])
+    x, y = hd * np.sin(o[:, 0]), hd * np.cos(o[:, 0])  # E-like, N-like in the circle's frame
+    # grid = S + R x with R = [[a, b], [-b, a]] for a clockwise rotation by the orientation
+    m = p.shape[0]
+    design = np.zeros((2 * m, 4))
+    design[0::2] = np.column_stack([x, y, np.ones(m), np.zeros(m)])
+    design[1::2] = np.column_stack([y, -x, np.zeros(m), np.ones(m)])
+    rhs = np.empty(2 * m)
+    rhs[0::2], rhs[1::2] = p[:, 0], p[:, 1]
+    (ca, sb, e0, n0), *_ = np.linalg.lstsq(design, rhs, rcond=None)
+    orientation = float(np.mod(np.arctan2(sb, ca), TWO_PI))
+    h0 = np.mean(p[:, 2] - o[:, 2] * np.cos(o[:, 1]) - model.height_drop_per_m2 * hd**2)
+    return np.array([e0, n0, h0, orientation])
+
+
+def _residual_vector(x: np.ndarray, points: np.ndarray, obs: np.ndarray, model: PolarModel) -> np.ndarray:
+    """Observed minus computed, (n, 3), hz wrapped."""
+    comp = observations_from_station(x[:3], x[3], points, model).as_array()
+    r = obs - comp
+    r[:, 0] = wrap_to_pi(r[:, 0])
+    return r
+
+
+def resect(point_ids: Sequence[str], points_enh_m: np.ndarray, observations: PolarObservations,
+           config: ResectionConfig = ResectionConfig(), exclude: Collection[str] = ()) -> Resection:
+    """Free-station resection by weighted least squares.
+
+    Parameters
+    ----------
+    point_ids : (n,) id of the CPIII point of each pointing (a point may be pointed more than once).
+    points_enh_m : (n, 3) known grid coordinates of each pointing's point.
+    observations : the n pointings (NaN for an observation not taken).
+    config : sigmas, model and tolerances.
+    exclude : point ids to leave out (the crew dropped them).
+
+    Returns
+    -------
+    Resection: station, orientation, covariance, sigma0, residuals and flags.
+
+    Raises
+    ------
+    ResectionError : fewer than 3 distinct points, fewer than 4 observations, or singular geometry.
+    """
+    ids = np.asarray([str(i) for i in point_ids], dtype=object)
+    pts = np.asarray(points_enh_m, dtype=float).reshape(-1, 3)
+    obs = observations.as_array()
+    if not (ids.shape[0] == pts.shape[0] == obs.shape[0]):
+        raise ResectionError("point ids, coordinates and observations differ in length")
+    keep = ~np.isin(ids, list(exclude)) if exclude else np.ones(ids.shape[0], bool)
+    ids, pts, obs = ids[keep], pts[keep], obs[keep]
+    if len(set(ids.tolist())) < 3:
+        raise ResectionError(f"need at least 3 distinct points, have {len(set(ids.tolist()))}")
+    if not np.all(np.isfinite(pts)):
+        raise ResectionError("control point coordinates must be finite")
+
+    mask = np.isfinite(obs)  # (n, 3) which observations exist
+    n_obs = int(mask.sum())
+    if n_obs < 4:
+        raise ResectionError(f"need at least 4 observations, have {n_obs}")
+    model, sig = config.model, config.sigmas
+    x0 = _initial_station(pts, obs, model)
+
+    def sigma_of(sd: np.ndarray) -> np.ndarray:
+        s = np.empty(obs.shape)
+        s[:, 0], s[:, 1] = sig.direction_rad, sig.zenith_rad
+        s[:, 2] = sig.distance_sigma_m(sd)
+        return s
+
+    # weights use the observed distance (fixed during the iteration, as is customary)
+    sigma = sigma_of(np.where(mask[:, 2], obs[:, 2], 0.0))
+    obs_f = np.where(mask, obs, 0.0)
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return (_residual_vector(x, pts, obs_f, model) / sigma)[mask]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        # residual = observed - computed: its derivative is minus the observation's derivative
+        jp = observation_jacobian(x[:3], pts, model)  # d obs / d target
+        a = np.zeros((pts.shape[0], 3, 4))
+        a[:, :, :3] = jp  # d obs / d station = -jp, so d residual / d station = +jp
+        a[:, 0, 3] = 1.0  # d hz / d orientation = -1
+        return (a / sigma[:, :, None])[mask]
+
+    sol = least_squares(fun, x0, jac=jac, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    x = sol.x
+    a_w = jac(x)  # whitened design matrix
+    normal = a_w.T @ a_w
+    if np.linalg.cond(normal) > 1e14:
+        raise ResectionError("singular geometry: the points do not fix the station")
+    cov = np.linalg.inv(normal)
+    v_w = fun(x)
+    dof = n_obs - 4
+    sigma0 = float(np.sqrt(v_w @ v_w / dof)) if dof > 0 else float("nan")
+
+    # Baarda: Q_vv (whitened) = I - A N^-1 A^T; w = v / sqrt(q_vv)
+    qvv = 1.0 - np.einsum("ij,jk,ik->i", a_w, cov, a_w)
+    w_flat = np.where(qvv > 1e-10, np.abs(v_w) / np.sqrt(np.clip(qvv, 1e-10, None)), np.nan)
+    w = np.full(obs.shape, np.nan)
+    w[mask] = w_flat
+    resid = np.full(obs.shape, np.nan)
+    resid[mask] = (v_w * sigma[mask])
+
+    # residual as a target displacement: solve J_point d = v (unobserved components set to 0)
+    jp = observation_jacobian(x[:3], pts, model)
+    disp = np.linalg.solve(jp, np.nan_to_num(resid)[:, :, None])[:, :, 0]
+    az = np.arctan2(pts[:, 0] - x[0], pts[:, 1] - x[1])
+    along_u = np.column_stack([np.sin(az), np.cos(az)])
+    across_u = np.column_stack([np.cos(az), -np.sin(az)])
+    along = np.sum(disp[:, :2] * along_u, axis=1)
+    across = np.sum(disp[:, :2] * across_u, axis=1)
+    height = disp[:, 2]
+
+    tol_w, tol_m = config.max_standardized_residual, config.max_point_residual_m
+    residuals = []
+    for i in range(ids.shape[0]):
+        max_w = float(np.nanmax(w[i])) if np.any(np.isfinite(w[i])) else float("nan")
+        reasons = []
+        if np.isfinite(max_w) and max_w > tol_w:
+            reasons.append(f"standardized residual {max_w:.1f} > {tol_w:g}")
+        if tol_m is not None:
+            worst_m = max(abs(across[i]), abs(along[i]), abs(height[i]))
+            if worst_m > tol_m:
+                reasons.append(f"residual {units.m_to_mm(worst_m):.1f} mm > {units.m_to_mm(tol_m):g} mm")
+        residuals.append(PointResidual(
+            point_id=str(ids[i]), hz_rad=float(resid[i, 0]), zenith_rad=float(resid[i, 1]),
+            distance_m=float(resid[i, 2]), across_m=float(across[i]), along_m=float(along[i]),
+            height_m=float(height[i]), standardized=(float(w[i, 0]), float(w[i, 1]), float(w[i, 2])),
+            max_standardized=max_w, flagged=bool(reasons), reason="; ".join(reasons)))
+
+    return Resection(station_enh_m=x[:3].copy(), orientation_rad=float(np.mod(x[3], TWO_PI)),
+                     covariance=cov, sigma0=sigma0, dof=dof, residuals=tuple(residuals),
+                     excluded=tuple(sorted(set(map(str, exclude)))))
+
+
+def suggest_point_to_drop(result: Resection) -> str | None:
+    """The point the crew should consider dropping: the flagged one with the largest |w|, or None.
+
+    Data snooping tests one outlier at a time: drop (or re-measure) this point, recompute with
+    ``resect(..., exclude=...)``, and look again.
+    """
+    flagged = result.flagged_points
+    return flagged[0] if flagged else None
+
+
+def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarray,
+                  tolerance_m: float = 0.002) -> OverlapCheck:
+    """Compare a point measured from two station setups.
+
+    Parameters
+    ----------
+    point_id : the point (e.g. a trolley stop or a CPIII point measured from both stations).
+    first_enh_m, second_enh_m : (3,) its E, N, H from the first and the second setup.
+    tolerance_m : largest acceptable difference per axis.
+
+    Returns
+    -------
+    OverlapCheck with the difference second minus first.
+    """
+    d = np.asarray(second_enh_m, dtype=float).reshape(3) - np.asarray(first_enh_m, dtype=float).reshape(3)
+    return OverlapCheck(point_id=str(point_id), difference_enh_m=d, horizontal_m=float(np.hypot(d[0], d[1])),
+                        within_tolerance=bool(np.all(np.abs(d) <= tolerance_m)), tolerance_m=float(tolerance_m))
