@@ -1,0 +1,65 @@
+"""Error models of Jiang 2017: exact discretisation, observability, closed-form transitions."""
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from trolley import error_models as em
+
+
+@given(v=st.floats(0.1, 3.0), dt=st.floats(0.01, 100.0))
+@settings(max_examples=40, deadline=None)
+def test_vertical_transition_matches_eq31(v, dt):
+    A, G = em.vertical_matrices(v)
+    F, _ = em.van_loan(A, G, np.diag([1e-12, 0.0]), dt)
+    expected = np.array([[1, v * dt, -0.5 * v * dt**2], [0, 1, -dt], [0, 0, 1]])
+    assert np.allclose(F, expected, rtol=1e-10, atol=1e-12)
+
+
+@given(v=st.floats(0.1, 3.0), psi=st.floats(-np.pi, np.pi), dt=st.floats(0.01, 100.0))
+@settings(max_examples=40, deadline=None)
+def test_level_transition_matches_eq41(v, psi, dt):
+    A, G = em.level_matrices(v * np.cos(psi), v * np.sin(psi))
+    F, _ = em.van_loan(A, G, np.zeros((3, 3)), dt)
+    c, s, t = np.cos(psi), np.sin(psi), dt
+    expected = np.array([
+        [1, 0, v * t * c, v * t * s, -0.5 * v * t**2 * s],
+        [0, 1, v * t * s, -v * t * c, 0.5 * v * t**2 * c],
+        [0, 0, 1, 0, 0], [0, 0, 0, 1, -t], [0, 0, 0, 0, 1]])
+    assert np.allclose(F, expected, rtol=1e-10, atol=1e-10)
+
+
+@given(v=st.floats(0.1, 3.0), dt=st.floats(0.1, 100.0))
+@settings(max_examples=30, deadline=None)
+def test_vertical_process_noise_closed_form(v, dt):
+    # Jiang 2017 Eq. 33 with P(0)=0: the ARW terms sigma^2 v^2 t^3/3, sigma^2 v t^2/2, sigma^2 t
+    q = 2.0e-6**2
+    A, G = em.vertical_matrices(v)
+    _, Qd = em.van_loan(A, G, np.diag([q, 0.0]), dt)
+    assert np.isclose(Qd[0, 0], q * v**2 * dt**3 / 3, rtol=1e-9)
+    assert np.isclose(Qd[0, 1], q * v * dt**2 / 2, rtol=1e-9)
+    assert np.isclose(Qd[1, 1], q * dt, rtol=1e-9)
+    assert abs(Qd[2, 2]) < 1e-30
+
+
+def test_van_loan_is_batched():
+    v = np.array([0.5, 1.0, 2.0])
+    A, G = em.vertical_matrices(v)
+    F, Qd = em.van_loan(A, G, np.diag([1e-10, 1e-16]), np.array([1.0, 2.0, 3.0]))
+    for i, (vi, dti) in enumerate(zip(v, [1.0, 2.0, 3.0])):
+        Fi, Qi = em.van_loan(em.vertical_matrices(vi)[0], G, np.diag([1e-10, 1e-16]), dti)
+        assert np.allclose(F[i], Fi) and np.allclose(Qd[i], Qi, rtol=1e-12, atol=0)
+
+
+def test_observability_ranks_eq26():
+    assert em.observability_ranks(1.0, 0.3) == (3, 5)
+    assert em.observability_ranks(0.7, 0.0) == (3, 5)
+
+
+def test_heading_error_and_equivalent_bias_hand_values():
+    from trolley import units
+    lat = np.deg2rad(60.0)  # cos = 1/2
+    b = units.deg_h_to_rad_s(0.03)
+    phi = em.heading_error_from_gyrocompassing(b, lat)
+    assert np.isclose(phi, b / (units.EARTH_RATE_RAD_S * 0.5))
+    # the Earth-rate projection through that heading error adds exactly the bias again
+    assert np.isclose(em.equivalent_gyro_bias(b, phi, lat), 2 * b)

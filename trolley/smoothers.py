@@ -1,0 +1,253 @@
+"""Forward Kalman filter, RTS smoother and two-filter smoother on a node grid (Jiang 2017 Sec. 4.3).
+
+The model is linear and time varying: between node ``k`` and ``k+1`` the state moves by
+``x[k+1] = F[k] x[k] + w[k]``, ``w[k] ~ N(0, Q[k])``; at some nodes position fixes arrive,
+``z = H x + v``, ``v ~ N(0, R)``. The forward filter is filterpy's ``KalmanFilter``; the RTS
+smoother is filterpy's ``rts_smoother`` (Jiang 2017 Eq. 28). filterpy has no two-filter smoother,
+so :func:`two_filter_smooth` is ours: a backward information filter, which starts from zero
+information at the last node as Jiang 2017 requires (Eq. 34-35), combined with the forward
+posterior by Eq. 27.
+
+Fixes are gated by a chi-square test on the normalised innovation squared (NIS); a rejected fix
+is kept in the result with its NIS, never silently dropped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.stats
+
+
+@dataclass
+class Measurements:
+    """Measurements at nodes, in node order (several at one node are applied in turn).
+
+    Attributes
+    ----------
+    node : (M,) int index of the node each measurement belongs to.
+    z : (M, m) measured values (innovation form: the dead-reckoning error seen by the fix).
+    H : (M, m, n) or (m, n) measurement matrices.
+    R : (M, m, m) or (m, m) measurement noise covariances.
+    """
+
+    node: np.ndarray
+    z: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.node = np.asarray(self.node, dtype=int)
+        self.z = np.atleast_2d(np.asarray(self.z, dtype=float))
+        M = self.node.shape[0]
+        if self.z.shape[0] != M:
+            self.z = self.z.reshape(M, -1)
+        H = np.asarray(self.H, dtype=float)
+        R = np.asarray(self.R, dtype=float)
+        self.H = np.broadcast_to(H, (M,) + H.shape[-2:]).copy()
+        self.R = np.broadcast_to(R, (M,) + R.shape[-2:]).copy()
+
+    def __len__(self) -> int:
+        return int(self.node.shape[0])
+
+    def subset(self, mask: np.ndarray) -> "Measurements":
+        """The measurements selected by a boolean mask."""
+        return Measurements(self.node[mask], self.z[mask], self.H[mask], self.R[mask])
+
+
+@dataclass
+class ForwardResult:
+    """Output of :func:`forward_filter`.
+
+    Attributes
+    ----------
+    x_prior, P_prior : (K, n), (K, n, n) predicted state and covariance at each node.
+    x_post, P_post : (K, n), (K, n, n) state and covariance after the node's measurements.
+    innovation : (M, m) innovation of each measurement (z - H x before it).
+    innovation_cov : (M, m, m) its covariance S.
+    nis : (M,) normalised innovation squared y^T S^-1 y.
+    accepted : (M,) bool, False where the gate rejected the measurement.
+    """
+
+    x_prior: np.ndarray
+    P_prior: np.ndarray
+    x_post: np.ndarray
+    P_post: np.ndarray
+    innovation: np.ndarray
+    innovation_cov: np.ndarray
+    nis: np.ndarray
+    accepted: np.ndarray
+
+
+@dataclass
+class SmoothedResult:
+    """Smoothed state and covariance at every node."""
+
+    x: np.ndarray
+    P: np.ndarray
+
+
+def gate_threshold(probability: float, dof: int) -> float:
+    """Chi-square gate: NIS above this is rejected with false-alarm rate 1 - probability."""
+    return float(scipy.stats.chi2.ppf(probability, dof))
+
+
+def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+                   meas: Measurements, gate_probability: float | None = 0.9999,
+                   force_accept: np.ndarray | None = None) -> ForwardResult:
+    """Kalman filter over the node grid with filterpy's ``KalmanFilter``.
+
+    Parameters
+    ----------
+    F, Q : (K-1, n, n) transition and process noise from node k to k+1.
+    x0, P0 : prior state and covariance at node 0 (before its measurements).
+    meas : measurements, sorted by node.
+    gate_probability : chi-square gate probability (None: accept everything).
+    force_accept : optional (M,) bool; True skips the gate for that measurement (the crew chose
+        to accept a suspicious fix).
+
+    Returns
+    -------
+    ForwardResult
+    """
+    from filterpy.kalman import KalmanFilter  # about 1 s to import: only when filtering
+
+    K = F.shape[0] + 1
+    n = x0.shape[0]
+    kf = KalmanFilter(dim_x=n, dim_z=meas.z.shape[1] if len(meas) else 1)
+    kf.x = np.asarray(x0, dtype=float).reshape(n, 1).copy()
+    kf.P = np.asarray(P0, dtype=float).copy()
+    x_prior = np.empty((K, n))
+    P_prior = np.empty((K, n, n))
+    x_post = np.empty((K, n))
+    P_post = np.empty((K, n, n))
+    M = len(meas)
+    innov = np.zeros((M, meas.z.shape[1] if M else 1))
+    S_all = np.zeros((M,) + ((meas.z.shape[1],) * 2 if M else (1, 1)))
+    nis = np.zeros(M)
+    accepted = np.ones(M, dtype=bool)
+    # index of the first measurement at or after each node (measurements are sorted by node)
+    starts = np.searchsorted(meas.node, np.arange(K + 1)) if M else np.zeros(K + 1, dtype=int)
+    for k in range(K):
+        if k > 0:
+            # F and Q change every step: pass them to predict (filterpy keeps them otherwise)
+            kf.predict(F=F[k - 1], Q=Q[k - 1])
+        x_prior[k] = kf.x[:, 0]
+        P_prior[k] = kf.P
+        for j in range(starts[k], starts[k + 1]):
+            H = meas.H[j]
+            R = meas.R[j]
+            z = meas.z[j].reshape(-1, 1)  # column vector: filterpy 2.0 reshapes x otherwise
+            y = z - H @ kf.x
+            S = H @ kf.P @ H.T + R
+            innov[j] = y[:, 0]
+            S_all[j] = S
+            nis[j] = float(y[:, 0] @ np.linalg.solve(S, y[:, 0]))
+            forced = force_accept is not None and bool(force_accept[j])
+            if gate_probability is not None and not forced and nis[j] > gate_threshold(gate_probability, len(z)):
+                accepted[j] = False
+                continue
+            kf.update(z, R=R, H=H)
+        x_post[k] = kf.x[:, 0]
+        P_post[k] = kf.P
+    return ForwardResult(x_prior, P_prior, x_post, P_post, innov, S_all, nis, accepted)
+
+
+def rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult,
+               scale: np.ndarray | None = None) -> SmoothedResult:
+    """Rauch-Tung-Striebel smoother (Jiang 2017 Eq. 28) with filterpy's ``rts_smoother``.
+
+    filterpy's procedural ``rts_smoother(Xs, Ps, Fs, Qs)`` uses ``Fs[k]`` as the transition from
+    node k to k+1, which is our convention; the last entry is unused.
+
+    Parameters
+    ----------
+    F, Q : (K-1, n, n) model.
+    fwd : forward filter result.
+    scale : optional (n,) state scaling, as in :func:`two_filter_smooth`. The RTS gain inverts the
+        predicted covariance; with states from 1e-3 m to 1e-7 rad/s unscaled, that inverse loses
+        up to six digits of the smoothed covariance (checked against 40-digit arithmetic in
+        ``tests/test_smoothers.py``); scaled, it keeps eleven.
+    """
+    from filterpy.kalman import rts_smoother
+
+    K, n = fwd.x_post.shape
+    d = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
+    Dinv = 1.0 / d
+    Fs = np.concatenate([F * Dinv[None, :, None] * d[None, None, :], np.eye(n)[None]], axis=0)
+    Qs = np.concatenate([Q * Dinv[None, :, None] * Dinv[None, None, :], np.zeros((1, n, n))], axis=0)
+    Pf = fwd.P_post * Dinv[None, :, None] * Dinv[None, None, :]
+    x, _, C, _ = rts_smoother(fwd.x_post * Dinv[None, :], Pf, Fs, Qs)
+    # filterpy updates the covariance as P_f + C (P_s' - P_pred) C^T: a difference of nearly
+    # equal matrices when a fix shrinks the covariance by orders of magnitude (it lost up to six
+    # digits against 40-digit arithmetic). With filterpy's gains C, the algebraically equal
+    # Joseph-type form (I - C F) P_f (I - C F)^T + C (Q + P_s') C^T adds only positive terms.
+    P = np.empty_like(Pf)
+    P[-1] = Pf[-1]
+    eye = np.eye(n)
+    for k in range(K - 2, -1, -1):
+        IKF = eye - C[k] @ Fs[k]
+        P[k] = IKF @ Pf[k] @ IKF.T + C[k] @ (Qs[k] + P[k + 1]) @ C[k].T
+    P = 0.5 * (P + np.swapaxes(P, -1, -2))
+    return SmoothedResult(x * d[None, :], P * d[None, :, None] * d[None, None, :])
+
+
+def two_filter_smooth(F: np.ndarray, Q: np.ndarray, meas: Measurements,
+                      fwd: ForwardResult, scale: np.ndarray | None = None) -> SmoothedResult:
+    """Two-filter smoother (Jiang 2017 Eq. 27): forward posterior fused with a backward filter.
+
+    The backward filter runs in information form (Y, y) from the last node, where it starts with
+    zero information (Jiang 2017 Eq. 35: P_b^-1(T) = 0 before the last fix). Its prediction from
+    node k+1 to k uses ``(Y^-1 + Q)^-1 = (I + Y Q)^-1 Y``, valid for singular Y, so neither F nor
+    Y is inverted. filterpy has no two-filter smoother, hence this implementation.
+
+    Parameters
+    ----------
+    F, Q : (K-1, n, n) model, as for :func:`forward_filter`.
+    meas : the measurements the forward filter accepted (use ``meas.subset(fwd.accepted)``).
+    fwd : forward filter result.
+    scale : optional (n,) state scaling (e.g. the square root of diag P0). The algebra is done on
+        ``x / scale`` so that states of very different sizes (mm and 1e-7 rad/s) do not ruin the
+        conditioning of the information matrices; the result is scaled back.
+
+    Returns
+    -------
+    SmoothedResult
+    """
+    K, n = fwd.x_post.shape
+    d = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
+    Dinv = 1.0 / d
+    # scaled model: x' = D^-1 x
+    Fs = F * Dinv[None, :, None] * d[None, None, :]
+    Qs = Q * Dinv[None, :, None] * Dinv[None, None, :]
+    Hs = meas.H * d[None, None, :]
+    Rinv = np.linalg.inv(meas.R)
+    HtRinvH = np.swapaxes(Hs, -1, -2) @ Rinv @ Hs
+    HtRinvz = (np.swapaxes(Hs, -1, -2) @ Rinv @ meas.z[:, :, None])[:, :, 0]
+    # information of all measurements at each node, summed
+    node_Y = np.zeros((K, n, n))
+    node_y = np.zeros((K, n))
+    np.add.at(node_Y, meas.node, HtRinvH)
+    np.add.at(node_y, meas.node, HtRinvz)
+
+    Yb = np.zeros((K, n, n))  # backward information at node k from nodes > k (the "prior")
+    yb = np.zeros((K, n))
+    Y = node_Y[K - 1].copy()
+    y = node_y[K - 1].copy()
+    eye = np.eye(n)
+    for k in range(K - 2, -1, -1):
+        B = np.linalg.solve(eye + Y @ Qs[k], np.column_stack([Y, y]))  # (I + Y Q)^-1 [Y, y]
+        M_ = B[:, :n]
+        Yb[k] = Fs[k].T @ M_ @ Fs[k]
+        yb[k] = Fs[k].T @ B[:, n]
+        Y = Yb[k] + node_Y[k]
+        y = yb[k] + node_y[k]
+
+    Pf = fwd.P_post * Dinv[None, :, None] * Dinv[None, None, :]
+    xf = fwd.x_post * Dinv[None, :]
+    Pf_inv = np.linalg.inv(Pf)
+    info = Pf_inv + Yb
+    Ps = np.linalg.inv(info)
+    Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
+    xs = (Ps @ ((Pf_inv @ xf[:, :, None])[:, :, 0] + yb)[:, :, None])[:, :, 0]
+    return SmoothedResult(xs * d[None, :], Ps * d[None, :, None] * d[None, None, :])
