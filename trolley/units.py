@@ -75,3 +75,13 @@ def arcsec_to_rad(x):
 def gon_to_rad(x):
     """Gon (grads) to radians."""
     return np.asarray(x, dtype=float) * (np.pi / 200.0) if np.ndim(x) else float(x) * (np.pi / 200.0)
+
+
+def ratio_to_mm_per_m(x):
+    """Dimensionless rate (m/m, e.g. twist or gauge change rate) to mm/m (per mille)."""
+    return np.asarray(x, dtype=float) * 1e3 if np.ndim(x) else float(x) * 1e3
+
+
+def mm_per_m_to_ratio(x):
+    """Rate in mm/m (per mille) to a dimensionless ratio (m/m)."""
+    return np.asarray(x, dtype=float) * 1e-3 if np.ndim(x) else float(x) * 1e-3
