@@ -1,0 +1,179 @@
+"""Design geometry evaluation: hand cases, an independent quadrature, continuity, derivatives."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from scipy.integrate import quad
+from scipy.special import fresnel
+
+from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line,
+                               VerticalProfile)
+
+
+def _quad_position(h0, k0, c, u):
+    """Independent reference: numerical quadrature of (sin, cos) of the heading."""
+    def heading(v):
+        return h0 + k0 * v + 0.5 * c * v * v
+    e = quad(lambda v: math.sin(heading(v)), 0.0, u, epsabs=1e-12, epsrel=1e-13, limit=200)[0]
+    n = quad(lambda v: math.cos(heading(v)), 0.0, u, epsabs=1e-12, epsrel=1e-13, limit=200)[0]
+    return e, n
+
+
+def demo_like() -> Alignment:
+    k = 1.0 / 3000.0
+    hz = HorizontalAlignment.from_elements(
+        500000.0, 3100000.0, 1.0,
+        [Line(200.0), Clothoid(150.0, 0.0, k), Arc(500.0, k), Clothoid(150.0, k, 0.0), Line(300.0)],
+        start_chainage_m=1000.0)
+    prof = VerticalProfile.from_pvis([1000.0, 1400.0, 1900.0, 2300.0], [50.0, 53.2, 50.7, 51.9],
+                                     [0.0, 260.0, 160.0, 0.0])
+    cant = CantProfile.from_stations([1200.0, 1350.0, 1850.0, 2000.0], [0.0, 0.08, 0.08, 0.0])
+    return Alignment(hz, prof, cant, name="T")
+
+
+def test_straight_line_hand_values():
+    h = math.radians(30.0)
+    al = Alignment(HorizontalAlignment.from_elements(10.0, 20.0, h, [Line(100.0)], 5.0))
+    r = al.evaluate(np.array([5.0, 55.0, 105.0]))
+    np.testing.assert_allclose(r.E_m, 10.0 + np.array([0.0, 25.0, 50.0]), atol=1e-12)
+    np.testing.assert_allclose(r.N_m, 20.0 + np.array([0.0, 50.0, 100.0]) * math.cos(h), atol=1e-12)
+    np.testing.assert_allclose(r.heading_rad, h, atol=1e-15)
+    for arr in (r.rho_h_1_m, r.H_m, r.slope_rad, r.cant_rad, r.rho_v_1_m, r.rho_tw_1_m):
+        assert np.all(arr == 0.0)
+    assert al.start_chainage_m == 5.0 and al.end_chainage_m == 105.0
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_quarter_circle_endpoint(sign):
+    R = 250.0
+    hz = HorizontalAlignment.from_elements(0.0, 0.0, 0.0, [Arc(math.pi * R / 2, sign / R)])
+    r = hz.evaluate(np.array([math.pi * R / 2, math.pi * R / 4]))
+    # heading north, turning right (sign +) ends at (E, N) = (R, R) heading east
+    np.testing.assert_allclose(r.E_m, sign * R * np.array([1.0, 1 - math.sqrt(0.5)]), atol=1e-10)
+    np.testing.assert_allclose(r.N_m, R * np.array([1.0, math.sqrt(0.5)]), atol=1e-10)
+    np.testing.assert_allclose(r.heading_rad[0], (sign * math.pi / 2) % (2 * math.pi), atol=1e-14)
+    np.testing.assert_allclose(r.rho_h_1_m, sign / R)
+
+
+def test_clothoid_endpoint_fresnel_closed_form_and_check_values():
+    # protocols.md 3.5: R = 600 m, L = 60 m: x = 59.985, y = 0.9998, tau = 0.05 rad
+    R, L = 600.0, 60.0
+    A = math.sqrt(R * L)
+    hz = HorizontalAlignment.from_elements(0.0, 0.0, 0.0, [Clothoid(L, 0.0, 1.0 / R)])
+    r = hz.evaluate(np.array([L]))
+    S, C = fresnel(L / (A * math.sqrt(math.pi)))
+    x, y = A * math.sqrt(math.pi) * C, A * math.sqrt(math.pi) * S
+    assert abs(r.N_m[0] - x) < 1e-12 and abs(r.E_m[0] - y) < 1e-12
+    # the textbook series x = L - L^5/(40 A^4), y = L^3/(6 A^2) - L^7/(336 A^6): independent
+    assert abs(x - (L - L**5 / (40 * A**4) + L**9 / (3456 * A**8))) < 1e-9
+    assert abs(y - (L**3 / (6 * A**2) - L**7 / (336 * A**6) + L**11 / (42240 * A**10))) < 1e-9
+    assert abs(r.N_m[0] - 59.985) < 5e-4 and abs(r.E_m[0] - 0.9998) < 5e-5
+    assert abs(r.heading_rad[0] - L / (2 * R)) < 1e-15
+
+
+@pytest.mark.parametrize("k0,k1", [(0.0, 1 / 600), (1 / 600, 0.0), (-1 / 400, -1 / 900),
+                                   (1 / 500, -1 / 700), (1 / 300, 1 / 300 + 1e-12),
+                                   (-2e-3, -2e-3 - 1e-17)])
+def test_clothoid_positions_match_quadrature(k0, k1):
+    L, h0 = 180.0, 2.0
+    hz = HorizontalAlignment.from_elements(0.0, 0.0, h0, [Clothoid(L, k0, k1)])
+    u = np.array([0.0, 1e-3, 37.0, 90.0, 179.0, L])
+    r = hz.evaluate(u)
+    for ui, e, n in zip(u, r.E_m, r.N_m):
+        e_ref, n_ref = _quad_position(h0, k0, (k1 - k0) / L, ui)
+        assert abs(e - e_ref) < 1e-9 and abs(n - n_ref) < 1e-9
+    np.testing.assert_allclose(r.rho_h_1_m, k0 + (k1 - k0) / L * u, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(r.drho_h_ds_1_m2, (k1 - k0) / L, rtol=1e-12, atol=1e-30)
+
+
+def test_continuity_at_element_joins():
+    al = demo_like()
+    joins = al.horizontal.element_chainage_m[1:-1]
+    eps = 1e-7
+    a, b = al.evaluate(joins - eps), al.evaluate(joins + eps)
+    assert np.max(np.hypot(a.E_m - b.E_m, a.N_m - b.N_m)) < 3e-7
+    assert np.max(np.abs(a.heading_rad - b.heading_rad)) < 1e-10
+    # curvature is continuous too (a designed transition), its derivative jumps
+    assert np.max(np.abs(a.rho_h_1_m - b.rho_h_1_m)) < 1e-12
+
+
+def test_parabolic_vertical_curve_hand_values():
+    g1, g2, L = 0.008, -0.005, 260.0
+    prof = VerticalProfile.from_pvis([0.0, 400.0, 900.0], [50.0, 53.2, 50.7], [0.0, L, 0.0])
+    al = Alignment(HorizontalAlignment.from_elements(0, 0, 0, [Line(900.0)]), prof)
+    s = np.array([400.0 - L / 2, 400.0, 400.0 + L / 2, 100.0, 800.0])
+    r = al.evaluate(s)
+    expected = [53.2 - g1 * L / 2, 53.2 + (g2 - g1) * L / 8, 53.2 + g2 * L / 2,
+                50.0 + 100 * g1, 53.2 + g2 * 400]
+    np.testing.assert_allclose(r.H_m, expected, atol=1e-12)
+    np.testing.assert_allclose(np.tan(r.slope_rad), [g1, (g1 + g2) / 2, g2, g1, g2], atol=1e-15)
+    # vertical radius L / |dg| = 20 000 m on the curve (crest: negative curvature)
+    assert abs(r.rho_v_1_m[1] * (1 + ((g1 + g2) / 2) ** 2) - (g2 - g1) / L) < 1e-15
+    assert r.rho_v_1_m[3] == 0.0 and r.rho_v_1_m[4] == 0.0
+
+
+def test_cant_linear_and_constant_outside():
+    cant = CantProfile.from_stations([200.0, 350.0, 850.0, 1000.0], [0.0, 0.08, 0.08, 0.0])
+    c, tw = cant.evaluate(np.array([0.0, 200.0, 275.0, 600.0, 925.0, 2000.0]))
+    np.testing.assert_allclose(c, [0.0, 0.0, 0.04, 0.08, 0.04, 0.0], atol=1e-15)
+    np.testing.assert_allclose(tw, [0.0, 0.08 / 150, 0.08 / 150, 0.0, -0.08 / 150, 0.0], atol=1e-18)
+
+
+def test_shapes_and_scalar():
+    al = demo_like()
+    r = al.evaluate(np.full((3, 4), 1500.0))
+    assert r.E_m.shape == (3, 4) and r.rho_tw_1_m.shape == (3, 4)
+    r0 = al.evaluate(1500.0)
+    assert np.shape(r0.E_m) == () and abs(float(r0.E_m) - r.E_m[0, 0]) == 0.0
+
+
+def test_invalid_inputs_raise():
+    with pytest.raises(ValueError):
+        Line(0.0)
+    with pytest.raises(ValueError):
+        Arc(10.0, float("nan"))
+    with pytest.raises(ValueError):
+        VerticalProfile.from_pvis([0, 100, 200], [0, 1, 0], [0, 250, 0])  # past the ends
+    with pytest.raises(ValueError):
+        VerticalProfile.from_pvis([0, 100, 150, 300], [0, 1, 0, 1], [0, 80, 80, 0])  # overlap
+    with pytest.raises(ValueError):
+        VerticalProfile.from_pvis([0, 100], [0, 1], [10, 0])  # curve at the first PVI
+    with pytest.raises(ValueError):
+        CantProfile.from_stations([0, 0], [0, 0.1])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(1000.0, 2300.0), st.sampled_from(["E", "heading", "rho_h", "H", "slope", "cant"]))
+def test_derivatives_are_consistent(s, which):
+    """Central differences of the returned quantities agree with the returned derivatives."""
+    al = demo_like()
+    h = 1e-3
+    breaks = np.concatenate([al.horizontal.element_chainage_m, al.profile.chainage_m
+                             - al.profile.curve_length_m / 2, al.profile.chainage_m
+                             + al.profile.curve_length_m / 2, al.cant.chainage_m])
+    if np.min(np.abs(breaks - s)) < 2 * h:
+        s += 5 * h  # a derivative jumps at a break: step off it
+    r = al.evaluate(np.array([s - h, s, s + h]))
+    d = lambda x: (x[2] - x[0]) / (2 * h)  # noqa: E731
+    if which == "E":
+        # grid values ~3e6 m round at 5e-10 m: a longer step for positions (E''' ~ rho^2)
+        hp = 0.1
+        if np.min(np.abs(breaks - s)) < 2 * hp:
+            s += 3 * hp
+            r = al.evaluate(np.array([s - h, s, s + h]))
+        rp = al.evaluate(np.array([s - hp, s + hp]))
+        assert abs((rp.E_m[1] - rp.E_m[0]) / (2 * hp) - math.sin(r.heading_rad[1])) < 2e-8
+        assert abs((rp.N_m[1] - rp.N_m[0]) / (2 * hp) - math.cos(r.heading_rad[1])) < 2e-8
+    elif which == "heading":
+        assert abs(d(np.unwrap(r.heading_rad)) - r.rho_h_1_m[1]) < 1e-10
+    elif which == "rho_h":
+        assert abs(d(r.rho_h_1_m) - r.drho_h_ds_1_m2[1]) < 1e-12
+    elif which == "H":
+        assert abs(d(r.H_m) - math.tan(r.slope_rad[1])) < 1e-9
+    elif which == "slope":
+        assert abs(d(r.slope_rad) - r.rho_v_1_m[1]) < 1e-10
+    else:
+        assert abs(d(r.cant_rad) - r.rho_tw_1_m[1]) < 1e-12

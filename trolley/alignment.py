@@ -1,0 +1,710 @@
+"""Design track geometry: horizontal alignment, vertical profile and applied cant.
+
+The horizontal alignment is a chain of straights, circular arcs and clothoid transitions
+(curvature linear in chainage). Positions are exact: arcs in closed form, clothoids with the
+Fresnel integrals (``scipy.special.fresnel``), never a polyline. The vertical profile is a chain
+of constant grades joined by symmetric parabolic vertical curves centred on the PVIs; the
+applied cant is linear between cant stations. Evaluation and projection are vectorised over
+chainage / point arrays.
+
+The curvatures returned by :meth:`Alignment.evaluate` are the ones that drive the track-frame
+kinematics of Escalona et al. (2021), Eq. 4-5: horizontal curvature ``rho_h``, vertical
+curvature ``rho_v``, twist curvature ``rho_tw`` and the spatial derivative of the horizontal
+curvature ``rho_h'`` (``drho_h_ds``).
+
+Conventions (see ``docs/conventions.md``, section "Design geometry"):
+
+- grid coordinates E, N, H (H up); ``heading_rad`` is the grid bearing, clockwise from grid
+  north towards east, in [0, 2 pi) (the yaw of an NED/FRD frame);
+- ``rho_h = d(heading)/ds`` > 0 when the track turns right (clockwise seen from above);
+- ``slope_rad = arctan(dH/ds)`` > 0 when rising; ``rho_v = d(slope)/ds``;
+- ``cant_rad`` is the roll of the track plane in the FRD trolley frame, > 0 when the LEFT rail
+  is higher (the outer rail of a right-hand curve); ``rho_tw = d(cant)/ds``;
+- every derivative is taken with respect to the chainage ``s`` (the horizontal arc length of
+  the alignment, as in design practice); with grades of 1 % the 3-D arc length differs from it
+  by 5e-5 relative.
+- Outside [start, end] the alignment continues on its end tangents (straight, constant grade,
+  constant cant); :class:`Projection` flags such points with ``inside = False``.
+
+References
+----------
+Escalona, J. L., Urda, P., Munoz, S. (2021). A track geometry measuring system based on
+multibody kinematics, inertial sensors and computer vision. Sensors 21(3), 683. Eq. 4-5.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence, Union
+
+import numpy as np
+from scipy.special import fresnel
+
+__all__ = [
+    "Line",
+    "Arc",
+    "Clothoid",
+    "Element",
+    "HorizontalAlignment",
+    "HorizontalSample",
+    "VerticalProfile",
+    "CantProfile",
+    "Alignment",
+    "AlignmentSample",
+    "Projection",
+]
+
+#: Clothoids with |dk/ds| below this (1/m^2) are evaluated as arcs (position error < 1e-9 m
+#: for elements up to 1 km).
+_CLOTHOID_MIN_RATE_1_M2 = 1e-20
+#: Above this Fresnel argument the Fresnel differences lose digits; use Gauss-Legendre instead.
+_FRESNEL_MAX_ARG = 20.0
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(32)
+_TWO_PI = 2.0 * np.pi
+
+
+# --------------------------------------------------------------------------------------------
+# horizontal elements
+# --------------------------------------------------------------------------------------------
+def _check_length(length_m: float, what: str) -> None:
+    if not (np.isfinite(length_m) and length_m > 0.0):
+        raise ValueError(f"{what}: length_m must be finite and > 0, got {length_m!r}")
+
+
+def _check_finite(value: float, what: str) -> None:
+    if not np.isfinite(value):
+        raise ValueError(f"{what} must be finite, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Line:
+    """Straight: zero curvature.
+
+    Attributes
+    ----------
+    length_m : length along the chainage, m (> 0).
+    """
+
+    length_m: float
+
+    def __post_init__(self) -> None:
+        _check_length(self.length_m, "Line")
+
+    @property
+    def curvature_start_1_m(self) -> float:
+        return 0.0
+
+    @property
+    def curvature_end_1_m(self) -> float:
+        return 0.0
+
+
+@dataclass(frozen=True)
+class Arc:
+    """Circular arc of constant curvature.
+
+    Attributes
+    ----------
+    length_m : arc length, m (> 0).
+    curvature_1_m : 1/R, positive when turning right (clockwise seen from above).
+    """
+
+    length_m: float
+    curvature_1_m: float
+
+    def __post_init__(self) -> None:
+        _check_length(self.length_m, "Arc")
+        _check_finite(self.curvature_1_m, "Arc curvature_1_m")
+
+    @property
+    def curvature_start_1_m(self) -> float:
+        return float(self.curvature_1_m)
+
+    @property
+    def curvature_end_1_m(self) -> float:
+        return float(self.curvature_1_m)
+
+
+@dataclass(frozen=True)
+class Clothoid:
+    """Clothoid transition: curvature linear in chainage from start to end value.
+
+    Attributes
+    ----------
+    length_m : length, m (> 0).
+    curvature_start_1_m, curvature_end_1_m : curvature at the two ends, 1/m, positive when
+        turning right. The clothoid parameter is A = sqrt(L / |k_end - k_start|).
+    """
+
+    length_m: float
+    curvature_start_1_m: float
+    curvature_end_1_m: float
+
+    def __post_init__(self) -> None:
+        _check_length(self.length_m, "Clothoid")
+        _check_finite(self.curvature_start_1_m, "Clothoid curvature_start_1_m")
+        _check_finite(self.curvature_end_1_m, "Clothoid curvature_end_1_m")
+
+
+Element = Union[Line, Arc, Clothoid]
+
+
+def _displacement(u, heading0, k0, c):
+    """Complex displacement (N + iE) from an element start after a local length ``u``.
+
+    Integrates exp(i theta(v)) for v in [0, u], theta(v) = heading0 + k0 v + c v^2 / 2: in
+    closed form for arcs/straights (chord along the mean direction), with the Fresnel integrals
+    for clothoids. All arguments broadcast; ``u`` may be negative.
+    """
+    u = np.asarray(u, dtype=float)
+    heading0, k0, c = np.broadcast_arrays(np.asarray(heading0, float), np.asarray(k0, float),
+                                          np.asarray(c, float))
+    heading0 = np.broadcast_to(heading0, u.shape)
+    k0 = np.broadcast_to(k0, u.shape)
+    c = np.broadcast_to(c, u.shape)
+    out = np.empty(u.shape, dtype=complex)
+
+    arc = np.abs(c) < _CLOTHOID_MIN_RATE_1_M2
+    if np.any(arc):
+        ua, ka = u[arc], k0[arc]
+        # chord 2 sin(k u / 2) / k, along the mean direction; np.sinc keeps k -> 0 exact
+        chord = ua * np.sinc(ka * ua / _TWO_PI)
+        out[arc] = chord * np.exp(1j * (heading0[arc] + 0.5 * ka * ua))
+
+    clo = ~arc
+    if np.any(clo):
+        uc, kc, cc, hc = u[clo], k0[clo], c[clo], heading0[clo]
+        sg = np.sign(cc)
+        scale = np.sqrt(np.abs(cc) / np.pi)
+        w0 = kc / cc  # distance from the zero-curvature point of the clothoid to the start
+        t0 = scale * w0
+        t1 = scale * (uc + w0)
+        res = np.empty(uc.shape, dtype=complex)
+        fres = (np.abs(t0) <= _FRESNEL_MAX_ARG) & (np.abs(t1) <= _FRESNEL_MAX_ARG)
+        if np.any(fres):
+            s0, c0 = fresnel(t0[fres])
+            s1, c1 = fresnel(t1[fres])
+            phi0 = hc[fres] - 0.5 * kc[fres] * w0[fres]
+            res[fres] = (np.exp(1j * phi0) / scale[fres]
+                         * ((c1 - c0) + 1j * sg[fres] * (s1 - s0)))
+        gl = ~fres
+        if np.any(gl):
+            # near-circular clothoid: the Fresnel differences would cancel; Gauss-Legendre
+            # with 32 nodes is exact to rounding for turning angles up to several radians
+            ug = uc[gl][:, None]
+            v = 0.5 * ug * (_GL_NODES[None, :] + 1.0)
+            theta = hc[gl][:, None] + kc[gl][:, None] * v + 0.5 * cc[gl][:, None] * v * v
+            res[gl] = 0.5 * uc[gl] * (np.exp(1j * theta) @ _GL_WEIGHTS)
+        out[clo] = res
+    return out
+
+
+@dataclass
+class HorizontalSample:
+    """Horizontal alignment evaluated at chainages (arrays of the shape of ``s``)."""
+
+    E_m: np.ndarray
+    N_m: np.ndarray
+    heading_rad: np.ndarray
+    rho_h_1_m: np.ndarray
+    drho_h_ds_1_m2: np.ndarray
+
+
+class HorizontalAlignment:
+    """A chain of :class:`Line`, :class:`Arc` and :class:`Clothoid` elements.
+
+    Build with :meth:`from_elements`. Each element starts where the previous ends, with the
+    same heading (G1 continuity by construction).
+
+    Attributes
+    ----------
+    elements : tuple of the elements.
+    start_E_m, start_N_m, start_heading_rad, start_chainage_m : start of the first element.
+    element_chainage_m : (n+1,) chainage of each element start, and of the end.
+    element_E_m, element_N_m, element_heading_rad : (n+1,) position and heading at the same
+        stations (heading not wrapped).
+    """
+
+    def __init__(self, start_E_m: float, start_N_m: float, start_heading_rad: float,
+                 elements: Sequence[Element], start_chainage_m: float = 0.0) -> None:
+        elements = tuple(elements)
+        if not elements:
+            raise ValueError("a horizontal alignment needs at least one element")
+        for i, el in enumerate(elements):
+            if not isinstance(el, (Line, Arc, Clothoid)):
+                raise TypeError(f"element {i} is {type(el).__name__}, expected Line, Arc or Clothoid")
+        for name, v in (("start_E_m", start_E_m), ("start_N_m", start_N_m),
+                        ("start_heading_rad", start_heading_rad),
+                        ("start_chainage_m", start_chainage_m)):
+            _check_finite(float(v), name)
+        self.elements = elements
+        self.start_E_m = float(start_E_m)
+        self.start_N_m = float(start_N_m)
+        self.start_heading_rad = float(start_heading_rad)
+        self.start_chainage_m = float(start_chainage_m)
+
+        n = len(elements)
+        lengths = np.array([el.length_m for el in elements], dtype=float)
+        self._k0 = np.array([el.curvature_start_1_m for el in elements], dtype=float)
+        k1 = np.array([el.curvature_end_1_m for el in elements], dtype=float)
+        self._c = (k1 - self._k0) / lengths
+        self._length = lengths
+        s = np.empty(n + 1)
+        s[0] = self.start_chainage_m
+        s[1:] = self.start_chainage_m + np.cumsum(lengths)
+        h = np.empty(n + 1)
+        z = np.empty(n + 1, dtype=complex)  # N + iE relative to the start point (keeps digits)
+        h[0] = self.start_heading_rad
+        z[0] = 0.0
+        for i in range(n):  # a handful of elements: chain their end states
+            L = lengths[i]
+            z[i + 1] = z[i] + _displacement(L, h[i], self._k0[i], self._c[i])
+            h[i + 1] = h[i] + self._k0[i] * L + 0.5 * self._c[i] * L * L
+        self.element_chainage_m = s
+        self.element_heading_rad = h
+        self._origin = complex(self.start_N_m, self.start_E_m)
+        self._z = z
+        self.element_E_m = z.imag + self.start_E_m
+        self.element_N_m = z.real + self.start_N_m
+
+    @classmethod
+    def from_elements(cls, start_E_m: float, start_N_m: float, start_heading_rad: float,
+                      elements: Sequence[Element], start_chainage_m: float = 0.0
+                      ) -> "HorizontalAlignment":
+        """Chain ``elements`` from a start point and grid bearing.
+
+        Parameters
+        ----------
+        start_E_m, start_N_m : grid coordinates of the start, m.
+        start_heading_rad : grid bearing at the start (clockwise from north), rad.
+        elements : sequence of :class:`Line`, :class:`Arc`, :class:`Clothoid`.
+        start_chainage_m : chainage of the start, m.
+
+        Returns
+        -------
+        HorizontalAlignment
+        """
+        return cls(start_E_m, start_N_m, start_heading_rad, elements, start_chainage_m)
+
+    @property
+    def end_chainage_m(self) -> float:
+        return float(self.element_chainage_m[-1])
+
+    @property
+    def length_m(self) -> float:
+        return float(self.element_chainage_m[-1] - self.element_chainage_m[0])
+
+    def element_index(self, s) -> np.ndarray:
+        """Index of the element holding chainage ``s``; -1 before the start, n after the end.
+
+        Element starts belong to the element they start (the end chainage to the last one).
+        """
+        s = np.asarray(s, dtype=float)
+        idx = np.searchsorted(self.element_chainage_m, s, side="right") - 1
+        n = len(self.elements)
+        idx = np.where(s == self.element_chainage_m[-1], n - 1, idx)
+        return np.where(s > self.element_chainage_m[-1], n, idx)
+
+    def _local(self, s):
+        """Per-point element parameters (start state, k0, c) and local length u.
+
+        Before the start / after the end the alignment continues on the end tangents, modelled
+        as straights (k0 = c = 0) from the first element's start / last element's end.
+        """
+        s = np.asarray(s, dtype=float)
+        n = len(self.elements)
+        idx = self.element_index(s)
+        j = np.clip(idx, 0, n)  # n -> the end state (straight continuation)
+        ext = (idx < 0) | (idx >= n)
+        k0 = np.where(ext, 0.0, self._k0[np.minimum(j, n - 1)])
+        c = np.where(ext, 0.0, self._c[np.minimum(j, n - 1)])
+        u = s - self.element_chainage_m[j]
+        return j, u, self._z[j], self.element_heading_rad[j], k0, c
+
+    def _evaluate_complex(self, s):
+        j, u, z0, h0, k0, c = self._local(s)
+        z = z0 + _displacement(u, h0, k0, c)
+        heading = h0 + k0 * u + 0.5 * c * u * u
+        return z, heading, k0 + c * u, c
+
+    def evaluate(self, s) -> HorizontalSample:
+        """Position, grid bearing and curvature at chainages ``s``.
+
+        Parameters
+        ----------
+        s : array_like, chainage, m.
+
+        Returns
+        -------
+        HorizontalSample
+            E, N (m), heading in [0, 2 pi) (rad), rho_h = d(heading)/ds (1/m) and its
+            derivative d(rho_h)/ds (1/m^2) (Escalona 2021, Eq. 4-5).
+        """
+        shape = np.shape(s)
+        z, heading, k, c = self._evaluate_complex(np.asarray(s, dtype=float).ravel())
+        z, heading, k, c = (np.reshape(x, shape) for x in (z, heading, k, np.broadcast_to(c, k.shape)))
+        return HorizontalSample(E_m=z.imag + self.start_E_m, N_m=z.real + self.start_N_m, heading_rad=np.mod(heading, _TWO_PI),
+                                rho_h_1_m=k, drho_h_ds_1_m2=np.array(c, dtype=float))
+
+    def project(self, E_m, N_m, *, tol_m: float = 1e-11, max_iter: int = 30):
+        """Chainage and lateral offset (positive right) of points in plan.
+
+        Each point is first given to the element whose osculating arc (mean curvature of the
+        element, plus the straight continuations beyond the ends) passes nearest to it; Newton's
+        method then solves (P - X(s)) . T(s) = 0 on the exact geometry,
+        ds = a / (1 - rho_h d) with a, d the along-track and lateral offsets, stepping into the
+        neighbouring element when the foot point leaves the current one. All points are iterated
+        together (vectorised); the loop over elements only builds the start guesses.
+
+        Parameters
+        ----------
+        E_m, N_m : array_like of the same shape, grid coordinates, m.
+        tol_m : stop when every chainage update is below this, m.
+        max_iter : iteration cap.
+
+        Returns
+        -------
+        chainage_m, lateral_m : ndarrays of the points' shape.
+        """
+        E = np.asarray(E_m, dtype=float)
+        N = np.asarray(N_m, dtype=float)
+        E, N = np.broadcast_arrays(E, N)
+        shape = E.shape
+        # offsets from the alignment start: keeps ~13 more digits than 3e6-m grid values
+        p = ((N - self.start_N_m) + 1j * (E - self.start_E_m)).ravel()
+        s = self._seed(p)
+        active = np.arange(p.size)
+        for _ in range(max_iter):
+            sa, pa = s[active], p[active]
+            z, heading, k, _ = self._evaluate_complex(sa)
+            local = (pa - z) * np.exp(-1j * heading)
+            denom = 1.0 - k * local.imag
+            # a point near a centre of curvature has no unique foot point; keep the step sane
+            denom = np.where(np.abs(denom) < 1e-3, np.copysign(1e-3, denom), denom)
+            ds = local.real / denom
+            s[active] = sa + ds
+            active = active[np.abs(ds) > tol_m]
+            if active.size == 0:
+                break
+        z, heading, _, _ = self._evaluate_complex(s)
+        lateral = ((p - z) * np.exp(-1j * heading)).imag
+        return s.reshape(shape), lateral.reshape(shape)
+
+    def _seed(self, p: np.ndarray) -> np.ndarray:
+        """Start chainages for Newton: nearest element by its osculating-arc approximation."""
+        n = len(self.elements)
+        best_d2 = np.full(p.shape, np.inf)
+        best_s = np.zeros(p.shape)
+        # candidates: -1 = straight before the start, 0..n-1 elements, n = straight after end
+        for j in range(-1, n + 1):
+            if j == -1:
+                z0, h0, km, lo, hi = self._z[0], self.element_heading_rad[0], 0.0, -np.inf, 0.0
+                s0 = self.element_chainage_m[0]
+            elif j == n:
+                z0, h0, km, lo, hi = self._z[n], self.element_heading_rad[n], 0.0, 0.0, np.inf
+                s0 = self.element_chainage_m[n]
+            else:
+                L = self._length[j]
+                z0, h0 = self._z[j], self.element_heading_rad[j]
+                km = self._k0[j] + 0.5 * self._c[j] * L
+                lo, hi, s0 = 0.0, L, self.element_chainage_m[j]
+            t0 = np.exp(1j * h0)
+            if km == 0.0 or abs(km) * (hi - lo) < 1e-9:  # straight (or so flat that the centre is useless)
+                u = ((p - z0) * np.conj(t0)).real
+            else:
+                centre = z0 + 1j * t0 / km
+                u = np.angle((p - centre) / (z0 - centre)) / km
+            u = np.clip(u, lo, hi)
+            approx = z0 + _displacement(u, h0, km, 0.0)
+            d2 = np.abs(p - approx) ** 2
+            better = d2 < best_d2
+            best_d2 = np.where(better, d2, best_d2)
+            best_s = np.where(better, s0 + u, best_s)
+        return best_s
+
+
+# --------------------------------------------------------------------------------------------
+# vertical profile
+# --------------------------------------------------------------------------------------------
+class VerticalProfile:
+    """Grades between PVIs, joined by symmetric parabolic vertical curves centred on the PVIs.
+
+    Build with :meth:`from_pvis`. Within the curve of PVI i (length L_i, from BVC = s_i - L_i/2
+    to EVC = s_i + L_i/2) the height is H_i + g_{i-1} (s - s_i) + (g_i - g_{i-1}) (s - BVC)^2
+    / (2 L_i); the vertical radius is L_i / |g_i - g_{i-1}|. Beyond the first/last PVI the
+    end grades continue.
+
+    Attributes
+    ----------
+    chainage_m, height_m, curve_length_m : PVI arrays.
+    grade : (n-1,) grades dH/ds between PVIs.
+    """
+
+    def __init__(self, chainage_m, height_m, curve_length_m) -> None:
+        s = np.asarray(chainage_m, dtype=float).ravel()
+        H = np.asarray(height_m, dtype=float).ravel()
+        L = np.asarray(curve_length_m, dtype=float).ravel()
+        if not (s.shape == H.shape == L.shape):
+            raise ValueError("chainage_m, height_m and curve_length_m must have the same length")
+        if s.size < 2:
+            raise ValueError("a vertical profile needs at least two PVIs")
+        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(H)) and np.all(np.isfinite(L))):
+            raise ValueError("PVI chainages, heights and curve lengths must be finite")
+        if np.any(np.diff(s) <= 0):
+            i = int(np.argmax(np.diff(s) <= 0)) + 1
+            raise ValueError(f"PVI {i}: chainage {s[i]!r} does not increase")
+        if np.any(L < 0):
+            raise ValueError(f"PVI {int(np.argmax(L < 0))}: negative vertical curve length")
+        if L[0] != 0 or L[-1] != 0:
+            raise ValueError("the first and last PVI cannot carry a vertical curve (length 0)")
+        bvc, evc = s - 0.5 * L, s + 0.5 * L
+        tol = 1e-9 * max(1.0, float(np.max(np.abs(s))))
+        overlap = evc[:-1] > bvc[1:] + tol
+        if np.any(overlap):
+            i = int(np.argmax(overlap))
+            raise ValueError(f"vertical curves of PVI {i} (ends {evc[i]!r}) and PVI {i + 1} "
+                             f"(begins {bvc[i + 1]!r}) overlap")
+        self.chainage_m, self.height_m, self.curve_length_m = s, H, L
+        self.grade = np.diff(H) / np.diff(s)
+
+    @classmethod
+    def from_pvis(cls, chainage_m, height_m, curve_length_m) -> "VerticalProfile":
+        """Profile from PVI chainages, heights and vertical-curve lengths (first/last 0).
+
+        Parameters
+        ----------
+        chainage_m, height_m : PVI stations and heights, m.
+        curve_length_m : length of the parabolic curve centred on each PVI, m.
+
+        Returns
+        -------
+        VerticalProfile
+        """
+        return cls(chainage_m, height_m, curve_length_m)
+
+    def evaluate(self, s):
+        """Height H, dH/ds and d2H/ds2 at chainages ``s``.
+
+        Returns
+        -------
+        H_m, dH_ds, d2H_ds2 : ndarrays of the shape of ``s``.
+        """
+        shape = np.shape(s)
+        s = np.asarray(s, dtype=float).ravel()
+        sp, Hp, Lp, g = self.chainage_m, self.height_m, self.curve_length_m, self.grade
+        seg = np.clip(np.searchsorted(sp, s, side="right") - 1, 0, len(g) - 1)
+        H = Hp[seg] + g[seg] * (s - sp[seg])
+        dH = g[seg].astype(float)
+        d2H = np.zeros(s.shape)
+        # a point can lie in the curve of either end PVI of its segment
+        for cand in (seg, seg + 1):
+            Lc = Lp[cand]
+            half = 0.5 * Lc
+            inside = (Lc > 0) & (np.abs(s - sp[cand]) < half)
+            if not np.any(inside):
+                continue
+            ci = cand[inside]
+            dg = g[ci] - g[ci - 1]
+            r = dg / Lc[inside]                  # d2H/ds2 on the curve
+            x = s[inside] - (sp[ci] - half[inside])   # distance from the BVC
+            H[inside] = Hp[ci] + g[ci - 1] * (s[inside] - sp[ci]) + 0.5 * r * x * x
+            dH[inside] = g[ci - 1] + r * x
+            d2H[inside] = r
+        return H.reshape(shape), dH.reshape(shape), d2H.reshape(shape)
+
+
+# --------------------------------------------------------------------------------------------
+# cant
+# --------------------------------------------------------------------------------------------
+class CantProfile:
+    """Applied cant angle, linear between stations and constant outside them.
+
+    Build with :meth:`from_stations`. Positive when the left rail is higher (FRD roll).
+
+    Attributes
+    ----------
+    chainage_m, cant_rad : station arrays.
+    """
+
+    def __init__(self, chainage_m, cant_rad) -> None:
+        s = np.asarray(chainage_m, dtype=float).ravel()
+        c = np.asarray(cant_rad, dtype=float).ravel()
+        if s.shape != c.shape or s.size < 1:
+            raise ValueError("chainage_m and cant_rad must be non-empty and of the same length")
+        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(c))):
+            raise ValueError("cant stations must be finite")
+        if np.any(np.diff(s) <= 0):
+            i = int(np.argmax(np.diff(s) <= 0)) + 1
+            raise ValueError(f"cant station {i}: chainage {s[i]!r} does not increase")
+        if np.any(np.abs(c) >= np.pi / 2):
+            raise ValueError("cant angles must be below pi/2 in magnitude")
+        self.chainage_m, self.cant_rad = s, c
+
+    @classmethod
+    def from_stations(cls, chainage_m, cant_rad) -> "CantProfile":
+        """Cant from station chainages (m) and cant angles (rad), linear in between.
+
+        Returns
+        -------
+        CantProfile
+        """
+        return cls(chainage_m, cant_rad)
+
+    def evaluate(self, s):
+        """Cant angle and its derivative d(cant)/ds (the twist curvature rho_tw).
+
+        At a station the derivative of the following ramp is returned.
+
+        Returns
+        -------
+        cant_rad, rho_tw_1_m : ndarrays of the shape of ``s``.
+        """
+        s = np.asarray(s, dtype=float)
+        sp, cp = self.chainage_m, self.cant_rad
+        cant = np.interp(s, sp, cp)
+        if sp.size < 2:
+            return cant, np.zeros(s.shape)
+        rate = np.diff(cp) / np.diff(sp)
+        seg = np.searchsorted(sp, s, side="right") - 1
+        inside = (seg >= 0) & (seg < sp.size - 1)
+        rho_tw = np.where(inside, rate[np.clip(seg, 0, sp.size - 2)], 0.0)
+        return cant, rho_tw
+
+
+# --------------------------------------------------------------------------------------------
+# the whole alignment
+# --------------------------------------------------------------------------------------------
+@dataclass
+class AlignmentSample:
+    """The design alignment at chainages (all arrays of the shape of ``chainage_m``).
+
+    Attributes
+    ----------
+    chainage_m : chainage s, m.
+    E_m, N_m, H_m : grid position of the track centre line (H = 0 without a profile), m.
+    heading_rad : grid bearing clockwise from north, [0, 2 pi).
+    slope_rad : arctan(dH/ds), positive rising.
+    cant_rad : roll of the track plane, positive when the left rail is higher.
+    rho_h_1_m : horizontal curvature d(heading)/ds, positive turning right.
+    drho_h_ds_1_m2 : d(rho_h)/ds.
+    rho_v_1_m : vertical curvature d(slope)/ds.
+    rho_tw_1_m : twist curvature d(cant)/ds.
+    """
+
+    chainage_m: np.ndarray
+    E_m: np.ndarray
+    N_m: np.ndarray
+    H_m: np.ndarray
+    heading_rad: np.ndarray
+    slope_rad: np.ndarray
+    cant_rad: np.ndarray
+    rho_h_1_m: np.ndarray
+    drho_h_ds_1_m2: np.ndarray
+    rho_v_1_m: np.ndarray
+    rho_tw_1_m: np.ndarray
+
+
+@dataclass
+class Projection:
+    """Points projected onto the alignment (arrays of the points' shape).
+
+    Attributes
+    ----------
+    chainage_m : chainage of the foot point, m.
+    lateral_m : horizontal offset from the centre line, positive to the right facing
+        increasing chainage, m.
+    vertical_m : height above the design profile at the foot point (NaN without heights), m.
+    inside : True when the foot point lies within [start, end] of the alignment.
+    """
+
+    chainage_m: np.ndarray
+    lateral_m: np.ndarray
+    vertical_m: np.ndarray
+    inside: np.ndarray
+
+
+class Alignment:
+    """Design track geometry: horizontal alignment, optional vertical profile and cant.
+
+    Parameters
+    ----------
+    horizontal : HorizontalAlignment
+    profile : VerticalProfile, optional; without it H = 0 and the slope is 0.
+    cant : CantProfile, optional; without it the cant is 0.
+    name : alignment name (LandXML ``Alignment/@name``).
+    """
+
+    def __init__(self, horizontal: HorizontalAlignment, profile: VerticalProfile | None = None,
+                 cant: CantProfile | None = None, name: str = "") -> None:
+        if not isinstance(horizontal, HorizontalAlignment):
+            raise TypeError("horizontal must be a HorizontalAlignment")
+        self.horizontal = horizontal
+        self.profile = profile
+        self.cant = cant
+        self.name = name
+
+    @property
+    def start_chainage_m(self) -> float:
+        return float(self.horizontal.start_chainage_m)
+
+    @property
+    def end_chainage_m(self) -> float:
+        return self.horizontal.end_chainage_m
+
+    def evaluate(self, s) -> AlignmentSample:
+        """Evaluate the design geometry at chainages ``s`` (vectorised).
+
+        Parameters
+        ----------
+        s : array_like, chainage, m (any shape; outside the alignment its end tangents continue).
+
+        Returns
+        -------
+        AlignmentSample
+            Positions, angles and the curvatures rho_h, rho_h', rho_v, rho_tw of Escalona 2021,
+            Eq. 4-5, with respect to the chainage.
+        """
+        s = np.asarray(s, dtype=float)
+        hz = self.horizontal.evaluate(s)
+        if self.profile is None:
+            H = np.zeros(s.shape)
+            slope = np.zeros(s.shape)
+            rho_v = np.zeros(s.shape)
+        else:
+            H, dH, d2H = self.profile.evaluate(s)
+            slope = np.arctan(dH)
+            rho_v = d2H / (1.0 + dH * dH)
+        if self.cant is None:
+            cant = np.zeros(s.shape)
+            rho_tw = np.zeros(s.shape)
+        else:
+            cant, rho_tw = self.cant.evaluate(s)
+        return AlignmentSample(chainage_m=s.copy(), E_m=hz.E_m, N_m=hz.N_m, H_m=H,
+                               heading_rad=hz.heading_rad, slope_rad=slope, cant_rad=cant,
+                               rho_h_1_m=hz.rho_h_1_m, drho_h_ds_1_m2=hz.drho_h_ds_1_m2,
+                               rho_v_1_m=rho_v, rho_tw_1_m=rho_tw)
+
+    def project(self, E_m, N_m, H_m=None) -> Projection:
+        """Project grid points onto the alignment.
+
+        Parameters
+        ----------
+        E_m, N_m : array_like, grid coordinates, m.
+        H_m : array_like, optional, heights, m.
+
+        Returns
+        -------
+        Projection
+            chainage, lateral offset (positive right), height above the profile, inside flag.
+        """
+        s, lateral = self.horizontal.project(E_m, N_m)
+        if H_m is None:
+            vertical = np.full(s.shape, np.nan)
+        else:
+            H = np.broadcast_to(np.asarray(H_m, dtype=float), s.shape)
+            if self.profile is None:
+                vertical = H.copy()
+            else:
+                vertical = H - self.profile.evaluate(s)[0]
+        tol = 1e-9
+        inside = (s >= self.start_chainage_m - tol) & (s <= self.end_chainage_m + tol)
+        return Projection(chainage_m=s, lateral_m=lateral, vertical_m=vertical, inside=inside)
