@@ -45,6 +45,15 @@ class StoreError(RuntimeError):
     """The project store cannot do what was asked (missing project, conflict, foreign file...)."""
 
 
+class PointConflict(StoreError):
+    """A control point id is already in the project with other coordinates (or twice in one batch)."""
+
+    def __init__(self, point: "ControlPoint", message: str):
+        super().__init__(f"{point.source}:{point.line}: {message}")
+        self.point = point
+        self.detail = message
+
+
 def utc_now() -> str:
     """Current UTC time, ISO 8601 with seconds."""
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -648,7 +657,7 @@ class ProjectStore:
         for p in points:
             if p.point_id in seen:
                 q = seen[p.point_id]
-                raise StoreError(f"{p.source}:{p.line}: duplicate point id {p.point_id!r} (also line {q.line})")
+                raise PointConflict(p, f"duplicate point id {p.point_id!r} (first on line {q.line})")
             seen[p.point_id] = p
         added = 0
         now = utc_now()
@@ -658,8 +667,8 @@ class ProjectStore:
                                 (p.point_id,)).fetchone()
                 if old is not None:
                     if max(abs(old[0] - p.e_m), abs(old[1] - p.n_m), abs(old[2] - p.h_m)) > 1e-4:
-                        raise StoreError(f"{p.source}:{p.line}: point {p.point_id!r} is already in the project "
-                                         f"with other coordinates (from {old[3]}:{old[4]})")
+                        raise PointConflict(p, f"point {p.point_id!r} is already in the project with other "
+                                               f"coordinates (from {old[3]}:{old[4]})")
                     continue
                 c.execute("INSERT INTO cpiii_point (point_id, e_m, n_m, h_m, source, line, imported_utc) "
                           "VALUES (?, ?, ?, ?, ?, ?, ?)", (p.point_id, p.e_m, p.n_m, p.h_m, p.source, p.line, now))
