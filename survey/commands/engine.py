@@ -1,0 +1,104 @@
+"""``trolley process``: filter and smooth a raw session folder into ``track.csv``.
+
+Bad input (a malformed session folder, an unreadable design) is reported in one line naming the
+file, row and column, with exit code 2 and no output written.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+err = Console(stderr=True)
+
+
+def fail(message: str, code: int = 2) -> None:
+    """Print a one-line error to stderr and exit non-zero."""
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code=code)
+
+
+def process(
+    session_dir: Annotated[Path, typer.Argument(help="raw session folder (FORMATS.md section 1)")],
+    out: Annotated[Path, typer.Option("--out", help="output folder for track.csv, fixes.csv, summary.json")],
+    smoother: Annotated[str, typer.Option(help="rts (Rauch-Tung-Striebel) or tfs (two-filter); none = filtered only")] = "rts",
+    step: Annotated[float, typer.Option(help="chainage step of the output stations, m")] = 0.625,
+) -> None:
+    """Filter and smooth a raw stop-and-go session into track.csv (Jiang 2017)."""
+    result, session, written = run_process(session_dir, out, smoother, step)
+    print_summary(result, written)
+
+
+def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float = 0.625,
+                force_accept: tuple[str, ...] = ()):
+    """Read, process and write one session; exits with a clear message on bad input."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from survey.sessionio import SessionFormatError, read_design, read_session
+    from survey.trackio import write_outputs
+    from trolley.engine import ProcessConfig, process_session
+
+    if smoother not in ("rts", "tfs", "none"):
+        fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
+    if not step > 0:
+        fail(f"--step must be positive, not {step}")
+    if not session_dir.is_dir():
+        fail(f"{session_dir}: no such session folder")
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                  console=err, transient=True) as prog:
+        task = prog.add_task("reading the session", total=4)
+        try:
+            session = read_session(session_dir)
+            design = read_design(session_dir, session.meta)
+        except SessionFormatError as exc:
+            fail(str(exc))
+        except ValueError as exc:  # a LandXmlError is a ValueError naming the element
+            fail(f"{session_dir}: {exc}")
+        prog.update(task, advance=1, description="dead reckoning, filtering, smoothing")
+        try:
+            result = process_session(session, design, ProcessConfig(smoother=smoother, step_m=step,
+                                                                   force_accept=force_accept))
+        except ValueError as exc:
+            fail(f"{session_dir}: {exc}")
+        prog.update(task, advance=2, description="writing")
+        written = write_outputs(out, result, session, session_dir)
+        prog.update(task, advance=1)
+    return result, session, written
+
+
+def print_summary(result, written) -> None:
+    """A short summary of a processing run on the terminal."""
+    from rich.table import Table
+
+    from trolley import units
+
+    s = result.summary
+    st = result.stations
+    t = Table(title="trolley process", show_header=False)
+    t.add_column("what")
+    t.add_column("value", justify="right")
+    t.add_row("fixes used / rejected", f"{s['fixes_used']} / {s['fixes_rejected']}")
+    t.add_row("RMS of innovations", f"{units.m_to_mm(s['rms_innovation_m']):.2f} mm")
+    t.add_row("max 1-sigma of the track", f"{units.m_to_mm(s['max_sigma_m']):.2f} mm")
+    t.add_row("stations", f"{len(st.chainage_m)} ({result.config.step_m} m step)")
+    if len(st.chainage_m):
+        t.add_row("chainage", f"{st.chainage_m[0]:.3f} .. {st.chainage_m[-1]:.3f} m")
+    t.add_row("initial heading", f"{s['initial_heading_deg']:.4f} deg ({s['heading_source']}, "
+                                 f"1-sigma {s['heading_sigma_deg']:.3f} deg)")
+    if result.observability_ranks:
+        t.add_row("observability ranks", f"vertical {result.observability_ranks[0]}/3, "
+                                         f"level {result.observability_ranks[1]}/5")
+    t.add_row("smoother", result.config.smoother)
+    Console().print(t)
+    for i in range(len(result.fixes.t_s)):
+        if not result.fixes.accepted[i]:
+            err.print(f"[yellow]rejected fix[/] {result.fixes.point[i]} at t={result.fixes.t_s[i]:.1f} s: "
+                      f"{result.fixes.reason[i]}", highlight=False)
+    Console().print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``process`` to the trolley app."""
+    app.command("process")(process)

@@ -1,0 +1,395 @@
+"""The stop-and-go survey engine: dead reckoning, error-state filtering and smoothing, track output.
+
+Jiang 2017 Sec. 2-4 end to end:
+
+1. static alignment and dead reckoning (``trolley.deadreckoning``, Eq. 7);
+2. a node grid along the trajectory (every ``node_spacing_m`` of travel, every ``max_node_dt_s``
+   when standing, and at every fix): the error filters need not run at the IMU rate;
+3. the vertical (3-state) and level (5-state) error models (``trolley.error_models``, Eq. 17-25),
+   discretised exactly per node interval (Van Loan) with that interval's odometer speed and
+   heading, run as one block-diagonal 8-state filter so that a fix is gated once on its 3-D
+   innovation (chi-square, 3 degrees of freedom);
+4. prism fixes as measurements of the dead-reckoning error after the prism lever arm is removed
+   with the dead-reckoned attitude (roll = cant);
+5. RTS (filterpy) or two-filter smoothing (``trolley.smoothers``, Eq. 27-28), and the smoothed
+   errors subtracted from the dead-reckoned trajectory between every pair of fixes;
+6. stations on a fixed chainage step, with deviations from the design when there is one.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import block_diag
+
+from trolley import error_models as em
+from trolley.deadreckoning import DeadReckoning, StaticAlignment, dead_reckon, static_alignment
+from trolley.session import RawSession
+from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
+
+#: Order of the combined 8-state error vector: level channel then vertical channel.
+STATE_NAMES = em.LEVEL_STATES + em.VERTICAL_STATES
+_IDX_N, _IDX_E, _IDX_D = 0, 1, 5
+_POS = [_IDX_N, _IDX_E, _IDX_D]
+
+
+@dataclass(frozen=True)
+class ProcessConfig:
+    """Settings of :func:`process_session`.
+
+    Attributes
+    ----------
+    smoother : "rts", "tfs" or "none" (filtered only).
+    step_m : chainage step of the output stations.
+    node_spacing_m : distance between filter nodes while moving.
+    max_node_dt_s : longest time between filter nodes (standing still).
+    gate_probability : chi-square gate of the fixes (None: accept all).
+    block_size : IMU samples per dead-reckoning step.
+    bias_correlation_s : correlation time of the gyro bias instability; the equivalent bias is
+        given a random walk sigma_BI sqrt(2 / tau) so that the filter can follow it.
+    residual_level_rad : equivalent level error from the IMU-odometer misalignment left after
+        calibration (Jiang 2017 Sec. 5 uses 0.005 deg in all).
+    given_heading_sigma_rad : uncertainty of a heading given in session.toml.
+    prior_position_m : 1-sigma of the position before the first fix.
+    twist_base_m : base of the twist column.
+    force_accept : point labels whose fixes skip the gate (the crew accepted them).
+    """
+
+    smoother: str = "rts"
+    step_m: float = 0.625
+    node_spacing_m: float = 0.5
+    max_node_dt_s: float = 5.0
+    gate_probability: float | None = 0.9999
+    block_size: int = 10
+    bias_correlation_s: float = 1000.0
+    residual_level_rad: float = float(np.deg2rad(0.003))
+    given_heading_sigma_rad: float = float(np.deg2rad(0.5))
+    prior_position_m: float = 0.1
+    twist_base_m: float = 3.0
+    force_accept: tuple[str, ...] = ()
+
+
+@dataclass
+class FixReport:
+    """Every fix with its innovation (DR prism minus measured, grid E, N, H) and the gate's verdict."""
+
+    t_s: np.ndarray
+    point: np.ndarray
+    enh_m: np.ndarray
+    innovation_enh_m: np.ndarray
+    nis: np.ndarray
+    accepted: np.ndarray
+    reason: list[str]
+
+
+@dataclass
+class Stations:
+    """Output stations (SI; NaN where a value is not available)."""
+
+    chainage_m: np.ndarray
+    E_m: np.ndarray
+    N_m: np.ndarray
+    H_m: np.ndarray
+    sigma_E_m: np.ndarray
+    sigma_N_m: np.ndarray
+    sigma_H_m: np.ndarray
+    lateral_dev_m: np.ndarray
+    vertical_dev_m: np.ndarray
+    gauge_m: np.ndarray
+    cant_m: np.ndarray
+    twist_m: np.ndarray
+    t_s: np.ndarray
+
+
+@dataclass
+class Trajectory:
+    """The corrected trajectory of the track reference point at dead-reckoning resolution."""
+
+    t_s: np.ndarray
+    distance_m: np.ndarray
+    enh_m: np.ndarray
+    sigma_enh_m: np.ndarray
+    roll_rad: np.ndarray
+    error_states: np.ndarray  # (K, 8) smoothed (or filtered) error estimate
+
+
+@dataclass
+class ProcessResult:
+    """Everything :func:`process_session` produces."""
+
+    stations: Stations
+    trajectory: Trajectory
+    fixes: FixReport
+    alignment: StaticAlignment
+    dead_reckoning: DeadReckoning
+    observability_ranks: tuple[int, int] | None
+    config: ProcessConfig
+    node_count: int
+    summary: dict = field(default_factory=dict)
+
+
+def _ned(enh: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
+    d = enh - origin_enh
+    return np.column_stack([d[:, 1], d[:, 0], -d[:, 2]])
+
+
+def _enh(ned: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
+    return np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]]) + origin_enh
+
+
+def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: float,
+                 max_node_dt_s: float) -> np.ndarray:
+    """Indices of the DR blocks used as filter nodes (sorted, unique)."""
+    K = dr.t_s.shape[0]
+    by_dist = np.flatnonzero(np.diff(np.floor(dr.distance_m / node_spacing_m)) != 0) + 1
+    by_time = np.flatnonzero(np.diff(np.floor((dr.t_s - dr.t_s[0]) / max_node_dt_s)) != 0) + 1
+    return np.unique(np.concatenate([[0, K - 1], by_dist, by_time, fix_blocks]))
+
+
+def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discretisation of the 8-state error model between consecutive nodes.
+
+    The interval's speed and heading enter through its mean odometer speed and mean north and
+    east velocity (the DR displacement over the interval divided by its duration).
+    """
+    t = dr.t_s[nodes]
+    dt = np.diff(t)
+    safe = np.where(dt > 0, dt, 1.0)
+    speed = np.where(dt > 0, np.diff(dr.distance_m[nodes]) / safe, 0.0)
+    dpos = np.diff(dr.position_ned_m[nodes], axis=0)
+    vn = np.where(dt > 0, dpos[:, 0] / safe, 0.0)
+    ve = np.where(dt > 0, dpos[:, 1] / safe, 0.0)
+    Al, Gl = em.level_matrices(vn, ve)
+    Av, Gv = em.vertical_matrices(speed)
+    Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(noise), dt)
+    Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(noise), dt)
+    n = len(dt)
+    F = np.zeros((n, 8, 8))
+    Q = np.zeros((n, 8, 8))
+    F[:, :5, :5], F[:, 5:, 5:] = Fl, Fv
+    Q[:, :5, :5], Q[:, 5:, 5:] = Ql, Qv
+    return F, Q
+
+
+def _interp_rows(x_new: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """np.interp of every column of a (K, ...) array."""
+    flat = y.reshape(y.shape[0], -1)
+    out = np.empty((x_new.shape[0], flat.shape[1]))
+    for j in range(flat.shape[1]):  # a handful of state/covariance columns, not samples
+        out[:, j] = np.interp(x_new, x, flat[:, j])
+    return out.reshape((x_new.shape[0],) + y.shape[1:])
+
+
+def process_session(session: RawSession, design=None, config: ProcessConfig = ProcessConfig(),
+                    with_observability: bool = True) -> ProcessResult:
+    """Filter and smooth one raw session into a track.
+
+    Parameters
+    ----------
+    session : the raw session.
+    design : a ``trolley.alignment.Alignment`` or None.
+    config : processing settings.
+    with_observability : also report the observability ranks (python-control; about 2 s to import).
+
+    Returns
+    -------
+    ProcessResult
+
+    Raises
+    ------
+    ValueError when the session cannot be processed (no fixes, no IMU data in the static period,
+    no moving data); the message says why.
+    """
+    meta = session.meta
+    imu = meta.imu
+    if imu is None:
+        raise ValueError("session.toml has no [imu] figures: the filter needs them for Q and P0")
+    if len(session.fixes) == 0:
+        raise ValueError("fixes.csv holds no fix: at least the fix of the first stop is needed")
+    lever = np.asarray(meta.trolley.prism_lever_arm_m, dtype=float)
+    misalign = meta.trolley.imu_misalignment_rad
+    align = static_alignment(
+        session.imu_t_s, session.imu_w_rad_s, session.imu_f_m_s2, meta.static_s, meta.latitude_rad,
+        misalign, initial_heading_rad=meta.initial_heading_rad,
+        gyro_bias_rad_s=imu.gyro_bias_instability_rad_s, accel_bias_m_s2=imu.accel_bias_m_s2,
+        gyrocompassing=imu.gyrocompassing, given_heading_sigma_rad=config.given_heading_sigma_rad)
+    dr = dead_reckon(session.imu_t_s, session.imu_w_rad_s, session.odo_t_s, session.odo_distance_m,
+                     align, meta.latitude_rad, meta.height_m, misalign, config.block_size)
+
+    order = np.argsort(session.fixes.t_s, kind="stable")
+    fix_t = session.fixes.t_s[order]
+    fix_pt = np.asarray(session.fixes.point, dtype=object)[order]
+    fix_enh = session.fixes.enh_m[order]
+    fix_sig = session.fixes.sigma_m[order]
+    origin = fix_enh[0].copy()
+    fix_ned = _ned(fix_enh, origin)
+    fix_blocks = np.clip(np.searchsorted(dr.t_s, fix_t), 0, dr.t_s.shape[0] - 1)
+
+    if align.heading_source == "fixes":
+        align, dr = _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign, config)
+
+    lever_ned = dr.trolley_to_nav[fix_blocks].apply(lever)
+    p0 = fix_ned[0] - lever_ned[0] - dr.position_ned_m[fix_blocks[0]]
+    dr_prism = p0 + dr.position_ned_m[fix_blocks] + lever_ned
+    z = dr_prism - fix_ned  # the dead-reckoning error seen by each fix, NED
+
+    nodes = filter_nodes(dr, fix_blocks, config.node_spacing_m, config.max_node_dt_s)
+    fix_nodes = np.searchsorted(nodes, fix_blocks)
+    noise = em.ChannelNoise(
+        gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
+        odo_scale_noise_per_sqrt_s=meta.odometer.scale_noise_per_sqrt_s,
+        gyro_bias_rw_rad_s_sqrt_s=imu.gyro_bias_instability_rad_s * np.sqrt(2.0 / config.bias_correlation_s))
+    F, Q = error_model(dr, nodes, noise)
+    static_len = max(align.t_end_s - session.imu_t_s[0], 1.0)
+    heading_sigma = align.heading_sigma_rad
+    if align.heading_source == "gyrocompassing":
+        # angle random walk over the averaging window adds to the bias term in quadrature
+        heading_sigma = float(np.hypot(heading_sigma, em.heading_error_from_gyrocompassing(
+            imu.gyro_arw_rad_sqrt_s / np.sqrt(static_len), meta.latitude_rad)))
+    eq_bias = float(em.equivalent_gyro_bias(imu.gyro_bias_instability_rad_s, heading_sigma, meta.latitude_rad))
+    p0u = em.InitialUncertainty(
+        position_m=config.prior_position_m,
+        pitch_rad=float(np.hypot(align.level_sigma_rad, config.residual_level_rad)),
+        heading_rad=heading_sigma, gyro_bias_y_rad_s=eq_bias, gyro_bias_z_rad_s=eq_bias,
+        odo_scale_error=meta.odometer.scale_error)
+    P0 = block_diag(em.level_initial_covariance(p0u), em.vertical_initial_covariance(p0u))
+    H = np.zeros((3, 8))
+    H[0, _IDX_N] = H[1, _IDX_E] = H[2, _IDX_D] = 1.0
+    R = np.zeros((len(z), 3, 3))
+    R[:, 0, 0] = fix_sig[:, 1] ** 2  # N
+    R[:, 1, 1] = fix_sig[:, 0] ** 2  # E
+    R[:, 2, 2] = fix_sig[:, 2] ** 2  # D from H
+    meas = Measurements(fix_nodes, z, H, R)
+    forced = np.array([p in set(config.force_accept) for p in fix_pt], dtype=bool)
+    fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
+                         force_accept=forced)
+    scale = np.sqrt(np.diag(P0))
+    if config.smoother == "rts":
+        sm = rts_smooth(F, Q, fwd, scale=scale)
+        xs, Ps = sm.x, sm.P
+    elif config.smoother == "tfs":
+        sm = two_filter_smooth(F, Q, meas.subset(fwd.accepted), fwd, scale=scale)
+        xs, Ps = sm.x, sm.P
+    elif config.smoother == "none":
+        xs, Ps = fwd.x_post, fwd.P_post
+    else:
+        raise ValueError(f"unknown smoother {config.smoother!r}: use rts, tfs or none")
+
+    # smoothed errors at every DR block, subtracted from the dead-reckoned trajectory
+    t_nodes = dr.t_s[nodes]
+    x_blocks = _interp_rows(dr.t_s, t_nodes, xs)
+    Pdiag = np.diagonal(Ps, axis1=1, axis2=2)[:, _POS]
+    var_blocks = _interp_rows(dr.t_s, t_nodes, Pdiag)
+    ned = p0 + dr.position_ned_m - x_blocks[:, _POS]
+    enh = _enh(ned, origin)
+    sig = np.sqrt(np.maximum(var_blocks, 0.0))
+    sigma_enh = np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]])
+    roll = dr.euler_rad()[:, 0]
+    traj = Trajectory(dr.t_s, dr.distance_m, enh, sigma_enh, roll, x_blocks)
+
+    # innovation: the DR error the fix saw minus the error the filter predicted, in grid E, N, H
+    y = fwd.innovation
+    innov_enh = np.column_stack([y[:, 1], y[:, 0], -y[:, 2]])
+    reasons = []
+    thr = None
+    if config.gate_probability is not None:
+        from trolley.smoothers import gate_threshold
+        thr = gate_threshold(config.gate_probability, 3)
+    for acc, nis_j, f in zip(fwd.accepted, fwd.nis, forced):
+        if acc:
+            reasons.append("accepted by the crew despite the gate" if f and thr is not None and nis_j > thr else "")
+        else:
+            reasons.append(f"innovation NIS {nis_j:.1f} > {thr:.1f} (chi-square gate, 3 dof, "
+                           f"p={config.gate_probability})")
+    fixes = FixReport(fix_t, fix_pt, fix_enh, innov_enh, fwd.nis, fwd.accepted, reasons)
+
+    stations = make_stations(traj, session, design, config)
+    ranks = em.observability_ranks(1.0, 0.3) if with_observability else None
+    acc = fwd.accepted
+    summary = {
+        "fixes_used": int(acc.sum()),
+        "fixes_rejected": int((~acc).sum()),
+        "rms_innovation_m": float(np.sqrt(np.mean(innov_enh[acc] ** 2))) if acc.any() else float("nan"),
+        "max_sigma_m": float(np.nanmax(np.column_stack([stations.sigma_E_m, stations.sigma_N_m,
+                                                        stations.sigma_H_m]))) if len(stations.chainage_m) else float("nan"),
+        "heading_source": align.heading_source,
+        "initial_heading_deg": float(np.rad2deg(align.heading_rad)),
+        "heading_sigma_deg": float(np.rad2deg(heading_sigma)),
+        "nodes": int(len(nodes)),
+    }
+    return ProcessResult(stations, traj, fixes, align, dr, ranks, config, int(len(nodes)), summary)
+
+
+def _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign, config):
+    """Heading for gyros that cannot gyrocompass: turn the DR so that it joins two distant fixes."""
+    from scipy.spatial.transform import Rotation
+
+    pos = dr.position_ned_m[fix_blocks] + dr.trolley_to_nav[fix_blocks].apply(lever)
+    meas_d = fix_ned - fix_ned[0]
+    dr_d = pos - pos[0]
+    far = np.flatnonzero(np.hypot(meas_d[:, 0], meas_d[:, 1]) > 10.0)
+    if far.size == 0:
+        raise ValueError("the IMU cannot gyrocompass, session.toml gives no initial_heading_deg, and no "
+                         "two fixes are 10 m apart to take the heading from")
+    j = far[0]
+    dpsi = np.arctan2(meas_d[j, 1], meas_d[j, 0]) - np.arctan2(dr_d[j, 1], dr_d[j, 0])
+    C = Rotation.from_euler("z", dpsi) * align.imu_to_nav
+    dist = float(np.hypot(meas_d[j, 0], meas_d[j, 1]))
+    sig = float(np.sqrt(2.0) * max(session.meta.fix_sigma_m, 1e-4) / dist)
+    ypr = (C * Rotation.from_rotvec(np.asarray(misalign, dtype=float)).inv()).as_euler("ZYX")
+    new = StaticAlignment(C, float(ypr[2]), float(ypr[1]), float(ypr[0]), align.level_sigma_rad,
+                          max(sig, np.deg2rad(0.01)), "fixes", align.t_end_s)
+    m = session.meta
+    return new, dead_reckon(session.imu_t_s, session.imu_w_rad_s, session.odo_t_s, session.odo_distance_m,
+                            new, m.latitude_rad, m.height_m, misalign, config.block_size)
+
+
+def make_stations(traj: Trajectory, session: RawSession, design, config: ProcessConfig) -> Stations:
+    """Resample the corrected trajectory on a fixed chainage step (FORMATS.md section 2)."""
+    enh = traj.enh_m
+    if design is not None:
+        proj = design.project(enh[:, 0], enh[:, 1], enh[:, 2])
+        ch = np.asarray(proj.chainage_m, dtype=float)
+    else:
+        seg = np.linalg.norm(np.diff(enh, axis=0), axis=1)
+        ch = np.concatenate([[0.0], np.cumsum(seg)])
+    # the chainage runs one way along the survey; keep samples where it strictly advances
+    sign = 1.0 if ch[-1] >= ch[0] else -1.0
+    run = np.maximum.accumulate(sign * ch)
+    keep = np.concatenate([[True], np.diff(run) > 1e-9])
+    keep &= sign * ch >= run - 1e-9
+    c = sign * ch[keep]
+    if c.size < 2:
+        empty = np.array([])
+        return Stations(*([empty] * 13))
+    step = config.step_m
+    s = np.arange(np.ceil(c[0] / step) * step, c[-1] + 1e-9, step)
+    s = s[(s >= c[0]) & (s <= c[-1])]
+
+    def at(y):
+        return np.interp(s, c, y[keep])
+
+    E, N, Hh = at(enh[:, 0]), at(enh[:, 1]), at(enh[:, 2])
+    sE, sN, sH = (at(traj.sigma_enh_m[:, i]) for i in range(3))
+    t = at(traj.t_s)
+    roll = at(traj.roll_rad)
+    rail = session.meta.trolley.rail_spacing_m
+    cant = rail * np.sin(roll)
+    twist = cant - np.interp(s - config.twist_base_m, s, cant, left=np.nan)
+    if session.gauge_t_s is not None and len(session.gauge_t_s) > 1:
+        gauge = np.interp(t, session.gauge_t_s, session.gauge_m, left=np.nan, right=np.nan)
+    else:
+        gauge = np.full_like(s, np.nan)
+    chain = sign * s
+    if design is not None:
+        p = design.project(E, N, Hh)
+        lat = np.asarray(p.lateral_m, dtype=float)
+        vert = np.asarray(p.vertical_m, dtype=float)
+        chain = np.asarray(p.chainage_m, dtype=float)
+    else:
+        lat = np.full_like(s, np.nan)
+        vert = np.full_like(s, np.nan)
+    order = np.argsort(chain, kind="stable")
+    cols = [chain, E, N, Hh, sE, sN, sH, lat, vert, gauge, cant, twist, t]
+    return Stations(*[np.asarray(x)[order] for x in cols])
