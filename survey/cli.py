@@ -18,6 +18,7 @@ app = typer.Typer(
 
 # Each entry is a module in survey.commands exposing register(app).
 COMMAND_MODULES: list[str] = [
+    "engine",
 
 ]
 
