@@ -166,9 +166,12 @@ def _displacement(u, heading0, k0, c):
     arc = np.abs(c) < _CLOTHOID_MIN_RATE_1_M2
     if np.any(arc):
         ua, ka = u[arc], k0[arc]
-        # chord 2 sin(k u / 2) / k, along the mean direction; np.sinc keeps k -> 0 exact
-        chord = ua * np.sinc(ka * ua / _TWO_PI)
-        out[arc] = chord * np.exp(1j * (heading0[arc] + 0.5 * ka * ua))
+        # chord 2 sin(k u / 2) / k = u sin(x) / x, x = k u / 2, along the mean direction
+        x = 0.5 * ka * ua
+        small = np.abs(x) < 1e-4
+        x_safe = np.where(small, 1.0, x)
+        ratio = np.where(small, 1.0 - x * x / 6.0, np.sin(x_safe) / x_safe)
+        out[arc] = ua * ratio * np.exp(1j * (heading0[arc] + x))
 
     clo = ~arc
     if np.any(clo):
@@ -372,25 +375,32 @@ class HorizontalAlignment:
         # offsets from the alignment start: keeps ~13 more digits than 3e6-m grid values
         p = ((N - self.start_N_m) + 1j * (E - self.start_E_m)).ravel()
         s = self._seed(p)
+        lateral = np.empty(p.shape)
         active = np.arange(p.size)
         for _ in range(max_iter):
             sa, pa = s[active], p[active]
             z, heading, k, _ = self._evaluate_complex(sa)
             local = (pa - z) * np.exp(-1j * heading)
+            lateral[active] = local.imag
             denom = 1.0 - k * local.imag
             # a point near a centre of curvature has no unique foot point; keep the step sane
             denom = np.where(np.abs(denom) < 1e-3, np.copysign(1e-3, denom), denom)
             ds = local.real / denom
             s[active] = sa + ds
+            # converged points keep the lateral offset of the last foot point: moving it by
+            # ds < tol changes the offset by O(ds^2 rho)
             active = active[np.abs(ds) > tol_m]
             if active.size == 0:
                 break
-        z, heading, _, _ = self._evaluate_complex(s)
-        lateral = ((p - z) * np.exp(-1j * heading)).imag
         return s.reshape(shape), lateral.reshape(shape)
 
     def _seed(self, p: np.ndarray) -> np.ndarray:
-        """Start chainages for Newton: nearest element by its osculating-arc approximation."""
+        """Start chainages for Newton: nearest element by its osculating-arc approximation.
+
+        Each element is replaced by the arc of its mean curvature through its start point; the
+        distance to it is |w.imag| (straight) or ||p - centre| - R| (arc) when the foot point
+        falls on the element, else the distance to the element's nearer end point.
+        """
         n = len(self.elements)
         best_d2 = np.full(p.shape, np.inf)
         best_s = np.zeros(p.shape)
@@ -398,24 +408,34 @@ class HorizontalAlignment:
         for j in range(-1, n + 1):
             if j == -1:
                 z0, h0, km, lo, hi = self._z[0], self.element_heading_rad[0], 0.0, -np.inf, 0.0
-                s0 = self.element_chainage_m[0]
+                s0, z_lo, z_hi = self.element_chainage_m[0], None, self._z[0]
             elif j == n:
                 z0, h0, km, lo, hi = self._z[n], self.element_heading_rad[n], 0.0, 0.0, np.inf
-                s0 = self.element_chainage_m[n]
+                s0, z_lo, z_hi = self.element_chainage_m[n], self._z[n], None
             else:
                 L = self._length[j]
                 z0, h0 = self._z[j], self.element_heading_rad[j]
                 km = self._k0[j] + 0.5 * self._c[j] * L
                 lo, hi, s0 = 0.0, L, self.element_chainage_m[j]
-            t0 = np.exp(1j * h0)
-            if km == 0.0 or abs(km) * (hi - lo) < 1e-9:  # straight (or so flat that the centre is useless)
-                u = ((p - z0) * np.conj(t0)).real
+                z_lo, z_hi = self._z[j], self._z[j + 1]
+            t0 = complex(np.cos(h0), np.sin(h0))
+            if km == 0.0 or abs(km) * (hi - lo) < 1e-9:  # straight, or too flat for a centre
+                w = (p - z0) * t0.conjugate()
+                u = w.real
+                d2 = w.imag * w.imag
             else:
                 centre = z0 + 1j * t0 / km
-                u = np.angle((p - centre) / (z0 - centre)) / km
-            u = np.clip(u, lo, hi)
-            approx = z0 + _displacement(u, h0, km, 0.0)
-            d2 = np.abs(p - approx) ** 2
+                q = p - centre
+                u = np.angle(q / (z0 - centre)) / km
+                d2 = (np.abs(q) - 1.0 / abs(km)) ** 2
+            if z_lo is not None:
+                below = u < lo
+                u = np.where(below, lo, u)
+                d2 = np.where(below, np.abs(p - z_lo) ** 2, d2)
+            if z_hi is not None:
+                above = u > hi
+                u = np.where(above, hi, u)
+                d2 = np.where(above, np.abs(p - z_hi) ** 2, d2)
             better = d2 < best_d2
             best_d2 = np.where(better, d2, best_d2)
             best_s = np.where(better, s0 + u, best_s)
