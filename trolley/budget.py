@@ -1,0 +1,615 @@
+"""Analytic accuracy budget of one interval between two position fixes (Jiang 2017 Sec. 5).
+
+The smoothed position variance along an interval of length ``T`` between two total-station
+fixes, in closed form, for the vertical (Jiang 2017 Eq. 40), longitudinal (Eq. 44) and lateral
+(Eq. 45) directions; its exact breakdown into sources; the inverse sizing of Fig. 6b/d/f (largest
+equivalent gyro bias, angle random walk, odometer scale-factor noise, fix spacing that keep the
+worst point of the interval within a target); and a Monte Carlo check of the same linear error
+models (:mod:`trolley.error_models`) run through a Kalman filter and RTS smoother whose gains are
+computed once and applied to all runs.
+
+The model (read from Jiang 2017 Eq. 17-25 and 30-46)
+---------------------------------------------------
+All three directions share one structure (``docs/budget_derivation.md``): a position error
+``r(t) = r0 + v * integral_0^t a(s) ds`` driven by an angle-like error
+``a(t) = a0 - b t + W(t)`` (``a0`` the initial pitch/heading error or the odometer scale error,
+``b`` the equivalent gyro bias, ``W`` a Brownian motion of PSD ``q``: the angle random walk or the
+odometer scale-factor noise). ``P(0) = diag(p_r, p_a, p_b)`` is the covariance *after* the fix at
+``t = 0`` (the paper's Eq. 32 and 41: its forward Riccati solution Eq. 33 starts from it with no
+update at 0), and one fix of variance ``sigma_r^2`` arrives at ``t = T``. With a single scalar
+measurement the smoothed variance is ``Var r(t) - Cov(r(t), z)^2 / Var z``:
+
+    A(t) = p_r + p_a v^2 t^2 + q v^2 t^3 / 3 + p_b v^2 t^4 / 4
+    C(t) = p_r + p_a v^2 t T + q v^2 (3 t^2 T - t^3) / 6 + p_b v^2 t^2 T^2 / 4
+    V    = p_r + sigma_r^2 + p_a v^2 T^2 + q v^2 T^3 / 3 + p_b v^2 T^4 / 4
+    p(t) = A(t) - C(t)^2 / V
+
+which is Eq. 44 exactly and Eq. 40 and 45 with their last term corrected (Eq. 45 prints
+``sigma_w^4 t (t - 4T)`` for ``sigma_w^4 t (4T - t)``; Eq. 40 in addition carries the wrong sign
+on the whole last term). ``tests/test_budget_closed_forms.py`` checks this against forward filter
+plus RTS and two-filter smoothers on a fine grid to 1e-6 relative, and shows the printed forms
+fail that check.
+
+With a diffuse prior before the first fix, ``p_r = sigma_r^2`` (the paper's choice for Fig. 6).
+
+References
+----------
+Q. Jiang, W. Wu, M. Jiang, Y. Li, "A New Filtering and Smoothing Algorithm for Railway Track
+Surveying Based on Landmark and IMU/Odometer", Sensors 17 (2017) 1438, Sec. 5, Eq. 27-46, Fig. 6.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+import scipy.optimize
+
+from trolley import error_models as em
+
+DIRECTIONS = ("vertical", "lateral", "longitudinal")
+SOURCES = ("initial_position", "initial_angle", "gyro_bias", "random_walk", "fix_noise")
+
+
+class TargetNotReachableError(ValueError):
+    """No value of the sized parameter keeps the worst point within the target.
+
+    Raised by the inverse sizing when the target is below what the other sources already give
+    with the sized parameter at zero.
+    """
+
+    def __init__(self, parameter: str, direction: str, floor_m: float, target_m: float) -> None:
+        self.parameter = parameter
+        self.direction = direction
+        self.floor_m = floor_m
+        self.target_m = target_m
+        super().__init__(
+            f"no {parameter} meets the {direction} target of {target_m * 1e3:.3f} mm: with "
+            f"{parameter} = 0 the worst point is already {floor_m * 1e3:.3f} mm")
+
+
+@dataclass(frozen=True)
+class BudgetCase:
+    """One interval to budget, all SI. Fields may be numpy arrays that broadcast (grids).
+
+    Attributes
+    ----------
+    initial : uncertainty after the first fix (Jiang 2017 Eq. 32, 41). ``position_m`` is the
+        position sigma left by the fix at t=0 (the fix sigma for a diffuse prior).
+    noise : angle random walk and odometer scale-factor noise (Eq. 20, 25).
+    fix_sigma_m : sigma of the fix at t=T, each axis.
+    speed_m_s : trolley speed v_odo.
+    fix_spacing_m : distance between the fixes; T = fix_spacing_m / speed_m_s.
+    """
+
+    initial: em.InitialUncertainty
+    noise: em.ChannelNoise
+    fix_sigma_m: float = 0.6e-3
+    speed_m_s: float = 1.0
+    fix_spacing_m: float = 60.0
+
+    @property
+    def interval_s(self):
+        """T, the time between the fixes."""
+        return np.asarray(self.fix_spacing_m, dtype=float) / np.asarray(self.speed_m_s, dtype=float)
+
+
+@dataclass(frozen=True)
+class ChannelParameters:
+    """The five variances of one direction in the common model ``p(t) = A - C^2 / V``.
+
+    Attributes
+    ----------
+    p_r : position variance after the first fix, m^2.
+    fix_var : variance of the fix at T, m^2.
+    p_a : variance of the initial angle-like error (pitch, heading, odometer scale error).
+    q : PSD of its random walk (ARW^2 or odometer scale-noise^2), 1/s.
+    p_b : variance of the equivalent gyro bias, (rad/s)^2 (zero for the longitudinal direction).
+    """
+
+    p_r: np.ndarray
+    fix_var: np.ndarray
+    p_a: np.ndarray
+    q: np.ndarray
+    p_b: np.ndarray
+
+
+def channel_parameters(case: BudgetCase, direction: str) -> ChannelParameters:
+    """Map a case onto the common model for one direction (Jiang 2017 Eq. 40, 44, 45).
+
+    Vertical: pitch error, ARW, pitch-axis equivalent bias. Lateral: heading error, ARW, yaw-axis
+    equivalent bias. Longitudinal: odometer scale error and its noise, no bias.
+    """
+    ini, nz = case.initial, case.noise
+    p_r = np.asarray(ini.position_m, dtype=float) ** 2
+    fix_var = np.asarray(case.fix_sigma_m, dtype=float) ** 2
+    if direction == "vertical":
+        return ChannelParameters(p_r, fix_var, np.asarray(ini.pitch_rad, float) ** 2,
+                                 np.asarray(nz.gyro_arw_rad_sqrt_s, float) ** 2,
+                                 np.asarray(ini.gyro_bias_y_rad_s, float) ** 2)
+    if direction == "lateral":
+        return ChannelParameters(p_r, fix_var, np.asarray(ini.heading_rad, float) ** 2,
+                                 np.asarray(nz.gyro_arw_rad_sqrt_s, float) ** 2,
+                                 np.asarray(ini.gyro_bias_z_rad_s, float) ** 2)
+    if direction == "longitudinal":
+        return ChannelParameters(p_r, fix_var, np.asarray(ini.odo_scale_error, float) ** 2,
+                                 np.asarray(nz.odo_scale_noise_per_sqrt_s, float) ** 2,
+                                 np.zeros(()))
+    raise ValueError(f"unknown direction {direction!r}; expected one of {DIRECTIONS}")
+
+
+def _acv(t, T, v, c: ChannelParameters):
+    """A(t), C(t), V of the common model (see the module docstring), broadcast."""
+    v2 = np.asarray(v, dtype=float) ** 2
+    A = c.p_r + v2 * (c.p_a * t**2 + c.q * t**3 / 3.0 + c.p_b * t**4 / 4.0)
+    C = c.p_r + v2 * (c.p_a * t * T + c.q * (3.0 * t**2 * T - t**3) / 6.0 + c.p_b * t**2 * T**2 / 4.0)
+    V = c.p_r + c.fix_var + v2 * (c.p_a * T**2 + c.q * T**3 / 3.0 + c.p_b * T**4 / 4.0)
+    return A, C, V
+
+
+def smoothed_variance(t, T, v, c: ChannelParameters) -> np.ndarray:
+    """Smoothed position variance at time t in [0, T] (Jiang 2017 Eq. 40/44/45, corrected).
+
+    Parameters
+    ----------
+    t : time since the first fix, s (any shape broadcasting with the parameters).
+    T : interval between the fixes, s.
+    v : speed, m/s.
+    c : the direction's variances (:func:`channel_parameters`).
+
+    Returns
+    -------
+    ndarray of variances, m^2.
+    """
+    A, C, V = _acv(t, T, v, c)
+    return A - C**2 / V
+
+
+def variance_sources(t, T, v, c: ChannelParameters) -> dict[str, np.ndarray]:
+    """Exact additive breakdown of :func:`smoothed_variance` into its independent sources.
+
+    The smoothed estimate is ``g z`` with ``g = C / V``; its error ``r(t) - g (r(T) + n)`` is a sum
+    of independent terms, one per source, whose variances add up to ``A - C^2 / V`` exactly:
+    initial position ``(1-g)^2 p_r``, initial angle ``p_a v^2 (t - g T)^2``, gyro bias
+    ``p_b v^2 (t^2 - g T^2)^2 / 4``, random walk ``A_q - 2 g C_q + g^2 V_q`` and fix noise
+    ``g^2 sigma_r^2`` (``docs/budget_derivation.md``).
+
+    Returns
+    -------
+    dict source name -> variance, m^2 (keys :data:`SOURCES`).
+    """
+    A, C, V = _acv(t, T, v, c)
+    g = C / V
+    v2 = np.asarray(v, dtype=float) ** 2
+    Aq = c.q * v2 * t**3 / 3.0
+    Cq = c.q * v2 * (3.0 * t**2 * T - t**3) / 6.0
+    Vq = c.q * v2 * T**3 / 3.0
+    return {
+        "initial_position": (1.0 - g) ** 2 * c.p_r,
+        "initial_angle": c.p_a * v2 * (t - g * T) ** 2,
+        "gyro_bias": c.p_b * v2 * (t**2 - g * T**2) ** 2 / 4.0,
+        "random_walk": Aq - 2.0 * g * Cq + g**2 * Vq,
+        "fix_noise": g**2 * c.fix_var,
+    }
+
+
+def _derivatives(t, T, v, c: ChannelParameters):
+    """p'(t) and p''(t) of the smoothed variance (for locating its maximum)."""
+    v2 = np.asarray(v, dtype=float) ** 2
+    _, C, V = _acv(t, T, v, c)
+    dA = v2 * (2 * c.p_a * t + c.q * t**2 + c.p_b * t**3)
+    ddA = v2 * (2 * c.p_a + 2 * c.q * t + 3 * c.p_b * t**2)
+    dC = v2 * (c.p_a * T + c.q * (6 * t * T - 3 * t**2) / 6.0 + c.p_b * t * T**2 / 2.0)
+    ddC = v2 * (c.q * (T - t) + c.p_b * T**2 / 2.0)
+    return dA - 2 * C * dC / V, ddA - 2 * (dC**2 + C * ddC) / V
+
+
+@dataclass
+class WorstPoint:
+    """Largest smoothed variance along the interval and where it is.
+
+    Attributes
+    ----------
+    variance : m^2, shape of the broadcast parameters.
+    time_s : time of the worst point since the first fix.
+    """
+
+    variance: np.ndarray
+    time_s: np.ndarray
+
+
+def worst_point(T, v, c: ChannelParameters, n_grid: int = 65, newton_steps: int = 8) -> WorstPoint:
+    """Maximum over t in [0, T] of the smoothed variance, vectorised over parameter grids.
+
+    ``p(t)`` is a polynomial of degree 8 in t (V does not depend on t), so a grid of 65 points
+    brackets every local maximum; Newton steps on ``p'(t) = 0`` inside the bracketing cell then
+    give the maximum to rounding.
+    """
+    T = np.asarray(T, dtype=float)
+    s = np.linspace(0.0, 1.0, n_grid)
+    shape = np.broadcast_shapes(T.shape, np.shape(v), *(np.shape(x) for x in
+                                (c.p_r, c.fix_var, c.p_a, c.q, c.p_b)))
+    Tb = np.broadcast_to(T, shape)[..., None]
+    cb = ChannelParameters(*(np.broadcast_to(np.asarray(x, float), shape)[..., None]
+                             for x in (c.p_r, c.fix_var, c.p_a, c.q, c.p_b)))
+    vb = np.broadcast_to(np.asarray(v, float), shape)[..., None]
+    tg = s * Tb
+    pg = smoothed_variance(tg, Tb, vb, cb)
+    i = np.argmax(pg, axis=-1)[..., None]
+    best_p = np.take_along_axis(pg, i, -1)
+    best_t = np.take_along_axis(tg, i, -1)
+    lo = np.take_along_axis(tg, np.maximum(i - 1, 0), -1)
+    hi = np.take_along_axis(tg, np.minimum(i + 1, n_grid - 1), -1)
+    t = best_t.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(newton_steps):
+            d1, d2 = _derivatives(t, Tb, vb, cb)
+            step = np.where(d2 < 0, d1 / d2, 0.0)
+            t = np.clip(t - np.nan_to_num(step), lo, hi)
+    p_new = smoothed_variance(t, Tb, vb, cb)
+    better = p_new > best_p
+    return WorstPoint(np.where(better, p_new, best_p)[..., 0], np.where(better, t, best_t)[..., 0])
+
+
+@dataclass
+class DirectionBudget:
+    """The budget of one direction (all SI).
+
+    Attributes
+    ----------
+    mid_sigma_m, max_sigma_m : 1-sigma at mid-interval and at the worst point.
+    worst_time_s : time of the worst point since the first fix.
+    mid_sources_m2, max_sources_m2 : variance breakdown (:func:`variance_sources`) at those points.
+    """
+
+    mid_sigma_m: float
+    max_sigma_m: float
+    worst_time_s: float
+    mid_sources_m2: dict[str, float]
+    max_sources_m2: dict[str, float]
+
+
+def direction_budget(case: BudgetCase, direction: str) -> DirectionBudget:
+    """Mid-interval and worst-point sigma of one direction with their breakdowns."""
+    c = channel_parameters(case, direction)
+    T = float(case.interval_s)
+    v = float(case.speed_m_s)
+    wp = worst_point(T, v, c)
+    tw = float(wp.time_s)
+    mid = variance_sources(T / 2, T, v, c)
+    mx = variance_sources(tw, T, v, c)
+    return DirectionBudget(
+        mid_sigma_m=float(np.sqrt(smoothed_variance(T / 2, T, v, c))),
+        max_sigma_m=float(np.sqrt(wp.variance)),
+        worst_time_s=tw,
+        mid_sources_m2={k: float(x) for k, x in mid.items()},
+        max_sources_m2={k: float(x) for k, x in mx.items()},
+    )
+
+
+def budget(case: BudgetCase) -> dict[str, DirectionBudget]:
+    """:func:`direction_budget` for the three directions."""
+    return {d: direction_budget(case, d) for d in DIRECTIONS}
+
+
+def sigma_along(case: BudgetCase, t) -> dict[str, np.ndarray]:
+    """1-sigma of each direction at the times t (s since the first fix)."""
+    T, v = case.interval_s, case.speed_m_s
+    return {d: np.sqrt(smoothed_variance(np.asarray(t, float), T, v, channel_parameters(case, d)))
+            for d in DIRECTIONS}
+
+
+# ----------------------------------------------------------------------------- inverse sizing
+
+#: sizable parameters -> (case field setter, directions it acts on)
+def _with_gyro_bias(case: BudgetCase, x: float) -> BudgetCase:
+    return replace(case, initial=replace(case.initial, gyro_bias_y_rad_s=x, gyro_bias_z_rad_s=x))
+
+
+def _with_arw(case: BudgetCase, x: float) -> BudgetCase:
+    return replace(case, noise=replace(case.noise, gyro_arw_rad_sqrt_s=x))
+
+
+def _with_odo_noise(case: BudgetCase, x: float) -> BudgetCase:
+    return replace(case, noise=replace(case.noise, odo_scale_noise_per_sqrt_s=x))
+
+
+def _with_fix_spacing(case: BudgetCase, x: float) -> BudgetCase:
+    return replace(case, fix_spacing_m=x)
+
+
+SIZABLE: dict[str, tuple[Callable[[BudgetCase, float], BudgetCase], float]] = {
+    # name -> (setter, a starting scale for the bracket in SI)
+    "gyro_bias_rad_s": (_with_gyro_bias, 1e-7),
+    "gyro_arw_rad_sqrt_s": (_with_arw, 1e-6),
+    "odo_scale_noise_per_sqrt_s": (_with_odo_noise, 1e-5),
+    "fix_spacing_m": (_with_fix_spacing, 10.0),
+}
+
+
+def worst_sigma(case: BudgetCase, direction: str) -> float:
+    """Worst 1-sigma along the interval of one direction, m."""
+    c = channel_parameters(case, direction)
+    return float(np.sqrt(worst_point(float(case.interval_s), float(case.speed_m_s), c).variance))
+
+
+def max_allowed(case: BudgetCase, parameter: str, direction: str, target_m: float,
+                xtol_rel: float = 1e-12, max_expansions: int = 200) -> float:
+    """Largest value of one parameter that keeps the worst point of a direction within target.
+
+    The worst sigma grows monotonically with each parameter (more prior variance or process
+    noise can only raise the smoothed variance; a longer interval likewise), so the limit is the
+    root of ``worst_sigma(x) - target``. It is bracketed from ``[0, x1]`` with ``x1`` doubled
+    until the worst sigma exceeds the target, then found with ``scipy.optimize.brentq``.
+
+    Parameters
+    ----------
+    case : the other inputs, held fixed.
+    parameter : a key of :data:`SIZABLE`.
+    direction : one of :data:`DIRECTIONS`.
+    target_m : 1-sigma target.
+
+    Returns
+    -------
+    The limit in SI; ``inf`` if the parameter does not raise this direction above the target
+    at any value (it does not act on it, or its effect saturates below the target).
+
+    Raises
+    ------
+    TargetNotReachableError
+        If the target is not met even with the parameter at its smallest value.
+    ValueError
+        For a non-positive target or an unknown parameter.
+    """
+    if not np.isfinite(target_m) or target_m <= 0:
+        raise ValueError(f"target must be a positive number of metres, got {target_m!r}")
+    if parameter not in SIZABLE:
+        raise ValueError(f"unknown parameter {parameter!r}; expected one of {sorted(SIZABLE)}")
+    setter, x1 = SIZABLE[parameter]
+
+    def f(x: float) -> float:
+        return worst_sigma(setter(case, x), direction) - target_m
+
+    # the fix spacing cannot be zero (T = 0 has no interval); start from a tiny spacing
+    x0 = 1e-9 if parameter == "fix_spacing_m" else 0.0
+    f0 = f(x0)
+    if f0 >= 0:
+        raise TargetNotReachableError(parameter, direction, f0 + target_m, target_m)
+    hi = x1
+    for _ in range(max_expansions):
+        if f(hi) > 0:
+            break
+        x0, hi = hi, hi * 2.0
+    else:
+        return float("inf")
+    return float(scipy.optimize.brentq(f, x0, hi, xtol=1e-300, rtol=max(xtol_rel, 4 * np.finfo(float).eps)))
+
+
+def _linear_split(case: BudgetCase, direction: str, parameter: str):
+    """Channel parameters with the sized variance x split out: c(x) = c0 + x * c1."""
+    c = channel_parameters(case, direction)
+    zero = np.zeros(())
+    if parameter == "gyro_bias_rad_s":
+        c0 = replace(c, p_b=zero)
+        c1 = ChannelParameters(zero, zero, zero, zero, np.ones(()) if direction != "longitudinal" else zero)
+    elif parameter == "gyro_arw_rad_sqrt_s":
+        act = direction != "longitudinal"
+        c0 = replace(c, q=zero) if act else c
+        c1 = ChannelParameters(zero, zero, zero, np.ones(()) if act else zero, zero)
+    elif parameter == "odo_scale_noise_per_sqrt_s":
+        act = direction == "longitudinal"
+        c0 = replace(c, q=zero) if act else c
+        c1 = ChannelParameters(zero, zero, zero, np.ones(()) if act else zero, zero)
+    else:
+        raise ValueError(f"{parameter!r} does not enter the variances linearly; use max_allowed")
+    return c0, c1
+
+
+def max_allowed_grid(case: BudgetCase, parameter: str, direction: str, target_m,
+                     n_grid: int = 129, polish_steps: int = 4) -> np.ndarray:
+    """Vectorised :func:`max_allowed` over parameter grids (requirement curves, Fig. 6b/d/f).
+
+    The sized variance ``x`` (bias^2, ARW^2 or scale-noise^2) enters A, C and V linearly, so at
+    each t the equation ``p(t; x) = target^2`` is the quadratic
+    ``(A0 + x A1 - tau^2)(V0 + x V1) - (C0 + x C1)^2 = 0`` with one positive root (its leading
+    coefficient ``A1 V1 - C1^2 >= 0`` by Cauchy-Schwarz, its constant term negative when the target
+    is reachable). The limit is the smallest root over t: a grid minimum, polished by Newton steps
+    on ``max_t p(t; x) = tau^2`` whose derivative in x is the partial derivative at the worst t.
+    ``case`` fields may be arrays (e.g. ARW along one axis, fix spacing along another).
+
+    Returns
+    -------
+    ndarray of limits in SI units of the parameter (bias rad/s, ARW rad/sqrt(s), noise
+    1/sqrt(s)); ``nan`` where no value meets the target, ``inf`` where any value does.
+    """
+    c0, c1 = _linear_split(case, direction, parameter)
+    T = np.asarray(case.interval_s, dtype=float)
+    v = np.asarray(case.speed_m_s, dtype=float)
+    tau2 = np.asarray(target_m, dtype=float) ** 2
+    shape = np.broadcast_shapes(T.shape, v.shape, tau2.shape, *(np.shape(x) for x in
+                                (c0.p_r, c0.fix_var, c0.p_a, c0.q, c0.p_b)))
+    ex = lambda x: np.broadcast_to(np.asarray(x, float), shape)[..., None]  # noqa: E731
+    Tb, vb, tb2 = ex(T), ex(v), ex(tau2)
+    cb0 = ChannelParameters(*(ex(x) for x in (c0.p_r, c0.fix_var, c0.p_a, c0.q, c0.p_b)))
+    t = np.linspace(0.0, 1.0, n_grid) * Tb
+    A0, C0, V0 = _acv(t, Tb, vb, cb0)
+    # the x-coefficients: the same polynomials with the unit variance alone (no p_r, no fix)
+    A1, C1, V1 = _acv(t, Tb, vb, ChannelParameters(*(ex(x) for x in
+                                                    (c1.p_r, c1.fix_var, c1.p_a, c1.q, c1.p_b))))
+    a = A1 * V1 - C1**2
+    b = (A0 - tb2) * V1 + A1 * V0 - 2 * C0 * C1
+    cc = (A0 - tb2) * V0 - C0**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = 2.0 * (-cc) / (b + np.sqrt(np.maximum(b * b - 4.0 * a * cc, 0.0)))
+        root = np.where(cc >= 0, np.nan, np.where(np.isnan(root), np.inf, root))
+        root = np.where(root < 0, np.inf, root)
+    infeasible = np.isnan(root).any(axis=-1)
+    x = np.min(np.where(np.isnan(root), np.inf, root), axis=-1)
+    # polish: the grid minimum over t can only overestimate the limit slightly
+    finite = np.isfinite(x) & ~infeasible
+    xs = np.where(finite, x, 0.0)
+    for _ in range(polish_steps):
+        cx = ChannelParameters(*(np.asarray(p0, float) + xs * np.asarray(p1, float) for p0, p1 in
+                                 zip((cb0.p_r[..., 0], cb0.fix_var[..., 0], cb0.p_a[..., 0], cb0.q[..., 0],
+                                      cb0.p_b[..., 0]), (c1.p_r, c1.fix_var, c1.p_a, c1.q, c1.p_b))))
+        wp = worst_point(Tb[..., 0], vb[..., 0], cx)
+        tw = wp.time_s
+        A, C, V = _acv(tw, Tb[..., 0], vb[..., 0], cx)
+        a1, cc1, v1 = _acv(tw, Tb[..., 0], vb[..., 0], c1)
+        dp = a1 - (2 * C * cc1 * V - C**2 * v1) / V**2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xs = np.where(finite & (dp > 0), xs - (wp.variance - tau2) / dp, xs)
+    x = np.where(finite, xs, x)
+    x = np.where(infeasible, np.nan, x)
+    return np.sqrt(x)
+
+
+# ----------------------------------------------------------------------------- Monte Carlo
+
+@dataclass
+class MonteCarloResult:
+    """RMS of the smoothed position error over simulated intervals beside the analytic sigma.
+
+    Attributes
+    ----------
+    runs : number of simulated intervals.
+    times_s : (K,) node times.
+    rms_m : direction -> (K,) RMS of the smoothed error over the runs.
+    sigma_m : direction -> (K,) analytic 1-sigma at the nodes.
+    mid_index, worst_index : direction -> node index of mid-interval and of the analytic worst point.
+    """
+
+    runs: int
+    times_s: np.ndarray
+    rms_m: dict[str, np.ndarray]
+    sigma_m: dict[str, np.ndarray]
+    mid_index: int
+    worst_index: dict[str, int] = field(default_factory=dict)
+
+    def relative_sampling_error(self) -> float:
+        """1-sigma relative error of an RMS over ``runs`` Gaussian samples, ~1/sqrt(2N)."""
+        return 1.0 / np.sqrt(2.0 * self.runs)
+
+
+def _sqrt_psd(Q: np.ndarray) -> np.ndarray:
+    """A square root L with L L^T = Q for a positive semidefinite (possibly singular) Q."""
+    w, U = np.linalg.eigh(Q)
+    return U * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
+
+
+def _gains(F, Q, P0, H, R, fix_nodes, scale):
+    """Kalman gains at the fix nodes and RTS gains, from one covariance run (shared by all runs).
+
+    Uses the existing forward filter for the covariances; the RTS gain is
+    ``C_k = P_post[k] F_k^T P_prior[k+1]^-1`` (Jiang 2017 Eq. 28), formed in scaled states.
+    """
+    from trolley.smoothers import Measurements, forward_filter
+
+    K = F.shape[0] + 1
+    n = P0.shape[0]
+    m = H.shape[0]
+    meas = Measurements(np.asarray(fix_nodes), np.zeros((len(fix_nodes), m)), H, R)
+    fwd = forward_filter(F, Q, np.zeros(n), P0, meas, gate_probability=None)
+    d = scale
+    Pp = fwd.P_prior / d[None, :, None] / d[None, None, :]
+    Pf = fwd.P_post / d[None, :, None] / d[None, None, :]
+    Fs = F / d[None, :, None] * d[None, None, :]
+    # Pf F^T Pp^+ : the pseudo-inverse because a state with zero variance (a bias set to 0)
+    # keeps Pp singular; in scaled states its other eigenvalues are O(1)
+    C = Pf[:-1] @ np.swapaxes(Fs, -1, -2) @ np.linalg.pinv(Pp[1:], hermitian=True)
+    C = C / d[None, None, :] * d[None, :, None]  # back to SI: D C' D^-1
+    Kg = {}
+    for k in fix_nodes:
+        S = H @ fwd.P_prior[k] @ H.T + R
+        Kg[int(k)] = fwd.P_prior[k] @ H.T @ np.linalg.inv(S)
+    return Kg, C
+
+
+def _simulate_channel(rng, F1, Q1, P0, H, R, K, runs, scale):
+    """Simulate ``runs`` intervals of one channel, smooth them, return smoothed minus true states.
+
+    Truth: x0 ~ N(0, P0), x[k+1] = F x[k] + w, fix z = H x[K-1] + n. The filter's gains and RTS
+    gains come from one covariance computation; the runs are a batch axis of matrix products.
+    """
+    n = P0.shape[0]
+    F = np.repeat(F1[None], K - 1, 0)
+    Q = np.repeat(Q1[None], K - 1, 0)
+    fix_nodes = [K - 1]
+    Kg, C = _gains(F, Q, P0, H, R, fix_nodes, scale)
+    x = np.empty((K, runs, n))
+    x[0] = rng.standard_normal((runs, n)) @ _sqrt_psd(P0).T
+    w = rng.standard_normal((K - 1, runs, n)) @ _sqrt_psd(Q1).T
+    for k in range(K - 1):  # loop over nodes; runs are vectorised
+        x[k + 1] = x[k] @ F1.T + w[k]
+    z = x[K - 1] @ H.T + rng.standard_normal((runs, H.shape[0])) @ _sqrt_psd(R).T
+    # forward filter of the estimates (prior mean zero), all runs at once
+    xf_prior = np.zeros((K, runs, n))
+    xf_post = np.zeros((K, runs, n))
+    for k in range(K):
+        if k > 0:
+            xf_prior[k] = xf_post[k - 1] @ F1.T
+        xf_post[k] = xf_prior[k]
+        if k in Kg:
+            xf_post[k] = xf_prior[k] + (z - xf_prior[k] @ H.T) @ Kg[k].T
+    xs = np.empty_like(xf_post)
+    xs[-1] = xf_post[-1]
+    for k in range(K - 2, -1, -1):
+        xs[k] = xf_post[k] + (xs[k + 1] - xf_prior[k + 1]) @ C[k].T
+    return xs - x
+
+
+def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: float = 0.3,
+                seed: int | None = None) -> MonteCarloResult:
+    """Monte Carlo of the budget: simulate ``runs`` intervals of the linear error models.
+
+    Both channels of :mod:`trolley.error_models` (vertical, and level at heading ``heading_rad``)
+    are discretised exactly with :func:`trolley.error_models.van_loan` on a grid of ``dt_s``;
+    the truth starts from ``P(0)`` of the case (after the first fix), the fix at T is simulated
+    with the fix sigma, and a Kalman filter plus RTS smoother with gains shared by all runs
+    estimates the errors. The level errors are rotated to longitudinal and lateral (Eq. 43).
+
+    Returns
+    -------
+    MonteCarloResult
+    """
+    if runs < 2:
+        raise ValueError("a Monte Carlo needs at least 2 runs")
+    rng = np.random.default_rng(seed)
+    T = float(case.interval_s)
+    K = int(np.ceil(T / dt_s - 1e-9)) + 1
+    dt = T / (K - 1)
+    v = float(case.speed_m_s)
+    ini, nz = case.initial, case.noise
+    fix_var = float(case.fix_sigma_m) ** 2
+    # vertical channel
+    Av, Gv = em.vertical_matrices(v)
+    Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(replace(nz, gyro_bias_rw_rad_s_sqrt_s=0.0)), dt)
+    P0v = em.vertical_initial_covariance(ini)
+    ev = _simulate_channel(rng, Fv, Qv, P0v, em.VERTICAL_H, np.array([[fix_var]]), K, runs,
+                           _safe_scale(P0v, Qv))
+    # level channel
+    Al, Gl = em.level_matrices(v * np.cos(heading_rad), v * np.sin(heading_rad))
+    Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(replace(nz, gyro_bias_rw_rad_s_sqrt_s=0.0)), dt)
+    P0l = em.level_initial_covariance(ini)
+    el = _simulate_channel(rng, Fl, Ql, P0l, em.LEVEL_H, np.eye(2) * fix_var, K, runs,
+                           _safe_scale(P0l, Ql))
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    err = {
+        "vertical": ev[..., 0],
+        "longitudinal": c * el[..., 0] + s * el[..., 1],
+        "lateral": -s * el[..., 0] + c * el[..., 1],
+    }
+    times = np.arange(K) * dt
+    sig = sigma_along(case, times)
+    rms = {d: np.sqrt(np.mean(err[d] ** 2, axis=1)) for d in DIRECTIONS}
+    mid = int(np.argmin(np.abs(times - T / 2)))
+    worst = {d: int(np.argmax(sig[d])) for d in DIRECTIONS}
+    return MonteCarloResult(runs, times, rms, sig, mid, worst)
+
+
+def _safe_scale(P0: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """State scaling for the gain computation: sqrt(diag P0), or of Q where P0 has a zero."""
+    d = np.sqrt(np.diag(P0))
+    alt = np.sqrt(np.diag(Q))
+    d = np.where(d > 0, d, alt)
+    return np.where(d > 0, d, 1.0)
