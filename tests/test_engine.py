@@ -8,6 +8,7 @@ from trolley.engine import ProcessConfig, process_session
 from trolley.landxml import parse_landxml
 from trolley.sensors import IMU_PRESETS
 from trolley.truthsim import SimulationConfig, simulate_survey
+from trolley.validation import track_errors
 
 DEMO = Path(__file__).resolve().parents[1] / "projects" / "demo" / "alignment.xml"
 
@@ -25,16 +26,8 @@ def simulated(design):
 
 def _errors(result, truth):
     tj = result.trajectory
-    moving = np.r_[True, np.diff(tj.distance_m) > 1e-4]
-    te = np.interp(tj.t_s, truth.t_s, truth.E_m)
-    tn = np.interp(tj.t_s, truth.t_s, truth.N_m)
-    th = np.interp(tj.t_s, truth.t_s, truth.H_m)
-    yaw = np.interp(tj.t_s, truth.t_s, np.unwrap(truth.yaw_rad))
-    dE, dN, dH = tj.enh_m[:, 0] - te, tj.enh_m[:, 1] - tn, tj.enh_m[:, 2] - th
-    lateral = np.cos(yaw) * dE - np.sin(yaw) * dN
-    # horizontal sigma projected on the lateral direction (the covariance is near-isotropic there)
-    s_lat = np.sqrt(np.cos(yaw) ** 2 * tj.sigma_enh_m[:, 0] ** 2 + np.sin(yaw) ** 2 * tj.sigma_enh_m[:, 1] ** 2)
-    return lateral[moving], s_lat[moving], dH[moving], tj.sigma_enh_m[moving, 2]
+    e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth)
+    return e.lateral_m, e.sigma_lateral_m, e.vertical_m, e.sigma_vertical_m
 
 
 def test_smoothed_track_is_within_its_sigmas(design, simulated):
