@@ -1,0 +1,769 @@
+"""Read and write the raw stop-and-go session folder (FORMATS.md section 1), and truth.csv.
+
+The folder is a contract: ``session.toml``, ``imu.csv``, ``odometer.csv``, ``fixes.csv`` and the
+optional ``gauge.csv`` (and the LandXML design it names). Reading is strict and fast: the CSVs
+go through pandas' C parser with float dtypes and are validated vectorised; only when something
+is wrong is the file re-read as text to name the first bad cell. Every error is a
+:class:`SessionFormatError` whose message names the file, the row as a spreadsheet shows it
+(the header is row 1, the first data row is row 2) and the column (or the TOML key).
+
+Writing is atomic: the whole folder is written into a temporary sibling and renamed into place,
+so a crash never leaves a partial session. Numbers are written so that reading them back gives
+the same doubles: times, odometer distances, fixes and gauge exactly (shortest round-trip
+repr); the IMU rates and specific forces with 12 significant digits (1e-17 rad/s on a 1e-5 rad/s
+rate, far below any sensor's resolution) unless ``exact=True``. See docs/simulator.md, "Files".
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+import tomllib
+from pathlib import Path
+from typing import Callable, Mapping
+
+import numpy as np
+
+from trolley import units
+from trolley.sensors import ImuFigures, OdometerFigures
+from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
+
+__all__ = [
+    "SessionFormatError",
+    "FORMAT_ID",
+    "read_session",
+    "read_session_meta",
+    "write_session",
+    "write_session_meta",
+    "session_toml_text",
+    "write_truth_csv",
+    "read_truth_csv",
+    "read_design",
+]
+
+#: Value of the ``format`` key this module reads and writes.
+FORMAT_ID = "trolley-raw-session/1"
+
+IMU_COLUMNS = ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"]
+ODOMETER_COLUMNS = ["t_s", "distance_m"]
+FIXES_COLUMNS = ["t_s", "point", "E_m", "N_m", "H_m"]
+FIXES_SIGMA_COLUMNS = ["sigma_E_m", "sigma_N_m", "sigma_H_m"]
+GAUGE_COLUMNS = ["t_s", "gauge_m"]
+TRUTH_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "roll_rad", "pitch_rad", "yaw_rad",
+                 "gauge_m", "cant_mm", "lateral_mm", "vertical_mm"]
+
+_EXACT = "%r"          # shortest repr that reads back to the same double
+_SENSOR = "%.12g"      # IMU samples: 12 significant digits
+
+
+class SessionFormatError(ValueError):
+    """A raw session that breaks FORMATS.md; the message names file, row and column/key."""
+
+
+# ------------------------------------------------------------------------------------------
+# session.toml
+# ------------------------------------------------------------------------------------------
+_MISSING = object()
+
+
+class _Toml:
+    """Typed access to the parsed session.toml with key-naming errors."""
+
+    def __init__(self, data: dict, fname: str) -> None:
+        self.data = data
+        self.fname = fname
+
+    def error(self, key: str, what: str) -> SessionFormatError:
+        return SessionFormatError(f"{self.fname}: key {key}: {what}")
+
+    def raw(self, key: str):
+        node = self.data
+        parts = key.split(".")
+        for i, part in enumerate(parts):
+            if not isinstance(node, dict):
+                raise self.error(".".join(parts[:i]), "must be a table")
+            if part not in node:
+                return _MISSING
+            node = node[part]
+        return node
+
+    def table(self, key: str) -> bool:
+        v = self.raw(key)
+        if v is _MISSING:
+            return False
+        if not isinstance(v, dict):
+            raise self.error(key, f"must be a table, got {type(v).__name__}")
+        return True
+
+    def float(self, key: str, default=_MISSING, *, finite: bool = True, min_value=None,
+              positive: bool = False) -> float:
+        v = self.raw(key)
+        if v is _MISSING:
+            if default is _MISSING:
+                raise self.error(key, "missing (required)")
+            return default
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(key, f"must be a number, got {type(v).__name__} {v!r}")
+        v = float(v)
+        if finite and not math.isfinite(v):
+            raise self.error(key, f"must be finite, got {v!r}")
+        if min_value is not None and v < min_value:
+            raise self.error(key, f"must be >= {min_value}, got {v!r}")
+        if positive and not v > 0:
+            raise self.error(key, f"must be > 0, got {v!r}")
+        return v
+
+    def vector(self, key: str, default) -> np.ndarray:
+        v = self.raw(key)
+        if v is _MISSING:
+            return np.array(default, dtype=float)
+        if (not isinstance(v, list) or len(v) != 3
+                or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)):
+            raise self.error(key, f"must be a list of 3 numbers, got {v!r}")
+        arr = np.array(v, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise self.error(key, f"must be finite, got {v!r}")
+        return arr
+
+    def string(self, key: str, default=_MISSING) -> str:
+        v = self.raw(key)
+        if v is _MISSING:
+            if default is _MISSING:
+                raise self.error(key, "missing (required)")
+            return default
+        if not isinstance(v, str):
+            raise self.error(key, f"must be a string, got {type(v).__name__} {v!r}")
+        return v
+
+    def boolean(self, key: str, default: bool) -> bool:
+        v = self.raw(key)
+        if v is _MISSING:
+            return default
+        if not isinstance(v, bool):
+            raise self.error(key, f"must be true or false, got {v!r}")
+        return v
+
+
+def _f(x) -> float:
+    return float(x)
+
+
+def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SessionFormatError(f"{fname}: not valid TOML: {exc}") from None
+    t = _Toml(data, fname)
+    fmt = t.string("format")
+    if fmt.split("/")[0] != FORMAT_ID.split("/")[0] or fmt.split("/")[-1].split(".")[0] != "1":
+        raise t.error("format", f"unsupported format {fmt!r}, expected {FORMAT_ID!r}")
+    for tab in ("site", "trolley", "imu", "odometer", "totalstation", "alignment", "design"):
+        t.table(tab)
+    latitude_deg = t.float("site.latitude_deg")
+    if abs(latitude_deg) > 90.0:
+        raise t.error("site.latitude_deg", f"must be within -90..90, got {latitude_deg!r}")
+    dflt = TrolleyGeometry()
+    trolley = TrolleyGeometry(
+        prism_lever_arm_m=t.vector("trolley.prism_lever_arm_m", dflt.prism_lever_arm_m),
+        imu_misalignment_rad=t.vector("trolley.imu_misalignment_rad", dflt.imu_misalignment_rad),
+        rail_spacing_m=t.float("trolley.rail_spacing_m", dflt.rail_spacing_m, positive=True),
+        nominal_gauge_m=t.float("trolley.nominal_gauge_m", dflt.nominal_gauge_m, positive=True),
+    )
+    imu = None
+    if t.table("imu"):
+        imu = ImuFigures(
+            gyro_bias_instability_rad_s=_f(units.deg_h_to_rad_s(
+                t.float("imu.gyro_bias_instability_deg_h", min_value=0.0))),
+            gyro_arw_rad_sqrt_s=_f(units.deg_sqrt_h_to_rad_sqrt_s(
+                t.float("imu.gyro_arw_deg_sqrt_h", min_value=0.0))),
+            accel_bias_m_s2=_f(units.ug_to_m_s2(t.float("imu.accel_bias_ug", min_value=0.0))),
+            accel_vrw_m_s_sqrt_s=_f(units.ug_to_m_s2(
+                t.float("imu.accel_vrw_ug_sqrt_hz", 0.0, min_value=0.0))),
+            gyro_scale_factor=t.float("imu.gyro_scale_factor_ppm", 0.0, min_value=0.0) * 1e-6,
+            name=t.string("imu.name", "custom"),
+            gyrocompassing=t.boolean("imu.gyrocompassing", True),
+        )
+    od = OdometerFigures()
+    odometer = OdometerFigures(
+        scale_noise_per_sqrt_s=t.float("odometer.scale_noise_per_sqrt_s",
+                                       od.scale_noise_per_sqrt_s, min_value=0.0),
+        scale_error=t.float("odometer.scale_error", od.scale_error, min_value=0.0),
+        resolution_m=t.float("odometer.resolution_m", od.resolution_m, min_value=0.0),
+    )
+    heading_deg = t.float("alignment.initial_heading_deg", float("nan"), finite=False)
+    if math.isinf(heading_deg):
+        raise t.error("alignment.initial_heading_deg", "must be finite or nan")
+    design = t.string("design.alignment", None) if t.raw("design.alignment") is not _MISSING \
+        else None
+    if design is not None:
+        p = Path(design)
+        if design == "" or p.is_absolute() or ".." in p.parts:
+            raise t.error("design.alignment", f"must be a relative path inside the session "
+                                              f"folder, got {design!r}")
+    return SessionMeta(
+        latitude_rad=float(units.deg_to_rad(latitude_deg)),
+        height_m=t.float("site.height_m", 0.0),
+        trolley=trolley,
+        imu=imu,
+        odometer=odometer,
+        fix_sigma_m=t.float("totalstation.sigma_m", 0.0006, positive=True),
+        static_s=t.float("alignment.static_s", 900.0, min_value=0.0),
+        initial_heading_rad=float(units.deg_to_rad(heading_deg)),
+        design_alignment=design,
+    )
+
+
+def _toml_float(x: float) -> str:
+    x = float(x)
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return repr(x)
+
+
+def _toml_converted(x: float) -> str:
+    """A unit-converted value: 15 significant digits (0.03, not 0.029999999999999995)."""
+    x = float(x)
+    return _toml_float(float(f"{x:.15g}") if math.isfinite(x) else x)
+
+
+def _toml_vector(v) -> str:
+    return "[" + ", ".join(_toml_float(x) for x in np.asarray(v, dtype=float).ravel()) + "]"
+
+
+def session_toml_text(meta: SessionMeta) -> str:
+    """The ``session.toml`` text of ``meta`` (all keys of FORMATS.md sec. 1, plus extensions).
+
+    Extensions (optional keys this project adds; readers that do not know them ignore them):
+    ``[imu] accel_vrw_ug_sqrt_hz, gyro_scale_factor_ppm, name, gyrocompassing`` and
+    ``[odometer] scale_error, resolution_m``.
+    """
+    tr = meta.trolley
+    lines = [
+        f'format = "{FORMAT_ID}"',
+        "",
+        "[site]",
+        f"latitude_deg = {_toml_converted(units.rad_to_deg(meta.latitude_rad))}",
+        f"height_m = {_toml_float(meta.height_m)}",
+        "",
+        "[trolley]",
+        f"prism_lever_arm_m = {_toml_vector(tr.prism_lever_arm_m)}",
+        f"imu_misalignment_rad = {_toml_vector(tr.imu_misalignment_rad)}",
+        f"rail_spacing_m = {_toml_float(tr.rail_spacing_m)}",
+        f"nominal_gauge_m = {_toml_float(tr.nominal_gauge_m)}",
+        "",
+    ]
+    if meta.imu is not None:
+        imu = meta.imu
+        lines += [
+            "[imu]",
+            f"gyro_bias_instability_deg_h = "
+            f"{_toml_converted(units.rad_s_to_deg_h(imu.gyro_bias_instability_rad_s))}",
+            f"gyro_arw_deg_sqrt_h = "
+            f"{_toml_converted(units.rad_sqrt_s_to_deg_sqrt_h(imu.gyro_arw_rad_sqrt_s))}",
+            f"accel_bias_ug = {_toml_converted(units.m_s2_to_ug(imu.accel_bias_m_s2))}",
+            f"accel_vrw_ug_sqrt_hz = {_toml_converted(units.m_s2_to_ug(imu.accel_vrw_m_s_sqrt_s))}",
+            f"gyro_scale_factor_ppm = {_toml_converted(imu.gyro_scale_factor * 1e6)}",
+            f"name = {json.dumps(imu.name, ensure_ascii=False)}",
+            f"gyrocompassing = {'true' if imu.gyrocompassing else 'false'}",
+            "",
+        ]
+    od = meta.odometer
+    lines += [
+        "[odometer]",
+        f"scale_noise_per_sqrt_s = {_toml_float(od.scale_noise_per_sqrt_s)}",
+        f"scale_error = {_toml_float(od.scale_error)}",
+        f"resolution_m = {_toml_float(od.resolution_m)}",
+        "",
+        "[totalstation]",
+        f"sigma_m = {_toml_float(meta.fix_sigma_m)}",
+        "",
+        "[alignment]",
+        f"static_s = {_toml_float(meta.static_s)}",
+        f"initial_heading_deg = {_toml_converted(units.rad_to_deg(meta.initial_heading_rad))}",
+        "",
+    ]
+    if meta.design_alignment is not None:
+        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}",
+                  ""]
+    return "\n".join(lines)
+
+
+def read_session_meta(folder: Path) -> SessionMeta:
+    """Parse ``folder/session.toml``.
+
+    Raises
+    ------
+    SessionFormatError
+        Missing file, bad TOML, missing required key or wrong type (the message names the key).
+    """
+    path = Path(folder) / "session.toml"
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise SessionFormatError(f"{path}: file missing") from None
+    except UnicodeDecodeError as exc:
+        raise SessionFormatError(f"session.toml: not UTF-8 ({exc})") from None
+    return _parse_meta(text)
+
+
+def write_session_meta(path: Path, meta: SessionMeta) -> None:
+    """Write ``session.toml`` (atomic: temp file + os.replace)."""
+    _atomic_text(Path(path), session_toml_text(meta))
+
+
+# ------------------------------------------------------------------------------------------
+# CSV reading
+# ------------------------------------------------------------------------------------------
+def _row(i: int) -> int:
+    """0-based data index -> row number as a spreadsheet shows it (header = row 1)."""
+    return int(i) + 2
+
+
+def _header(path: Path) -> list[str]:
+    import pandas as pd
+
+    try:
+        cols = pd.read_csv(path, nrows=0, encoding="utf-8-sig", engine="c").columns
+    except FileNotFoundError:
+        raise SessionFormatError(f"{path.name}: file missing") from None
+    except UnicodeDecodeError as exc:
+        raise SessionFormatError(f"{path.name}: row 1: not UTF-8 ({exc.reason})") from None
+    except pd.errors.EmptyDataError:
+        raise SessionFormatError(f"{path.name}: row 1: empty file, no header row") from None
+    except pd.errors.ParserError as exc:
+        raise SessionFormatError(f"{path.name}: row 1: cannot parse header ({exc})") from None
+    return [str(c) for c in cols]
+
+
+def _require(path: Path, header: list[str], required: list[str]) -> dict[str, str]:
+    """Map required column names to the header names (surrounding blanks tolerated)."""
+    stripped = {}
+    for h in header:
+        stripped.setdefault(h.strip(), h)
+    missing = [c for c in required if c not in stripped]
+    if missing:
+        raise SessionFormatError(f"{path.name}: row 1: missing required column "
+                                 f"{', '.join(missing)} (header has {', '.join(header)})")
+    return stripped
+
+
+def _parser_error(path: Path, exc: Exception) -> SessionFormatError:
+    import re
+
+    msg = str(exc)
+    m = re.search(r"line (\d+)", msg)
+    where = f"row {m.group(1)}: " if m else ""
+    return SessionFormatError(f"{path.name}: {where}malformed CSV ({msg.strip()})")
+
+
+def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> SessionFormatError:
+    """Re-read as text and describe the first non-numeric or non-finite numeric cell."""
+    import pandas as pd
+
+    raw = pd.read_csv(path, usecols=[names[c] for c in numeric], dtype=str,
+                      keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
+                      engine="c")
+    best = None
+    for c in numeric:
+        text = raw[names[c]]
+        vals = pd.to_numeric(text.str.strip(), errors="coerce").to_numpy(dtype=float)
+        bad = ~np.isfinite(vals)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            if best is None or i < best[0]:
+                best = (i, c, text.iloc[i])
+    if best is None:  # pragma: no cover - the fast path and this path disagree
+        return SessionFormatError(f"{path.name}: unreadable numeric data")
+    i, c, value = best
+    what = "empty value" if value.strip() == "" else (
+        f"{value!r} is not a finite number" if value.strip().lower().lstrip("+-") in
+        ("nan", "inf", "infinity") else f"{value!r} is not a number")
+    return SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {what}")
+
+
+def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> dict[str, np.ndarray]:
+    """Read the required float columns of a CSV; strict checks per FORMATS.md."""
+    import pandas as pd
+
+    header = _header(path)
+    names = _require(path, header, required)
+    try:
+        df = pd.read_csv(path, usecols=[names[c] for c in required],
+                         dtype={names[c]: "float64" for c in required},
+                         skip_blank_lines=False, encoding="utf-8-sig", engine="c")
+    except ValueError as exc:
+        if isinstance(exc, pd.errors.ParserError):
+            raise _parser_error(path, exc) from None
+        raise _locate_bad_cell(path, names, required) from None
+    except UnicodeDecodeError as exc:
+        raise SessionFormatError(f"{path.name}: not UTF-8 ({exc.reason})") from None
+    out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
+    n = len(df)
+    if n < min_rows:
+        raise SessionFormatError(f"{path.name}: row 2: no data rows")
+    bad = np.zeros(n, dtype=bool)
+    for c in required:
+        bad |= ~np.isfinite(out[c])
+    if np.any(bad):
+        raise _locate_bad_cell(path, names, required)
+    _check_time(path, out["t_s"])
+    return out
+
+
+def _check_time(path: Path, t: np.ndarray) -> None:
+    back = np.diff(t) < 0
+    if np.any(back):
+        i = int(np.argmax(back)) + 1
+        raise SessionFormatError(f"{path.name}: row {_row(i)}, column t_s: time goes backwards "
+                                 f"({t[i]!r} after {t[i - 1]!r})")
+
+
+def _read_fixes(path: Path, default_sigma: float) -> Fixes:
+    import pandas as pd
+
+    header = _header(path)
+    names = _require(path, header, FIXES_COLUMNS)
+    sig = [c for c in FIXES_SIGMA_COLUMNS if c in names]
+    use = FIXES_COLUMNS + sig
+    try:
+        # small file: read as text (keeps point labels such as "NA") and convert per column
+        raw = pd.read_csv(path, usecols=[names[c] for c in use], dtype=str,
+                          keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
+                          engine="c")
+    except pd.errors.ParserError as exc:
+        raise _parser_error(path, exc) from None
+    except UnicodeDecodeError as exc:
+        raise SessionFormatError(f"{path.name}: not UTF-8 ({exc.reason})") from None
+    n = len(raw)
+    if n < 1:
+        raise SessionFormatError(f"{path.name}: row 2: no data rows")
+    num = ["t_s", "E_m", "N_m", "H_m"]
+    vals = {}
+    for c in num + sig:
+        s = raw[names[c]].str.strip()
+        v = pd.to_numeric(s, errors="coerce").to_numpy(dtype=float, copy=True)
+        if c in sig:  # an empty sigma cell means "the default"
+            v[(s == "").to_numpy()] = default_sigma
+        vals[c] = v
+    first = None
+    for c in num + sig:
+        bad = ~np.isfinite(vals[c])
+        if c in sig:
+            bad |= ~(vals[c] > 0)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            if first is None or i < first[0]:
+                first = (i, c)
+    points = raw[names["point"]].to_numpy(dtype=object).copy()
+    empty = np.array([str(p).strip() == "" for p in points], dtype=bool)
+    if np.any(empty) and (first is None or int(np.argmax(empty)) < first[0]):
+        first = (int(np.argmax(empty)), "point")
+    if first is not None:
+        i, c = first
+        value = raw[names[c]].iloc[i]
+        what = ("empty point label" if c == "point" else
+                "sigma must be a positive number" if c in sig and value.strip() != "" and
+                np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
+                "empty value" if value.strip() == "" else
+                f"{value!r} is not a finite number"
+                if value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity")
+                else f"{value!r} is not a number")
+        raise SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {what}")
+    t = vals["t_s"]
+    _check_time(path, t)
+    sigma = np.full((n, 3), float(default_sigma))
+    for j, c in enumerate(FIXES_SIGMA_COLUMNS):
+        if c in vals:
+            sigma[:, j] = vals[c]
+    points = np.array([str(p).strip() for p in points], dtype=object)
+    return Fixes(t_s=t, point=points,
+                 enh_m=np.column_stack([vals["E_m"], vals["N_m"], vals["H_m"]]),
+                 sigma_m=sigma)
+
+
+def read_session(folder: Path) -> RawSession:
+    """Read and validate a raw session folder (FORMATS.md sec. 1).
+
+    Parameters
+    ----------
+    folder : Path of the session folder.
+
+    Returns
+    -------
+    RawSession
+        Arrays in SI units, writable (copied out of pandas).
+
+    Raises
+    ------
+    SessionFormatError
+        The first problem found, naming the file, the row (header = row 1) and the column.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SessionFormatError(f"{folder}: not a session folder (no such directory)")
+    meta = read_session_meta(folder)
+    imu = _read_numeric(folder / "imu.csv", IMU_COLUMNS)
+    odo = _read_numeric(folder / "odometer.csv", ODOMETER_COLUMNS)
+    fixes = _read_fixes(folder / "fixes.csv", meta.fix_sigma_m)
+    gauge_t = gauge = None
+    if (folder / "gauge.csv").exists():
+        g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
+        gauge_t, gauge = g["t_s"], g["gauge_m"]
+    return RawSession(
+        meta=meta,
+        imu_t_s=imu["t_s"],
+        imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),
+        imu_f_m_s2=np.column_stack([imu["fx_m_s2"], imu["fy_m_s2"], imu["fz_m_s2"]]),
+        odo_t_s=odo["t_s"], odo_distance_m=odo["distance_m"], fixes=fixes,
+        gauge_t_s=gauge_t, gauge_m=gauge,
+    )
+
+
+def read_design(folder: Path, meta: SessionMeta):
+    """The design alignment named by ``[design] alignment``, or None.
+
+    Returns
+    -------
+    trolley.alignment.Alignment or None
+
+    Raises
+    ------
+    SessionFormatError
+        The file is missing or is not a valid LandXML alignment.
+    """
+    if meta.design_alignment is None:
+        return None
+    from trolley.landxml import parse_landxml
+
+    path = Path(folder) / meta.design_alignment
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise SessionFormatError(f"session.toml: key design.alignment: file "
+                                 f"{meta.design_alignment!r} not found in {folder}") from None
+    except UnicodeDecodeError as exc:
+        raise SessionFormatError(f"{meta.design_alignment}: not UTF-8 ({exc.reason})") from None
+    try:
+        return parse_landxml(text)
+    except ValueError as exc:
+        raise SessionFormatError(f"{meta.design_alignment}: {exc}") from None
+
+
+# ------------------------------------------------------------------------------------------
+# writing
+# ------------------------------------------------------------------------------------------
+def _csv_label(s: str) -> str:
+    s = str(s)
+    if any(ch in s for ch in ',"\r\n') or s != s.strip():
+        return '"' + s.replace('"', '""') + '"'
+    return s
+
+
+def _write_csv(path: Path, header: list[str], columns: list, formats: list[str],
+               chunk: int = 100_000) -> None:
+    """Write columns with per-column %-formats (fast: one % per row, chunked)."""
+    fmt = ",".join(formats)
+    n = len(columns[0]) if columns else 0
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        fh.write(",".join(header) + "\n")
+        for i0 in range(0, n, chunk):
+            i1 = min(i0 + chunk, n)
+            cols = [c[i0:i1].tolist() if isinstance(c, np.ndarray) else list(c[i0:i1])
+                    for c in columns]
+            fh.write("\n".join(map(fmt.__mod__, zip(*cols))))
+            fh.write("\n")
+
+
+def _check_finite(name: str, col: str, x: np.ndarray) -> None:
+    bad = ~np.isfinite(np.asarray(x, dtype=float))
+    if np.any(bad):
+        raise ValueError(f"{name}: refusing to write non-finite {col} at data row "
+                         f"{_row(int(np.argmax(bad)))}")
+
+
+def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
+                         exact: bool) -> None:
+    meta = session.meta
+    sensor = _EXACT if exact else _SENSOR
+    (tmp / "session.toml").write_text(session_toml_text(meta), encoding="utf-8")
+    w = np.asarray(session.imu_w_rad_s, dtype=float)
+    f = np.asarray(session.imu_f_m_s2, dtype=float)
+    t = np.asarray(session.imu_t_s, dtype=float)
+    if w.shape != (t.size, 3) or f.shape != (t.size, 3):
+        raise ValueError("imu arrays must be (N,), (N, 3), (N, 3)")
+    for col, x in zip(IMU_COLUMNS, [t, *w.T, *f.T]):
+        _check_finite("imu.csv", col, x)
+    _write_csv(tmp / "imu.csv", IMU_COLUMNS, [t, *w.T, *f.T], [_EXACT] + [sensor] * 6)
+    _check_finite("odometer.csv", "t_s", session.odo_t_s)
+    _check_finite("odometer.csv", "distance_m", session.odo_distance_m)
+    _write_csv(tmp / "odometer.csv", ODOMETER_COLUMNS,
+               [np.asarray(session.odo_t_s, float), np.asarray(session.odo_distance_m, float)],
+               [_EXACT, _EXACT])
+    fx = session.fixes
+    enh = np.asarray(fx.enh_m, dtype=float)
+    sig = np.asarray(fx.sigma_m, dtype=float)
+    for col, x in zip(["t_s", "E_m", "N_m", "H_m"] + FIXES_SIGMA_COLUMNS,
+                      [fx.t_s, *enh.T, *sig.T]):
+        _check_finite("fixes.csv", col, x)
+    labels = [_csv_label(p) for p in fx.point]
+    _write_csv(tmp / "fixes.csv", FIXES_COLUMNS + FIXES_SIGMA_COLUMNS,
+               [np.asarray(fx.t_s, float), labels, *enh.T, *sig.T],
+               [_EXACT, "%s"] + [_EXACT] * 6)
+    if session.gauge_t_s is not None:
+        _check_finite("gauge.csv", "t_s", session.gauge_t_s)
+        _check_finite("gauge.csv", "gauge_m", session.gauge_m)
+        _write_csv(tmp / "gauge.csv", GAUGE_COLUMNS,
+                   [np.asarray(session.gauge_t_s, float), np.asarray(session.gauge_m, float)],
+                   [_EXACT, _EXACT])
+    if meta.design_alignment is not None:
+        if design_xml is None:
+            raise ValueError(f"session.toml names the design {meta.design_alignment!r} but no "
+                             f"design_xml text was given")
+        target = tmp / meta.design_alignment
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(design_xml, encoding="utf-8")
+
+
+def write_session(folder: Path, session: RawSession, design_xml: str | None = None, *,
+                  overwrite: bool = False, exact: bool = False,
+                  extra_files: Mapping[str, Callable[[Path], None]] | None = None) -> None:
+    """Write a raw session folder atomically (FORMATS.md sec. 1).
+
+    Parameters
+    ----------
+    folder : target folder; it must not exist (or be empty) unless ``overwrite``.
+    session : the session. If ``session.meta.design_alignment`` is set, ``design_xml`` must
+        hold the LandXML text, written under that name; if it is None and ``design_xml`` is
+        given, the design is written as ``alignment.xml`` and named in session.toml.
+    design_xml : LandXML text of the design, or None.
+    overwrite : replace an existing folder (the old one is removed only after the new one is
+        in place).
+    exact : write the IMU samples with the shortest exact repr too (bigger, slower files).
+    extra_files : name -> writer(path) of further files to put into the folder before it is
+        renamed into place (e.g. ``truth.csv``), so that the folder appears complete or not
+        at all.
+
+    Raises
+    ------
+    FileExistsError
+        ``folder`` exists, is not empty and ``overwrite`` is False.
+    ValueError
+        Non-finite data, inconsistent shapes, or a design named without its text.
+    """
+    from dataclasses import replace
+
+    folder = Path(folder)
+    if session.meta.design_alignment is None and design_xml is not None:
+        session = replace(session, meta=replace(session.meta, design_alignment="alignment.xml"))
+    if folder.exists() and not overwrite and (not folder.is_dir() or any(folder.iterdir())):
+        raise FileExistsError(f"{folder}: already exists and is not empty")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
+    try:
+        os.chmod(tmp, 0o755)
+        _write_session_files(tmp, session, design_xml, exact)
+        for name, writer in (extra_files or {}).items():
+            writer(tmp / name)
+        _move_into_place(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _move_into_place(tmp: Path, folder: Path) -> None:
+    if not folder.exists():
+        os.rename(tmp, folder)
+        return
+    if folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
+        os.rename(tmp, folder)
+        return
+    old = folder.with_name(f".{folder.name}.old-{os.getpid()}")
+    os.rename(folder, old)
+    try:
+        os.rename(tmp, folder)
+    except BaseException:
+        os.rename(old, folder)
+        raise
+    if old.is_dir():
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        old.unlink()
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# ------------------------------------------------------------------------------------------
+# truth.csv
+# ------------------------------------------------------------------------------------------
+def write_truth_csv(path: Path, truth, step_m: float = 0.1) -> None:
+    """Write the truth every ``step_m`` of chainage (atomic).
+
+    Columns: chainage_m, E_m, N_m, H_m (track reference point), roll_rad, pitch_rad, yaw_rad
+    (trolley, NED), gauge_m, cant_mm (rail_spacing * sin(roll)), lateral_mm and vertical_mm
+    (true offset from the design, + right / + up).
+
+    Parameters
+    ----------
+    path : output file.
+    truth : trolley.truthsim.TruthTrack (with its geometry).
+    step_m : chainage step, m.
+    """
+    path = Path(path)
+    p = truth.resampled(step_m)
+    cols = [p.chainage_m, p.E_m, p.N_m, p.H_m, p.roll_rad, p.pitch_rad, p.yaw_rad, p.gauge_m,
+            units.m_to_mm(p.cant_m), units.m_to_mm(p.lateral_m), units.m_to_mm(p.vertical_m)]
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    os.close(fd)
+    try:
+        _write_csv(Path(tmp), TRUTH_COLUMNS, cols, [_EXACT] * len(cols))
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_truth_csv(path: Path):
+    """Read a ``truth.csv`` back into a :class:`trolley.truthsim.TruthProfile` (SI units)."""
+    from trolley.truthsim import TruthProfile
+
+    path = Path(path)
+    cols = _read_numeric_generic(path, TRUTH_COLUMNS)
+    return TruthProfile(chainage_m=cols["chainage_m"], E_m=cols["E_m"], N_m=cols["N_m"],
+                        H_m=cols["H_m"], roll_rad=cols["roll_rad"], pitch_rad=cols["pitch_rad"],
+                        yaw_rad=cols["yaw_rad"], gauge_m=cols["gauge_m"],
+                        cant_m=units.mm_to_m(cols["cant_mm"]),
+                        lateral_m=units.mm_to_m(cols["lateral_mm"]),
+                        vertical_m=units.mm_to_m(cols["vertical_mm"]))
+
+
+def _read_numeric_generic(path: Path, required: list[str]) -> dict[str, np.ndarray]:
+    import pandas as pd
+
+    header = _header(path)
+    names = _require(path, header, required)
+    try:
+        df = pd.read_csv(path, usecols=[names[c] for c in required],
+                         dtype={names[c]: "float64" for c in required},
+                         skip_blank_lines=False, encoding="utf-8-sig", engine="c")
+    except ValueError:
+        raise _locate_bad_cell(path, names, required) from None
+    out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
+    if any(not np.all(np.isfinite(v)) for v in out.values()):
+        raise _locate_bad_cell(path, names, required)
+    return out
