@@ -19,6 +19,8 @@ app = typer.Typer(
 # Each entry is a module in survey.commands exposing register(app).
 COMMAND_MODULES: list[str] = [
     "engine",
+    "devices",
+    "project",
 
 ]
 

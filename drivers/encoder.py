@@ -1,0 +1,205 @@
+"""Quadrature-encoder counter module (odometer): BEI-style ASCII protocol, polling, distance.
+
+Protocol (protocols.md section 5, BEI Sensors dual encoder-to-USB module), 115200 8N1:
+
+    $0R0<CR>                        read both channels
+    *0R0<count1>,<count2><CR>       counts, unsigned, zero-padded to the counter width
+    *0ACK<CR> / *0NACK<CR>          other commands: success / failure
+
+Field width is 3, 5, 8 or 10 digits for 8, 16, 24 or 32-bit counters. The protocol has no
+checksum: the driver checks the exact format, the value range and a speed plausibility gate,
+but a digit changed into another digit in the low places cannot be detected (docs/drivers.md).
+
+Distance: ``d_count = pi * D / (PPR * k)``, ``s = SF * sum(delta counts) * d_count`` with
+``delta = ((c1 - c0 + 2^(n-1)) mod 2^n) - 2^(n-1)`` (signed modular difference, rollover safe).
+"""
+from __future__ import annotations
+
+import re
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.lineparser import LineParser
+from drivers.stats import Stats
+
+ADDRESS = 0
+READ_COMMAND = b"$0R0\r"
+READ_PREFIX = "*0R0"
+REPLY_START = b"*0"
+TERMINATOR = b"\r"
+ACK = "*0ACK"
+NACK = "*0NACK"
+FIELD_WIDTH = {8: 3, 16: 5, 24: 8, 32: 10}
+DEFAULT_BAUD = 115200
+
+
+@dataclass(frozen=True)
+class OdometerConfig:
+    """Odometer wheel and counter settings.
+
+    Attributes
+    ----------
+    ppr : encoder pulses per revolution.
+    decode : quadrature decode multiplier (1, 2 or 4).
+    wheel_diameter_m : measuring-wheel diameter.
+    scale : calibrated scale factor SF (dimensionless, nominally 1).
+    bits : counter width (8, 16, 24, 32).
+    channel : which counter channel the odometer is on (1 or 2).
+    rate_hz : polling rate.
+    max_speed_m_s : readings implying a faster speed are rejected as corrupt.
+    """
+
+    ppr: int = 1024
+    decode: int = 4
+    wheel_diameter_m: float = 0.1
+    scale: float = 1.0
+    bits: int = 32
+    channel: int = 1
+    rate_hz: float = 100.0
+    max_speed_m_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.decode not in (1, 2, 4):
+            raise ValueError(f"odometer decode multiplier must be 1, 2 or 4, not {self.decode}")
+        if self.bits not in FIELD_WIDTH:
+            raise ValueError(f"counter width must be one of {sorted(FIELD_WIDTH)} bits, not {self.bits}")
+        if self.ppr <= 0 or self.wheel_diameter_m <= 0 or self.rate_hz <= 0:
+            raise ValueError("odometer ppr, wheel diameter and rate must be positive")
+
+    @property
+    def metres_per_count(self) -> float:
+        """Distance of one count, scale factor included."""
+        return self.scale * np.pi * self.wheel_diameter_m / (self.ppr * self.decode)
+
+
+@dataclass(frozen=True)
+class EncoderRecord:
+    """One counter read: host time of the reply and both channels' raw counts."""
+
+    t_host_s: float
+    count1: int
+    count2: int
+
+
+def format_read_reply(count1: int, count2: int, bits: int = 32) -> bytes:
+    """``*0R0<c1>,<c2>\\r`` with the counts wrapped to ``bits`` and zero-padded."""
+    w = FIELD_WIDTH[bits]
+    m = 2**bits
+    return f"{READ_PREFIX}{count1 % m:0{w}d},{count2 % m:0{w}d}\r".encode("ascii")
+
+
+def signed_delta(c1, c0, bits: int):
+    """Signed modular difference ``c1 - c0`` of ``bits``-bit counters (arrays or ints)."""
+    m = 2**bits
+    h = 2 ** (bits - 1)
+    return ((np.asarray(c1, np.int64) - np.asarray(c0, np.int64) + h) % m) - h
+
+
+def unwrap_counts(counts, bits: int) -> np.ndarray:
+    """Cumulative signed counts from raw wrapped readings (first reading = 0)."""
+    c = np.asarray(counts, np.int64)
+    if c.size == 0:
+        return c
+    return np.concatenate([[0], np.cumsum(signed_delta(c[1:], c[:-1], bits))])
+
+
+def distance_m(counts, cfg: OdometerConfig) -> np.ndarray:
+    """Cumulative distance (m) from raw wrapped counter readings."""
+    return unwrap_counts(counts, cfg.bits) * cfg.metres_per_count
+
+
+class EncoderParser(LineParser):
+    """Streaming parser for counter replies, with format, range and speed checks.
+
+    Implausible readings (a jump faster than ``max_speed_m_s``) are rejected and counted in
+    ``stats.extra['implausible']`` (and in ``bad_format``); NACKs in ``extra['nack']``.
+    """
+
+    def __init__(self, stats: Stats, cfg: OdometerConfig = OdometerConfig()) -> None:
+        super().__init__(stats, self._decode, REPLY_START, TERMINATOR, max_line=64)
+        self.cfg = cfg
+        w = FIELD_WIDTH[cfg.bits]
+        self._re = re.compile(rf"^\*0R0(\d{{{w}}}),(\d{{{w}}})$")
+        self._last: tuple[float, int] | None = None
+        for k in ("implausible", "nack", "ack"):
+            stats.extra.setdefault(k, 0)
+
+    def _decode(self, text: str, t_host: float):
+        if text == ACK:
+            self.stats.extra["ack"] += 1
+            return None
+        if text == NACK:
+            self.stats.extra["nack"] += 1
+            return None
+        m = self._re.match(text)
+        if not m:
+            raise ValueError(f"not a counter reply: {text[:40]!r}")
+        c1, c2 = int(m.group(1)), int(m.group(2))
+        if c1 >= 2**self.cfg.bits or c2 >= 2**self.cfg.bits:
+            raise ValueError(f"count out of range in {text!r}")
+        c = c1 if self.cfg.channel == 1 else c2
+        if self._last is not None:
+            t0, c0 = self._last
+            dt = max(t_host - t0, 0.0) if t_host == t_host and t0 == t0 else 0.0
+            # allow one missed poll of slack on top of the elapsed time
+            limit = self.cfg.max_speed_m_s * (dt + 2.0 / self.cfg.rate_hz) / self.cfg.metres_per_count
+            if abs(int(signed_delta(c, c0, self.cfg.bits))) > limit:
+                self.stats.extra["implausible"] += 1
+                raise ValueError(f"implausible counter jump in {text!r}")
+        self._last = (t_host, c)
+        return EncoderRecord(t_host, c1, c2)
+
+
+class OdometerPoller:
+    """Polls the counter module at ``cfg.rate_hz`` over a :class:`drivers.serialport.SerialLink`.
+
+    A poll that got no reply before the next poll is counted in ``stats.timeouts``.
+    """
+
+    def __init__(self, link, cfg: OdometerConfig) -> None:
+        self.link = link
+        self.cfg = cfg
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.polls = 0
+
+    def start(self) -> "OdometerPoller":
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="odometer-poll", daemon=True)
+        self._thread.start()
+        return self
+
+    def _replies(self) -> int:
+        st = self.link.stats
+        return st.frames_ok + st.bad_checksum + st.bad_format
+
+    def _run(self) -> None:
+        period = 1.0 / self.cfg.rate_hz
+        nxt = time.monotonic()
+        last_replies = self._replies()
+        while not self._stop.is_set():
+            if self.polls:
+                r = self._replies()
+                if r == last_replies:
+                    with self.link.lock:
+                        self.link.stats.timeouts += 1
+                last_replies = r
+            try:
+                self.link.write(READ_COMMAND)
+                self.polls += 1
+            except Exception:  # port gone: the link reconnects; keep the schedule
+                pass
+            nxt += period
+            delay = nxt - time.monotonic()
+            if delay < -period:  # fell behind (loaded machine): do not burst to catch up
+                nxt = time.monotonic()
+                delay = 0.0
+            self._stop.wait(max(delay, 0.0))
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)

@@ -1,0 +1,248 @@
+"""GeoCOM total-station client: one request at a time, transaction ids, CRC, bounded retries.
+
+The survey calls (protocols.md section 1.5/1.6): COM_NullProc, COM_GetSWVersion, AUT_FineAdjust,
+TMC_DoMeasure, TMC_GetSimpleMea, TMC_GetCoordinate, TMC_GetAngle, BAP_MeasDistanceAngle,
+TMC_SetStation / GetStation / SetOrientation / SetHeight and AUT_MakePositioning (what a
+free-station setup on CPIII points needs). Transient failures (timeouts, no target, ATR not
+locked, busy, checksum) are retried with exponential back-off, bounded in count and time;
+everything else raises the typed :class:`drivers.geocom.GeoComError` at once.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers import geocom as gc
+from drivers.lineparser import ChecksumError, LineParser
+from drivers.serialport import DeviceError, SerialLink
+from drivers.stats import Stats
+
+DEFAULT_BAUD = 19200
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """Bounded exponential back-off.
+
+    Attributes
+    ----------
+    attempts : total tries per call (1 = no retry).
+    base_delay_s, max_delay_s : delay before retry k is ``min(base * 2**k, max)``.
+    total_s : give up when this much time has passed since the first try.
+    """
+
+    attempts: int = 5
+    base_delay_s: float = 0.05
+    max_delay_s: float = 2.0
+    total_s: float = 60.0
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One prism measurement: angles, slope distance, grid coordinates, return code, host time."""
+
+    hz_rad: float
+    v_rad: float
+    slope_m: float
+    E_m: float
+    N_m: float
+    H_m: float
+    rc: int
+    t_host_s: float
+
+
+class GeoComReplyParser(LineParser):
+    """Line parser producing :class:`drivers.geocom.Reply` records."""
+
+    def __init__(self, stats: Stats) -> None:
+        super().__init__(stats, self._decode, gc.REPLY_START.encode(), b"\n", max_line=1024)
+
+    @staticmethod
+    def _decode(text: str, t_host: float) -> gc.Reply:
+        try:
+            return gc.decode_reply(text, t_host)
+        except gc.GeoComChecksumError as e:
+            raise ChecksumError(str(e)) from None
+        except gc.GeoComProtocolError as e:
+            raise ValueError(str(e)) from None
+
+
+class TotalStation:
+    """A Leica total station over GeoCOM ASCII.
+
+    Parameters
+    ----------
+    port : serial port path.
+    baudrate : 9600 and 19200 are both common in the field (must match the instrument).
+    use_crc : add the CRC-16 field to requests (the instrument then answers with one, which is
+        verified). Replies with a CRC field are always verified.
+    timeout_s : reply timeout of quick calls; ``long_timeout_s`` for ATR / EDM calls.
+    retry : retry policy for transient failures.
+    raw_log : path of the raw byte log.
+    """
+
+    LONG_RPCS = frozenset({gc.AUT_FINEADJUST, gc.AUT_MAKEPOSITIONING, gc.BAP_MEASDISTANCEANGLE,
+                           gc.TMC_GETCOORDINATE, gc.TMC_GETSIMPLEMEA, gc.AUT_LOCKIN})
+
+    def __init__(self, port: str, baudrate: int = DEFAULT_BAUD, use_crc: bool = False,
+                 timeout_s: float = 3.0, long_timeout_s: float = 15.0,
+                 retry: RetryPolicy = RetryPolicy(), raw_log: str | Path | None = None,
+                 reconnect: bool = True) -> None:
+        self.stats = Stats()
+        for k in ("retries", "stale_replies"):
+            self.stats.extra[k] = 0
+        self.link = SerialLink(port, GeoComReplyParser(self.stats), name="totalstation",
+                               baudrate=baudrate, raw_log=raw_log, reconnect=reconnect)
+        self.use_crc = use_crc
+        self.timeout_s = timeout_s
+        self.long_timeout_s = long_timeout_s
+        self.retry = retry
+        self._trid = 0
+
+    # ------------------------------------------------------------------ link
+    def connect(self, open_timeout_s: float = 5.0) -> "TotalStation":
+        """Open the port, clear the instrument's buffer with a LF and check with COM_NullProc."""
+        self.link.start(open_timeout_s)
+        self.link.write(gc.CLEAR_BUFFER)
+        self.null_proc()
+        return self
+
+    def close(self) -> None:
+        """Close the port and the raw log."""
+        self.link.stop()
+
+    def __enter__(self) -> "TotalStation":
+        return self.connect()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _next_trid(self) -> int:
+        self._trid = self._trid + 1 if self._trid < gc.MAX_TRID else 1
+        return self._trid
+
+    # ------------------------------------------------------------------ calls
+    def call_once(self, rpc: int, params: tuple = (), timeout_s: float | None = None,
+                  ok: frozenset = frozenset({0})) -> gc.Reply:
+        """Send one request and wait for its reply (no retry).
+
+        Raises
+        ------
+        GeoComError subclass : the reply's RC (or RC_COM) is not in ``ok``; GeoComTimeout (3077)
+            when no reply with this transaction id arrived in time.
+        """
+        if timeout_s is None:
+            timeout_s = self.long_timeout_s if rpc in self.LONG_RPCS else self.timeout_s
+        for stale in self.link.drain():
+            self.stats.extra["stale_replies"] += 1
+        trid = self._next_trid()
+        try:
+            self.link.write(gc.encode_request(rpc, params, trid, self.use_crc))
+        except DeviceError as e:
+            raise gc.GeoComError(3075, rpc, str(e)) from None
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            rep = self.link.get(max(left, 0.0)) if left > 0 else None
+            if rep is None:
+                with self.link.lock:
+                    self.stats.timeouts += 1
+                raise gc.GeoComTimeout(3077, rpc, f"no reply within {timeout_s:g} s")
+            if rep.trid != trid:
+                with self.link.lock:
+                    self.stats.extra["stale_replies"] += 1
+                continue
+            if rep.com_rc != 0:
+                raise gc.error_for(rep.com_rc, rpc)
+            if rep.rc not in ok:
+                raise gc.error_for(rep.rc, rpc)
+            return rep
+
+    def call(self, rpc: int, params: tuple = (), timeout_s: float | None = None,
+             ok: frozenset = frozenset({0})) -> gc.Reply:
+        """:meth:`call_once` with bounded exponential back-off on transient failures."""
+        t0 = time.monotonic()
+        for k in range(self.retry.attempts):
+            try:
+                return self.call_once(rpc, params, timeout_s, ok)
+            except gc.GeoComError as e:
+                last = k == self.retry.attempts - 1
+                if not e.retryable or last or time.monotonic() - t0 > self.retry.total_s:
+                    raise
+                with self.link.lock:
+                    self.stats.extra["retries"] += 1
+                time.sleep(min(self.retry.base_delay_s * 2**k, self.retry.max_delay_s))
+                try:  # clear a half-received request in the instrument
+                    self.link.write(gc.CLEAR_BUFFER)
+                except DeviceError:
+                    pass
+        raise AssertionError("unreachable")
+
+    # ------------------------------------------------------------------ RPCs
+    def null_proc(self) -> None:
+        """COM_NullProc: connection check."""
+        self.call(gc.COM_NULLPROC)
+
+    def sw_version(self) -> tuple[int, int, int]:
+        """COM_GetSWVersion: GeoCOM release, version, subversion."""
+        p = self.call(gc.COM_GETSWVERSION).params
+        return int(p[0]), int(p[1]), int(p[2])
+
+    def fine_adjust(self, hz_window_rad: float = 0.0873, v_window_rad: float = 0.0873) -> None:
+        """AUT_FineAdjust: ATR fine pointing on the prism inside the search window."""
+        self.call(gc.AUT_FINEADJUST, (float(hz_window_rad), float(v_window_rad), 0))
+
+    def make_positioning(self, hz_rad: float, v_rad: float, precise: bool = False, atr: bool = True) -> None:
+        """AUT_MakePositioning: turn the telescope to (Hz, V); ATR target mode by default."""
+        self.call(gc.AUT_MAKEPOSITIONING, (float(hz_rad), float(v_rad), int(precise), int(atr), 0))
+
+    def do_measure(self, command: int = gc.TMC_DEF_DIST, mode: int = gc.TMC_AUTO_INC) -> None:
+        """TMC_DoMeasure (1 = single distance, 3 = clear, 8 = rapid tracking, 0 = stop)."""
+        self.call(gc.TMC_DOMEASURE, (int(command), int(mode)))
+
+    def simple_mea(self, wait_ms: int = 3000, mode: int = gc.TMC_AUTO_INC) -> tuple[float, float, float, int]:
+        """TMC_GetSimpleMea: (Hz, V, slope distance, rc); warnings 1283/1284 accepted."""
+        r = self.call(gc.TMC_GETSIMPLEMEA, (int(wait_ms), int(mode)), ok=gc.TMC_RESULT_USABLE)
+        return float(r.params[0]), float(r.params[1]), float(r.params[2]), r.rc
+
+    def coordinate(self, wait_ms: int = 3000, mode: int = gc.TMC_AUTO_INC) -> tuple[float, float, float, int]:
+        """TMC_GetCoordinate: (E, N, H, rc) of the static measurement."""
+        r = self.call(gc.TMC_GETCOORDINATE, (int(wait_ms), int(mode)), ok=gc.TMC_RESULT_USABLE)
+        return float(r.params[0]), float(r.params[1]), float(r.params[2]), r.rc
+
+    def angle(self, mode: int = gc.TMC_AUTO_INC) -> tuple[float, float]:
+        """TMC_GetAngle (GetAngle1): (Hz, V)."""
+        r = self.call(gc.TMC_GETANGLE, (int(mode),), ok=gc.TMC_RESULT_USABLE)
+        return float(r.params[0]), float(r.params[1])
+
+    def meas_distance_angle(self, dist_mode: int = gc.BAP_DEF_DIST) -> tuple[float, float, float]:
+        """BAP_MeasDistanceAngle: (Hz, V, slope distance) with the current ATR settings."""
+        r = self.call(gc.BAP_MEASDISTANCEANGLE, (int(dist_mode),), ok=gc.TMC_RESULT_USABLE)
+        return float(r.params[0]), float(r.params[1]), float(r.params[2])
+
+    def set_station(self, e_m: float, n_m: float, h_m: float, instrument_height_m: float) -> None:
+        """Clear the distance (TMC_DoMeasure CLEAR), then TMC_SetStation."""
+        self.do_measure(gc.TMC_CLEAR)
+        self.call(gc.TMC_SETSTATION, (float(e_m), float(n_m), float(h_m), float(instrument_height_m)))
+
+    def station(self) -> tuple[float, float, float, float]:
+        """TMC_GetStation: (E0, N0, H0, instrument height)."""
+        p = self.call(gc.TMC_GETSTATION).params
+        return float(p[0]), float(p[1]), float(p[2]), float(p[3])
+
+    def set_orientation(self, hz_rad: float) -> None:
+        """Clear the distance, then TMC_SetOrientation: the current direction reads ``hz_rad``."""
+        self.do_measure(gc.TMC_CLEAR)
+        self.call(gc.TMC_SETORIENTATION, (float(hz_rad),))
+
+    def set_reflector_height(self, height_m: float) -> None:
+        """TMC_SetHeight: reflector height above the measured point."""
+        self.call(gc.TMC_SETHEIGHT, (float(height_m),))
+
+    def measure(self, wait_ms: int = 3000) -> Measurement:
+        """One static prism measurement: DoMeasure(single), GetSimpleMea, GetCoordinate."""
+        self.do_measure(gc.TMC_DEF_DIST)
+        hz, v, sd, rc1 = self.simple_mea(wait_ms)
+        e, n, h, rc2 = self.coordinate(wait_ms)
+        return Measurement(hz, v, sd, e, n, h, max(rc1, rc2), time.monotonic())
