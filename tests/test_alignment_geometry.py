@@ -177,3 +177,40 @@ def test_derivatives_are_consistent(s, which):
         assert abs(d(r.slope_rad) - r.rho_v_1_m[1]) < 1e-10
     else:
         assert abs(d(r.cant_rad) - r.rho_tw_1_m[1]) < 1e-12
+
+
+_curv = st.one_of(st.just(0.0), st.floats(1 / 20000, 1 / 150), st.floats(-1 / 150, -1 / 20000))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(2.0, 400.0), _curv, _curv, st.floats(0.05, 0.95), st.floats(0.0, 2 * math.pi))
+def test_splitting_an_element_changes_nothing(L, k0, k1, frac, h0):
+    """A clothoid (or arc) cut in two at any point is the same curve: an identity that the
+    Fresnel form must satisfy for any start curvature, including both ends curved."""
+    a = frac * L
+    km = k0 + (k1 - k0) * frac
+    if k0 == k1:
+        whole, parts = [Arc(L, k0)] if k0 else [Line(L)], [Arc(a, k0), Arc(L - a, k0)] if k0 else [Line(a), Line(L - a)]
+    else:
+        whole, parts = [Clothoid(L, k0, k1)], [Clothoid(a, k0, km), Clothoid(L - a, km, k1)]
+    h1 = HorizontalAlignment.from_elements(400000.0, 5000000.0, h0, whole)
+    h2 = HorizontalAlignment.from_elements(400000.0, 5000000.0, h0, parts)
+    s = np.linspace(-5.0, L + 5.0, 41)
+    r1, r2 = h1.evaluate(s), h2.evaluate(s)
+    assert np.max(np.hypot(r1.E_m - r2.E_m, r1.N_m - r2.N_m)) < 1e-8
+    dh = np.angle(np.exp(1j * (r1.heading_rad - r2.heading_rad)))
+    assert np.max(np.abs(dh)) < 1e-12
+    np.testing.assert_allclose(r1.rho_h_1_m, r2.rho_h_1_m, rtol=0, atol=1e-15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-math.pi, math.pi), _curv, _curv, st.floats(10.0, 300.0))
+def test_rotating_the_start_rotates_the_curve(alpha, k0, k1, L):
+    """Turning the start bearing by alpha turns every point about the start by alpha."""
+    el = Clothoid(L, k0, k1) if k0 != k1 else (Arc(L, k0) if k0 else Line(L))
+    h1 = HorizontalAlignment.from_elements(0.0, 0.0, 0.4, [el])
+    h2 = HorizontalAlignment.from_elements(0.0, 0.0, 0.4 + alpha, [el])
+    s = np.linspace(0.0, L, 17)
+    z1 = h1.evaluate(s).N_m + 1j * h1.evaluate(s).E_m
+    z2 = h2.evaluate(s).N_m + 1j * h2.evaluate(s).E_m
+    assert np.max(np.abs(z1 * np.exp(1j * alpha) - z2)) < 1e-9

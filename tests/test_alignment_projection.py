@@ -106,3 +106,43 @@ def test_shape_is_kept():
     p = AL.project(E, N, H)
     assert p.chainage_m.shape == (3, 4) and p.inside.shape == (3, 4)
     np.testing.assert_allclose(p.vertical_m, 0.25, atol=1e-9)
+
+
+@st.composite
+def chains(draw):
+    """Random element chains, including S-curves and curve-to-curve clothoids.
+
+    Radii >= 800 m keep the total turn below pi, so the nearest point is never on another lap.
+    """
+    n = draw(st.integers(1, 6))
+    k = draw(st.sampled_from([0.0, 1 / 800, -1 / 900]))
+    els = []
+    for _ in range(n):
+        L = draw(st.floats(10.0, 300.0))
+        kind = draw(st.sampled_from(["line", "arc", "clothoid"]))
+        if kind == "line":
+            els.append(Line(L))
+            k = 0.0
+        elif kind == "arc":
+            k = k if k != 0.0 else draw(st.sampled_from([1.0, -1.0])) / draw(st.floats(800, 20000))
+            els.append(Arc(L, k))
+        else:
+            k_new = draw(st.sampled_from([1.0, -1.0])) / draw(st.floats(800.0, 20000.0))
+            els.append(Clothoid(L, k, k_new))
+            k = k_new
+    return HorizontalAlignment.from_elements(draw(st.floats(3e5, 7e5)), draw(st.floats(1e6, 8e6)),
+                                             draw(st.floats(0, 2 * math.pi)), els,
+                                             draw(st.floats(-500.0, 9000.0)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(chains(), st.lists(st.tuples(st.floats(0.0, 1.0), st.floats(-8.0, 8.0)), min_size=1,
+                          max_size=30))
+def test_round_trip_on_random_chains(hz, pts):
+    al = Alignment(hz)
+    f, d = (np.array(x) for x in zip(*pts))
+    s = hz.start_chainage_m + f * hz.length_m
+    E, N, _ = _offset(al, s, d)
+    p = al.project(E, N)
+    assert np.max(np.abs(p.chainage_m - s)) < 1e-6
+    assert np.max(np.abs(p.lateral_m - d)) < 1e-6
