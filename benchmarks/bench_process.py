@@ -1,0 +1,112 @@
+"""Speed of ``trolley process`` end to end on a 10 km stop-and-go survey at 200 Hz (issue 2).
+
+Prints, all measured in this run on the same files:
+- the I/O floor: the time pandas alone needs to read the session's CSV files;
+- the time of read_session + design + dead reckoning + filtering + RTS smoothing + writing the
+  outputs, and its ratio to the floor (goal <= 3);
+- the time a per-sample filterpy loop (predict at every IMU sample, RTS over all samples) would
+  need for the same data, measured on a slice and scaled linearly, and our ratio to it.
+
+    python benchmarks/bench_process.py [--length-m 10000] [--rate-hz 200]
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from survey.sessionio import read_design, read_session, write_session
+from survey.trackio import write_outputs
+from trolley.alignment import Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line, VerticalProfile
+from trolley.engine import ProcessConfig, process_session
+from trolley.landxml import landxml_text
+from trolley.truthsim import SimulationConfig, simulate_survey
+
+
+def long_design(length_m: float) -> Alignment:
+    """A design of straights, transitions and 4000 m arcs turning alternately right and left."""
+    elements, k = [], 1.0 / 4000.0
+    total, sign = 0.0, 1.0
+    while total < length_m + 400.0:
+        elements += [Line(300.0), Clothoid(150.0, 0.0, sign * k), Arc(400.0, sign * k), Clothoid(150.0, sign * k, 0.0)]
+        total += 1000.0
+        sign = -sign
+    h = HorizontalAlignment.from_elements(500000.0, 3100000.0, 0.4, elements)
+    pvi = np.arange(0.0, total + 1.0, 500.0)
+    heights = 50.0 + 2.0 * np.sin(pvi / 1500.0)
+    curve = np.where((pvi > 0) & (pvi < pvi[-1]), 200.0, 0.0)
+    v = VerticalProfile.from_pvis(pvi, heights, curve)
+    st = np.arange(0.0, total + 1.0, 250.0)
+    c = CantProfile.from_stations(st, 0.05 * np.sin(st / 700.0))
+    return Alignment(h, v, c, name="bench")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--length-m", type=float, default=10000.0)
+    ap.add_argument("--rate-hz", type=float, default=200.0)
+    ap.add_argument("--static-s", type=float, default=900.0)
+    args = ap.parse_args()
+    design = long_design(args.length_m)
+    t0 = time.perf_counter()
+    sim = simulate_survey(design, SimulationConfig(length_m=args.length_m, static_s=args.static_s,
+                                                   imu_rate_hz=args.rate_hz, seed=1))
+    print(f"simulated {args.length_m / 1000:.1f} km: {sim.session.imu_t_s.size:,} IMU samples, "
+          f"{len(sim.session.fixes)} fixes ({time.perf_counter() - t0:.1f} s)")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "session"
+        t0 = time.perf_counter()
+        write_session(folder, sim.session, design_xml=landxml_text(design))
+        print(f"wrote the session folder in {time.perf_counter() - t0:.1f} s")
+
+        t0 = time.perf_counter()
+        for name in ("imu.csv", "odometer.csv", "fixes.csv", "gauge.csv"):
+            pd.read_csv(folder / name)
+        floor = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        session = read_session(folder)
+        t_read = time.perf_counter() - t0
+        design2 = read_design(folder, session.meta)
+        t1 = time.perf_counter()
+        result = process_session(session, design2, ProcessConfig(smoother="rts"), with_observability=False)
+        t_proc = time.perf_counter() - t1
+        t2 = time.perf_counter()
+        write_outputs(Path(tmp) / "out", result, session, folder)
+        t_write = time.perf_counter() - t2
+        total = time.perf_counter() - t0
+
+    n = sim.session.imu_t_s.size
+    slice_n = 20000
+    from filterpy.kalman import KalmanFilter, rts_smoother
+    from trolley.engine import error_model
+    F1 = np.eye(8)
+    F1[0, 2] = F1[1, 3] = 0.005
+    Q1 = np.eye(8) * 1e-12
+    kf = KalmanFilter(dim_x=8, dim_z=3)
+    kf.P = np.eye(8)
+    xs = np.empty((slice_n, 8))
+    Ps = np.empty((slice_n, 8, 8))
+    t3 = time.perf_counter()
+    for k in range(slice_n):
+        kf.predict(F=F1, Q=Q1)
+        xs[k] = kf.x[:, 0]
+        Ps[k] = kf.P
+    rts_smoother(xs, Ps, np.repeat(F1[None], slice_n, 0), np.repeat(Q1[None], slice_n, 0))
+    per_sample = (time.perf_counter() - t3) / slice_n * n
+
+    print(f"pandas read floor:           {floor:7.2f} s")
+    print(f"read_session (validated):    {t_read:7.2f} s")
+    print(f"process (DR+filter+RTS+stations): {t_proc:7.2f} s  ({result.node_count} filter nodes)")
+    print(f"write outputs:               {t_write:7.2f} s")
+    print(f"end to end:                  {total:7.2f} s  = {total / floor:.2f} x the pandas read floor (goal <= 3)")
+    print(f"per-sample filterpy loop (predict + RTS at {args.rate_hz:.0f} Hz, scaled from {slice_n} samples): "
+          f"{per_sample:7.1f} s  -> ours is {per_sample / total:.1f} x faster")
+
+
+if __name__ == "__main__":
+    main()
