@@ -1,0 +1,273 @@
+"""``trolley project ...``: create a project store, import CPIII points, the design alignment and
+raw session folders, export sessions, and show what a project holds.
+
+Every command opens ``<root>/<name>/project.sqlite`` (``--root``, default ``projects``, or the
+environment variable ``TROLLEY_PROJECTS``). Bad input is one line on stderr naming the file and
+line, exit code 2, and nothing stored (each import is one transaction).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+err = Console(stderr=True)
+project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True)
+
+RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
+                                          help="folder holding the projects")]
+ProjectOption = Annotated[str, typer.Option("--project", "-p", help="project name")]
+
+
+def say(message: str) -> None:
+    """A status line on stderr (never wrapped, so it can be grepped)."""
+    err.print(message, highlight=False, soft_wrap=True, markup=False)
+
+
+def fail(message: str, code: int = 2) -> None:
+    """Print a one-line error to stderr and exit non-zero."""
+    from rich.text import Text
+
+    err.print(Text.assemble(("error: ", "bold red"), message), highlight=False, soft_wrap=True)
+    raise typer.Exit(code=code)
+
+
+def _open(root: Path, name: str):
+    from survey.store import ProjectStore, StoreError
+
+    try:
+        return ProjectStore.open_project(root, name)
+    except StoreError as e:
+        fail(str(e))
+
+
+@project_app.command("new")
+def new(
+    name: Annotated[str, typer.Argument(help="project name (a folder under --root)")],
+    root: RootOption = Path("projects"),
+    imu: Annotated[str, typer.Option(help="IMU preset: rlg, fog or mems")] = "rlg",
+    latitude_deg: Annotated[float, typer.Option(help="site latitude, degrees (Earth rate)")] = 28.0,
+    height: Annotated[float, typer.Option(help="site height, m")] = 50.0,
+    tolerance_set: Annotated[str, typer.Option(help="name of the tolerance set for defects")] = "default",
+) -> None:
+    """Create a project store <root>/<name>/project.sqlite."""
+    import dataclasses
+
+    from survey.store import ProjectSettings, ProjectStore, StoreError
+    from trolley import units
+    from trolley.sensors import IMU_PRESETS
+
+    if imu not in IMU_PRESETS:
+        fail(f"--imu must be one of {', '.join(IMU_PRESETS)}, not {imu!r}")
+    if not -90.0 <= latitude_deg <= 90.0:
+        fail(f"--latitude-deg must be within -90..90, not {latitude_deg}")
+    settings = dataclasses.replace(ProjectSettings(), imu=IMU_PRESETS[imu], latitude_rad=units.deg_to_rad(latitude_deg),
+                                   height_m=height, tolerance_set=tolerance_set)
+    try:
+        store = ProjectStore.create(root, name, settings)
+    except StoreError as e:
+        fail(str(e))
+    store.close()
+    say(f"created project {name}: {store.path}")
+
+
+@project_app.command("import-cpiii")
+def import_cpiii(
+    file: Annotated[Path, typer.Argument(help="CPIII file: CSV id,E_m,N_m,H_m or Leica GSI-8/16 (words 11, 81-83)")],
+    project: ProjectOption,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Import CPIII control points (all or nothing)."""
+    from survey.cpiii import CpiiiError, import_cpiii_file
+
+    with _open(root, project) as store:
+        try:
+            res = import_cpiii_file(store, file)
+        except CpiiiError as e:
+            fail(f"{e} (nothing imported)")
+        total = len(store.cpiii_points())
+    extra = f", {res.already_present} already present" if res.already_present else ""
+    say(f"{file}: {res.added} CPIII points imported{extra}; the project has {total}")
+
+
+@project_app.command("import-alignment")
+def import_alignment(
+    file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
+    project: ProjectOption,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
+    from survey.store import alignment_record_from_text
+
+    try:
+        text = file.read_bytes().decode("utf-8")
+    except OSError as e:
+        fail(f"{file}: {e.strerror or e}")
+    except UnicodeDecodeError as e:
+        fail(f"{file}: not UTF-8 ({e.reason} at byte {e.start})")
+    with _open(root, project) as store:
+        try:
+            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m)
+        except ValueError as e:  # LandXmlError names the element
+            fail(f"{file}: {e} (nothing imported)")
+        store.add_alignment(rec)
+    say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
+              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m")
+
+
+@project_app.command("import-session")
+def import_session(
+    folder: Annotated[Path, typer.Argument(help="raw session folder (FORMATS.md section 1)")],
+    project: ProjectOption,
+    session: Annotated[str | None, typer.Option("--session", help="session name (default: the folder name)")] = None,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Import a raw session folder into the project store (one transaction)."""
+    from survey.sessionio import SessionFormatError, read_session
+    from survey.store import StoreError, alignment_record_from_text
+
+    name = session or folder.resolve().name
+    try:
+        raw = read_session(folder)
+    except SessionFormatError as e:
+        fail(f"{folder}: {e}")
+    toml_text = (folder / "session.toml").read_text(encoding="utf-8")
+    design = None
+    if raw.meta.design_alignment is not None:
+        path = folder / raw.meta.design_alignment
+        try:
+            design = alignment_record_from_text(raw.meta.design_alignment, path.read_bytes().decode("utf-8"),
+                                                raw.meta.trolley.rail_spacing_m)
+        except OSError as e:
+            fail(f"{path}: {e.strerror or e}")
+        except ValueError as e:  # UnicodeDecodeError and LandXmlError
+            fail(f"{path}: {e}")
+    with _open(root, project) as store:
+        try:
+            rec = store.import_raw_session(name, raw, design=design, source_toml=toml_text)
+        except StoreError as e:
+            fail(str(e))
+        counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+    say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
+              f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
+              f"{counts['gauge_sample']} gauge readings")
+
+
+@project_app.command("export-session")
+def export_session(
+    project: ProjectOption,
+    session: Annotated[str, typer.Option("--session", help="session name")],
+    out: Annotated[Path, typer.Option("--out", help="raw session folder to write (must not exist)")],
+    overwrite: Annotated[bool, typer.Option(help="replace an existing folder")] = False,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Write a stored session as a raw session folder (accepted fixes only)."""
+    from survey.sessionio import write_session
+    from survey.store import StoreError
+
+    with _open(root, project) as store:
+        try:
+            raw, design_xml = store.raw_session(session)
+        except StoreError as e:
+            fail(str(e))
+    try:
+        write_session(out, raw, design_xml, overwrite=overwrite)
+    except (FileExistsError, ValueError) as e:
+        fail(str(e))
+    say(f"session {session!r} written to {out}")
+
+
+@project_app.command("show")
+def show(
+    name: Annotated[str, typer.Argument(help="project name")],
+    root: RootOption = Path("projects"),
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable summary on stdout")] = False,
+) -> None:
+    """Show a project: settings, CPIII points, design alignment, sessions."""
+    import numpy as np
+    from rich.table import Table
+
+    from survey.store import settings_to_json
+    from trolley import units
+
+    with _open(root, name) as store:
+        info = store.info()
+        s = store.settings()
+        pts = store.cpiii_points()
+        al = store.alignment()
+        sessions = []
+        for rec in store.sessions():
+            counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+            fixes = store.fixes(rec.session_id)
+            sessions.append((rec, counts, sum(f.accepted for f in fixes), len(fixes),
+                             len(store.station_setups(rec.session_id))))
+    enh = np.array([[p.e_m, p.n_m, p.h_m] for p in pts]).reshape(-1, 3)
+    arcsec = units.arcsec_to_rad(1.0)
+
+    if as_json:
+        doc = {
+            "name": info.name, "path": str(info.path), "created_utc": info.created_utc,
+            "schema_version": info.schema_version,
+            "settings": json.loads(settings_to_json(s)),
+            "cpiii": {"count": len(pts), "min_enh_m": enh.min(axis=0).tolist() if len(pts) else None,
+                      "max_enh_m": enh.max(axis=0).tolist() if len(pts) else None},
+            "alignment": None if al is None else {"name": al.name, "file": al.file_name, "elements": al.element_count,
+                                                  "chainage_start_m": al.chainage_start_m,
+                                                  "chainage_end_m": al.chainage_end_m},
+            "sessions": [{"name": r.name, "state": r.state, "source": r.source, "created_utc": r.created_utc,
+                          "imu_samples": c["imu_sample"], "fixes_accepted": a, "fixes": n, "setups": k}
+                         for r, c, a, n, k in sessions],
+        }
+        typer.echo(json.dumps(doc, indent=2))
+        return
+
+    out = Console()
+    t = Table(title=f"project {info.name}", show_header=False)
+    t.add_column("what")
+    t.add_column("value")
+    t.add_row("store", f"{info.path} (schema v{info.schema_version}, created {info.created_utc})")
+    t.add_row("site", f"latitude {units.rad_to_deg(s.latitude_rad):.4f} deg, height {s.height_m:.1f} m")
+    t.add_row("IMU", f"{s.imu.name}: bias instability {units.rad_s_to_deg_h(s.imu.gyro_bias_instability_rad_s):.3g} deg/h, "
+                     f"ARW {units.rad_sqrt_s_to_deg_sqrt_h(s.imu.gyro_arw_rad_sqrt_s):.3g} deg/sqrt(h), "
+                     f"accel bias {units.m_s2_to_ug(s.imu.accel_bias_m_s2):.0f} ug")
+    la = units.m_to_mm(np.asarray(s.trolley.prism_lever_arm_m))
+    t.add_row("trolley", f"prism lever arm [{la[0]:.0f}, {la[1]:.0f}, {la[2]:.0f}] mm (FRD), rail spacing "
+                         f"{units.m_to_mm(s.trolley.rail_spacing_m):.0f} mm, nominal gauge "
+                         f"{units.m_to_mm(s.trolley.nominal_gauge_m):.0f} mm")
+    t.add_row("total station", f"direction {s.instrument.direction_rad / arcsec:.2g}\", zenith "
+                               f"{s.instrument.zenith_rad / arcsec:.2g}\", distance "
+                               f"{units.m_to_mm(s.instrument.distance_m):.2g} mm + {s.instrument.distance_scale * 1e6:.2g} ppm; "
+                               f"fix sigma {units.m_to_mm(s.fix_sigma_m):.2g} mm")
+    t.add_row("resection tolerance", f"|w| <= {s.max_standardized_residual:g}, residual <= "
+                                     f"{units.m_to_mm(s.max_point_residual_m):g} mm, overlap <= "
+                                     f"{units.m_to_mm(s.overlap_tolerance_m):g} mm")
+    t.add_row("conventions", f"signs {s.sign_convention}, tolerance set {s.tolerance_set}, "
+                             f"static alignment {s.static_s:.0f} s")
+    if pts:
+        lo, hi = enh.min(axis=0), enh.max(axis=0)
+        t.add_row("CPIII", f"{len(pts)} points: E {lo[0]:.3f} .. {hi[0]:.3f}, N {lo[1]:.3f} .. {hi[1]:.3f}, "
+                           f"H {lo[2]:.3f} .. {hi[2]:.3f} m")
+    else:
+        t.add_row("CPIII", "none (trolley project import-cpiii FILE --project NAME)")
+    if al is not None:
+        t.add_row("alignment", f"{al.name} ({al.file_name}): {al.element_count} elements, chainage "
+                               f"{al.chainage_start_m:.3f} .. {al.chainage_end_m:.3f} m")
+    else:
+        t.add_row("alignment", "none (trolley project import-alignment FILE.xml --project NAME)")
+    out.print(t)
+    st = Table(title="sessions")
+    for col in ("name", "state", "source", "created (UTC)", "IMU samples", "fixes accepted/all", "setups"):
+        st.add_column(col)
+    for r, c, a, n, k in sessions:
+        st.add_row(r.name, r.state, r.source, r.created_utc, str(c["imu_sample"]), f"{a}/{n}", str(k))
+    if not sessions:
+        st.add_row("(none)", "", "", "", "", "", "")
+    out.print(st)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``project`` command group to the trolley app."""
+    app.add_typer(project_app, name="project")

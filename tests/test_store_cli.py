@@ -1,0 +1,143 @@
+"""``trolley project ...`` commands, and the raw session folder <-> store round trip."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from survey.cli import app
+from survey.store import ProjectSettings, ProjectStore
+from trolley.session import Fixes, RawSession
+
+runner = CliRunner()
+
+
+def run(*args: str, code: int = 0):
+    res = runner.invoke(app, list(args))
+    assert res.exit_code == code, (res.stdout, res.stderr)
+    assert "Traceback" not in res.stderr
+    return res
+
+
+def design_xml() -> str:
+    from trolley.alignment import Alignment, Arc, Clothoid, HorizontalAlignment, Line
+    from trolley.landxml import landxml_text
+
+    h = HorizontalAlignment.from_elements(500000.0, 3100000.0, 0.6, [
+        Line(100.0), Clothoid(60.0, 0.0, 1 / 2000.0), Arc(150.0, 1 / 2000.0), Clothoid(60.0, 1 / 2000.0, 0.0),
+        Line(80.0)], start_chainage_m=1000.0)
+    import datetime as dt
+
+    return landxml_text(Alignment(h, name="up-line"), timestamp=dt.datetime(2026, 1, 1, tzinfo=dt.timezone.utc))
+
+
+def small_session(rng, with_gauge=True) -> RawSession:
+    n = 2000
+    t = np.arange(n) * 0.005
+    gt = np.arange(0, n, 10) * 0.005
+    return RawSession(
+        meta=ProjectSettings().session_meta(),
+        imu_t_s=t, imu_w_rad_s=rng.normal(0, 1e-4, (n, 3)),
+        imu_f_m_s2=rng.normal(0, 1e-2, (n, 3)) + [0, 0, -9.79],
+        odo_t_s=t, odo_distance_m=np.cumsum(rng.uniform(0, 2e-3, n)),
+        fixes=Fixes(np.array([0.5, 9.0]), np.array(["CP0101", "CP0201"], dtype=object),
+                    np.array([[500000.1234, 3100000.5678, 45.1234], [500030.1, 3100040.2, 45.3]]),
+                    np.full((2, 3), 6e-4)),
+        gauge_t_s=gt if with_gauge else None,
+        gauge_m=1.435 + rng.normal(0, 2e-4, gt.size) if with_gauge else None)
+
+
+def test_new_import_show(tmp_path):
+    root = str(tmp_path)
+    run("project", "new", "line7", "--root", root, "--imu", "fog", "--latitude-deg", "31.5")
+    run("project", "new", "line7", "--root", root, code=2)
+    cp = tmp_path / "cp.csv"
+    cp.write_text("id,E_m,N_m,H_m\nCP0101,500001.0,3100002.0,45.1\nCP0102,500004.5,3100001.0,45.2\n", encoding="utf-8")
+    res = run("project", "import-cpiii", str(cp), "--project", "line7", "--root", root)
+    assert "2 CPIII points imported" in res.stderr
+    bad = tmp_path / "bad.gsi"
+    bad.write_text("*110001+000000000000CP99 81..01+0000000000012345 82..06+0000000000012345 "
+                   "83..06+0000000000012345 \n", encoding="utf-8")
+    res = run("project", "import-cpiii", str(bad), "--project", "line7", "--root", root, code=2)
+    assert f"{bad}:1:" in res.stderr and "nothing imported" in res.stderr
+    xml = tmp_path / "design.xml"
+    xml.write_text(design_xml(), encoding="utf-8")
+    res = run("project", "import-alignment", str(xml), "--project", "line7", "--root", root)
+    assert "5 elements" in res.stderr and "1000.000 .. 1450.000 m" in res.stderr
+    broken = tmp_path / "broken.xml"
+    broken.write_text(design_xml().replace("<CoordGeom>", "<CoordGeom><Spiral spiType='bloss'/>"), encoding="utf-8")
+    res = run("project", "import-alignment", str(broken), "--project", "line7", "--root", root, code=2)
+    assert "broken.xml" in res.stderr and "nothing imported" in res.stderr
+    res = run("project", "show", "line7", "--root", root, "--json")
+    doc = json.loads(res.stdout)
+    assert doc["cpiii"]["count"] == 2
+    assert doc["cpiii"]["min_enh_m"] == [500001.0, 3100001.0, 45.1]
+    assert doc["alignment"]["elements"] == 5 and doc["alignment"]["chainage_end_m"] == pytest.approx(1450.0)
+    assert doc["settings"]["imu"]["name"] == "fog"
+    assert doc["settings"]["latitude_rad"] == pytest.approx(np.deg2rad(31.5))
+    res = run("project", "show", "line7", "--root", root)
+    assert "2 points" in res.stdout and "up-line" in res.stdout
+    with ProjectStore.open_project(tmp_path, "line7") as s:
+        assert s.alignment().landxml_text == design_xml()  # verbatim
+    res = run("project", "show", "nope", "--root", root, code=2)
+    assert "no project 'nope'" in res.stderr
+
+
+@pytest.mark.parametrize("with_design, with_gauge", [(True, True), (False, False)])
+def test_session_folder_round_trip_through_store(tmp_path, with_design, with_gauge):
+    from survey.sessionio import write_session
+
+    src = tmp_path / "src"
+    write_session(src, small_session(np.random.default_rng(4), with_gauge), design_xml() if with_design else None)
+    root = str(tmp_path / "projects")
+    run("project", "new", "p", "--root", root)
+    res = run("project", "import-session", str(src), "--project", "p", "--root", root, "--session", "s1")
+    assert "2000 IMU samples" in res.stderr and "2 fixes" in res.stderr
+    run("project", "import-session", str(src), "--project", "p", "--root", root, "--session", "s1", code=2)
+    out = tmp_path / "out"
+    run("project", "export-session", "--project", "p", "--session", "s1", "--out", str(out), "--root", root)
+    names = sorted(p.name for p in src.iterdir())
+    assert names == sorted(p.name for p in out.iterdir())
+    assert ("alignment.xml" in names) == with_design and ("gauge.csv" in names) == with_gauge
+    for name in names:
+        assert (out / name).read_bytes() == (src / name).read_bytes(), name
+    # exporting again onto an existing folder is refused, nothing half-written
+    res = run("project", "export-session", "--project", "p", "--session", "s1", "--out", str(out), "--root", root,
+              code=2)
+    assert "already exists" in res.stderr
+
+
+def test_rejected_fix_is_not_exported(tmp_path):
+    from survey.sessionio import read_session, write_session
+
+    src = tmp_path / "src"
+    write_session(src, small_session(np.random.default_rng(5)))
+    root = tmp_path / "projects"
+    run("project", "new", "p", "--root", str(root))
+    run("project", "import-session", str(src), "--project", "p", "--root", str(root), "--session", "s")
+    with ProjectStore.open_project(root, "p") as s:
+        sid = s.session("s").session_id
+        first = s.fixes(sid)[0]
+        s.decide_fix(first.fix_id, False, "prism not levelled")
+    run("project", "export-session", "--project", "p", "--session", "s", "--out", str(tmp_path / "out"),
+        "--root", str(root))
+    back = read_session(tmp_path / "out")
+    assert list(back.fixes.point) == ["CP0201"]
+
+
+def test_import_session_bad_folder(tmp_path):
+    from survey.sessionio import write_session
+
+    root = str(tmp_path / "projects")
+    run("project", "new", "p", "--root", root)
+    src = tmp_path / "src"
+    write_session(src, small_session(np.random.default_rng(6)))
+    text = (src / "odometer.csv").read_text().splitlines()
+    text[5] = "0.02,abc"
+    (src / "odometer.csv").write_text("\n".join(text) + "\n")
+    res = run("project", "import-session", str(src), "--project", "p", "--root", root, code=2)
+    assert "odometer.csv" in res.stderr and "row 6" in res.stderr
+    with ProjectStore.open_project(tmp_path / "projects", "p") as s:
+        assert s.sessions() == []
