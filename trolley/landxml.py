@@ -21,7 +21,8 @@ What is read (schema LandXML-1.2.xsd; see ``docs/conventions.md``, "Design geome
   between stations are linear (``transitionType`` absent, ``linear`` or ``clothoid``).
 
 Anything else that changes the geometry (other spiral types, ``UnsymParaCurve``, imperial units,
-point references) is refused with :class:`LandXmlError` naming the element.
+point references) is refused with :class:`LandXmlError` naming the element. Station equations
+(``<StaEquation>``) are not applied: chainages are internal stations (staStart + distance).
 
 References
 ----------
@@ -264,7 +265,7 @@ def _horizontal(al: ET.Element, aname: str, scale: float, sta_start: float) -> H
         if parsed:  # a gap is the first thing to report, before any disagreement it causes
             gap = abs(_point(el, "Start", where, scale) - parsed[-1].end)
             if gap > JOIN_TOLERANCE_M:
-                raise LandXmlError(f"{where}: Start is {gap * 1e3:.1f} mm from the End of the "
+                raise LandXmlError(f"{where}: Start is {units.m_to_mm(gap):.1f} mm from the End of the "
                                    f"previous element: the elements do not join")
         parsed.append(_PARSERS[tag](el, where, scale))
     if not parsed:
@@ -280,8 +281,9 @@ def _horizontal(al: ET.Element, aname: str, scale: float, sta_start: float) -> H
         # kink moves the far end of the element by about angle * length
         turn = math.remainder(p.heading - hz.element_heading_rad[i], 2.0 * math.pi)
         if abs(turn) * max(p.element.length_m, 1.0) > JOIN_TOLERANCE_M:
-            raise LandXmlError(f"{p.where}: its start direction from the coordinates differs by "
-                               f"{turn * 1e3:.3f} mrad from the tangent of the previous element "
+            raise LandXmlError(f"{p.where}: its start direction from the coordinates differs from "
+                               f"the tangent of the previous element by {turn:.3g} rad, moving its "
+                               f"far end by {units.m_to_mm(abs(turn) * p.element.length_m):.1f} mm "
                                f"(a kink)")
         start = complex(hz.element_N_m[i], hz.element_E_m[i])
         end = complex(hz.element_N_m[i + 1], hz.element_E_m[i + 1])
@@ -289,7 +291,7 @@ def _horizontal(al: ET.Element, aname: str, scale: float, sta_start: float) -> H
             miss = abs(file_pt - geom_pt)
             if miss > JOIN_TOLERANCE_M:
                 raise LandXmlError(f"{p.where}: the geometry chained from the previous elements "
-                                   f"reaches its {label} {miss * 1e3:.1f} mm away from the "
+                                   f"reaches its {label} {units.m_to_mm(miss):.1f} mm away from the "
                                    f"coordinates in the file (a kink or a gap)")
         if p.sta_start is not None and abs(p.sta_start - hz.element_chainage_m[i]) > JOIN_TOLERANCE_M:
             raise LandXmlError(f"{p.where}: staStart does not follow the previous element "
