@@ -56,6 +56,8 @@ class FaultInjector:
         self.rng = np.random.default_rng(self.f.seed)
         self.offset = 0
         self.corrupted: list[int] = []
+        self.corrupted_from: list[int] = []
+        self.corrupted_to: list[int] = []
         self.dropped: list[int] = []
         self.garbage: list[tuple[int, int]] = []
 
@@ -77,7 +79,9 @@ class FaultInjector:
         if f.corrupt_rate:
             hit = np.flatnonzero(rng.random(n) < f.corrupt_rate)
             if hit.size:
+                self.corrupted_from.extend(a[hit].tolist())
                 a[hit] ^= rng.integers(1, 256, hit.size).astype(np.uint8)
+                self.corrupted_to.extend(a[hit].tolist())
                 self.corrupted.extend((base + hit).tolist())
         if f.drop_rate:
             drop = rng.random(n) < f.drop_rate
