@@ -392,8 +392,8 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> dict
     header = _header(path)
     names = _require(path, header, required)
     try:
-        df = pd.read_csv(path, usecols=[names[c] for c in required],
-                         dtype={names[c]: "float64" for c in required},
+        # no usecols: with it pandas silently accepts rows with too many fields
+        df = pd.read_csv(path, dtype={names[c]: "float64" for c in required},
                          skip_blank_lines=False, encoding="utf-8-sig", engine="c")
     except ValueError as exc:
         if isinstance(exc, pd.errors.ParserError):
@@ -431,7 +431,7 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
     use = FIXES_COLUMNS + sig
     try:
         # small file: read as text (keeps point labels such as "NA") and convert per column
-        raw = pd.read_csv(path, usecols=[names[c] for c in use], dtype=str,
+        raw = pd.read_csv(path, dtype=str,
                           keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
                           engine="c")
     except pd.errors.ParserError as exc:
