@@ -62,17 +62,18 @@ def test_forward_hand_computed():
     assert 90.0 * (flat.zenith_rad[0] - np.pi / 2) == pytest.approx(0.87 * 8100 / (2 * 6.378e6), rel=1e-6)
 
 
-def test_inverse_and_jacobian():
+@pytest.mark.parametrize("model", [PolarModel(), PolarModel(grid_scale=1.0 - 4e-5, refraction_k=0.2)])
+def test_inverse_and_jacobian(model):
     ids, pts = cpiii_layout()
-    obs = observations_from_station(STATION, ORIENTATION, pts)
-    np.testing.assert_allclose(point_from_observation(STATION, ORIENTATION, obs), pts, atol=1e-8)
-    j = observation_jacobian(STATION, pts)
+    obs = observations_from_station(STATION, ORIENTATION, pts, model)
+    np.testing.assert_allclose(point_from_observation(STATION, ORIENTATION, obs, model), pts, atol=1e-8)
+    j = observation_jacobian(STATION, pts, model)
     eps = 1e-4
     for k in range(3):
         d = np.zeros(3)
         d[k] = eps
-        plus = observations_from_station(STATION, ORIENTATION, pts + d).as_array()
-        minus = observations_from_station(STATION, ORIENTATION, pts - d).as_array()
+        plus = observations_from_station(STATION, ORIENTATION, pts + d, model).as_array()
+        minus = observations_from_station(STATION, ORIENTATION, pts - d, model).as_array()
         np.testing.assert_allclose((plus - minus) / (2 * eps), j[:, :, k], rtol=1e-5, atol=1e-9)
 
 
@@ -84,6 +85,17 @@ def test_exact_observations_recover_station():
     assert res.dof == 24 - 4
     assert res.sigma0 < 1e-3
     assert res.flagged_points == () and suggest_point_to_drop(res) is None
+
+
+def test_grid_scale_matters_and_is_modelled():
+    # a 40 ppm grid scale: ignoring it moves the station; modelling it recovers the station exactly
+    ids, pts = cpiii_layout()
+    scaled = PolarModel(grid_scale=1.0 + 4e-5)
+    obs = observations_from_station(STATION, ORIENTATION, pts, scaled)
+    right = resect(ids, pts, obs, ResectionConfig(model=scaled))
+    np.testing.assert_allclose(right.station_enh_m, STATION, atol=1e-8)
+    wrong = resect(ids, pts, obs)
+    assert wrong.sigma0 > 2.0
 
 
 def test_noisy_observations_within_sigma():

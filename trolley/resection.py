@@ -74,11 +74,15 @@ class PolarModel:
     refraction_k : coefficient of refraction (0.13 is the usual instrument default).
     earth_radius_m : radius of the Earth used for the curvature term.
     curvature_refraction : apply the (1 - k) hd^2 / (2 R) height correction.
+    grid_scale : grid distance / horizontal distance measured: the projection scale factor
+        times the height reduction of the project grid (1.0 when the grid is a low-distortion
+        one; 10 ppm off is 1 mm at 100 m).
     """
 
     refraction_k: float = 0.13
     earth_radius_m: float = 6.378e6
     curvature_refraction: bool = True
+    grid_scale: float = 1.0
 
     @property
     def height_drop_per_m2(self) -> float:
@@ -243,7 +247,7 @@ def wrap_to_pi(angle_rad: np.ndarray) -> np.ndarray:
 def _polar_parts(station: np.ndarray, points: np.ndarray, model: PolarModel):
     d = np.atleast_2d(points) - station[None, :]
     u, v, w = d[:, 0], d[:, 1], d[:, 2]
-    hd = np.hypot(u, v)
+    hd = np.hypot(u, v) / model.grid_scale  # horizontal distance as the instrument measures it
     c = model.height_drop_per_m2
     a = w - c * hd**2  # apparent height difference seen in the instrument's horizon
     sd = np.hypot(hd, a)
@@ -283,7 +287,8 @@ def point_from_observation(station: np.ndarray, orientation: float, obs: PolarOb
     hd = obs.slope_distance_m * np.sin(obs.zenith_rad)
     a = obs.slope_distance_m * np.cos(obs.zenith_rad)
     az = obs.hz_rad + orientation
-    return np.column_stack([station[0] + hd * np.sin(az), station[1] + hd * np.cos(az),
+    hd_grid = hd * model.grid_scale
+    return np.column_stack([station[0] + hd_grid * np.sin(az), station[1] + hd_grid * np.cos(az),
                             station[2] + a + model.height_drop_per_m2 * hd**2])
 
 
@@ -300,9 +305,12 @@ def observation_jacobian(station: np.ndarray, points: np.ndarray,
     u, v, hd, a, sd, c = _polar_parts(np.asarray(station, dtype=float), np.asarray(points, dtype=float), model)
     n = u.shape[0]
     zero = np.zeros(n)
-    g_hd = np.stack([u / hd, v / hd, zero], axis=1)
-    g_a = np.stack([-2.0 * c * u, -2.0 * c * v, np.ones(n)], axis=1)
-    g_hz = np.stack([v / hd**2, -u / hd**2, zero], axis=1)
+    k = model.grid_scale
+    hd_grid = hd * k
+    g_hd = np.stack([u / (hd_grid * k), v / (hd_grid * k), zero], axis=1)
+    g_a = -2.0 * c * hd[:, None] * g_hd
+    g_a[:, 2] = 1.0
+    g_hz = np.stack([v / hd_grid**2, -u / hd_grid**2, zero], axis=1)
     g_z = (a[:, None] * g_hd - hd[:, None] * g_a) / sd[:, None] ** 2
     g_sd = (hd[:, None] * g_hd + a[:, None] * g_a) / sd[:, None]
     return np.stack([g_hz, g_z, g_sd], axis=1)
@@ -315,7 +323,8 @@ def _initial_station(points: np.ndarray, obs: np.ndarray, model: PolarModel) -> 
         raise ResectionError("need at least 2 pointings with direction, zenith and distance")
     p, o = points[ok], obs[ok]
     hd = o[:, 2] * np.sin(o[:, 1])
-    x, y = hd * np.sin(o[:, 0]), hd * np.cos(o[:, 0])  # E-like, N-like in the circle's frame
+    hd_grid = hd * model.grid_scale
+    x, y = hd_grid * np.sin(o[:, 0]), hd_grid * np.cos(o[:, 0])  # E-like, N-like in the circle's frame
     # grid = S + R x with R = [[a, b], [-b, a]] for a clockwise rotation by the orientation
     m = p.shape[0]
     design = np.zeros((2 * m, 4))
