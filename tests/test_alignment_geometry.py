@@ -189,8 +189,10 @@ def test_splitting_an_element_changes_nothing(L, k0, k1, frac, h0):
     Fresnel form must satisfy for any start curvature, including both ends curved."""
     a = frac * L
     km = k0 + (k1 - k0) * frac
-    if k0 == k1:
-        whole, parts = [Arc(L, k0)] if k0 else [Line(L)], [Arc(a, k0), Arc(L - a, k0)] if k0 else [Line(a), Line(L - a)]
+    if k0 == k1 == 0.0:
+        whole, parts = [Line(L)], [Line(a), Line(L - a)]
+    elif k0 == k1:
+        whole, parts = [Arc(L, k0)], [Arc(a, k0), Arc(L - a, k0)]
     else:
         whole, parts = [Clothoid(L, k0, k1)], [Clothoid(a, k0, km), Clothoid(L - a, km, k1)]
     h1 = HorizontalAlignment.from_elements(400000.0, 5000000.0, h0, whole)
