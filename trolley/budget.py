@@ -525,41 +525,8 @@ def _gains(F, Q, P0, H, R, fix_nodes, scale):
     return Kg, C
 
 
-def _simulate_channel(rng, F1, Q1, P0, H, R, K, runs, scale):
-    """Simulate ``runs`` intervals of one channel, smooth them, return smoothed minus true states.
-
-    Truth: x0 ~ N(0, P0), x[k+1] = F x[k] + w, fix z = H x[K-1] + n. The filter's gains and RTS
-    gains come from one covariance computation; the runs are a batch axis of matrix products.
-    """
-    n = P0.shape[0]
-    F = np.repeat(F1[None], K - 1, 0)
-    Q = np.repeat(Q1[None], K - 1, 0)
-    fix_nodes = [K - 1]
-    Kg, C = _gains(F, Q, P0, H, R, fix_nodes, scale)
-    x = np.empty((K, runs, n))
-    x[0] = rng.standard_normal((runs, n)) @ _sqrt_psd(P0).T
-    w = rng.standard_normal((K - 1, runs, n)) @ _sqrt_psd(Q1).T
-    for k in range(K - 1):  # loop over nodes; runs are vectorised
-        x[k + 1] = x[k] @ F1.T + w[k]
-    z = x[K - 1] @ H.T + rng.standard_normal((runs, H.shape[0])) @ _sqrt_psd(R).T
-    # forward filter of the estimates (prior mean zero), all runs at once
-    xf_prior = np.zeros((K, runs, n))
-    xf_post = np.zeros((K, runs, n))
-    for k in range(K):
-        if k > 0:
-            xf_prior[k] = xf_post[k - 1] @ F1.T
-        xf_post[k] = xf_prior[k]
-        if k in Kg:
-            xf_post[k] = xf_prior[k] + (z - xf_prior[k] @ H.T) @ Kg[k].T
-    xs = np.empty_like(xf_post)
-    xs[-1] = xf_post[-1]
-    for k in range(K - 2, -1, -1):
-        xs[k] = xf_post[k] + (xs[k + 1] - xf_prior[k + 1]) @ C[k].T
-    return xs - x
-
-
 def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: float = 0.3,
-                seed: int | None = None) -> MonteCarloResult:
+                seed: int | None = None, chunk: int = 20_000) -> MonteCarloResult:
     """Monte Carlo of the budget: simulate ``runs`` intervals of the linear error models.
 
     Both channels of :mod:`trolley.error_models` (vertical, and level at heading ``heading_rad``)
@@ -567,6 +534,7 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     the truth starts from ``P(0)`` of the case (after the first fix), the fix at T is simulated
     with the fix sigma, and a Kalman filter plus RTS smoother with gains shared by all runs
     estimates the errors. The level errors are rotated to longitudinal and lateral (Eq. 43).
+    Runs are processed in blocks of ``chunk`` to bound memory.
 
     Returns
     -------
@@ -581,30 +549,71 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     v = float(case.speed_m_s)
     ini, nz = case.initial, case.noise
     fix_var = float(case.fix_sigma_m) ** 2
-    # vertical channel
+    paper_noise = replace(nz, gyro_bias_rw_rad_s_sqrt_s=0.0)
     Av, Gv = em.vertical_matrices(v)
-    Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(replace(nz, gyro_bias_rw_rad_s_sqrt_s=0.0)), dt)
+    Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(paper_noise), dt)
     P0v = em.vertical_initial_covariance(ini)
-    ev = _simulate_channel(rng, Fv, Qv, P0v, em.VERTICAL_H, np.array([[fix_var]]), K, runs,
-                           _safe_scale(P0v, Qv))
-    # level channel
     Al, Gl = em.level_matrices(v * np.cos(heading_rad), v * np.sin(heading_rad))
-    Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(replace(nz, gyro_bias_rw_rad_s_sqrt_s=0.0)), dt)
+    Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(paper_noise), dt)
     P0l = em.level_initial_covariance(ini)
-    el = _simulate_channel(rng, Fl, Ql, P0l, em.LEVEL_H, np.eye(2) * fix_var, K, runs,
-                           _safe_scale(P0l, Ql))
+    vert = _Channel(Fv, Qv, P0v, em.VERTICAL_H, np.array([[fix_var]]), K)
+    level = _Channel(Fl, Ql, P0l, em.LEVEL_H, np.eye(2) * fix_var, K)
     c, s = np.cos(heading_rad), np.sin(heading_rad)
-    err = {
-        "vertical": ev[..., 0],
-        "longitudinal": c * el[..., 0] + s * el[..., 1],
-        "lateral": -s * el[..., 0] + c * el[..., 1],
-    }
+    sumsq = {d: np.zeros(K) for d in DIRECTIONS}
+    done = 0
+    while done < runs:
+        n = min(chunk, runs - done)
+        ev = vert.errors(rng, n)
+        el = level.errors(rng, n)
+        err = {"vertical": ev[..., 0],
+               "longitudinal": c * el[..., 0] + s * el[..., 1],
+               "lateral": -s * el[..., 0] + c * el[..., 1]}
+        for d in DIRECTIONS:
+            sumsq[d] += np.sum(err[d] ** 2, axis=1)
+        done += n
     times = np.arange(K) * dt
     sig = sigma_along(case, times)
-    rms = {d: np.sqrt(np.mean(err[d] ** 2, axis=1)) for d in DIRECTIONS}
+    rms = {d: np.sqrt(sumsq[d] / runs) for d in DIRECTIONS}
     mid = int(np.argmin(np.abs(times - T / 2)))
     worst = {d: int(np.argmax(sig[d])) for d in DIRECTIONS}
     return MonteCarloResult(runs, times, rms, sig, mid, worst)
+
+
+class _Channel:
+    """One channel of the Monte Carlo: its model and the gains shared by all runs."""
+
+    def __init__(self, F1, Q1, P0, H, R, K):
+        self.F1, self.Q1, self.P0, self.H, self.R, self.K = F1, Q1, P0, H, R, K
+        F = np.repeat(F1[None], K - 1, 0)
+        Q = np.repeat(Q1[None], K - 1, 0)
+        self.Kg, self.C = _gains(F, Q, P0, H, R, [K - 1], _safe_scale(P0, Q1))
+        self.L0, self.LQ, self.LR = _sqrt_psd(P0), _sqrt_psd(Q1), _sqrt_psd(R)
+
+    def errors(self, rng, runs: int) -> np.ndarray:
+        """Smoothed minus true states, (K, runs, n), for ``runs`` fresh intervals.
+
+        Truth: x0 ~ N(0, P0), x[k+1] = F x[k] + w, fix z = H x[K-1] + n. The loops run over the
+        nodes; the runs are a batch axis of matrix products.
+        """
+        K, F1, H = self.K, self.F1, self.H
+        n = self.P0.shape[0]
+        x = np.empty((K, runs, n))
+        x[0] = rng.standard_normal((runs, n)) @ self.L0.T
+        w = rng.standard_normal((K - 1, runs, n)) @ self.LQ.T
+        for k in range(K - 1):
+            x[k + 1] = x[k] @ F1.T + w[k]
+        z = x[K - 1] @ H.T + rng.standard_normal((runs, H.shape[0])) @ self.LR.T
+        # forward filter of the estimates (prior mean zero): only the last node has a fix, so
+        # the filtered estimate is zero before it
+        xf_prior_last = np.zeros((runs, n))
+        xf_last = xf_prior_last + (z - xf_prior_last @ H.T) @ self.Kg[K - 1].T
+        # RTS backwards: x_s[k] = x_f[k] + C_k (x_s[k+1] - x_pred[k+1]), with x_f = x_pred = 0
+        # before the last node
+        xs = np.empty_like(x)
+        xs[-1] = xf_last
+        for k in range(K - 2, -1, -1):
+            xs[k] = xs[k + 1] @ self.C[k].T
+        return xs - x
 
 
 def _safe_scale(P0: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -613,3 +622,153 @@ def _safe_scale(P0: np.ndarray, Q: np.ndarray) -> np.ndarray:
     alt = np.sqrt(np.diag(Q))
     d = np.where(d > 0, d, alt)
     return np.where(d > 0, d, 1.0)
+
+
+# ----------------------------------------------------------------------------- from datasheet figures
+
+#: per direction, the generic sources of :func:`variance_sources` under the names people use
+SOURCE_NAMES: dict[str, dict[str, str]] = {
+    "vertical": {"initial_position": "initial_position", "initial_angle": "level_error",
+                 "gyro_bias": "gyro_bias", "random_walk": "angle_random_walk", "fix_noise": "fix_noise"},
+    "lateral": {"initial_position": "initial_position", "initial_angle": "heading_error",
+                "gyro_bias": "gyro_bias", "random_walk": "angle_random_walk", "fix_noise": "fix_noise"},
+    "longitudinal": {"initial_position": "initial_position", "initial_angle": "odo_scale_error",
+                     "random_walk": "odo_scale_noise", "fix_noise": "fix_noise"},
+}
+
+
+@dataclass(frozen=True)
+class SensorFigures:
+    """What an engineer knows before buying, all SI (the edges convert with trolley.units).
+
+    Exactly one of ``equivalent_gyro_bias_rad_s`` (the equivalent bias of Jiang 2017 Eq. 15-16,
+    used as given) and ``gyro_bias_instability_rad_s`` (the datasheet figure, from which the
+    equivalent bias is derived) must be set.
+
+    Attributes
+    ----------
+    gyro_arw_rad_sqrt_s : angle random walk.
+    equivalent_gyro_bias_rad_s : equivalent gyro bias, used as given.
+    gyro_bias_instability_rad_s : datasheet bias instability.
+    heading_error_rad : initial heading error; None: from a gyrocompassing alignment.
+    level_error_rad : initial equivalent level (pitch) error, Jiang 2017 Sec. 5: 0.005 deg.
+    odo_scale_noise_per_sqrt_s : odometer scale-factor noise (PSD root).
+    odo_scale_error : odometer scale-factor error left after calibration (constant over the interval).
+    fix_spacing_m, speed_m_s, fix_sigma_m : the interval.
+    latitude_rad : site latitude (Earth-rate projection, gyrocompassing).
+    gyrocompassing : whether the IMU can find north by itself (False: heading_error_rad required).
+    """
+
+    gyro_arw_rad_sqrt_s: float
+    equivalent_gyro_bias_rad_s: float | None = None
+    gyro_bias_instability_rad_s: float | None = None
+    heading_error_rad: float | None = None
+    level_error_rad: float = 0.005 * np.pi / 180.0
+    odo_scale_noise_per_sqrt_s: float = 8e-6
+    odo_scale_error: float = 0.0
+    fix_spacing_m: float = 60.0
+    speed_m_s: float = 1.0
+    fix_sigma_m: float = 0.6e-3
+    latitude_rad: float = 30.0 * np.pi / 180.0
+    gyrocompassing: bool = True
+
+
+@dataclass(frozen=True)
+class ResolvedCase:
+    """A budget case with the record of how its equivalent bias and heading error were found.
+
+    Attributes
+    ----------
+    case : the case to evaluate.
+    equivalent_gyro_bias_rad_s : the equivalent bias used for both gyro axes.
+    heading_error_rad : the heading error used.
+    bias_route : "given" (equivalent bias as given) or "derived" (from the bias instability).
+    heading_route : "given" or "gyrocompassing".
+    explanation : one sentence saying how, for the user.
+    """
+
+    case: BudgetCase
+    equivalent_gyro_bias_rad_s: float
+    heading_error_rad: float
+    bias_route: str
+    heading_route: str
+    explanation: str
+
+
+def resolve_case(fig: SensorFigures) -> ResolvedCase:
+    """Build the budget case from sensor figures (Jiang 2017 Eq. 6 and the text after Fig. 6).
+
+    Derived route: the heading error is the given one, or that of a gyrocompassing alignment with
+    the bias instability (``BI / (omega_ie cos L)``); the equivalent bias is
+    :func:`trolley.error_models.equivalent_gyro_bias` ``= BI + omega_ie cos(L) |phi_D|``. Given
+    route: the equivalent bias is used as is and a missing heading error comes from
+    gyrocompassing with it (the paper's convention for Fig. 6). The paper applies one equivalent
+    bias to both gyro axes; so does this function (per Eq. 6 the heading term belongs to the
+    pitch axis, so the lateral figure is conservative: ``docs/budget.md``).
+
+    The initial position sigma is the fix sigma (diffuse prior before the first fix).
+
+    Raises
+    ------
+    ValueError
+        For missing, contradictory, negative or non-finite figures, or a zero speed or spacing.
+    """
+    given = fig.equivalent_gyro_bias_rad_s is not None
+    derived = fig.gyro_bias_instability_rad_s is not None
+    if given == derived:
+        raise ValueError("give exactly one of the equivalent gyro bias and the gyro bias instability")
+    checks = {
+        "gyro angle random walk": fig.gyro_arw_rad_sqrt_s,
+        "gyro bias": fig.equivalent_gyro_bias_rad_s if given else fig.gyro_bias_instability_rad_s,
+        "level error": fig.level_error_rad,
+        "odometer scale noise": fig.odo_scale_noise_per_sqrt_s,
+        "odometer scale error": fig.odo_scale_error,
+        "fix sigma": fig.fix_sigma_m,
+    }
+    if fig.heading_error_rad is not None:
+        checks["heading error"] = fig.heading_error_rad
+    for name, x in checks.items():
+        if not np.isfinite(x) or x < 0:
+            raise ValueError(f"{name} must be a finite number >= 0, got {x!r}")
+    for name, x in (("speed", fig.speed_m_s), ("fix spacing", fig.fix_spacing_m), ("fix sigma", fig.fix_sigma_m)):
+        if not np.isfinite(x) or x <= 0:
+            raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
+    if not np.isfinite(fig.latitude_rad) or abs(fig.latitude_rad) >= np.pi / 2:
+        raise ValueError("latitude must lie strictly between -90 and 90 degrees (gyrocompassing needs cos L > 0)")
+    bias_in = fig.equivalent_gyro_bias_rad_s if given else fig.gyro_bias_instability_rad_s
+    if fig.heading_error_rad is not None:
+        heading, heading_route = float(fig.heading_error_rad), "given"
+    else:
+        if not fig.gyrocompassing:
+            raise ValueError("this IMU cannot find north by gyrocompassing: give the heading error")
+        heading = abs(em.heading_error_from_gyrocompassing(bias_in, fig.latitude_rad))
+        heading_route = "gyrocompassing"
+    if given:
+        bias = float(bias_in)
+        how = "equivalent gyro bias used as given (Jiang 2017 Eq. 15-16)"
+    else:
+        bias = float(em.equivalent_gyro_bias(bias_in, heading, fig.latitude_rad))
+        how = ("equivalent gyro bias = bias instability + Earth rate x cos(latitude) x |heading error| "
+               "(Jiang 2017 Eq. 6, text after Fig. 6)")
+    if heading_route == "gyrocompassing":
+        how += "; heading error from gyrocompassing = bias / (Earth rate x cos(latitude))"
+    ini = em.InitialUncertainty(position_m=fig.fix_sigma_m, pitch_rad=fig.level_error_rad,
+                                heading_rad=heading, gyro_bias_y_rad_s=bias, gyro_bias_z_rad_s=bias,
+                                odo_scale_error=fig.odo_scale_error)
+    noise = em.ChannelNoise(fig.gyro_arw_rad_sqrt_s, fig.odo_scale_noise_per_sqrt_s)
+    case = BudgetCase(ini, noise, fig.fix_sigma_m, fig.speed_m_s, fig.fix_spacing_m)
+    return ResolvedCase(case, bias, heading, "given" if given else "derived", heading_route, how)
+
+
+def perfect_imu_floor(resolved: ResolvedCase) -> dict[str, float]:
+    """Worst 1-sigma of vertical and lateral with a perfect gyro (no bias, no ARW).
+
+    The heading error is kept if it was given, zeroed if it came from the gyro (gyrocompassing).
+    A target below this cannot be met by any IMU.
+    """
+    case = resolved.case
+    heading = case.initial.heading_rad if resolved.heading_route == "given" else 0.0
+    ideal = replace(case, initial=replace(case.initial, gyro_bias_y_rad_s=0.0, gyro_bias_z_rad_s=0.0,
+                                          heading_rad=heading),
+                    noise=replace(case.noise, gyro_arw_rad_sqrt_s=0.0))
+    return {d: worst_sigma(ideal, d) for d in ("vertical", "lateral")}
