@@ -21,6 +21,8 @@ COMMAND_MODULES: list[str] = [
     "engine",
     "devices",
     "project",
+    "export",
+    "simulate",
 
 ]
 

@@ -1,0 +1,81 @@
+"""``trolley export``: the survey sheet of a processed track (xlsx, CSV, PNG plots).
+
+Reads track.csv (or a processing output folder holding it, with fixes.csv and summary.json),
+computes the geometry parameters, checks them against a tolerance set and writes the outputs
+(docs/track_geometry.md). A JSON summary goes to stdout; errors are one line on stderr, exit 2.
+"""
+from __future__ import annotations
+
+import json
+from enum import Enum
+from pathlib import Path
+
+import typer
+
+
+class LateralSign(str, Enum):
+    right = "right"
+    left = "left"
+
+
+class CantSign(str, Enum):
+    left_high = "left_high"
+    right_high = "right_high"
+
+
+class VersineSign(str, Enum):
+    centre_minus_chord = "centre_minus_chord"
+    chord_minus_centre = "chord_minus_centre"
+
+
+def export(
+    track: Path = typer.Argument(..., help="track.csv, or a processing output folder holding track.csv."),
+    xlsx: Path = typer.Option(None, "--xlsx", help="Excel survey sheet to write."),
+    tolerances: str = typer.Option("hsr_ballastless_static", "--tolerances",
+                                   help="Built-in tolerance set (hsr_ballastless_static, en13848_5_alert) or a TOML file."),
+    csv: Path = typer.Option(None, "--csv", help="Track table as CSV (injection-safe)."),
+    plots: Path = typer.Option(None, "--plots", help="Folder for PNG plots."),
+    design: Path = typer.Option(None, "--design", help="LandXML design alignment (default: the one the session names)."),
+    twist_base_m: float = typer.Option(None, "--twist-base", help="Twist base, m (default from the tolerance set, else 3)."),
+    chord_m: float = typer.Option(None, "--chord", help="Versine chord, m (default from the tolerance set, else 10)."),
+    gauge_rate_base_m: float = typer.Option(None, "--gauge-rate-base", help="Gauge change-rate base, m."),
+    lateral_sign: LateralSign = typer.Option(LateralSign.right, "--lateral-sign", help="Side that is positive for lateral values."),
+    cant_sign: CantSign = typer.Option(CantSign.left_high, "--cant-sign", help="Cant positive when this rail is higher."),
+    versine_sign: VersineSign = typer.Option(VersineSign.centre_minus_chord, "--versine-sign", help="Versine sign convention."),
+    fail_on_defects: bool = typer.Option(False, "--fail-on-defects", help="Exit with code 1 when any defect is found."),
+) -> None:
+    """Compute track geometry, check tolerances, write the Excel survey sheet / CSV / plots."""
+    from rich.console import Console
+
+    from survey.export import export_outputs
+    from survey.track_reader import ExportInputError
+    from trolley.tolerances import ToleranceError
+
+    console = Console(stderr=True)
+    for out in (xlsx, csv):
+        if out is not None and not Path(out).parent.is_dir():
+            typer.echo(f"error: {out}: folder {Path(out).parent} does not exist", err=True)
+            raise typer.Exit(code=2)
+    try:
+        with console.status("computing track geometry and writing the survey sheet"):
+            result = export_outputs(track, xlsx, csv, plots, tolerances=tolerances, design=design,
+                                    twist_base_m=twist_base_m, versine_chord_m=chord_m,
+                                    gauge_rate_base_m=gauge_rate_base_m, lateral_sign=lateral_sign.value,
+                                    cant_sign=cant_sign.value, versine_sign=versine_sign.value)
+    except (ExportInputError, ToleranceError, ValueError) as e:
+        typer.echo("error: " + " ".join(str(e).split()), err=True)
+        raise typer.Exit(code=2)
+    except OSError as e:
+        typer.echo(f"error: {e.filename or ''}: {e.strerror or e}", err=True)
+        raise typer.Exit(code=2)
+    rep = result.report
+    verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
+    console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {rep.tolerances.name}: {verdict}")
+    typer.echo(json.dumps(result.as_dict()))
+    if fail_on_defects and not result.passed:
+        raise typer.Exit(code=1)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``trolley export`` to the app."""
+    app.command("export")(export)

@@ -1,0 +1,200 @@
+"""Export a processed track: geometry parameters, tolerance check, workbook, CSV and plots.
+
+``export_outputs`` is the one entry point (the ``trolley export`` command and ``trolley demo``
+call it). It reads track.csv (and, beside it, fixes.csv and summary.json when present; the
+design LandXML named by the session's session.toml), computes every parameter
+(:mod:`trolley.trackgeometry`), checks them against a tolerance set
+(:mod:`trolley.tolerances`) and writes the requested outputs, each atomically.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from trolley.tolerances import ToleranceSet, find_defects
+from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
+
+from survey.sheet_text import csv_safe_text
+from survey.tolerance_files import load_tolerances
+from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
+                                 read_summary_json, read_track_csv, resolve_track_csv, SurveyInfo)
+from survey.track_table import SurveyReport, column_values, sheet_columns
+
+DEFAULT_TOLERANCES = "hsr_ballastless_static"
+
+
+@dataclass
+class ExportResult:
+    """What an export produced.
+
+    Attributes
+    ----------
+    report : the survey report (geometry, defects, statistics).
+    xlsx, csv, plots : files written (None / empty when not requested).
+    timings_s : seconds per stage ("read", "geometry", "check", "xlsx", "csv", "plots").
+    """
+
+    report: SurveyReport
+    xlsx: Path | None = None
+    csv: Path | None = None
+    plots: list[Path] = field(default_factory=list)
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def defects(self) -> int:
+        return len(self.report.defects)
+
+    @property
+    def passed(self) -> bool:
+        return self.report.passed
+
+    def as_dict(self) -> dict:
+        """JSON-ready summary (for the CLI's stdout)."""
+        rep = self.report
+        return {
+            "track_csv": str(rep.track_csv), "stations": int(rep.geometry.chainage_m.size),
+            "step_m": rep.geometry.step_m, "tolerances": rep.tolerances.name,
+            "design": str(rep.design_file) if rep.design_file else None,
+            "defects": len(rep.defects), "passed": rep.passed,
+            "xlsx": str(self.xlsx) if self.xlsx else None, "csv": str(self.csv) if self.csv else None,
+            "plots": [str(p) for p in self.plots], "notes": rep.notes,
+            "timings_s": {k: round(v, 4) for k, v in self.timings_s.items()},
+        }
+
+
+def geometry_config(tol: ToleranceSet, info: SurveyInfo, **overrides) -> GeometryConfig:
+    """Geometry settings: defaults, then the tolerance set's [geometry], then the survey's
+    rail spacing / nominal gauge, then explicit ``overrides`` (None values ignored)."""
+    cfg = GeometryConfig(rail_spacing_m=info.rail_spacing_m, nominal_gauge_m=info.nominal_gauge_m)
+    from_tol = {k: getattr(tol, k) for k in ("twist_base_m", "gauge_rate_base_m", "versine_chord_m")
+                if getattr(tol, k) is not None}
+    cfg = replace(cfg, **from_tol)
+    return replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
+                 **config_overrides) -> tuple[SurveyReport, dict[str, float]]:
+    """Read the inputs, compute the geometry and the defects.
+
+    Parameters
+    ----------
+    track_csv : track.csv or a processing output folder holding it.
+    tolerances : built-in tolerance set name or a TOML file path.
+    design : LandXML file overriding the one the session names (optional).
+    config_overrides : GeometryConfig fields (twist_base_m, versine_chord_m, cant_sign, ...).
+
+    Returns
+    -------
+    report, timings_s
+    """
+    t0 = time.perf_counter()
+    path = resolve_track_csv(Path(track_csv))
+    folder = path.parent
+    track, _ = read_track_csv(path)
+    notes: list[str] = []
+    info = read_summary_json(folder / "summary.json") if (folder / "summary.json").is_file() else SurveyInfo()
+    fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
+    tol = load_tolerances(tolerances)
+    cfg = geometry_config(tol, info, **config_overrides)
+    design_file = Path(design) if design else design_alignment_path(info)
+    if design_file is not None:
+        if not design_file.is_file():
+            raise ExportInputError(f"{design_file}: design alignment file not found")
+        track = add_design(track, design_file, cfg.rail_spacing_m)
+    else:
+        notes.append("no design alignment (summary.json / session.toml [design]): design columns empty")
+    if np.isnan(track.lateral_dev_m).all():
+        notes.append("track.csv has no lateral/vertical deviations: alignment, level, long-chord and "
+                     "band values are empty")
+    t1 = time.perf_counter()
+    geometry = track_geometry(track, cfg)
+    t2 = time.perf_counter()
+    defects = find_defects(geometry.chainage_m, geometry.columns, tol)
+    stats = {k: column_stats(k, v) for k, v in geometry.columns.items()}
+    t3 = time.perf_counter()
+    rep = SurveyReport(track_csv=path, geometry=geometry, columns=sheet_columns(cfg), tolerances=tol,
+                       defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
+                       notes=notes)
+    return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
+
+
+def write_track_csv(path: Path, rep: SurveyReport) -> Path:
+    """The Track table as CSV (display units in the column names), injection-safe, atomic.
+
+    Numbers are plain numbers (empty when not available); the only text is the header, which
+    passes through :func:`survey.sheet_text.csv_safe_text` like any text would.
+    """
+    path = Path(path)
+    cols = rep.columns
+    data = np.column_stack([column_values(c, rep.geometry) for c in cols])
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([csv_safe_text(c.csv_name) for c in cols if c.key != "station_km"])
+    keep = [j for j, c in enumerate(cols) if c.key != "station_km"]
+    body = data[:, keep]
+    # one formatted string per row: repr of rounded floats, NaN -> empty
+    lines = [",".join("" if v != v else repr(v) for v in row) for row in body.tolist()]
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".csv", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+            f.write(buf.getvalue())
+            f.write("\n".join(lines))
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
+                   tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
+                   **config_overrides) -> ExportResult:
+    """Compute the survey sheet of a processed track and write the requested outputs.
+
+    Parameters
+    ----------
+    track_csv : track.csv, or a processing output folder holding track.csv (fixes.csv and
+        summary.json beside it are used when present).
+    xlsx, csv : files to write (None: skip).
+    plots_dir : folder for PNG plots (None: skip).
+    tolerances : built-in set name (``hsr_ballastless_static``, ``en13848_5_alert``) or a TOML
+        file path.
+    design : LandXML alignment to use instead of the one named by the session.
+    config_overrides : :class:`trolley.trackgeometry.GeometryConfig` fields.
+
+    Returns
+    -------
+    ExportResult
+
+    Raises
+    ------
+    ExportInputError, trolley.tolerances.ToleranceError
+        Unusable input (the message names file, row and column).
+    """
+    rep, timings = build_report(track_csv, tolerances, design, **config_overrides)
+    result = ExportResult(report=rep, timings_s=timings)
+    if xlsx is not None:
+        from survey.workbook import write_workbook
+
+        t = time.perf_counter()
+        result.xlsx = write_workbook(Path(xlsx), rep)
+        timings["xlsx"] = time.perf_counter() - t
+    if csv is not None:
+        t = time.perf_counter()
+        result.csv = write_track_csv(Path(csv), rep)
+        timings["csv"] = time.perf_counter() - t
+    if plots_dir is not None:
+        from survey.plots import write_plots
+
+        t = time.perf_counter()
+        result.plots = write_plots(Path(plots_dir), rep)
+        timings["plots"] = time.perf_counter() - t
+    return result

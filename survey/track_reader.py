@@ -1,0 +1,258 @@
+"""Reading the processing outputs the export needs: track.csv, fixes.csv, summary.json, design.
+
+``track.csv`` follows FORMATS.md section 2; ``fixes.csv`` and ``summary.json`` are the engine's
+(survey/trackio.py). Bad input is a :class:`ExportInputError` whose message names the file, the
+row (file line number) and the column.
+
+Missing values: in track.csv the columns lateral_dev_mm, vertical_dev_mm, gauge_mm, cant_mm and
+twist_mm may be empty (no design / not measured); an empty cell or the text ``nan`` there is
+"not available". Every other cell must be a finite number; chainage must increase strictly.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trolley import units
+from trolley.trackgeometry import TrackInput
+
+TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
+TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm"]
+FIX_NUMERIC = ["t_s", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"]
+
+
+class ExportInputError(ValueError):
+    """An input file the export cannot use (message: file, row, column)."""
+
+
+@dataclass
+class FixRow:
+    """One prism fix of the engine's fixes.csv (SI; innovations in m)."""
+
+    t_s: float
+    point: str
+    E_m: float
+    N_m: float
+    H_m: float
+    innov_E_m: float
+    innov_N_m: float
+    innov_H_m: float
+    nis: float
+    accepted: bool
+    reason: str
+
+
+@dataclass
+class SurveyInfo:
+    """What the Summary sheet shows about the survey (from summary.json; defaults if absent)."""
+
+    project: str = ""
+    session: str = ""
+    session_dir: str = ""
+    imu_name: str = ""
+    gyro_bias_instability_deg_h: float = math.nan
+    gyro_arw_deg_sqrt_h: float = math.nan
+    smoother: str = ""
+    fixes_used: int | None = None
+    fixes_rejected: int | None = None
+    rms_innovation_mm: float = math.nan
+    max_sigma_mm: float = math.nan
+    step_m: float = math.nan
+    rail_spacing_m: float = 1.500
+    nominal_gauge_m: float = 1.435
+    present: bool = False
+    extra: dict = field(default_factory=dict)
+
+
+def resolve_track_csv(path: Path) -> Path:
+    """A track.csv path from a file or a processing output folder holding one."""
+    path = Path(path)
+    if path.is_dir():
+        cand = path / "track.csv"
+        if not cand.is_file():
+            raise ExportInputError(f"{path}: folder has no track.csv")
+        return cand
+    if not path.is_file():
+        raise ExportInputError(f"{path}: no such file or folder")
+    return path
+
+
+def _parse_float(text: str, where: str, allow_missing: bool) -> float:
+    t = text.strip()
+    if t == "" or t.lower() == "nan":
+        if allow_missing:
+            return math.nan
+        raise ExportInputError(f"{where}: value missing")
+    try:
+        v = float(t)
+    except ValueError:
+        raise ExportInputError(f"{where}: not a number: {t[:40]!r}") from None
+    if not math.isfinite(v):
+        raise ExportInputError(f"{where}: not finite: {t[:40]!r}")
+    return v
+
+
+def _read_csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except UnicodeDecodeError as e:
+        raise ExportInputError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except csv.Error as e:
+        raise ExportInputError(f"{path}: not a CSV file ({e})") from None
+    if not rows:
+        raise ExportInputError(f"{path}: empty file (no header row)")
+    header = [h.strip() for h in rows[0]]
+    body = [r for r in rows[1:] if any(c.strip() for c in r)]
+    return header, body
+
+
+def _numeric_columns(path: Path, header: list[str], body: list[list[str]], names: list[str],
+                     optional: set[str]) -> dict[str, np.ndarray]:
+    col = {h: i for i, h in enumerate(header)}
+    missing = [n for n in names if n not in col]
+    if missing:
+        raise ExportInputError(f"{path}: missing column(s) {', '.join(missing)} (header: {','.join(header)})")
+    out = {}
+    for name in names:
+        j = col[name]
+        raw = [r[j] if j < len(r) else "" for r in body]
+        try:
+            # fast path: numpy parses the whole column; on any problem find the bad row
+            arr = np.array([x if x.strip() else "nan" for x in raw], dtype=float)
+            bad = ~np.isfinite(arr)
+            if name in optional:
+                bad &= ~np.isnan(arr)
+            if bad.any():
+                raise ValueError
+        except ValueError:
+            for i, x in enumerate(raw):
+                _parse_float(x, f"{path}: row {i + 2}, column {name}", name in optional)
+            raise ExportInputError(f"{path}: column {name}: unreadable values") from None
+        out[name] = arr
+    return out
+
+
+def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
+    """Read a track.csv (FORMATS.md section 2).
+
+    Returns
+    -------
+    track : TrackInput in SI (no design columns yet).
+    twist_file_m : the file's own twist column, m (NaN where empty).
+    """
+    header, body = _read_csv_rows(path)
+    if not body:
+        raise ExportInputError(f"{path}: no stations (only a header row)")
+    present_optional = [n for n in TRACK_OPTIONAL if n in header]
+    cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
+    s = cols["chainage_m"]
+    if s.size > 1 and not np.all(np.diff(s) > 0):
+        i = int(np.argmax(np.diff(s) <= 0)) + 1
+        raise ExportInputError(f"{path}: row {i + 2}, column chainage_m: chainage {s[i]!r} does not increase")
+    nan = np.full(s.size, np.nan)
+    mm = units.mm_to_m
+    track = TrackInput(
+        chainage_m=s, E_m=cols["E_m"], N_m=cols["N_m"], H_m=cols["H_m"],
+        sigma_E_m=mm(cols["sigma_E_mm"]), sigma_N_m=mm(cols["sigma_N_mm"]), sigma_H_m=mm(cols["sigma_H_mm"]),
+        lateral_dev_m=mm(cols.get("lateral_dev_mm", nan)), vertical_dev_m=mm(cols.get("vertical_dev_mm", nan)),
+        gauge_m=mm(cols.get("gauge_mm", nan)), cant_m=mm(cols.get("cant_mm", nan)))
+    return track, mm(cols.get("twist_mm", nan))
+
+
+def read_fixes_csv(path: Path) -> list[FixRow]:
+    """Read the engine's fixes.csv (columns in survey/trackio.py FIX_COLUMNS)."""
+    header, body = _read_csv_rows(path)
+    cols = _numeric_columns(path, header, body, FIX_NUMERIC, {"innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"})
+    for name in ("point", "accepted", "reason"):
+        if name not in header:
+            raise ExportInputError(f"{path}: missing column {name}")
+    ip, ia, ir = header.index("point"), header.index("accepted"), header.index("reason")
+    out = []
+    mm = units.mm_to_m
+    for i, r in enumerate(body):
+        acc = (r[ia] if ia < len(r) else "").strip().lower()
+        if acc not in ("1", "0", "true", "false", "1.0", "0.0"):
+            raise ExportInputError(f"{path}: row {i + 2}, column accepted: expected 1 or 0, got {acc[:20]!r}")
+        out.append(FixRow(t_s=float(cols["t_s"][i]), point=r[ip] if ip < len(r) else "",
+                          E_m=float(cols["E_m"][i]), N_m=float(cols["N_m"][i]), H_m=float(cols["H_m"][i]),
+                          innov_E_m=mm(float(cols["innov_E_mm"][i])), innov_N_m=mm(float(cols["innov_N_mm"][i])),
+                          innov_H_m=mm(float(cols["innov_H_mm"][i])), nis=float(cols["nis"][i]),
+                          accepted=acc in ("1", "true", "1.0"), reason=r[ir] if ir < len(r) else ""))
+    return out
+
+
+def read_summary_json(path: Path) -> SurveyInfo:
+    """Read the engine's summary.json; unknown keys are kept in ``extra``."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ExportInputError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(doc, dict):
+        raise ExportInputError(f"{path}: expected a JSON object")
+    imu = doc.get("imu") if isinstance(doc.get("imu"), dict) else {}
+
+    def num(d, k, default=math.nan):
+        v = d.get(k, default)
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else default
+
+    def integer(k):
+        v = doc.get(k)
+        return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+    known = {"session_dir", "project", "session", "imu", "smoother", "fixes_used", "fixes_rejected",
+             "rms_innovation_mm", "max_sigma_mm", "step_m", "rail_spacing_m", "nominal_gauge_m"}
+    return SurveyInfo(
+        project=str(doc.get("project", "")), session=str(doc.get("session", "")),
+        session_dir=str(doc.get("session_dir", "")), imu_name=str(imu.get("name", "")),
+        gyro_bias_instability_deg_h=num(imu, "gyro_bias_instability_deg_h"),
+        gyro_arw_deg_sqrt_h=num(imu, "gyro_arw_deg_sqrt_h"), smoother=str(doc.get("smoother", "")),
+        fixes_used=integer("fixes_used"), fixes_rejected=integer("fixes_rejected"),
+        rms_innovation_mm=num(doc, "rms_innovation_mm"), max_sigma_mm=num(doc, "max_sigma_mm"),
+        step_m=num(doc, "step_m"), rail_spacing_m=num(doc, "rail_spacing_m", 1.500),
+        nominal_gauge_m=num(doc, "nominal_gauge_m", 1.435), present=True,
+        extra={k: v for k, v in doc.items() if k not in known})
+
+
+def design_alignment_path(info: SurveyInfo) -> Path | None:
+    """The LandXML file named by the session's session.toml [design] alignment, if any."""
+    if not info.session_dir:
+        return None
+    toml_path = Path(info.session_dir) / "session.toml"
+    if not toml_path.is_file():
+        return None
+    try:
+        doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ExportInputError(f"{toml_path}: not valid TOML ({e})") from None
+    name = doc.get("design", {}).get("alignment") if isinstance(doc.get("design"), dict) else None
+    if not name:
+        return None
+    return Path(info.session_dir) / str(name)
+
+
+def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float) -> TrackInput:
+    """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages.
+
+    The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
+    positive when the left rail is higher, like the measured cant.
+    """
+    from trolley.landxml import LandXmlError, parse_landxml
+
+    try:
+        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
+    except LandXmlError as e:
+        raise ExportInputError(f"{landxml_path}: {e}") from None
+    d = alignment.evaluate(track.chainage_m)
+    track.design_E_m, track.design_N_m = d.E_m, d.N_m
+    track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)
+    track.design_cant_m = rail_spacing_m * np.sin(d.cant_rad)
+    return track

@@ -1,0 +1,157 @@
+"""The survey report in display units: columns of the Track sheet / CSV and the report bundle.
+
+One place decides each column's header (with unit and sign convention), its CSV name, its
+display unit (m, mm, mm/m, converted with trolley/units.py) and its number format, so the
+workbook, the CSV and the plots agree.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trolley import units
+from trolley.bands import BANDS
+from trolley.tolerances import Defect, Limit, ToleranceSet
+from trolley.trackgeometry import ColumnStats, GeometryConfig, TrackGeometry
+
+from survey.track_reader import FixRow, SurveyInfo
+
+#: display unit -> (converter from SI, number format, digits kept in files)
+UNIT_FORMATS = {
+    "m": (lambda x: np.asarray(x, dtype=float), "0.0000", 6),
+    "mm": (units.m_to_mm, "0.00", 4),
+    "mm/m": (units.ratio_to_mm_per_m, "0.000", 5),
+}
+#: chainage shown as km+m, e.g. 1+234.500 (the value stays the chainage in metres)
+KM_FORMAT = '0"+"000.000'
+
+
+@dataclass(frozen=True)
+class SheetColumn:
+    """One column of the Track table.
+
+    Attributes
+    ----------
+    key : geometry column (SI) or ``chainage_m`` / ``station_km``.
+    header : sheet header, with unit and sign convention.
+    csv_name : CSV header (unit in the name).
+    unit : display unit ("m", "mm", "mm/m").
+    number_format : Excel number format.
+    """
+
+    key: str
+    header: str
+    csv_name: str
+    unit: str
+    number_format: str
+
+    def display(self, values: np.ndarray) -> np.ndarray:
+        """SI values converted to the display unit and rounded to the digits kept in files."""
+        conv, _, digits = UNIT_FORMATS[self.unit]
+        return np.round(np.asarray(conv(values), dtype=float), digits)
+
+
+def _g(x: float) -> str:
+    return f"{x:g}"
+
+
+def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
+    """The Track table columns for a geometry configuration, in sheet order."""
+    lat = "+right" if config.lateral_sign == "right" else "+left"
+    cant = "+left high" if config.cant_sign == "left_high" else "+right high"
+    vs = "centre-chord" if config.versine_sign == "centre_minus_chord" else "chord-centre"
+    L, tb, gb = _g(config.versine_chord_m), _g(config.twist_base_m), _g(config.gauge_rate_base_m)
+    cols = [
+        ("chainage_m", "Chainage [m]", "chainage_m", "m", "0.000"),
+        ("station_km", "Station [km+m]", "station_km_m", "m", KM_FORMAT),
+        ("E_m", "E [m]", "E_m", "m", "0.0000"), ("N_m", "N [m]", "N_m", "m", "0.0000"),
+        ("H_m", "H [m]", "H_m", "m", "0.0000"),
+        ("sigma_E_m", "σE [mm]", "sigma_E_mm", "mm", "0.00"),
+        ("sigma_N_m", "σN [mm]", "sigma_N_mm", "mm", "0.00"),
+        ("sigma_H_m", "σH [mm]", "sigma_H_mm", "mm", "0.00"),
+        ("design_E_m", "Design E [m]", "design_E_m", "m", "0.0000"),
+        ("design_N_m", "Design N [m]", "design_N_m", "m", "0.0000"),
+        ("design_H_m", "Design H [m]", "design_H_m", "m", "0.0000"),
+        ("lateral_dev_m", f"Lateral dev [mm] {lat}", "lateral_dev_mm", "mm", "0.00"),
+        ("vertical_dev_m", "Vertical dev [mm] +up", "vertical_dev_mm", "mm", "0.00"),
+        ("sigma_lateral_m", "σ lateral [mm]", "sigma_lateral_mm", "mm", "0.00"),
+        ("sigma_vertical_m", "σ vertical [mm]", "sigma_vertical_mm", "mm", "0.00"),
+        ("slew_m", f"Slew [mm] {lat}", "slew_mm", "mm", "0.00"),
+        ("lift_m", "Lift [mm] +up", "lift_mm", "mm", "0.00"),
+        ("gauge_m", "Gauge [mm]", "gauge_mm", "mm", "0.00"),
+        ("gauge_dev_m", f"Gauge dev [mm] (nominal {units.m_to_mm(config.nominal_gauge_m):g})", "gauge_dev_mm", "mm", "0.00"),
+        ("gauge_rate_m_per_m", f"Gauge rate {gb} m [mm/m]", "gauge_rate_mm_per_m", "mm/m", "0.000"),
+        ("cant_m", f"Cant [mm] {cant}", "cant_mm", "mm", "0.00"),
+        ("design_cant_m", f"Design cant [mm] {cant}", "design_cant_mm", "mm", "0.00"),
+        ("cant_dev_m", "Cant dev [mm]", "cant_dev_mm", "mm", "0.00"),
+        ("twist_m", f"Twist {tb} m [mm]", "twist_mm", "mm", "0.00"),
+        ("twist_rate_m_per_m", f"Twist rate {tb} m [mm/m]", "twist_rate_mm_per_m", "mm/m", "0.000"),
+        ("versine_h_m", f"Versine H {L} m [mm] {lat}", "versine_h_mm", "mm", "0.00"),
+        ("design_versine_h_m", f"Design versine H {L} m [mm]", "design_versine_h_mm", "mm", "0.00"),
+        ("versine_h_dev_m", f"Alignment {L} m chord [mm] ({vs})", "versine_h_dev_mm", "mm", "0.00"),
+        ("versine_v_m", f"Versine V {L} m [mm] +up", "versine_v_mm", "mm", "0.00"),
+        ("design_versine_v_m", f"Design versine V {L} m [mm]", "design_versine_v_mm", "mm", "0.00"),
+        ("versine_v_dev_m", f"Level {L} m chord [mm] ({vs})", "versine_v_dev_mm", "mm", "0.00"),
+    ]
+    for chord, spacing in config.long_chords_m:
+        tag = f"chord{chord:g}_{spacing:g}".replace(".", "p")
+        cols.append((f"{tag}_lat_m", f"Chord {chord:g}/{spacing:g} m lat [mm]", f"{tag}_lat_mm", "mm", "0.00"))
+        cols.append((f"{tag}_vert_m", f"Chord {chord:g}/{spacing:g} m vert [mm]", f"{tag}_vert_mm", "mm", "0.00"))
+    for b in config.bands:
+        lo, hi = BANDS[b]
+        cols.append((f"align_{b}_m", f"Alignment {b} {lo:g}-{hi:g} m [mm]", f"align_{b}_mm", "mm", "0.00"))
+    for b in config.bands:
+        lo, hi = BANDS[b]
+        cols.append((f"level_{b}_m", f"Level {b} {lo:g}-{hi:g} m [mm]", f"level_{b}_mm", "mm", "0.00"))
+    return [SheetColumn(*c) for c in cols]
+
+
+def column_values(col: SheetColumn, geometry: TrackGeometry) -> np.ndarray:
+    """The display values of one Track column."""
+    if col.key in ("chainage_m", "station_km"):
+        return col.display(geometry.chainage_m)
+    return col.display(geometry.columns[col.key])
+
+
+def limit_in_display(limit: Limit) -> tuple[float, float, str]:
+    """(lower, upper, unit) of a limit in its display unit (inf stays inf)."""
+    if limit.unit == "mm_per_m":
+        return (units.ratio_to_mm_per_m(limit.lower), units.ratio_to_mm_per_m(limit.upper), "mm/m")
+    return (units.m_to_mm(limit.lower), units.m_to_mm(limit.upper), "mm")
+
+
+@dataclass
+class SurveyReport:
+    """Everything the workbook, CSV and plots show.
+
+    Attributes
+    ----------
+    track_csv : input file.
+    geometry : computed parameters.
+    columns : Track table columns.
+    tolerances : tolerance set used.
+    defects : exceedances.
+    stats : statistics per geometry column.
+    info : survey metadata (summary.json).
+    fixes : fixes, or None when fixes.csv is absent.
+    design_file : LandXML used, or None.
+    notes : messages for the Summary sheet (e.g. why no design).
+    """
+
+    track_csv: Path
+    geometry: TrackGeometry
+    columns: list[SheetColumn]
+    tolerances: ToleranceSet
+    defects: list[Defect]
+    stats: dict[str, ColumnStats]
+    info: SurveyInfo
+    fixes: list[FixRow] | None
+    design_file: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        """True when no defect was found."""
+        return not self.defects

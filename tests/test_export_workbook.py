@@ -1,0 +1,221 @@
+"""The survey workbook, CSV, plots and the ``trolley export`` command on a synthetic survey."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from survey.export import export_outputs
+from survey.plots import km_label
+from trolley.alignment import Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line, VerticalProfile
+
+STEP = 0.625
+N = 800                                  # 500 m
+HOSTILE = '=HYPERLINK("http://x","y")'
+
+
+def _write_outputs(out, with_design=True, with_fixes=True, with_summary=True):
+    """A processing output folder: track.csv, fixes.csv, summary.json, session with LandXML."""
+    import pandas as pd
+    from trolley.landxml import landxml_text
+
+    out.mkdir(parents=True, exist_ok=True)
+    hz = HorizontalAlignment.from_elements(1000.0, 5000.0, 0.3, [
+        Line(100.0), Clothoid(50.0, 0.0, 1 / 1200), Arc(200.0, 1 / 1200), Clothoid(50.0, 1 / 1200, 0.0), Line(150.0)])
+    prof = VerticalProfile.from_pvis([0.0, 250.0, 550.0], [50.0, 52.0, 51.0], [0.0, 200.0, 0.0])
+    cant = CantProfile.from_stations([100.0, 150.0, 350.0, 400.0], [0.0, 0.08, 0.08, 0.0])
+    al = Alignment(hz, prof, cant, name="main")
+    sess = out / "session"
+    sess.mkdir(exist_ok=True)
+    if with_design:
+        (sess / "alignment.xml").write_text(landxml_text(al), encoding="utf-8")
+        (sess / "session.toml").write_text('format = "trolley-raw-session/1"\n[design]\nalignment = "alignment.xml"\n')
+    s = np.arange(N) * STEP
+    d = al.evaluate(s)
+    rng = np.random.default_rng(3)
+    lat = 0.0004 * np.sin(2 * np.pi * s / 17.0) + rng.normal(0, 5e-5, N)
+    lat[(s >= 200.0) & (s <= 203.0)] += 0.006          # a 6 mm lateral kink: defects
+    vert = 0.0003 * np.sin(2 * np.pi * s / 13.0 + 1.0)
+    E = d.E_m + lat * np.cos(d.heading_rad)
+    Nn = d.N_m - lat * np.sin(d.heading_rad)
+    cant_m = 1.5 * np.sin(d.cant_rad)
+    gauge = np.full(N, 1.4352)
+    gauge[(s > 420) & (s < 421)] = 1.4375                 # +2.5 mm gauge: a defect
+    pd.DataFrame({"chainage_m": s, "E_m": E, "N_m": Nn, "H_m": d.H_m + vert, "sigma_E_mm": 0.4,
+                  "sigma_N_mm": 0.5, "sigma_H_mm": 0.3, "lateral_dev_mm": lat * 1e3,
+                  "vertical_dev_mm": vert * 1e3, "gauge_mm": gauge * 1e3, "cant_mm": cant_m * 1e3,
+                  "twist_mm": np.nan}).to_csv(out / "track.csv", index=False, float_format="%.6f", na_rep="")
+    if with_fixes:
+        pd.DataFrame({"t_s": [0.0, 60.0, 120.0, 180.0], "point": ["CP1", HOSTILE, "-12", "CP\x014"],
+                      "E_m": 1000.0, "N_m": 5000.0, "H_m": 50.0, "innov_E_mm": [0.1, 0.2, 5.0, -0.1],
+                      "innov_N_mm": 0.1, "innov_H_mm": -0.2, "nis": [1.0, 2.0, 40.0, 0.5],
+                      "accepted": [1, 1, 0, 1], "reason": ["", "", "@NIS 40.0 > 11.3", ""]}
+                     ).to_csv(out / "fixes.csv", index=False)
+    if with_summary:
+        (out / "summary.json").write_text(json.dumps({
+            "session_dir": str(sess), "project": "=1+1", "session": "S1",
+            "imu": {"name": "nav-grade", "gyro_bias_instability_deg_h": 0.01, "gyro_arw_deg_sqrt_h": 0.003},
+            "smoother": "rts", "fixes_used": 3, "fixes_rejected": 1, "rms_innovation_mm": 0.3,
+            "max_sigma_mm": 0.6, "step_m": STEP, "rail_spacing_m": 1.5, "nominal_gauge_m": 1.435}))
+    return out
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    base = tmp_path_factory.mktemp("export")
+    out = _write_outputs(base / "out")
+    res = export_outputs(out, base / "survey.xlsx", base / "track_table.csv", base / "plots")
+    return base, res
+
+
+def test_workbook_structure(exported):
+    from openpyxl import load_workbook
+
+    base, res = exported
+    wb = load_workbook(base / "survey.xlsx")
+    assert wb.sheetnames == ["Summary", "Track", "Defects", "Fixes", "Charts"]
+    ws = wb["Track"]
+    heads = [c.value for c in ws[1]]
+    assert heads[:3] == ["Chainage [m]", "Station [km+m]", "E [m]"]
+    assert "Lateral dev [mm] +right" in heads and "Twist 3 m [mm]" in heads
+    assert "Alignment D1 3-25 m [mm]" in heads and "Chord 300/150 m vert [mm]" in heads
+    assert ws.max_row == N + 1 and ws.freeze_panes == "C2"
+    assert ws.auto_filter.ref == f"A1:{ws.cell(1, len(heads)).column_letter}{N + 1}"
+    # number formats and values of one row against the computed geometry
+    row = 401
+    g = res.report.geometry
+    assert ws.cell(row, 1).value == pytest.approx(g.chainage_m[row - 2])
+    assert ws.cell(row, 2).number_format == '0"+"000.000'
+    j = heads.index("Lateral dev [mm] +right") + 1
+    assert ws.cell(row, j).number_format == "0.00"
+    assert ws.cell(row, j).value == pytest.approx(g.columns["lateral_dev_m"][row - 2] * 1e3, abs=1e-4)
+    # conditional formatting on every limited column, over all stations
+    cf = {str(r.sqref): r.rules[0].formula[0] for r in ws.conditional_formatting}
+    jg = heads.index("Gauge dev [mm] (nominal 1435)") + 1
+    L = ws.cell(1, jg).column_letter
+    assert cf[f"{L}2:{L}{N + 1}"] == f"AND(ISNUMBER({L}2),OR({L}2<-1.0,{L}2>1.0))"
+    assert len(cf) == len(res.report.tolerances.limits)
+    # charts present, axes not deleted
+    charts = wb["Charts"]._charts
+    assert len(charts) == 4
+    assert all(ch.x_axis.delete is False and ch.y_axis.delete is False for ch in charts)
+
+
+def test_defects_summary_and_hostile_text(exported):
+    from openpyxl import load_workbook
+
+    base, res = exported
+    rep = res.report
+    params = {d.parameter for d in rep.defects}
+    assert {"gauge_dev", "chord30_5_lat", "versine_h_dev"} <= params
+    gdef = [d for d in rep.defects if d.parameter == "gauge_dev"]
+    assert len(gdef) == 1 and gdef[0].peak == pytest.approx(0.0025, abs=1e-9)
+    assert 420.0 <= gdef[0].start_chainage_m <= gdef[0].end_chainage_m <= 421.0
+    wb = load_workbook(base / "survey.xlsx")
+    dws = wb["Defects"]
+    assert dws.max_row == len(rep.defects) + 1
+    summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
+    assert summary["Result"] == "FAIL" and summary["Defects"] == len(rep.defects)
+    assert summary["Project"] == "=1+1" and wb["Summary"]["B3"].data_type == "s"
+    fx = wb["Fixes"]
+    cell = fx["B3"]
+    assert cell.value == HOSTILE and cell.data_type == "s" and cell.quotePrefix
+    assert fx["B4"].value == "-12" and fx["B4"].data_type == "s"
+    assert fx["B5"].value == "CP\\x014"                   # control character escaped, no crash
+    assert fx["J4"].value == "no" and fx["K4"].value == "@NIS 40.0 > 11.3" and fx["K4"].quotePrefix
+
+
+def test_csv_is_numeric_and_injection_safe(exported):
+    base, res = exported
+    with open(base / "track_table.csv", newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    head = rows[0]
+    assert head[0] == "chainage_m" and "lateral_dev_mm" in head and "twist_mm" in head
+    assert len(rows) == N + 1
+    j = head.index("gauge_dev_mm")
+    vals = np.array([float(r[j]) if r[j] else np.nan for r in rows[1:]])
+    np.testing.assert_allclose(vals, res.report.geometry.columns["gauge_dev_m"] * 1e3, atol=1e-4)
+    # no text cell that a spreadsheet would evaluate: every cell is a number or empty
+    for r in rows[1:]:
+        for v in r:
+            if v:
+                float(v)
+
+
+def test_csv_text_is_prefixed():
+    from survey.sheet_text import csv_safe_text
+
+    assert csv_safe_text(HOSTILE) == "'" + HOSTILE
+    assert csv_safe_text("\tx") == "'\tx" and csv_safe_text("CP3") == "CP3"
+    assert csv_safe_text("a\x00b") == "a\\x00b"
+
+
+def test_plots_written_with_km_axis(exported):
+    base, res = exported
+    names = {p.name for p in res.plots}
+    assert {"deviations.png", "gauge.png", "cant.png", "twist.png"} <= names
+    for p in res.plots:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+    assert km_label(1234.5) == "1+234.5" and km_label(12.0) == "0+012.0" and km_label(-20.0) == "-0+020.0"
+
+
+def test_without_design_fixes_or_summary(tmp_path):
+    from openpyxl import load_workbook
+
+    out = _write_outputs(tmp_path / "o", with_design=False, with_fixes=False, with_summary=False)
+    res = export_outputs(out / "track.csv", tmp_path / "a.xlsx", None, None, tolerances="en13848_5_alert")
+    wb = load_workbook(tmp_path / "a.xlsx")
+    assert "not found" in wb["Fixes"]["A1"].value
+    heads = [c.value for c in wb["Track"][1]]
+    j = heads.index("Design E [m]") + 1
+    assert all(wb["Track"].cell(r, j).value is None for r in (2, 100, N + 1))
+    assert any("no design" in n for n in res.report.notes)
+
+
+def test_cli_export_and_clear_errors(tmp_path):
+    from typer.testing import CliRunner
+
+    from survey.cli import app
+
+    out = _write_outputs(tmp_path / "o", with_design=False)
+    runner = CliRunner()
+    r = runner.invoke(app, ["export", str(out), "--xlsx", str(tmp_path / "x.xlsx"), "--twist-base", "6.25",
+                            "--tolerances", "en13848_5_alert", "--fail-on-defects"])
+    doc = json.loads(r.stdout)
+    assert doc["stations"] == N and doc["tolerances"] == "en13848_5_alert"
+    assert r.exit_code == (0 if doc["passed"] else 1)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm\n0,1,2,3,.1,.1,.1\n"
+                   "0.625,1,2,inf,.1,.1,.1\n", encoding="utf-8")
+    r = runner.invoke(app, ["export", str(bad), "--xlsx", str(tmp_path / "y.xlsx")])
+    assert r.exit_code == 2 and "row 3, column H_m" in r.stderr
+    assert not (tmp_path / "y.xlsx").exists()
+    r = runner.invoke(app, ["export", str(out), "--tolerances", "nope", "--xlsx", str(tmp_path / "z.xlsx")])
+    assert r.exit_code == 2 and "nope" in r.stderr and not (tmp_path / "z.xlsx").exists()
+
+
+@pytest.mark.skipif(shutil.which("soffice") is None, reason="LibreOffice (soffice) not installed")
+def test_libreoffice_opens_workbook(exported, tmp_path):
+    base, res = exported
+    opts = "csv:Text - txt - csv (StarCalc):44,34,UTF8,1,,0,false,true,false,false,false,-1"
+    p = subprocess.run(["soffice", f"-env:UserInstallation=file://{tmp_path}/lo-profile", "--headless",
+                        "--convert-to", opts, "--outdir", str(tmp_path), str(base / "survey.xlsx")],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    with open(tmp_path / "survey-Track.csv", newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    assert len(rows) == N + 1 and rows[0][0] == "Chainage [m]"
+    g = res.report.geometry
+    j = rows[0].index("Cant [mm] +left high")
+    vals = np.array([float(r[j]) for r in rows[1:]])
+    np.testing.assert_allclose(vals, g.columns["cant_m"] * 1e3, atol=1e-4)
+    with open(tmp_path / "survey-Fixes.csv", newline="", encoding="utf-8") as f:
+        fixes = list(csv.reader(f))
+    assert fixes[2][1] == HOSTILE                # stayed text: not evaluated to "y"
+    with open(tmp_path / "survey-Summary.csv", newline="", encoding="utf-8") as f:
+        summ = {r[0]: r[1] for r in csv.reader(f) if len(r) > 1}
+    assert summ["Project"] == "=1+1" and summ["Result"] == "FAIL"
