@@ -1,0 +1,208 @@
+"""``trolley simulate``: write a simulated raw session folder (FORMATS.md sec. 1) plus truth.csv.
+
+The settings come from the project's ``project.toml`` (``[site]``, ``[imu] preset``,
+``[trolley]``, ``[simulation]``; see docs/simulator.md) and the design from the LandXML file it
+names; command-line options override them. Machine output (a JSON summary) goes to stdout,
+progress and errors to stderr.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+_REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
+
+#: project.toml [simulation] keys -> SimulationConfig fields (all floats unless listed)
+_SIM_KEYS = ("length_m", "start_chainage_m", "fix_spacing_m", "stop_s", "static_s", "speed_m_s",
+             "accel_time_s", "imu_rate_hz", "odometer_rate_hz", "gauge_rate_hz", "fix_sigma_m",
+             "gauge_sigma_m", "irregularity_rms_m", "imu_residual_misalignment_rad",
+             "gyro_correlation_time_s")
+_SIM_INT_KEYS = ("seed", "fixes_per_stop")
+
+
+class ProjectFileError(ValueError):
+    """A bad project.toml; the message names the file and the key."""
+
+
+def _number(data: dict, table: str, key: str, fname: str, integer: bool = False):
+    v = data[key]
+    ok = isinstance(v, int) if integer else isinstance(v, (int, float))
+    if isinstance(v, bool) or not ok:
+        kind = "an integer" if integer else "a number"
+        raise ProjectFileError(f"{fname}: key {table}.{key}: must be {kind}, got {v!r}")
+    return int(v) if integer else float(v)
+
+
+def project_settings(project: Path):
+    """Simulation settings and design text of a project folder.
+
+    Parameters
+    ----------
+    project : folder with ``project.toml`` and the design it names.
+
+    Returns
+    -------
+    (dict, str, str)
+        SimulationConfig keyword arguments (SI), the IMU preset name, the LandXML text.
+
+    Raises
+    ------
+    ProjectFileError
+        Missing or malformed file or key (the message names the file and key).
+    """
+    import tomllib
+
+    import numpy as np
+
+    from trolley import units
+    from trolley.session import TrolleyGeometry
+
+    path = project / "project.toml"
+    fname = str(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ProjectFileError(f"{fname}: file missing") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProjectFileError(f"{fname}: not valid TOML: {exc}") from None
+    kwargs: dict = {}
+    site = data.get("site", {})
+    if "latitude_deg" in site:
+        kwargs["latitude_rad"] = float(units.deg_to_rad(
+            _number(site, "site", "latitude_deg", fname)))
+    if "height_m" in site:
+        kwargs["height_m"] = _number(site, "site", "height_m", fname)
+    sim = data.get("simulation", {})
+    for key in sim:
+        if key in _SIM_KEYS:
+            kwargs[key] = _number(sim, "simulation", key, fname)
+        elif key in _SIM_INT_KEYS:
+            kwargs[key] = _number(sim, "simulation", key, fname, integer=True)
+        else:
+            raise ProjectFileError(f"{fname}: key simulation.{key}: unknown setting")
+    tr = data.get("trolley", {})
+    if tr:
+        d = TrolleyGeometry()
+        vec = {}
+        for key in ("prism_lever_arm_m", "imu_misalignment_rad"):
+            if key in tr:
+                v = tr[key]
+                if not (isinstance(v, list) and len(v) == 3 and all(
+                        isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+                    raise ProjectFileError(f"{fname}: key trolley.{key}: must be 3 numbers")
+                vec[key] = np.array(v, dtype=float)
+        kwargs["trolley"] = TrolleyGeometry(
+            prism_lever_arm_m=vec.get("prism_lever_arm_m", d.prism_lever_arm_m),
+            imu_misalignment_rad=vec.get("imu_misalignment_rad", d.imu_misalignment_rad),
+            rail_spacing_m=_number(tr, "trolley", "rail_spacing_m", fname)
+            if "rail_spacing_m" in tr else d.rail_spacing_m,
+            nominal_gauge_m=_number(tr, "trolley", "nominal_gauge_m", fname)
+            if "nominal_gauge_m" in tr else d.nominal_gauge_m)
+    preset = data.get("imu", {}).get("preset", "rlg")
+    design = data.get("design", {}).get("alignment")
+    if not isinstance(design, str):
+        raise ProjectFileError(f"{fname}: key design.alignment: missing (the LandXML design)")
+    try:
+        xml = (project / design).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ProjectFileError(f"{fname}: key design.alignment: {project / design} not found") \
+            from None
+    return kwargs, preset, xml
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``trolley simulate`` to the app."""
+
+    @app.command("simulate")
+    def simulate(
+        out: Annotated[Path, typer.Option("--out", help="session folder to write (must not exist "
+                                                        "unless --force)")],
+        project: Annotated[Path, typer.Option(help="project folder with project.toml and the "
+                                                   "design")] = Path("projects/demo"),
+        length_m: Annotated[Optional[float], typer.Option("--length-m", help="surveyed length, m")] = None,
+        imu: Annotated[Optional[str], typer.Option(help="IMU grade: rlg, fog or mems")] = None,
+        seed: Annotated[Optional[int], typer.Option(help="random seed")] = None,
+        fix_spacing_m: Annotated[Optional[float], typer.Option("--fix-spacing-m",
+                                                               help="stop spacing, m")] = None,
+        static_s: Annotated[Optional[float], typer.Option("--static-s",
+                                                          help="initial static period, s")] = None,
+        rate_hz: Annotated[Optional[float], typer.Option("--rate-hz", help="IMU rate, Hz")] = None,
+        step_m: Annotated[float, typer.Option("--truth-step-m", help="truth.csv chainage step, m")] = 0.1,
+        force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+    ) -> None:
+        """Simulate a stop-and-go survey (full 3-D truth, strapdown IMU) into a raw session folder."""
+        from dataclasses import replace
+
+        from rich.console import Console
+
+        from survey.sessionio import write_session, write_truth_csv
+        from trolley.landxml import parse_landxml
+        from trolley.sensors import IMU_PRESETS
+        from trolley.truthsim import SimulationConfig, simulate_survey
+
+        err = Console(stderr=True)
+
+        def fail(message: str) -> None:
+            err.print(f"error: {message}", highlight=False, soft_wrap=True, markup=False)
+            raise typer.Exit(code=2)
+
+        proj = project
+        if not (proj / "project.toml").exists() and project == Path("projects/demo"):
+            proj = _REPO_DEMO
+        try:
+            kwargs, preset, xml = project_settings(proj)
+        except ProjectFileError as exc:
+            fail(str(exc))
+        preset = imu or preset
+        if preset not in IMU_PRESETS:
+            fail(f"--imu: unknown IMU preset {preset!r} (choose {', '.join(IMU_PRESETS)})")
+        kwargs["imu"] = IMU_PRESETS[preset]
+        for key, value in (("length_m", length_m), ("seed", seed), ("fix_spacing_m", fix_spacing_m),
+                           ("static_s", static_s), ("imu_rate_hz", rate_hz)):
+            if value is not None:
+                kwargs[key] = value
+        for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):
+            if key in kwargs and not kwargs[key] > 0:
+                fail(f"{key.replace('_', '-')}: must be > 0, got {kwargs[key]!r}")
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            fail(f"{out}: already exists and is not empty (use --force to replace it)")
+        try:
+            alignment = parse_landxml(xml)
+        except ValueError as exc:
+            fail(f"{proj}: design: {exc}")
+        config = SimulationConfig(**kwargs)
+        t0 = time.perf_counter()
+        err.print(f"simulating {config.length_m:g} m with the {preset} IMU at "
+                  f"{config.imu_rate_hz:g} Hz ...", highlight=False)
+        try:
+            sim = simulate_survey(alignment, config)
+        except ValueError as exc:
+            fail(str(exc))
+        t1 = time.perf_counter()
+        session = replace(sim.session, meta=replace(sim.session.meta,
+                                                    design_alignment="alignment.xml"))
+        try:
+            write_session(out, session, xml, overwrite=force,
+                          extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m)})
+        except (OSError, ValueError) as exc:
+            fail(f"{out}: {exc}")
+        t2 = time.perf_counter()
+        err.print(f"wrote {out} (simulate {t1 - t0:.1f} s, write {t2 - t1:.1f} s)", highlight=False)
+        summary = {
+            "out": str(out),
+            "imu": preset,
+            "length_m": config.length_m,
+            "duration_s": sim.truth.motion.duration_s,
+            "imu_samples": int(session.imu_t_s.size),
+            "odometer_samples": int(session.odo_t_s.size),
+            "fixes": int(len(session.fixes)),
+            "stops": int(sim.truth.motion.stop_chainage_m.size),
+            "seed": config.seed,
+            "simulate_s": round(t1 - t0, 3),
+            "write_s": round(t2 - t1, 3),
+        }
+        typer.echo(json.dumps(summary))
