@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trolley.resection import InstrumentSigmas
+from trolley.resection import InstrumentSigmas, PolarObservations, Resection, ResectionConfig
 from trolley.sensors import IMU_PRESETS, ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
@@ -98,6 +98,11 @@ class ProjectSettings:
     max_standardized_residual: float = 3.29
     max_point_residual_m: float = 0.002
     overlap_tolerance_m: float = 0.002
+
+    def resection_config(self) -> ResectionConfig:
+        """Resection weights and tolerances of this project."""
+        return ResectionConfig(sigmas=self.instrument, max_standardized_residual=self.max_standardized_residual,
+                               max_point_residual_m=self.max_point_residual_m)
 
     def session_meta(self, design_alignment: str | None = None) -> SessionMeta:
         """Metadata of a new session recorded with these settings."""
@@ -260,6 +265,35 @@ class SetupObservation:
     max_standardized: float = float("nan")
     flagged: bool = False
     reason: str = ""
+
+
+def setup_rows(result: Resection, point_ids: Sequence[str], observations: PolarObservations, t_s: float,
+               accepted: bool = True) -> tuple[StationSetupRecord, list[SetupObservation]]:
+    """Rows to store for a resection: the setup and every pointing (excluded ones with ``used=False``).
+
+    Parameters
+    ----------
+    result : the resection.
+    point_ids, observations : all pointings measured, including those the crew excluded, in the
+        order they were given to ``resect``.
+    t_s : session time of the setup.
+    accepted : whether the crew accepted it.
+    """
+    setup = StationSetupRecord(t_s=float(t_s), station_enh_m=np.asarray(result.station_enh_m, dtype=float).copy(),
+                               orientation_rad=result.orientation_rad, covariance=np.asarray(result.covariance).copy(),
+                               sigma0=result.sigma0, dof=result.dof, accepted=accepted, excluded=result.excluded)
+    residuals = iter(result.residuals)
+    rows = []
+    for i, pid in enumerate(point_ids):
+        hz, z, sd = (float(observations.hz_rad[i]), float(observations.zenith_rad[i]),
+                     float(observations.slope_distance_m[i]))
+        if str(pid) in result.excluded:
+            rows.append(SetupObservation(str(pid), hz, z, sd, used=False, reason="excluded by the crew"))
+            continue
+        r = next(residuals)
+        rows.append(SetupObservation(str(pid), hz, z, sd, True, r.hz_rad, r.zenith_rad, r.distance_m, r.across_m,
+                                     r.along_m, r.height_m, r.max_standardized, r.flagged, r.reason))
+    return setup, rows
 
 
 @dataclass(frozen=True)

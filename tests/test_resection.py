@@ -7,7 +7,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from trolley import units
 from trolley.resection import (
     InstrumentSigmas,
     PolarModel,

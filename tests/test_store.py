@@ -298,3 +298,27 @@ def test_raw_session_round_trip_arrays(store):
     assert counts["imu_sample"] == n and counts["fix"] == 2
     with pytest.raises(StoreError, match="already exists"):
         store.import_raw_session("imp", raw)
+
+
+def test_resection_rows_round_trip(store):
+    from trolley.resection import observations_from_station, resect
+
+    ids = ["A", "B", "C", "D", "E"]
+    pts = np.array([[10.0, 40, 1], [45, 5, -1], [-30, -35, 0.5], [-40, 20, 0], [20, -45, 2]]) + [5e5, 3.1e6, 40]
+    station = np.array([5e5 + 1.0, 3.1e6 - 2.0, 41.5])
+    wrong = pts.copy()
+    wrong[3, 0] += 0.01
+    obs = observations_from_station(station, 0.3, wrong)
+    cfg = ProjectSettings().resection_config()
+    res = resect(ids, pts, obs, cfg, exclude=["D"])
+    setup, rows = st.setup_rows(res, ids, obs, t_s=3.0)
+    sid = store.create_session("s").session_id
+    setup_id = store.add_station_setup(sid, setup, rows)
+    back = store.setup_observations(setup_id)
+    assert [r.point_id for r in back] == ids
+    assert [r.used for r in back] == [True, True, True, False, True]
+    assert back[3].reason == "excluded by the crew" and np.isnan(back[3].across_m)
+    assert back[0].max_standardized == res.residuals[0].max_standardized
+    (got,) = store.station_setups(sid)
+    np.testing.assert_allclose(got.station_enh_m, station, atol=1e-8)
+    assert got.excluded == ("D",)
