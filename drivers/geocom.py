@@ -183,7 +183,7 @@ TMC_RESULT_USABLE = frozenset({0, 1283, 1284})
 TMC_ANGLES_ONLY = frozenset({1285, 1288, 1289})
 #: transient codes a client retries with back-off: timeouts, no target, not locked, busy,
 #: checksum errors and a port that is momentarily gone (3075/3076, USB unplug)
-RETRYABLE_CODES = frozenset({6, 13, 1292, 1293, 1294, 1793, 1799, 3075, 3076, 3077, 3101, 3102, 3107,
+RETRYABLE_CODES = frozenset({6, 13, 1292, 1293, 1294, 1793, 1799, 3075, 3076, 3077, 3078, 3101, 3110, 3102, 3107,
                              8704, 8710, 8725, 517})
 
 

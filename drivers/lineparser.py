@@ -70,6 +70,9 @@ class LineParser:
         st.bytes_pending = 0
         return []
 
+    def on_bad(self, kind: str, text: str, t_host: float, out: list) -> None:
+        """Hook for a rejected line that began with the frame marker (default: nothing)."""
+
     def _line(self, line: bytes, t_host: float, out: list) -> None:
         st = self.stats
         j = line.rfind(self.start)
@@ -88,10 +91,12 @@ class LineParser:
         except ChecksumError:
             st.bad_checksum += 1
             st.bytes_discarded += len(line)
+            self.on_bad("checksum", text, t_host, out)
             return
         except ValueError:
             st.bad_format += 1
             st.bytes_discarded += len(line)
+            self.on_bad("format", text, t_host, out)
             return
         st.frames_ok += 1
         st.bytes_ok += len(line)

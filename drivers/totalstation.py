@@ -52,8 +52,20 @@ class Measurement:
     t_host_s: float
 
 
+@dataclass(frozen=True)
+class BadReply:
+    """A reply line that was rejected (``kind`` "checksum" or "format"); lets a waiting call
+    retry at once instead of waiting for its timeout."""
+
+    kind: str
+    t_host_s: float
+
+
 class GeoComReplyParser(LineParser):
-    """Line parser producing :class:`drivers.geocom.Reply` records."""
+    """Line parser producing :class:`drivers.geocom.Reply` records (and :class:`BadReply`)."""
+
+    def on_bad(self, kind: str, text: str, t_host: float, out: list) -> None:
+        out.append(BadReply(kind, t_host))
 
     def __init__(self, stats: Stats) -> None:
         super().__init__(stats, self._decode, gc.REPLY_START.encode(), b"\n", max_line=1024)
@@ -135,7 +147,9 @@ class TotalStation:
         if timeout_s is None:
             timeout_s = self.long_timeout_s if rpc in self.LONG_RPCS else self.timeout_s
         for stale in self.link.drain():
-            self.stats.extra["stale_replies"] += 1
+            if not isinstance(stale, BadReply):
+                with self.link.lock:
+                    self.stats.extra["stale_replies"] += 1
         trid = self._next_trid()
         try:
             self.link.write(gc.encode_request(rpc, params, trid, self.use_crc))
@@ -149,6 +163,11 @@ class TotalStation:
                 with self.link.lock:
                     self.stats.timeouts += 1
                 raise gc.GeoComTimeout(3077, rpc, f"no reply within {timeout_s:g} s")
+            if isinstance(rep, BadReply):
+                code = 3102 if rep.kind == "checksum" else 3078
+                raise gc.error_for(code, rpc, "reply rejected")
+            if self.use_crc and not rep.crc_present:
+                raise gc.error_for(3110, rpc, "reply without the CRC field that was asked for")
             if rep.trid != trid:
                 with self.link.lock:
                     self.stats.extra["stale_replies"] += 1

@@ -1,0 +1,177 @@
+"""GeoCOM client against the total-station twin through a real pty, with every fault."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from drivers import geocom as gc
+from drivers.totalstation import RetryPolicy, TotalStation
+from drivers.twins.base import Faults
+from drivers.twins.totalstation import TotalStationTwin
+
+STATION = (1000.0, 2000.0, 50.0, 1.55)
+TARGET = (1012.0, 2030.0, 50.8)
+
+
+def _pair(tmp_path=None, faults=None, use_crc=False, timeout_s=2.0, retry=RetryPolicy(attempts=5), **kw):
+    twin = TotalStationTwin(STATION, TARGET, faults=faults,
+                            link_path=(tmp_path / "ts-by-id") if tmp_path else None, **kw)
+    ts = TotalStation(twin.port, baudrate=9600, use_crc=use_crc, timeout_s=timeout_s,
+                      long_timeout_s=timeout_s, retry=retry,
+                      raw_log=(tmp_path / "ts.rawlog") if tmp_path else None)
+    ts.link.open()
+    twin.start()
+    ts.connect()
+    return twin, ts
+
+
+def _polar(station, target):
+    e0, n0, h0, hi = station
+    de, dn, dh = target[0] - e0, target[1] - n0, target[2] - h0 - hi
+    hd = math.hypot(de, dn)
+    return math.atan2(de, dn) % (2 * math.pi), math.atan2(hd, dh), math.sqrt(hd * hd + dh * dh)
+
+
+def test_probe_sequence_geometry_and_station():
+    twin, ts = _pair(use_crc=True)
+    try:
+        assert ts.sw_version() == (1, 50, 0)
+        ts.fine_adjust()
+        m = ts.measure()
+        hz, v, sd = _polar(STATION, TARGET)
+        assert (m.hz_rad, m.v_rad, m.slope_m) == pytest.approx((hz, v, sd), abs=1e-12)
+        assert (m.E_m, m.N_m, m.H_m) == pytest.approx(TARGET, abs=1e-9)
+        # free station on CPIII: new station and orientation; coordinates follow the station
+        ts.set_station(1001.0, 2001.0, 49.0, 1.60)
+        assert ts.station() == pytest.approx((1001.0, 2001.0, 49.0, 1.60))
+        ts.fine_adjust()
+        ts.set_orientation(1.0)  # the current direction now reads Hz = 1.0 rad
+        ts.do_measure()
+        hz2, v2, sd2, _ = ts.simple_mea()
+        assert hz2 == pytest.approx(1.0, abs=1e-12)
+        e, n, h, _ = ts.coordinate()
+        e0, n0, h0, hi = 1001.0, 2001.0, 49.0, 1.60
+        assert e == pytest.approx(e0 + sd2 * math.sin(v2) * math.sin(1.0), abs=1e-9)
+        assert n == pytest.approx(n0 + sd2 * math.sin(v2) * math.cos(1.0), abs=1e-9)
+        assert h == pytest.approx(h0 + hi + sd2 * math.cos(v2), abs=1e-9)
+        assert ts.stats.balanced() and ts.stats.bad_checksum == 0
+        assert all(r.crc_present and r.crc_ok for r in twin.requests)
+    finally:
+        ts.close()
+        twin.stop()
+
+
+def test_retryable_codes_are_retried_then_succeed_and_others_raise_at_once():
+    twin, ts = _pair()
+    try:
+        twin.inject_rc(8710, gc.AUT_FINEADJUST, times=2)  # no target, twice
+        twin.inject_rc(8725, gc.TMC_DOMEASURE)  # ATR not locked
+        twin.inject_rc(13, gc.TMC_GETSIMPLEMEA)  # busy
+        ts.fine_adjust()
+        m = ts.measure()
+        assert ts.stats.extra["retries"] == 4
+        assert (m.E_m, m.N_m, m.H_m) == pytest.approx(TARGET, abs=1e-9)
+        twin.inject_rc(2, gc.TMC_GETSIMPLEMEA)  # invalid parameter: not transient
+        n_req = len(twin.requests)
+        with pytest.raises(gc.GeoComError) as e:
+            ts.simple_mea()
+        assert e.value.code == 2 and e.value.name == "GRC_IVPARAM" and len(twin.requests) == n_req + 1
+        twin.inject_rc(8710, gc.AUT_FINEADJUST, times=10)
+        with pytest.raises(gc.GeoComNoTarget) as e:
+            ts.fine_adjust()
+        assert e.value.code == 8710 and "No target" in str(e.value)
+        with pytest.raises(gc.GeoComError) as e:
+            ts.call(4242)
+        assert e.value.code == 3081  # unknown RPC on this firmware
+    finally:
+        ts.close()
+        twin.stop()
+
+
+def test_missing_and_late_replies_time_out_retry_and_stale_reply_is_ignored():
+    twin, ts = _pair(timeout_s=0.5)
+    try:
+        twin.drop_replies(2)
+        ts.fine_adjust()
+        assert ts.stats.timeouts == 2
+        twin.delay_replies(1, 1.0)
+        ts.do_measure()  # its reply comes after the timeout; the retry is answered in time
+        hz, v, sd, _ = ts.simple_mea()
+        time.sleep(0.6)  # the late reply of the first DoMeasure arrives now
+        e, n, h, _ = ts.coordinate()
+        assert (e, n, h) == pytest.approx(TARGET, abs=1e-9)
+        assert ts.stats.timeouts == 3 and ts.stats.extra["stale_replies"] >= 1
+    finally:
+        ts.close()
+        twin.stop()
+
+
+def test_byte_faults_with_crc_never_accept_a_corrupt_reply():
+    faults = Faults(corrupt_rate=2e-3, drop_rate=1e-3, garbage_rate=0.05, garbage_len=(1, 30), seed=11)
+    twin, ts = _pair(faults=faults, use_crc=True, timeout_s=0.5,
+                     retry=RetryPolicy(attempts=8, base_delay_s=0.01, max_delay_s=0.05))
+    try:
+        ts.fine_adjust()
+        ts.do_measure()
+        expect = _polar(STATION, TARGET)
+        ok = failed = 0
+        for _ in range(100):
+            try:
+                r = ts.simple_mea()
+            except gc.GeoComError:
+                failed += 1
+                continue
+            ok += 1
+            assert r[:3] == pytest.approx(expect, abs=1e-12)  # never a corrupt value
+        st = ts.link.snapshot()
+        assert ok >= 95 and len(twin.injector.corrupted) > 5
+        assert st.bad_checksum + st.bad_format + st.timeouts > 0 and st.balanced()
+    finally:
+        ts.close()
+        twin.stop()
+
+
+def test_port_disappears_and_comes_back(tmp_path):
+    twin, ts = _pair(tmp_path, retry=RetryPolicy(attempts=10, base_delay_s=0.05, max_delay_s=0.5))
+    try:
+        ts.fine_adjust()
+        first = ts.measure()
+        import threading
+
+        th = threading.Thread(target=twin.disappear, args=(0.4,))
+        th.start()
+        time.sleep(0.1)
+        second = ts.measure()  # retried until the port is back
+        th.join()
+        assert ts.link.snapshot().reconnects == 1
+        assert (second.E_m, second.N_m) == pytest.approx((first.E_m, first.N_m), abs=1e-9)
+    finally:
+        ts.close()
+        twin.stop()
+    from drivers.replay import replay
+    from drivers.totalstation import GeoComReplyParser
+
+    recs, st = replay(tmp_path / "ts.rawlog", GeoComReplyParser)
+    replies = [r for r in recs if hasattr(r, "raw")]
+    assert len(replies) == st.frames_ok == ts.stats.frames_ok and st.bytes_in == ts.stats.bytes_in
+    assert all(r.raw.startswith("%R1P,0,") for r in replies)
+
+
+def test_noise_statistics():
+    twin, ts = _pair(noise_angle_rad=1e-5, noise_dist_m=1e-3, seed=3)
+    try:
+        ts.fine_adjust()
+        sd = []
+        for _ in range(60):
+            ts.do_measure()
+            sd.append(ts.simple_mea()[2])
+        sd = np.array(sd)
+        true = _polar(STATION, TARGET)[2]
+        assert abs(sd.mean() - true) < 4 * 1e-3 / np.sqrt(60)
+        assert 0.6e-3 < sd.std(ddof=1) < 1.5e-3
+    finally:
+        ts.close()
+        twin.stop()
