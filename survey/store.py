@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trolley.resection import InstrumentSigmas, PolarObservations, Resection, ResectionConfig
+from trolley.resection import InstrumentSigmas, PolarModel, PolarObservations, Resection, ResectionConfig
 from trolley.sensors import IMU_PRESETS, ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
@@ -83,6 +83,8 @@ class ProjectSettings:
     max_standardized_residual : resection outlier tolerance (data snooping |w|).
     max_point_residual_m : resection metric tolerance per point.
     overlap_tolerance_m : tolerance of the overlap check after a station change.
+    polar_model : curvature, refraction and grid scale of the total-station observations
+        (``docs/conventions.md``, "Total station").
     """
 
     latitude_rad: float = 0.4886921905584123  # 28 deg
@@ -98,10 +100,12 @@ class ProjectSettings:
     max_standardized_residual: float = 3.29
     max_point_residual_m: float = 0.002
     overlap_tolerance_m: float = 0.002
+    polar_model: PolarModel = field(default_factory=PolarModel)
 
     def resection_config(self) -> ResectionConfig:
         """Resection weights and tolerances of this project."""
-        return ResectionConfig(sigmas=self.instrument, max_standardized_residual=self.max_standardized_residual,
+        return ResectionConfig(sigmas=self.instrument, model=self.polar_model,
+                               max_standardized_residual=self.max_standardized_residual,
                                max_point_residual_m=self.max_point_residual_m)
 
     def session_meta(self, design_alignment: str | None = None) -> SessionMeta:

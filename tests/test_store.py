@@ -30,6 +30,7 @@ from survey.store import (
     StoreError,
     TrackResult,
 )
+from trolley.resection import PolarModel
 from trolley.sensors import IMU_PRESETS
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
@@ -118,13 +119,15 @@ def test_failed_migration_rolls_back(tmp_path, monkeypatch):
 
 def test_settings_round_trip(store):
     s = ProjectSettings(latitude_rad=0.7, trolley=TrolleyGeometry(prism_lever_arm_m=np.array([0.1, 0.2, -0.7])),
-                        imu=IMU_PRESETS["fog"], tolerance_set="TB10754-static", max_point_residual_m=0.003)
+                        imu=IMU_PRESETS["fog"], tolerance_set="TB10754-static", max_point_residual_m=0.003,
+                        polar_model=PolarModel(curvature_refraction=False, grid_scale=1.00001))
     store.set_settings(s)
     got = store.settings()
     np.testing.assert_array_equal(got.trolley.prism_lever_arm_m, [0.1, 0.2, -0.7])
     assert got.imu == IMU_PRESETS["fog"]
     assert got.tolerance_set == "TB10754-static" and got.max_point_residual_m == 0.003
     assert got.latitude_rad == 0.7
+    assert got.resection_config().model == PolarModel(curvature_refraction=False, grid_scale=1.00001)
 
 
 def test_session_meta_json_round_trip_keeps_nan_and_none():

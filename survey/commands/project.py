@@ -241,6 +241,9 @@ def show(
                                f"{s.instrument.zenith_rad / arcsec:.2g}\", distance "
                                f"{units.m_to_mm(s.instrument.distance_m):.2g} mm + {s.instrument.distance_scale * 1e6:.2g} ppm; "
                                f"fix sigma {units.m_to_mm(s.fix_sigma_m):.2g} mm")
+    pm = s.polar_model
+    t.add_row("polar model", (f"curvature and refraction k = {pm.refraction_k:g}" if pm.curvature_refraction
+                              else "no curvature/refraction") + f", grid scale {pm.grid_scale:.8f}")
     t.add_row("resection tolerance", f"|w| <= {s.max_standardized_residual:g}, residual <= "
                                      f"{units.m_to_mm(s.max_point_residual_m):g} mm, overlap <= "
                                      f"{units.m_to_mm(s.overlap_tolerance_m):g} mm")
