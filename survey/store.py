@@ -1078,6 +1078,8 @@ _RECORD_TABLES: dict[str, tuple[type, str]] = {
     "gauge_sample": (GaugeRecord, "INSERT INTO gauge_sample (session_id, t_s, gauge_m) VALUES (?, ?, ?)"),
 }
 
+_RECORD_ALIASES = {"imu": "imu_sample", "odometer": "odometer_sample", "gauge": "gauge_sample"}
+
 
 class RecordWriter:
     """Buffered appends of raw bytes and decoded records for one session.
@@ -1135,8 +1137,9 @@ class RecordWriter:
 
     def append_records(self, table: str, rows: Iterable) -> None:
         """Queue decoded records (``ImuRecord`` for "imu_sample", ``OdometerRecord`` for "odometer_sample",
-        ``GaugeRecord`` for "gauge_sample")."""
+        ``GaugeRecord`` for "gauge_sample"; "imu", "odometer" and "gauge" are accepted as well)."""
         self._check()
+        table = _RECORD_ALIASES.get(table, table)
         if table not in _RECORD_TABLES:
             raise StoreError(f"unknown record table {table!r} (one of {', '.join(_RECORD_TABLES)})")
         cls, _ = _RECORD_TABLES[table]

@@ -185,14 +185,18 @@ def test_writer_commits_early_when_many_rows_and_flushes_on_close(store):
     while reader.execute("SELECT COUNT(*) FROM imu_sample").fetchone()[0] < 150:
         assert time.monotonic() - t0 < 0.5
         time.sleep(0.005)
-    w.append_records("gauge_sample", [GaugeRecord(1.0, 1.4351)])
+    w.append_records("gauge", [GaugeRecord(1.0, 1.4351)])
     w.close()  # must not lose the last queued row
     assert reader.execute("SELECT COUNT(*) FROM gauge_sample").fetchone()[0] == 1
     reader.close()
     with pytest.raises(StoreError, match="closed"):
         w.append("x", 0.0, b"")
+    w2 = RecordWriter(store.path, sid)
     with pytest.raises(TypeError):
-        RecordWriter(store.path, sid).append_records("imu_sample", [GaugeRecord(1.0, 1.0)])
+        w2.append_records("imu_sample", [GaugeRecord(1.0, 1.0)])
+    with pytest.raises(StoreError, match="unknown record table"):
+        w2.append_records("raw_chunk", [])
+    w2.close()
 
 
 def test_sigkill_loses_at_most_a_second(tmp_path):
