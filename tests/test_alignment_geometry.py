@@ -28,8 +28,9 @@ def demo_like() -> Alignment:
         500000.0, 3100000.0, 1.0,
         [Line(200.0), Clothoid(150.0, 0.0, k), Arc(500.0, k), Clothoid(150.0, k, 0.0), Line(300.0)],
         start_chainage_m=1000.0)
+    # a parabola at 1400 and a circle of R_v = 20 km at 1900
     prof = VerticalProfile.from_pvis([1000.0, 1400.0, 1900.0, 2300.0], [50.0, 53.2, 50.7, 51.9],
-                                     [0.0, 260.0, 160.0, 0.0])
+                                     [0.0, 260.0, 0.0, 0.0], [0.0, 0.0, 20000.0, 0.0])
     cant = CantProfile.from_stations([1200.0, 1350.0, 1850.0, 2000.0], [0.0, 0.08, 0.08, 0.0])
     return Alignment(hz, prof, cant, name="T")
 
@@ -38,9 +39,9 @@ def test_straight_line_hand_values():
     h = math.radians(30.0)
     al = Alignment(HorizontalAlignment.from_elements(10.0, 20.0, h, [Line(100.0)], 5.0))
     r = al.evaluate(np.array([5.0, 55.0, 105.0]))
-    np.testing.assert_allclose(r.E_m, 10.0 + np.array([0.0, 25.0, 50.0]), atol=1e-12)
-    np.testing.assert_allclose(r.N_m, 20.0 + np.array([0.0, 50.0, 100.0]) * math.cos(h), atol=1e-12)
-    np.testing.assert_allclose(r.heading_rad, h, atol=1e-15)
+    np.testing.assert_allclose(r.E_m, 10.0 + np.array([0.0, 25.0, 50.0]), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r.N_m, 20.0 + np.array([0.0, 50.0, 100.0]) * math.cos(h), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r.heading_rad, h, rtol=0, atol=1e-15)
     for arr in (r.rho_h_1_m, r.H_m, r.slope_rad, r.cant_rad, r.rho_v_1_m, r.rho_tw_1_m):
         assert np.all(arr == 0.0)
     assert al.start_chainage_m == 5.0 and al.end_chainage_m == 105.0
@@ -52,10 +53,10 @@ def test_quarter_circle_endpoint(sign):
     hz = HorizontalAlignment.from_elements(0.0, 0.0, 0.0, [Arc(math.pi * R / 2, sign / R)])
     r = hz.evaluate(np.array([math.pi * R / 2, math.pi * R / 4]))
     # heading north, turning right (sign +) ends at (E, N) = (R, R) heading east
-    np.testing.assert_allclose(r.E_m, sign * R * np.array([1.0, 1 - math.sqrt(0.5)]), atol=1e-10)
-    np.testing.assert_allclose(r.N_m, R * np.array([1.0, math.sqrt(0.5)]), atol=1e-10)
-    np.testing.assert_allclose(r.heading_rad[0], (sign * math.pi / 2) % (2 * math.pi), atol=1e-14)
-    np.testing.assert_allclose(r.rho_h_1_m, sign / R)
+    np.testing.assert_allclose(r.E_m, sign * R * np.array([1.0, 1 - math.sqrt(0.5)]), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(r.N_m, R * np.array([1.0, math.sqrt(0.5)]), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(r.heading_rad[0], (sign * math.pi / 2) % (2 * math.pi), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(r.rho_h_1_m, sign / R, rtol=1e-14)
 
 
 def test_clothoid_endpoint_fresnel_closed_form_and_check_values():
@@ -108,18 +109,41 @@ def test_parabolic_vertical_curve_hand_values():
     r = al.evaluate(s)
     expected = [53.2 - g1 * L / 2, 53.2 + (g2 - g1) * L / 8, 53.2 + g2 * L / 2,
                 50.0 + 100 * g1, 53.2 + g2 * 400]
-    np.testing.assert_allclose(r.H_m, expected, atol=1e-12)
-    np.testing.assert_allclose(np.tan(r.slope_rad), [g1, (g1 + g2) / 2, g2, g1, g2], atol=1e-15)
+    np.testing.assert_allclose(r.H_m, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.tan(r.slope_rad), [g1, (g1 + g2) / 2, g2, g1, g2], rtol=0, atol=1e-15)
     # vertical radius L / |dg| = 20 000 m on the curve (crest: negative curvature)
     assert abs(r.rho_v_1_m[1] * (1 + ((g1 + g2) / 2) ** 2) - (g2 - g1) / L) < 1e-15
     assert r.rho_v_1_m[3] == 0.0 and r.rho_v_1_m[4] == 0.0
 
 
+def test_circular_vertical_curve_hand_values():
+    # symmetric crest +-1.5 % with R = 10 km: the circle passes R (sec(a) - 1) below the PVI,
+    # with a = arctan(0.015), and starts/ends T cos(a) = R sin(a) either side of it
+    R, g = 10000.0, 0.015
+    a = math.atan(g)
+    prof = VerticalProfile.from_pvis([0.0, 500.0, 1000.0], [0.0, 7.5, 0.0], [0.0, 0.0, 0.0],
+                                     [0.0, R, 0.0])
+    assert abs(prof.curve_start_m[1] - (500.0 - R * math.sin(a))) < 1e-9
+    assert abs(prof.curve_end_m[1] - (500.0 + R * math.sin(a))) < 1e-9
+    assert abs(prof.curve_length_m[1] - 2 * R * a) < 1e-9
+    H, dH, d2H = prof.evaluate(np.array([500.0, 400.0, 600.0, 100.0]))
+    assert abs(H[0] - (7.5 - R * (1 / math.cos(a) - 1))) < 1e-9
+    assert abs(H[1] - H[2]) < 1e-12 and dH[0] == 0.0 and abs(d2H[0] + 1 / R) < 1e-15
+    # a point of the arc lies on the circle: centre straight below/above the PVI
+    centre_h = 7.5 - R / math.cos(a)
+    assert abs(math.hypot(400.0 - 500.0, H[1] - centre_h) - R) < 1e-9
+    assert H[3] == 1.5 and dH[3] == g
+    # a sag: the same numbers mirrored
+    sag = VerticalProfile.from_pvis([0.0, 500.0, 1000.0], [0.0, -7.5, 0.0], [0.0, 0.0, 0.0],
+                                    [0.0, R, 0.0])
+    assert abs(sag.evaluate(500.0)[0] + H[0]) < 1e-12
+
+
 def test_cant_linear_and_constant_outside():
     cant = CantProfile.from_stations([200.0, 350.0, 850.0, 1000.0], [0.0, 0.08, 0.08, 0.0])
     c, tw = cant.evaluate(np.array([0.0, 200.0, 275.0, 600.0, 925.0, 2000.0]))
-    np.testing.assert_allclose(c, [0.0, 0.0, 0.04, 0.08, 0.04, 0.0], atol=1e-15)
-    np.testing.assert_allclose(tw, [0.0, 0.08 / 150, 0.08 / 150, 0.0, -0.08 / 150, 0.0], atol=1e-18)
+    np.testing.assert_allclose(c, [0.0, 0.0, 0.04, 0.08, 0.04, 0.0], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(tw, [0.0, 0.08 / 150, 0.08 / 150, 0.0, -0.08 / 150, 0.0], rtol=0, atol=1e-18)
 
 
 def test_shapes_and_scalar():
@@ -151,9 +175,8 @@ def test_derivatives_are_consistent(s, which):
     """Central differences of the returned quantities agree with the returned derivatives."""
     al = demo_like()
     h = 1e-3
-    breaks = np.concatenate([al.horizontal.element_chainage_m, al.profile.chainage_m
-                             - al.profile.curve_length_m / 2, al.profile.chainage_m
-                             + al.profile.curve_length_m / 2, al.cant.chainage_m])
+    breaks = np.concatenate([al.horizontal.element_chainage_m, al.profile.curve_start_m,
+                             al.profile.curve_end_m, al.cant.chainage_m])
     if np.min(np.abs(breaks - s)) < 2 * h:
         s += 5 * h  # a derivative jumps at a break: step off it
     r = al.evaluate(np.array([s - h, s, s + h]))

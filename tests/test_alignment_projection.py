@@ -64,8 +64,8 @@ def test_sign_of_lateral_offset_hand_case():
     # straight heading north from the origin: a point to the east is to the right
     al = Alignment(HorizontalAlignment.from_elements(0.0, 0.0, 0.0, [Line(100.0)]))
     p = al.project(np.array([3.0, -2.0]), np.array([40.0, 70.0]))
-    np.testing.assert_allclose(p.chainage_m, [40.0, 70.0], atol=1e-12)
-    np.testing.assert_allclose(p.lateral_m, [3.0, -2.0], atol=1e-12)
+    np.testing.assert_allclose(p.chainage_m, [40.0, 70.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(p.lateral_m, [3.0, -2.0], rtol=0, atol=1e-12)
     assert np.all(np.isnan(p.vertical_m))  # no heights given
 
 
@@ -74,8 +74,8 @@ def test_beyond_the_ends_continues_on_tangents_and_flags_outside():
     s = np.array([hz.start_chainage_m - 30.0, hz.end_chainage_m + 45.0])
     E, N, _ = _offset(AL, s, np.array([2.0, -3.0]))
     p = AL.project(E, N)
-    np.testing.assert_allclose(p.chainage_m, s, atol=1e-8)
-    np.testing.assert_allclose(p.lateral_m, [2.0, -3.0], atol=1e-8)
+    np.testing.assert_allclose(p.chainage_m, s, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(p.lateral_m, [2.0, -3.0], rtol=0, atol=1e-8)
     assert not np.any(p.inside)
 
 
@@ -105,7 +105,7 @@ def test_shape_is_kept():
     E, N, H = _offset(AL, s, 1.5, 0.25)
     p = AL.project(E, N, H)
     assert p.chainage_m.shape == (3, 4) and p.inside.shape == (3, 4)
-    np.testing.assert_allclose(p.vertical_m, 0.25, atol=1e-9)
+    np.testing.assert_allclose(p.vertical_m, 0.25, rtol=0, atol=1e-9)
 
 
 @st.composite

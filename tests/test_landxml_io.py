@@ -83,20 +83,30 @@ def test_worked_example_parses_and_joins():
     hz = al.horizontal
     assert al.name == "UP-MAIN"
     assert [type(e).__name__ for e in hz.elements] == ["Line", "Clothoid", "Arc", "Clothoid", "Line"]
-    np.testing.assert_allclose(hz.element_chainage_m, [0, 100, 160, 210, 270, 370], atol=2e-4)
+    np.testing.assert_allclose(hz.element_chainage_m, [0, 100, 160, 210, 270, 370], rtol=0, atol=2e-4)
     # check values of protocols.md 3.5: headings 90, 92.8648, 97.6394, 100.5042 deg
     np.testing.assert_allclose(np.degrees(hz.element_heading_rad[[0, 2, 3, 4]]),
-                               [90.0, 92.8648, 97.6394, 100.5042], atol=1e-4)
+                               [90.0, 92.8648, 97.6394, 100.5042], rtol=0, atol=1e-4)
     # the chained geometry reaches the file's points (given to 0.1 mm)
     np.testing.assert_allclose(hz.element_N_m, [5000.0, 5000.0, 4999.0002, 4994.4246, 4984.4719,
-                                                4966.2411], atol=3e-4)
+                                                4966.2411], rtol=0, atol=3e-4)
     np.testing.assert_allclose(hz.element_E_m, [1000.0, 1100.0, 1159.9850, 1209.7607, 1268.9227,
-                                                1367.2468], atol=3e-4)
+                                                1367.2468], rtol=0, atol=3e-4)
     assert abs(hz.elements[2].curvature_1_m - 1 / 600) < 1e-9
     r = al.evaluate(np.array([0.0, 185.0, 370.0, 130.0, 185.0]))
-    # the CircCurve is read as a parabola: H(PVI) = H + dg L / 8
-    np.testing.assert_allclose(r.H_m[:3], [50.0, 51.11 + (-0.003 - 0.006) * 90 / 8, 50.555],
-                               atol=1e-12)
+    np.testing.assert_allclose(r.H_m[[0, 2]], [50.0, 50.555], rtol=0, atol=1e-12)
+    # the CircCurve is a circle: it is within 1 micrometre of the parabola of the same length
+    # (H(PVI) = H + dg L / 8) and its graph has curvature -1/R all along
+    assert abs(r.H_m[1] - (51.11 + (-0.003 - 0.006) * 90 / 8)) < 1e-6
+    p = al.profile
+    s = np.linspace(p.curve_start_m[1] + 1e-6, p.curve_end_m[1] - 1e-6, 101)
+    H, dH, d2H = p.evaluate(s)
+    np.testing.assert_allclose(d2H / (1 + dH**2) ** 1.5, -1e-4, rtol=1e-12)
+    # tangent to both grades where it starts and ends
+    for sc, g in ((p.curve_start_m[1], 0.006), (p.curve_end_m[1], -0.003)):
+        H, dH, _ = p.evaluate(np.array([sc - 1e-7, sc + 1e-7]))
+        assert np.max(np.abs(dH - g)) < 1e-10
+        assert abs(H[0] - (51.11 + g * (sc - 185.0))) < 1e-9
     # cant: 120 mm over the default 1.5 m rail spacing, half way up the first ramp at 130
     assert abs(r.cant_rad[4] - math.asin(0.12 / 1.5)) < 1e-15
     assert abs(r.cant_rad[3] - 0.5 * math.asin(0.12 / 1.5)) < 1e-15
@@ -154,7 +164,15 @@ def alignments(draw):
                                            draw(st.floats(0.0, 2 * math.pi)), els,
                                            draw(st.floats(-1000.0, 50000.0)))
     s0, s1 = hz.start_chainage_m, hz.end_chainage_m
-    prof = VerticalProfile.from_pvis([s0, s1], [draw(st.floats(-10, 3000))] * 2, [0.0, 0.0])
+    h0 = draw(st.floats(-10, 3000))
+    sm = 0.5 * (s0 + s1)
+    # a crest/sag at mid-length: circle or parabola (grades up to 2 %, curves fit inside)
+    hm = h0 + draw(st.floats(-0.02, 0.02)) * (sm - s0)
+    L = draw(st.floats(0.0, 0.3)) * (s1 - s0)
+    R = draw(st.sampled_from([0.0, 5000.0, 25000.0]))
+    if R and 2 * R * 0.02 > 0.5 * (s1 - s0):
+        R = 0.0
+    prof = VerticalProfile.from_pvis([s0, sm, s1], [h0, hm, h0], [0.0, L, 0.0], [0.0, R, 0.0])
     cant = CantProfile.from_stations([s0, 0.5 * (s0 + s1)], [0.0, draw(st.floats(-0.1, 0.1))])
     return Alignment(hz, prof, cant, name="R")
 
@@ -246,6 +264,14 @@ def test_other_refusals():
     _expect(EXAMPLE.replace("<Line staStart=\"270.0\"", "<IrregularLine staStart=\"270.0\"")
             .replace("</Line>\n      </CoordGeom>", "</IrregularLine>\n      </CoordGeom>"),
             "<IrregularLine> no. 5", "not supported")
+
+
+def test_circcurve_length_must_fit_its_radius():
+    _expect(EXAMPLE.replace('<CircCurve length="90.0" radius="10000.0">',
+                            '<CircCurve length="120.0" radius="10000.0">'),
+            "<CircCurve> no. 2", "radius", "89.999")
+    _expect(EXAMPLE.replace('<CircCurve length="90.0" radius="10000.0">',
+                            '<CircCurve length="90.0">'), "<CircCurve> no. 2", "radius")
 
 
 def test_cant_side_from_curve_and_adverse():

@@ -446,37 +446,70 @@ class HorizontalAlignment:
 # vertical profile
 # --------------------------------------------------------------------------------------------
 class VerticalProfile:
-    """Grades between PVIs, joined by symmetric parabolic vertical curves centred on the PVIs.
+    """Grades between PVIs, joined by vertical curves at the interior PVIs.
 
-    Build with :meth:`from_pvis`. Within the curve of PVI i (length L_i, from BVC = s_i - L_i/2
-    to EVC = s_i + L_i/2) the height is H_i + g_{i-1} (s - s_i) + (g_i - g_{i-1}) (s - BVC)^2
-    / (2 L_i); the vertical radius is L_i / |g_i - g_{i-1}|. Beyond the first/last PVI the
-    end grades continue.
+    Build with :meth:`from_pvis`. Two kinds of vertical curve:
+
+    - parabola (the default): symmetric, centred on PVI i, of length L_i (from
+      BVC = s_i - L_i/2 to EVC = s_i + L_i/2); the height there is
+      H_i + g_{i-1} (s - s_i) + (g_i - g_{i-1}) (s - BVC)^2 / (2 L_i), the vertical radius
+      L_i / |g_i - g_{i-1}|;
+    - circle (``vertical_radius_m`` > 0): the circular arc of radius R in the (s, H) plane
+      tangent to both grade lines, from s_i - T cos(a_in) to s_i + T cos(a_out), with
+      a = arctan(g) and T = R tan(|a_out - a_in| / 2). Crest or sag follows the grades.
+
+    Beyond the first/last PVI the end grades continue.
 
     Attributes
     ----------
-    chainage_m, height_m, curve_length_m : PVI arrays.
+    chainage_m, height_m : PVI stations and heights.
+    curve_length_m : parabola length; for a circle, its arc length R |a_out - a_in|.
+    vertical_radius_m : circle radius, 0 for a parabola (or no curve).
+    curve_start_m, curve_end_m : chainages where each curve begins and ends.
     grade : (n-1,) grades dH/ds between PVIs.
     """
 
-    def __init__(self, chainage_m, height_m, curve_length_m) -> None:
+    def __init__(self, chainage_m, height_m, curve_length_m, vertical_radius_m=None) -> None:
         s = np.asarray(chainage_m, dtype=float).ravel()
         H = np.asarray(height_m, dtype=float).ravel()
-        L = np.asarray(curve_length_m, dtype=float).ravel()
-        if not (s.shape == H.shape == L.shape):
-            raise ValueError("chainage_m, height_m and curve_length_m must have the same length")
+        L = np.array(curve_length_m, dtype=float).ravel()
+        R = (np.zeros(s.shape) if vertical_radius_m is None
+             else np.abs(np.array(vertical_radius_m, dtype=float).ravel()))
+        if not (s.shape == H.shape == L.shape == R.shape):
+            raise ValueError("chainage_m, height_m, curve_length_m (and vertical_radius_m) must "
+                             "have the same length")
         if s.size < 2:
             raise ValueError("a vertical profile needs at least two PVIs")
-        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(H)) and np.all(np.isfinite(L))):
-            raise ValueError("PVI chainages, heights and curve lengths must be finite")
+        if not all(np.all(np.isfinite(a)) for a in (s, H, L, R)):
+            raise ValueError("PVI chainages, heights, curve lengths and radii must be finite")
         if np.any(np.diff(s) <= 0):
             i = int(np.argmax(np.diff(s) <= 0)) + 1
             raise ValueError(f"PVI {i}: chainage {s[i]!r} does not increase")
         if np.any(L < 0):
             raise ValueError(f"PVI {int(np.argmax(L < 0))}: negative vertical curve length")
-        if L[0] != 0 or L[-1] != 0:
+        if L[0] != 0 or L[-1] != 0 or R[0] != 0 or R[-1] != 0:
             raise ValueError("the first and last PVI cannot carry a vertical curve (length 0)")
+        g = np.diff(H) / np.diff(s)
+        circle = R > 0
         bvc, evc = s - 0.5 * L, s + 0.5 * L
+        # circle geometry: centre (cs, ch), sigma = +1 sag (centre above), -1 crest
+        self._cs, self._ch, self._sigma = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
+        for i in np.flatnonzero(circle):  # a handful of PVIs
+            a_in, a_out = np.arctan(g[i - 1]), np.arctan(g[i])
+            turn = a_out - a_in
+            if turn == 0.0:
+                circle[i], R[i], L[i] = False, 0.0, 0.0
+                bvc[i] = evc[i] = s[i]
+                continue
+            T = R[i] * np.tan(0.5 * abs(turn))
+            sigma = np.sign(turn)
+            bvc[i] = s[i] - T * np.cos(a_in)
+            evc[i] = s[i] + T * np.cos(a_out)
+            h_bvc = H[i] - T * np.sin(a_in)
+            self._cs[i] = bvc[i] - sigma * R[i] * np.sin(a_in)
+            self._ch[i] = h_bvc + sigma * R[i] * np.cos(a_in)
+            self._sigma[i] = sigma
+            L[i] = R[i] * abs(turn)
         tol = 1e-9 * max(1.0, float(np.max(np.abs(s))))
         overlap = evc[:-1] > bvc[1:] + tol
         if np.any(overlap):
@@ -484,22 +517,28 @@ class VerticalProfile:
             raise ValueError(f"vertical curves of PVI {i} (ends {evc[i]!r}) and PVI {i + 1} "
                              f"(begins {bvc[i + 1]!r}) overlap")
         self.chainage_m, self.height_m, self.curve_length_m = s, H, L
-        self.grade = np.diff(H) / np.diff(s)
+        self.vertical_radius_m = R
+        self.curve_start_m, self.curve_end_m = bvc, evc
+        self.grade = g
+        self._circle = circle
 
     @classmethod
-    def from_pvis(cls, chainage_m, height_m, curve_length_m) -> "VerticalProfile":
+    def from_pvis(cls, chainage_m, height_m, curve_length_m, vertical_radius_m=None
+                  ) -> "VerticalProfile":
         """Profile from PVI chainages, heights and vertical-curve lengths (first/last 0).
 
         Parameters
         ----------
         chainage_m, height_m : PVI stations and heights, m.
         curve_length_m : length of the parabolic curve centred on each PVI, m.
+        vertical_radius_m : optional; where > 0 the curve at that PVI is instead the circle of
+            this radius tangent to both grades (its ``curve_length_m`` entry is then ignored).
 
         Returns
         -------
         VerticalProfile
         """
-        return cls(chainage_m, height_m, curve_length_m)
+        return cls(chainage_m, height_m, curve_length_m, vertical_radius_m)
 
     def evaluate(self, s):
         """Height H, dH/ds and d2H/ds2 at chainages ``s``.
@@ -510,25 +549,33 @@ class VerticalProfile:
         """
         shape = np.shape(s)
         s = np.asarray(s, dtype=float).ravel()
-        sp, Hp, Lp, g = self.chainage_m, self.height_m, self.curve_length_m, self.grade
+        sp, Hp, g = self.chainage_m, self.height_m, self.grade
         seg = np.clip(np.searchsorted(sp, s, side="right") - 1, 0, len(g) - 1)
         H = Hp[seg] + g[seg] * (s - sp[seg])
         dH = g[seg].astype(float)
         d2H = np.zeros(s.shape)
         # a point can lie in the curve of either end PVI of its segment
         for cand in (seg, seg + 1):
-            Lc = Lp[cand]
-            half = 0.5 * Lc
-            inside = (Lc > 0) & (np.abs(s - sp[cand]) < half)
+            inside = (s > self.curve_start_m[cand]) & (s < self.curve_end_m[cand])
             if not np.any(inside):
                 continue
-            ci = cand[inside]
-            dg = g[ci] - g[ci - 1]
-            r = dg / Lc[inside]                  # d2H/ds2 on the curve
-            x = s[inside] - (sp[ci] - half[inside])   # distance from the BVC
-            H[inside] = Hp[ci] + g[ci - 1] * (s[inside] - sp[ci]) + 0.5 * r * x * x
-            dH[inside] = g[ci - 1] + r * x
-            d2H[inside] = r
+            circ = self._circle[cand] & inside
+            para = inside & ~circ
+            if np.any(para):
+                ci = cand[para]
+                r = (g[ci] - g[ci - 1]) / self.curve_length_m[ci]  # d2H/ds2 on the curve
+                x = s[para] - self.curve_start_m[ci]                # distance from the BVC
+                H[para] = Hp[ci] + g[ci - 1] * (s[para] - sp[ci]) + 0.5 * r * x * x
+                dH[para] = g[ci - 1] + r * x
+                d2H[para] = r
+            if np.any(circ):
+                ci = cand[circ]
+                R, sig = self.vertical_radius_m[ci], self._sigma[ci]
+                x = s[circ] - self._cs[ci]
+                root = np.sqrt((R - x) * (R + x))
+                H[circ] = self._ch[ci] - sig * root
+                dH[circ] = sig * x / root
+                d2H[circ] = sig * R * R / root ** 3
         return H.reshape(shape), dH.reshape(shape), d2H.reshape(shape)
 
 

@@ -12,9 +12,9 @@ What is read (schema LandXML-1.2.xsd; see ``docs/conventions.md``, "Design geome
   The elements are chained from the first one's start point and heading, and every Start and
   End in the file must lie within 1 mm of the chained geometry.
 - ``<Profile>/<ProfAlign>`` (the first one): ``<PVI>`` and ``<ParaCurve length>`` ("station
-  elevation"); ``<CircCurve length radius>`` is read as a parabola of the same length, centred
-  on the PVI (the circle differs from it by about L^4 / (128 R^3): 0.6 micrometre for the
-  L = 90 m, R = 10 km curve of the protocols.md example, 0.06 mm for L = 300 m, R = 10 km).
+  elevation"); ``<CircCurve length radius>`` is an exact circle of that radius tangent to both
+  grades (crest or sag from the grades, whatever the sign of the radius); its ``length`` must
+  agree with the circle's arc length within max(0.1 m, 1 %).
 - ``<Cant>/<CantStation>``: ``appliedCant`` (mm, a rail height difference) is converted to the
   cant angle asin(appliedCant / rail_spacing); its sign follows ``curvature`` (``cw``, a
   right-hand curve, raises the left rail: positive), flipped when ``adverse="true"``. Ramps
@@ -306,30 +306,47 @@ def _profile(al: ET.Element, aname: str, scale: float) -> VerticalProfile | None
             continue
         pa = aligns[0]
         pwhere = f"{aname}, {_describe(prof)} {_describe(pa)}"
-        sta, elev, length = [], [], []
+        sta, elev, length, radius, wheres = [], [], [], [], []
         for i, el in enumerate(pa):
             tag = _local(el.tag)
             if not tag:
                 continue
             where = f"{pwhere} {_describe(el, i)}"
-            if tag == "PVI":
-                curve = 0.0
-            elif tag in ("ParaCurve", "CircCurve"):
+            curve, r = 0.0, 0.0
+            if tag in ("ParaCurve", "CircCurve"):
                 curve = _finite(el.get("length"), where, "length") * scale
                 if curve < 0.0:
                     raise LandXmlError(f"{where}: length={el.get('length')!r} must be >= 0")
-            else:
+                if tag == "CircCurve":
+                    # the sign convention of the radius varies: crest/sag come from the grades
+                    r = abs(_finite(el.get("radius"), where, "radius")) * scale
+                    if r == 0.0:
+                        raise LandXmlError(f"{where}: radius must not be 0")
+            elif tag != "PVI":
                 raise LandXmlError(f"{where}: <{tag}> is not supported (PVI, ParaCurve, CircCurve)")
             s, h = _values(el, where, (2,), "'station elevation'")
             sta.append(s * scale)
             elev.append(h * scale)
             length.append(curve)
+            radius.append(r)
+            wheres.append(where)
         if len(sta) < 2:
             raise LandXmlError(f"{pwhere}: needs at least two PVIs")
+        for k in (0, len(sta) - 1):
+            if length[k] != 0.0 or radius[k] != 0.0:
+                raise LandXmlError(f"{wheres[k]}: the first and last PVI cannot carry a curve")
         try:
-            return VerticalProfile.from_pvis(sta, elev, length)
+            profile = VerticalProfile.from_pvis(sta, elev, length, radius)
         except ValueError as exc:
             raise LandXmlError(f"{pwhere}: {exc}") from None
+        for k in np.flatnonzero(np.asarray(radius) > 0):
+            # the circle is fixed by the radius and the grades; its length is only a check
+            # (PVI heights rounded to the mm move it by centimetres on long curves)
+            if abs(profile.curve_length_m[k] - length[k]) > max(0.1, 0.01 * length[k]):
+                raise LandXmlError(f"{wheres[k]}: length={length[k]!r} but a circle of radius "
+                                   f"{radius[k]!r} between the adjacent grades is "
+                                   f"{profile.curve_length_m[k]:.3f} m long")
+        return profile
     return None
 
 
@@ -581,8 +598,12 @@ def landxml_text(alignment: Alignment, *, rail_spacing_m: float = DEFAULT_RAIL_S
         pr = alignment.profile
         w(f'      <Profile name={quoteattr(name + "-V")}>')
         w('        <ProfAlign name="design">')
-        for s, h, L in zip(pr.chainage_m, pr.height_m, pr.curve_length_m):
-            if L > 0:
+        for s, h, L, R in zip(pr.chainage_m, pr.height_m, pr.curve_length_m,
+                              pr.vertical_radius_m):
+            if R > 0:
+                w(f'          <CircCurve length="{_f(L)}" radius="{_f(R)}">{_f(s)} {_f(h)}'
+                  '</CircCurve>')
+            elif L > 0:
                 w(f'          <ParaCurve length="{_f(L)}">{_f(s)} {_f(h)}</ParaCurve>')
             else:
                 w(f'          <PVI>{_f(s)} {_f(h)}</PVI>')
