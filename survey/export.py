@@ -185,8 +185,10 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         from survey.workbook import write_workbook
 
         t = time.perf_counter()
-        result.xlsx = write_workbook(Path(xlsx), rep)
+        stages: dict[str, float] = {}
+        result.xlsx = write_workbook(Path(xlsx), rep, stages)
         timings["xlsx"] = time.perf_counter() - t
+        timings.update({f"xlsx_{k}": v for k, v in stages.items()})
     if csv is not None:
         t = time.perf_counter()
         result.csv = write_track_csv(Path(csv), rep)

@@ -22,6 +22,7 @@ import math
 import os
 import re
 import tempfile
+import time
 import zipfile
 from datetime import datetime, timezone
 from pathlib import Path
@@ -344,8 +345,9 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
     return "".join(f'<row r="{r}">' + "".join(cells) + "</row>" for r, cells in zip(rows_num, zip(*per_col)))
 
 
-def _splice_track_rows(path: Path, rep: SurveyReport) -> None:
+def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float]) -> None:
     """Replace the template row 2 of the Track sheet by all station rows (in place)."""
+    t0 = time.perf_counter()
     n = rep.geometry.chainage_m.size
     with zipfile.ZipFile(path) as z:
         part = _sheet_part(z, TRACK_SHEET)
@@ -357,6 +359,8 @@ def _splice_track_rows(path: Path, rep: SurveyReport) -> None:
     styles = dict(re.findall(r'<c r="([A-Z]+)2"[^>]*?\ss="(\d+)"', m.group(0)))
     rows = _station_rows_xml(rep, styles)
     xml = xml[:m.start()] + rows + xml[m.end():]
+    t1 = time.perf_counter()
+    timings["rows_xml"] = t1 - t0
     last = _col_letter(len(rep.columns))
     xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{n + 1}"/>', xml, count=1)
     fd, tmp = tempfile.mkstemp(prefix=".splice-", suffix=".xlsx", dir=path.parent)
@@ -367,20 +371,23 @@ def _splice_track_rows(path: Path, rep: SurveyReport) -> None:
                 payload = xml.encode("utf-8") if info.filename == part else data
                 zi = zipfile.ZipInfo(info.filename, date_time=info.date_time)
                 zi.compress_type = zipfile.ZIP_DEFLATED
-                out.writestr(zi, payload)
+                out.writestr(zi, payload, compresslevel=1)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    timings["zip"] = time.perf_counter() - t1
 
 
-def write_workbook(path: Path, rep: SurveyReport) -> Path:
+def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | None = None) -> Path:
     """Write the survey workbook to ``path`` atomically (temp file + rename).
 
     Parameters
     ----------
     path : .xlsx file to write.
     rep : the survey report.
+    timings : if given, filled with seconds per stage: "openpyxl_build", "openpyxl_save"
+        (openpyxl's share), "rows_xml" (station rows as XML), "zip" (re-packing).
 
     Returns
     -------
@@ -389,6 +396,8 @@ def write_workbook(path: Path, rep: SurveyReport) -> Path:
     from openpyxl import Workbook
 
     path = Path(path)
+    timings = {} if timings is None else timings
+    t0 = time.perf_counter()
     n = rep.geometry.chainage_m.size
     wb = Workbook()
     summary = wb.active
@@ -405,8 +414,11 @@ def write_workbook(path: Path, rep: SurveyReport) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xlsx", dir=path.parent)
     os.close(fd)
     try:
+        t1 = time.perf_counter()
+        timings["openpyxl_build"] = t1 - t0
         wb.save(tmp)
-        _splice_track_rows(Path(tmp), rep)
+        timings["openpyxl_save"] = time.perf_counter() - t1
+        _splice_track_rows(Path(tmp), rep, timings)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
