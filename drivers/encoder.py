@@ -156,42 +156,45 @@ class EncoderParser(LineParser):
 class OdometerPoller:
     """Polls the counter module at ``cfg.rate_hz`` over a :class:`drivers.serialport.SerialLink`.
 
-    A poll that got no reply before the next poll is counted in ``stats.timeouts``.
+    One request at a time: the next poll is sent on schedule but never before the previous
+    one was answered (any complete reply line, good or bad) or timed out. A poll with no reply
+    within ``reply_timeout_s`` is counted in ``stats.timeouts``.
     """
 
-    def __init__(self, link, cfg: OdometerConfig) -> None:
+    def __init__(self, link, cfg: OdometerConfig, reply_timeout_s: float | None = None) -> None:
         self.link = link
         self.cfg = cfg
+        self.reply_timeout_s = reply_timeout_s if reply_timeout_s is not None else max(0.05, 5.0 / cfg.rate_hz)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.polls = 0
 
     def start(self) -> "OdometerPoller":
+        """Start the polling thread."""
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="odometer-poll", daemon=True)
         self._thread.start()
         return self
 
-    def _replies(self) -> int:
+    def _lines(self) -> int:
         st = self.link.stats
         return st.frames_ok + st.bad_checksum + st.bad_format
 
     def _run(self) -> None:
         period = 1.0 / self.cfg.rate_hz
         nxt = time.monotonic()
-        last_replies = self._replies()
+        link = self.link
         while not self._stop.is_set():
-            if self.polls:
-                r = self._replies()
-                if r == last_replies:
-                    with self.link.lock:
-                        self.link.stats.timeouts += 1
-                last_replies = r
+            with link.lock:
+                before = self._lines()
             try:
-                self.link.write(READ_COMMAND)
+                link.write(READ_COMMAND)
                 self.polls += 1
+                with link.fed:
+                    if not link.fed.wait_for(lambda: self._lines() > before, self.reply_timeout_s):
+                        link.stats.timeouts += 1
             except Exception:  # port gone: the link reconnects; keep the schedule
-                pass
+                self._stop.wait(period)
             nxt += period
             delay = nxt - time.monotonic()
             if delay < -period:  # fell behind (loaded machine): do not burst to catch up
@@ -200,6 +203,7 @@ class OdometerPoller:
             self._stop.wait(max(delay, 0.0))
 
     def stop(self) -> None:
+        """Stop polling."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)

@@ -68,6 +68,7 @@ class SerialLink:
         self.clock = clock
         self.connected = threading.Event()
         self.lock = threading.Lock()  # guards parser + stats
+        self.fed = threading.Condition(self.lock)  # notified after every read is parsed
         self._ser: serial.Serial | None = None
         self._wlock = threading.Lock()
         self._stop = threading.Event()
@@ -173,7 +174,8 @@ class SerialLink:
                 self.rawlog.write(IN, t, data)
             with self.lock:
                 recs = self.parser.feed(data, t)
-            self._put(recs)
+                self._put(recs)
+                self.fed.notify_all()
 
     def _put(self, recs) -> None:
         if isinstance(recs, list):
@@ -188,8 +190,7 @@ class SerialLink:
                 except queue.Full:
                     try:
                         self.queue.get_nowait()
-                        with self.lock:
-                            self.stats.queue_dropped += 1
+                        self.stats.queue_dropped += 1  # caller holds self.lock
                     except queue.Empty:
                         pass
 

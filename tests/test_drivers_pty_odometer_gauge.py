@@ -1,0 +1,144 @@
+"""Odometer (encoder counter) and gauge-sensor drivers against their twins through a real pty."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from drivers import encoder, gauge
+from drivers.lineparser import ChecksumError
+from drivers.replay import replay_encoder, replay_gauge
+from drivers.serialport import SerialLink
+from drivers.stats import Stats
+from drivers.twins.base import Faults
+from drivers.twins.gauge import GaugeTwin
+from drivers.twins.odometer import OdometerTwin
+
+
+# ------------------------------------------------------------------ encoder maths
+@given(st.sampled_from([8, 16, 24, 32]), st.integers(0, 2**40), st.lists(st.integers(-100, 100), min_size=1, max_size=50))
+@settings(max_examples=40, deadline=None)
+def test_unwrap_counts_survives_rollover(bits, start, steps):
+    true = start + np.concatenate([[0], np.cumsum(steps)])
+    raw = true % 2**bits
+    assert np.array_equal(encoder.unwrap_counts(raw, bits), true - true[0])
+
+
+def test_distance_hand_computed():
+    cfg = encoder.OdometerConfig(ppr=250, decode=4, wheel_diameter_m=0.2, scale=1.001, bits=16)
+    # 1000 counts per revolution (X4), circumference 0.2 pi
+    assert cfg.metres_per_count == pytest.approx(1.001 * np.pi * 0.2 / 1000)
+    assert encoder.distance_m([65000, 65535, 464], cfg)[-1] == pytest.approx(1000 * cfg.metres_per_count)
+    assert encoder.format_read_reply(4095, 70000, 16) == b"*0R004095,04464\r"
+    with pytest.raises(ValueError):
+        encoder.OdometerConfig(decode=3)
+
+
+def _odo_link(twin, cfg, raw=None):
+    stats = Stats()
+    link = SerialLink(twin.port, encoder.EncoderParser(stats, cfg), "odometer", raw_log=raw)
+    link.open()
+    link.start()
+    twin.start()
+    return link, stats
+
+
+def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
+    cfg = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.1, bits=16, rate_hz=200.0)
+    n = 200
+    t = np.arange(n) / cfg.rate_hz
+    dist = 1.5 * t  # 1.5 m/s: ~1950 counts/s, the 16-bit counter wraps
+    twin = OdometerTwin(t, dist, cfg, offset_counts=2**16 - 300, mode="index")
+    link, stats = _odo_link(twin, cfg, tmp_path / "odo.rawlog")
+    poller = encoder.OdometerPoller(link, cfg).start()
+    deadline = time.monotonic() + 20.0
+    while twin.polls < n + 5 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    poller.stop()
+    time.sleep(0.1)
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    counts = np.array([r.count1 for r in recs])
+    assert len(recs) >= n and np.array_equal(counts, twin.sent_counts[: len(recs)])
+    d = encoder.distance_m(counts, cfg)
+    assert d[n - 1] == pytest.approx(dist[n - 1], abs=cfg.metres_per_count)
+    assert np.all(np.diff(d) >= 0) and stats.balanced() and stats.timeouts == 0
+    rep, rst = replay_encoder(tmp_path / "odo.rawlog", cfg)
+    assert rep == recs and rst.frames_ok == stats.frames_ok
+
+
+def test_odometer_faults_only_undetectable_digit_swaps_can_pass():
+    cfg = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.1, bits=32, rate_hz=400.0, max_speed_m_s=5.0)
+    n = 600
+    t = np.arange(n) / cfg.rate_hz
+    twin = OdometerTwin(t, 1.0 * t, cfg, offset_counts=2**32 - 1000, mode="index",
+                        faults=Faults(corrupt_rate=3e-3, drop_rate=1e-3, garbage_rate=0.05, missing_rate=0.02, seed=5))
+    link, stats = _odo_link(twin, cfg)
+    poller = encoder.OdometerPoller(link, cfg).start()
+    deadline = time.monotonic() + 20.0
+    while twin.polls < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    poller.stop()
+    time.sleep(0.1)
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    sent = set(twin.sent_counts)
+    wrong = [r for r in recs if r.count1 not in sent]
+    inj = twin.injector
+    digit = set(b"0123456789")
+    digit_swaps = sum(1 for a, b in zip(inj.corrupted_from, inj.corrupted_to) if a in digit and b in digit)
+    assert len(recs) > 0.8 * n and len(inj.corrupted) > 20
+    assert len(wrong) <= digit_swaps  # a checksum-less protocol cannot catch these
+    assert stats.bad_format > 0 and stats.timeouts > 0 and stats.balanced()
+    print(f"\nodometer: {len(recs)} accepted of {twin.polls} polls, {len(inj.corrupted)} bytes corrupted, "
+          f"{digit_swaps} digit->digit, {len(wrong)} wrong accepted, implausible {stats.extra['implausible']}")
+
+
+# ------------------------------------------------------------------ gauge
+def test_gauge_line_format_and_checksum():
+    line = gauge.format_line(7, 123456, 1.43512)
+    assert line.startswith(b"$GG,7,123456,1435.12,0*") and line.endswith(b"\r\n")
+    rec = gauge.decode_line(line.decode().strip())
+    assert rec.gauge_m == pytest.approx(1.43512) and rec.seq == 7 and rec.t_device_ms == 123456
+    with pytest.raises(ChecksumError):
+        gauge.decode_line(line.decode().strip().replace("1435.12", "1435.13"))
+
+
+def test_gauge_through_pty_with_faults_and_replay(tmp_path):
+    n = 3000
+    t = np.arange(n) / 100.0
+    g = 1.435 + 0.003 * np.sin(t)
+    twin = GaugeTwin(t, g, realtime=False,
+                     faults=Faults(corrupt_rate=5e-4, drop_rate=2e-4, garbage_rate=0.1, seed=9))
+    stats = Stats()
+    link = SerialLink(twin.port, gauge.GaugeParser(stats), "gauge", raw_log=tmp_path / "g.rawlog")
+    link.open()
+    link.start()
+    twin.start()
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and not (twin.lines_sent >= n and link.snapshot().bytes_in >= twin.bytes_sent):
+        time.sleep(0.01)
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    # which lines were hit by a fault (offsets in the clean stream); harmless faults: a burst
+    # inserted at a line start, the CR dropped or turned into LF (the LF still ends the line)
+    ends = np.cumsum([len(x) for x in twin.lines])
+    starts = {0} | set(ends[:-1].tolist())
+    cr = set((ends - 2).tolist())
+    inj = twin.injector
+    bad = [o for o, to in zip(inj.corrupted, inj.corrupted_to) if not (o in cr and to == 0x0A)]
+    bad += [o for o in inj.dropped if o not in cr]
+    bad += [o for o, _ in inj.garbage if o not in starts]
+    hit = set(np.searchsorted(ends, np.array(bad, int), side="right").tolist())
+    good = [k for k in range(n) if k not in hit]
+    assert [r.seq for r in recs] == good
+    assert np.allclose([r.gauge_m for r in recs], np.round(g[good] * 1e5) / 1e5, atol=1e-9)
+    assert stats.extra["lines_missing"] == n - len(good) - (n - 1 - good[-1]) - good[0]
+    assert stats.bytes_in == twin.bytes_sent and stats.balanced()
+    rep, rst = replay_gauge(tmp_path / "g.rawlog")
+    assert rep == recs
