@@ -545,9 +545,9 @@ def _gauss_markov(rng: np.random.Generator, n: int, sigma: np.ndarray, tau_s: fl
 
     phi = np.exp(-dt / tau_s)
     x0 = rng.standard_normal(sigma.size) * sigma
-    w = rng.standard_normal((n, sigma.size)) * (sigma * np.sqrt(1.0 - phi * phi))
-    y, _ = lfilter([1.0], [1.0, -phi], w, axis=0, zi=(phi * x0)[None, :])
-    return y
+    w = rng.standard_normal((sigma.size, n)) * (sigma * np.sqrt(1.0 - phi * phi))[:, None]
+    y, _ = lfilter([1.0], [1.0, -phi], w, axis=-1, zi=(phi * x0)[:, None])
+    return y.T
 
 
 def _kinematics(geo: TruthGeometry, motion: MotionProfile, t: np.ndarray, latitude0: float):
