@@ -19,7 +19,7 @@ PLOTS = [
     ("deviations", "Deviation from design", "deviation [mm]", ["lateral_dev_m", "vertical_dev_m"]),
     ("gauge", "Gauge deviation from nominal", "gauge - nominal [mm]", ["gauge_dev_m"]),
     ("cant", "Cant", "cant [mm]", ["cant_m", "design_cant_m", "cant_dev_m"]),
-    ("twist", "Twist", "twist [mm]", ["twist_m"]),
+    ("twist", "Twist", "twist [mm]", ["twist_dev_m", "twist_m"]),
     ("alignment_bands", "Alignment (lateral) EN 13848 bands", "band-passed deviation [mm]",
      ["align_D1_m", "align_D2_m", "align_D3_m"]),
     ("level_bands", "Longitudinal level EN 13848 bands", "band-passed deviation [mm]",

@@ -88,6 +88,7 @@ def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
         ("cant_dev_m", "Cant dev [mm]", "cant_dev_mm", "mm", "0.00"),
         ("twist_m", f"Twist {tb} m [mm]", "twist_mm", "mm", "0.00"),
         ("twist_rate_m_per_m", f"Twist rate {tb} m [mm/m]", "twist_rate_mm_per_m", "mm/m", "0.000"),
+        ("twist_dev_m", f"Twist less design {tb} m [mm]", "twist_dev_mm", "mm", "0.00"),
         ("versine_h_m", f"Versine H {L} m [mm] {lat}", "versine_h_mm", "mm", "0.00"),
         ("design_versine_h_m", f"Design versine H {L} m [mm]", "design_versine_h_mm", "mm", "0.00"),
         ("versine_h_dev_m", f"Alignment {L} m chord [mm] ({vs})", "versine_h_dev_mm", "mm", "0.00"),

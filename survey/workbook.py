@@ -247,7 +247,7 @@ CHARTS = [
     ("Deviation from design", "deviation [mm]", ["lateral_dev_m", "vertical_dev_m"]),
     ("Gauge deviation", "gauge - nominal [mm]", ["gauge_dev_m"]),
     ("Cant", "cant [mm]", ["cant_m", "design_cant_m", "cant_dev_m"]),
-    ("Twist", "twist [mm]", ["twist_m"]),
+    ("Twist", "twist [mm]", ["twist_m", "twist_dev_m"]),
 ]
 
 

@@ -193,3 +193,16 @@ def test_shifted_matches_interp(d, seed):
     np.testing.assert_allclose(y[inside], np.interp(pos[inside], np.arange(50), x), atol=1e-8)
     # shifts within 1e-9 of an integer snap to it, so only clearly outside points must be NaN
     assert np.isnan(y[(pos < -1e-6) | (pos > 49 + 1e-6)]).all()
+
+
+def test_twist_less_design_removes_the_design_ramp():
+    s = np.arange(0.0, 200.0, STEP)
+    design = np.clip(s - 20.0, 0.0, 150.0) * 1e-3          # 1 mm/m ramp
+    bump = np.where((s >= 100.0) & (s < 101.0), 0.0015, 0.0)  # 1.5 mm cant error over 1 m
+    z = np.zeros_like(s)
+    g = track_geometry(_track(s, z, s.copy(), z, cant=design + bump, design=(z, s.copy(), z, design)))
+    tw, twd = g.columns["twist_m"], g.columns["twist_dev_m"]
+    assert np.nanmax(np.abs(twd)) == pytest.approx(0.0015, rel=1e-9)
+    assert np.nanmax(tw) == pytest.approx(0.0015 + 0.003, rel=1e-9)
+    far = (s > 30.0) & ((s < 99.0) | (s > 105.0)) & (s < 165.0)
+    np.testing.assert_allclose(twd[far], 0.0, atol=1e-15)

@@ -21,7 +21,9 @@ flipped silently; see docs/track_geometry.md):
 * versines are ``v(s) = z(s) - (z(s - L/2) + z(s + L/2)) / 2`` (``versine_sign="centre_minus_chord"``,
   anchors.md 2.4), with z the lateral coordinate (horizontal) or the height (vertical): a crest
   has a positive vertical versine, a right-hand curve a negative horizontal one;
-* twist and gauge change rate are backward differences ``x(s) - x(s - b)`` over the base b.
+* twist and gauge change rate are backward differences ``x(s) - x(s - b)`` over the base b;
+  ``twist_dev`` is the twist of the cant deviation (measured twist less the design twist of
+  cant ramps).
 
 Values that need samples outside the surveyed stretch (ends of chords, bases, filters) are NaN.
 
@@ -153,7 +155,7 @@ def column_names(config: GeometryConfig) -> list[str]:
              "lateral_dev_m", "vertical_dev_m", "sigma_lateral_m", "sigma_vertical_m",
              "slew_m", "lift_m",
              "gauge_m", "gauge_dev_m", "gauge_rate_m_per_m",
-             "cant_m", "design_cant_m", "cant_dev_m", "twist_m", "twist_rate_m_per_m",
+             "cant_m", "design_cant_m", "cant_dev_m", "twist_m", "twist_rate_m_per_m", "twist_dev_m",
              "versine_h_m", "design_versine_h_m", "versine_h_dev_m",
              "versine_v_m", "design_versine_v_m", "versine_v_dev_m"]
     for chord, spacing in config.long_chords_m:
@@ -381,6 +383,8 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     c["cant_dev_m"] = cant - design_cant
     c["twist_m"] = backward_difference(cant, config.twist_base_m, step)
     c["twist_rate_m_per_m"] = c["twist_m"] / config.twist_base_m
+    # twist less the design twist (the cant ramp of transitions): the twist of the cant deviation
+    c["twist_dev_m"] = backward_difference(c["cant_dev_m"], config.twist_base_m, step)
 
     L = config.versine_chord_m
     c["versine_h_m"] = v_sign * lat_sign * horizontal_versine(E, N, L, step)
