@@ -492,8 +492,10 @@ class VerticalProfile:
         g = np.diff(H) / np.diff(s)
         circle = R > 0
         bvc, evc = s - 0.5 * L, s + 0.5 * L
-        # circle geometry: centre (cs, ch), sigma = +1 sag (centre above), -1 crest
-        self._cs, self._ch, self._sigma = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
+        # circle geometry: centre chainage cs, height at the BVC, R cos(a_in), and
+        # sigma = +1 for a sag (centre above), -1 for a crest
+        self._cs, self._h_bvc = np.zeros(s.shape), np.zeros(s.shape)
+        self._r_cos_in, self._sigma = np.zeros(s.shape), np.zeros(s.shape)
         for i in np.flatnonzero(circle):  # a handful of PVIs
             a_in, a_out = np.arctan(g[i - 1]), np.arctan(g[i])
             turn = a_out - a_in
@@ -505,9 +507,9 @@ class VerticalProfile:
             sigma = np.sign(turn)
             bvc[i] = s[i] - T * np.cos(a_in)
             evc[i] = s[i] + T * np.cos(a_out)
-            h_bvc = H[i] - T * np.sin(a_in)
+            self._h_bvc[i] = H[i] - T * np.sin(a_in)
             self._cs[i] = bvc[i] - sigma * R[i] * np.sin(a_in)
-            self._ch[i] = h_bvc + sigma * R[i] * np.cos(a_in)
+            self._r_cos_in[i] = R[i] * np.cos(a_in)
             self._sigma[i] = sigma
             L[i] = R[i] * abs(turn)
         tol = 1e-9 * max(1.0, float(np.max(np.abs(s))))
@@ -573,7 +575,11 @@ class VerticalProfile:
                 R, sig = self.vertical_radius_m[ci], self._sigma[ci]
                 x = s[circ] - self._cs[ci]
                 root = np.sqrt((R - x) * (R + x))
-                H[circ] = self._ch[ci] - sig * root
+                # H = centre height - sig * root, rewritten from the BVC so that no two
+                # ~R-sized numbers are subtracted (x0 = sig R sin(a_in) is x at the BVC)
+                x_bvc = s[circ] - self.curve_start_m[ci]
+                H[circ] = self._h_bvc[ci] + sig * x_bvc * (2.0 * x - x_bvc) / (
+                    self._r_cos_in[ci] + root)
                 dH[circ] = sig * x / root
                 d2H[circ] = sig * R * R / root ** 3
         return H.reshape(shape), dH.reshape(shape), d2H.reshape(shape)
