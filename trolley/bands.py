@@ -33,7 +33,9 @@ Samples that are NaN (not measured) are handled per 1-D record:
 
 Each segment is detrended (least-squares line; the high-pass removes a line anyway) and padded
 by odd reflection (scipy's ``padtype="odd"``) over up to one ``long_m``; values within about half
-a long wavelength of a segment end still carry edge transients.
+a long wavelength of a segment end still carry edge transients. Measured for D3 on a 3 km record of
+a unit 10 m sine (which D3 should remove): leakage 3.8e-2 within 100 m of an end, 1.2e-2 beyond
+200 m, 1.0e-3 beyond 400 m, 1.8e-5 beyond 800 m (steady state 3.8e-7).
 
 References
 ----------
