@@ -141,3 +141,35 @@ def test_import_session_bad_folder(tmp_path):
     assert "odometer.csv" in res.stderr and "row 6" in res.stderr
     with ProjectStore.open_project(tmp_path / "projects", "p") as s:
         assert s.sessions() == []
+
+
+def test_new_from_project_toml(tmp_path):
+    folder = tmp_path / "line9"
+    folder.mkdir()
+    (folder / "alignment.xml").write_text(design_xml(), encoding="utf-8")
+    (folder / "cp.csv").write_text("id,E_m,N_m,H_m\nCP1,500001.0,3100002.0,45.1\nCP2,500004.5,3100001.0,45.2\n",
+                                   encoding="utf-8")
+    (folder / "project.toml").write_text(
+        'name = "line9"\n[site]\nlatitude_deg = 40.0\nheight_m = 12.0\n[imu]\npreset = "mems"\n'
+        '[trolley]\nprism_lever_arm_m = [0.1, 0.0, -0.7]\nrail_spacing_m = 1.507\n'
+        '[simulation]\nstatic_s = 120.0\n[design]\nalignment = "alignment.xml"\ncpiii = "cp.csv"\n',
+        encoding="utf-8")
+    res = run("project", "new", "line9", "--root", str(tmp_path), "--height", "13.5")
+    assert "2 CPIII points" in res.stderr and "5 elements" in res.stderr
+    with ProjectStore.open_project(tmp_path, "line9") as s:
+        st = s.settings()
+        assert st.imu.name == "mems" and st.height_m == 13.5 and st.static_s == 120.0
+        assert st.latitude_rad == pytest.approx(np.deg2rad(40.0))
+        np.testing.assert_array_equal(st.trolley.prism_lever_arm_m, [0.1, 0.0, -0.7])
+        assert st.trolley.rail_spacing_m == 1.507
+        assert len(s.cpiii_points()) == 2 and s.alignment().name == "up-line"
+    # a bad CPIII file named by project.toml: an error and no project at all
+    other = tmp_path / "line10"
+    other.mkdir()
+    for f in ("alignment.xml", "project.toml"):
+        (other / f).write_text((folder / f).read_text())
+    (other / "cp.csv").write_text("id,E_m,N_m,H_m\nCP1,1,2,3\nCP1,1,2,3\n", encoding="utf-8")
+    res = run("project", "new", "line10", "--root", str(tmp_path), code=2)
+    assert "cp.csv:3: duplicate point id" in res.stderr
+    assert not (other / "project.sqlite").exists()
+    run("project", "new", "line10", "--root", str(tmp_path), "--no-toml")

@@ -48,30 +48,84 @@ def _open(root: Path, name: str):
 def new(
     name: Annotated[str, typer.Argument(help="project name (a folder under --root)")],
     root: RootOption = Path("projects"),
-    imu: Annotated[str, typer.Option(help="IMU preset: rlg, fog or mems")] = "rlg",
-    latitude_deg: Annotated[float, typer.Option(help="site latitude, degrees (Earth rate)")] = 28.0,
-    height: Annotated[float, typer.Option(help="site height, m")] = 50.0,
+    imu: Annotated[str | None, typer.Option(help="IMU preset: rlg, fog or mems [default: project.toml or rlg]")] = None,
+    latitude_deg: Annotated[float | None, typer.Option(help="site latitude, degrees [default: project.toml or 28]")] = None,
+    height: Annotated[float | None, typer.Option(help="site height, m [default: project.toml or 50]")] = None,
     tolerance_set: Annotated[str, typer.Option(help="name of the tolerance set for defects")] = "default",
+    use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
+                                           "<root>/<name>/project.toml when it exists")] = True,
 ) -> None:
-    """Create a project store <root>/<name>/project.sqlite."""
+    """Create a project store <root>/<name>/project.sqlite.
+
+    When the folder already holds a project.toml (as projects/demo does), its [site], [imu] preset,
+    [trolley] and [simulation] static_s / fix_sigma_m become the settings, and the design
+    alignment and CPIII file named in [design] are imported. Options override the file.
+    """
     import dataclasses
 
-    from survey.store import ProjectSettings, ProjectStore, StoreError
+    from survey.cpiii import CpiiiError, read_cpiii_file
+    from survey.store import ProjectSettings, ProjectStore, StoreError, alignment_record_from_text, project_path
     from trolley import units
     from trolley.sensors import IMU_PRESETS
 
-    if imu not in IMU_PRESETS:
-        fail(f"--imu must be one of {', '.join(IMU_PRESETS)}, not {imu!r}")
-    if not -90.0 <= latitude_deg <= 90.0:
-        fail(f"--latitude-deg must be within -90..90, not {latitude_deg}")
-    settings = dataclasses.replace(ProjectSettings(), imu=IMU_PRESETS[imu], latitude_rad=units.deg_to_rad(latitude_deg),
-                                   height_m=height, tolerance_set=tolerance_set)
+    settings = ProjectSettings()
+    folder = Path(root) / name
+    design = points = None
+    if project_path(root, name).exists():
+        fail(f"project {name!r} already exists: {project_path(root, name)}")
+    if use_toml and (folder / "project.toml").is_file():
+        # everything is read and checked before the store is created: a bad file creates nothing
+        import tomllib
+
+        from survey.commands.simulate import ProjectFileError, project_settings
+
+        try:
+            kwargs, preset, xml = project_settings(folder)
+            data = tomllib.loads((folder / "project.toml").read_text(encoding="utf-8"))
+        except (ProjectFileError, tomllib.TOMLDecodeError) as e:
+            fail(str(e))
+        if preset not in IMU_PRESETS:
+            fail(f"{folder / 'project.toml'}: key imu.preset: {preset!r} is not one of {', '.join(IMU_PRESETS)}")
+        fields = {f.name for f in dataclasses.fields(ProjectSettings)}
+        settings = dataclasses.replace(settings, imu=IMU_PRESETS[preset],
+                                       **{k: v for k, v in kwargs.items() if k in fields})
+        design_name = data.get("design", {}).get("alignment")
+        try:
+            design = alignment_record_from_text(design_name, xml, settings.trolley.rail_spacing_m)
+        except ValueError as e:
+            fail(f"{folder / design_name}: {e}")
+        cpiii_name = data.get("design", {}).get("cpiii")
+        if isinstance(cpiii_name, str):
+            try:
+                points = read_cpiii_file(folder / cpiii_name)
+            except CpiiiError as e:
+                fail(str(e))
+    if imu is not None:
+        if imu not in IMU_PRESETS:
+            fail(f"--imu must be one of {', '.join(IMU_PRESETS)}, not {imu!r}")
+        settings = dataclasses.replace(settings, imu=IMU_PRESETS[imu])
+    if latitude_deg is not None:
+        if not -90.0 <= latitude_deg <= 90.0:
+            fail(f"--latitude-deg must be within -90..90, not {latitude_deg}")
+        settings = dataclasses.replace(settings, latitude_rad=units.deg_to_rad(latitude_deg))
+    if height is not None:
+        settings = dataclasses.replace(settings, height_m=height)
+    settings = dataclasses.replace(settings, tolerance_set=tolerance_set)
     try:
         store = ProjectStore.create(root, name, settings)
     except StoreError as e:
         fail(str(e))
-    store.close()
+    with store:
+        if design is not None:
+            store.add_alignment(design)
+        if points is not None:
+            store.add_cpiii_points(points)
     say(f"created project {name}: {store.path}")
+    if design is not None:
+        say(f"  design {design.name!r} ({design.file_name}): {design.element_count} elements, chainage "
+            f"{design.chainage_start_m:.3f} .. {design.chainage_end_m:.3f} m")
+    if points is not None:
+        say(f"  {len(points)} CPIII points from {points[0].source}")
 
 
 @project_app.command("import-cpiii")
