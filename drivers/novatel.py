@@ -233,6 +233,10 @@ class ImuFrames:
         """Continuous GPS time (week * 604800 + seconds of week)."""
         return self.week.astype(float) * SECONDS_PER_WEEK + self.sow_s
 
+    def seconds_since(self, week0: int, sow0: float) -> np.ndarray:
+        """Device time since (week0, sow0), without the precision loss of the absolute GPS time."""
+        return (self.week - int(week0)).astype(float) * SECONDS_PER_WEEK + (self.sow_s - float(sow0))
+
     def to_si(self, scale: ImuScale, axes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Angular rate (rad/s) and specific force (m/s^2) in the trolley FRD frame.
 

@@ -3,7 +3,8 @@
 Times: every record carries the host monotonic time of the read that completed it. The IMU and
 the gauge sensor also carry device time; their output times are the device times shifted onto
 the host clock by the smallest observed latency (``t = t_dev + min(t_host - t_dev)``), which
-removes the batching jitter of serial reads. Odometer times are the reply arrival times.
+removes the batching jitter of serial reads. Odometer times are the reply arrival times (when
+several replies arrive in one read, only the latest count is kept for that time).
 """
 from __future__ import annotations
 
@@ -78,8 +79,8 @@ def imu_si(frames: novatel.ImuFrames, cfg: RecordConfig) -> tuple[np.ndarray, np
     imu_type = cfg.imu_type if cfg.imu_type is not None else int(frames.imu_type[0])
     scale = novatel.imu_scale(imu_type, cfg.imu_rate_hz)
     w, f = frames.to_si(scale, novatel.axis_matrix(cfg.imu_axes))
-    g = frames.gps_time_s()
-    t = align_device_time(g - g[0], frames.t_host_s)
+    g = frames.seconds_since(frames.week[0], frames.sow_s[0])
+    t = align_device_time(g, frames.t_host_s)
     return t, w, f, imu_type
 
 
@@ -128,6 +129,9 @@ def record(cfg: RecordConfig, stop: threading.Event | None = None) -> Recording:
         c = np.array([r.count1 if cfg.odometer.channel == 1 else r.count2 for r in recs], np.int64)
         odo_t = np.array([r.t_host_s for r in recs], float) - t0
         odo_d = encoder.distance_m(c, cfg.odometer)
+        # replies that arrived in one read share a host time: keep the latest count of each time
+        keep = np.append(np.diff(odo_t) > 0, True) if odo_t.size else np.zeros(0, bool)
+        odo_t, odo_d = odo_t[keep], odo_d[keep]
     if "gauge" in links:
         recs = [r for r in links["gauge"].drain() if r.status == gauge.STATUS_OK]
         ms = encoder.unwrap_counts(np.array([r.t_device_ms for r in recs], np.int64), 32) * 1e-3

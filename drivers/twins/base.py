@@ -225,9 +225,12 @@ class PtyTwin:
     def start(self, wait_client_s: float = 10.0) -> "PtyTwin":
         """Start the worker once the application has opened the port."""
         self._stop.clear()
+        self._opened_before_start = _slave_is_raw(self.slave)
 
         def run() -> None:
             if self.wait_client(wait_client_s):
+                if not self._opened_before_start:
+                    time.sleep(0.1)  # pyserial flushes the input just after switching to raw mode
                 self.serve()
 
         self._thread = threading.Thread(target=run, name=type(self).__name__, daemon=True)

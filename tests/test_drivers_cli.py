@@ -1,0 +1,89 @@
+"""``trolley devices probe`` and ``record`` against twins on ptys (in-process CLI)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from drivers import encoder, novatel
+from drivers.replay import replay_imu
+from drivers.twins.gauge import GaugeTwin
+from drivers.twins.imu import ImuTwin
+from drivers.twins.odometer import OdometerTwin
+from drivers.twins.totalstation import TotalStationTwin
+from survey.cli import app
+
+runner = CliRunner()
+
+
+def test_probe_json_ok_and_no_target():
+    twin = TotalStationTwin((100.0, 200.0, 10.0, 1.6), (110.0, 230.0, 11.0)).start()
+    try:
+        r = runner.invoke(app, ["devices", "probe", "--totalstation", twin.port, "--baud", "19200", "--json"])
+    finally:
+        twin.stop()
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["ok"] and out["rc"] == 0
+    assert (out["E_m"], out["N_m"], out["H_m"]) == pytest.approx((110.0, 230.0, 11.0), abs=1e-9)
+    assert out["slope_m"] == pytest.approx(np.sqrt(10**2 + 30**2 + 0.6**2), abs=1e-9)
+    twin = TotalStationTwin((100.0, 200.0, 10.0, 1.6), None).start()
+    try:
+        r = runner.invoke(app, ["devices", "probe", "--totalstation", twin.port, "--json"])
+    finally:
+        twin.stop()
+    assert r.exit_code == 1
+    out = json.loads(r.stdout)
+    assert out == {"ok": False, "rc": 8710, "name": "GRC_AUT_NO_TARGET", "error": out["error"]}
+    assert "No target" in out["error"] and "Traceback" not in r.output
+
+
+def test_record_writes_session_files_raw_logs_and_stats(tmp_path):
+    rate = 200.0
+    n = int(6 * rate)
+    t = np.arange(n) / rate
+    w = np.tile([0.01, -0.02, 0.03], (n, 1))
+    f = np.tile([0.1, 0.2, -9.8], (n, 1))
+    cfg = encoder.OdometerConfig(ppr=500, decode=2, wheel_diameter_m=0.15, scale=1.002)
+    imu = ImuTwin(t, w, f, imu_type=26, rate_hz=rate, axes="x,-y,-z").start(wait_client_s=30)
+    odo = OdometerTwin(t, 0.8 * t, cfg, mode="time").start(wait_client_s=30)
+    gg = GaugeTwin(t[::4], 1.435 + 0.001 * np.sin(t[::4])).start(wait_client_s=30)
+    out = tmp_path / "rec"
+    try:
+        r = runner.invoke(app, ["devices", "record", "--imu", imu.port, "--odometer", odo.port, "--gauge", gg.port,
+                                "--seconds", "1.5", "--out", str(out), "--imu-axes", "x,-y,-z",
+                                "--odometer-ppr", "500", "--odometer-decode", "2", "--wheel-diameter-m", "0.15",
+                                "--odometer-scale", "1.002"])
+    finally:
+        for tw in (imu, odo, gg):
+            tw.stop()
+    assert r.exit_code == 0, r.output
+    imu_csv = np.genfromtxt(out / "imu.csv", delimiter=",", names=True)
+    assert imu_csv.dtype.names == ("t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2")
+    assert 150 < imu_csv.size < 400
+    assert np.allclose(np.diff(imu_csv["t_s"]), 1 / rate, atol=1e-9)
+    sc = novatel.imu_scale(26, rate)
+    assert np.allclose(imu_csv["wy_rad_s"], -0.02, atol=sc.gyro * rate)
+    assert np.allclose(imu_csv["fz_m_s2"], -9.8, atol=sc.accel * rate)
+    odo_csv = np.genfromtxt(out / "odometer.csv", delimiter=",", names=True)
+    assert odo_csv.dtype.names == ("t_s", "distance_m") and odo_csv.size > 100
+    assert np.all(np.diff(odo_csv["distance_m"]) >= 0) and np.all(np.diff(odo_csv["t_s"]) > 0)
+    span = odo_csv["t_s"][-1] - odo_csv["t_s"][0]
+    assert odo_csv["distance_m"][-1] == pytest.approx(0.8 * 1.002 * span, rel=0.1)
+    g_csv = np.genfromtxt(out / "gauge.csv", delimiter=",", names=True)
+    assert g_csv.dtype.names == ("t_s", "gauge_m") and np.all(np.abs(g_csv["gauge_m"] - 1.435) <= 0.00101)
+    stats = json.loads((out / "stats.json").read_text())
+    assert set(stats) == {"imu", "odometer", "gauge"}
+    for s in stats.values():
+        assert s["bytes_in"] == s["bytes_ok"] + s["bytes_discarded"] + s["bytes_pending"]
+    assert stats["imu"]["frames_ok"] == imu_csv.size and stats["imu"]["bad_checksum"] == 0
+    frames, _ = replay_imu(out / "imu.rawlog")
+    assert len(frames) == imu_csv.size
+
+
+def test_record_bad_axis_map_is_a_clear_error(tmp_path):
+    r = runner.invoke(app, ["devices", "record", "--imu", "/dev/null", "--seconds", "1", "--out", str(tmp_path),
+                            "--imu-axes", "x,x,z"])
+    assert r.exit_code == 2 and "axis x used twice" in r.stderr and "Traceback" not in r.output
