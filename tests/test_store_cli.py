@@ -173,3 +173,27 @@ def test_new_from_project_toml(tmp_path):
     assert "cp.csv:3: duplicate point id" in res.stderr
     assert not (other / "project.sqlite").exists()
     run("project", "new", "line10", "--root", str(tmp_path), "--no-toml")
+
+
+def test_resection_table_shows_mm_and_arcsec():
+    import io
+
+    from rich.console import Console
+
+    from survey.commands.project import resection_table
+    from trolley.resection import observations_from_station, resect
+
+    ids = ["A", "B", "C", "D", "E"]
+    pts = np.array([[10.0, 40, 1], [45, 5, -1], [-30, -35, 0.5], [-40, 20, 0], [20, -45, 2]])
+    wrong = pts.copy()
+    wrong[1, 2] += 0.004  # 4 mm high
+    res = resect(ids, pts, observations_from_station(np.zeros(3), 0.3, wrong))
+    buf = io.StringIO()
+    Console(file=buf, width=200).print(resection_table(res))
+    text = buf.getvalue()
+    row_b = next(line for line in text.splitlines() if line.strip("│ ").startswith("B "))
+    assert f"{res.residuals[1].height_m * 1e3:+.2f}" in row_b
+    assert f"{res.residuals[1].zenith_rad / (np.pi / 180 / 3600):+.1f}" in row_b
+    assert "standardized residual" in row_b
+    assert "sigma0" in text and "dof" in text
+    assert "suggests dropping or re-measuring B" in text

@@ -325,6 +325,54 @@ def show(
     out.print(st)
 
 
+def resection_table(result, title: str = "free station"):
+    """A rich table of a resection for the crew: station, orientation, sigma0 and per-point residuals.
+
+    Parameters
+    ----------
+    result : trolley.resection.Resection
+
+    Returns
+    -------
+    rich.table.Table with residuals in mm (across / along / height) and arc seconds, the largest
+    standardized residual |w| of each point, and flagged points in red with the reason.
+    """
+    import numpy as np
+    from rich.table import Table
+
+    from trolley import units
+
+    arcsec = units.arcsec_to_rad(1.0)
+    sig = units.m_to_mm(result.station_sigma_m)
+    e, n, h = result.station_enh_m
+    caption = (f"station E {e:.4f} N {n:.4f} H {h:.4f} m (1-sigma {sig[0]:.2f} / {sig[1]:.2f} / {sig[2]:.2f} mm), "
+               f"orientation {units.rad_to_deg(result.orientation_rad):.6f} deg "
+               f"(1-sigma {result.orientation_sigma_rad / arcsec:.2f}\"), sigma0 {result.sigma0:.2f} ({result.dof} dof)")
+    if result.excluded:
+        caption += f"; dropped: {', '.join(result.excluded)}"
+    t = Table(title=title, caption=caption)
+    for col in ("point", "across mm", "along mm", "height mm", "hz \"", "zenith \"", "dist mm", "|w| max", "flag"):
+        t.add_column(col, justify="left" if col in ("point", "flag") else "right")
+
+    def fmt(x: float, scale: float, digits: int = 2) -> str:
+        return "-" if not np.isfinite(x) else f"{x * scale:+.{digits}f}"
+
+    from trolley.resection import suggest_point_to_drop
+
+    worst = suggest_point_to_drop(result)
+    if worst is not None:
+        caption += f"; data snooping suggests dropping or re-measuring {worst} (one point at a time)"
+        t.caption = caption
+    mm = units.m_to_mm(1.0)
+    for r in result.residuals:
+        style = "bold red" if r.point_id == worst else ("yellow" if r.flagged else None)
+        t.add_row(r.point_id, fmt(r.across_m, mm), fmt(r.along_m, mm), fmt(r.height_m, mm),
+                  fmt(r.hz_rad, 1 / arcsec, 1), fmt(r.zenith_rad, 1 / arcsec, 1), fmt(r.distance_m, mm),
+                  "-" if not np.isfinite(r.max_standardized) else f"{r.max_standardized:.1f}",
+                  r.reason if r.flagged else "ok", style=style)
+    return t
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``project`` command group to the trolley app."""
     app.add_typer(project_app, name="project")
