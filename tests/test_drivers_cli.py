@@ -87,3 +87,34 @@ def test_record_bad_axis_map_is_a_clear_error(tmp_path):
     r = runner.invoke(app, ["devices", "record", "--imu", "/dev/null", "--seconds", "1", "--out", str(tmp_path),
                             "--imu-axes", "x,x,z"])
     assert r.exit_code == 2 and "axis x used twice" in r.stderr and "Traceback" not in r.output
+
+
+def test_simulate_command_prints_a_port_that_speaks_the_protocol():
+    import subprocess
+    import sys
+    import time
+
+    from drivers import gauge
+    from drivers.serialport import SerialLink
+    from drivers.stats import Stats
+
+    p = subprocess.Popen([sys.executable, "-m", "survey.cli", "devices", "simulate", "--device", "gauge",
+                          "--seconds", "6", "--rate-hz", "50"], stdout=subprocess.PIPE, text=True)
+    try:
+        port = p.stdout.readline().strip()
+        assert port.startswith("/dev/")
+        stats = Stats()
+        link = SerialLink(port, gauge.GaugeParser(stats), "gauge")
+        link.start()
+        recs = []
+        deadline = time.monotonic() + 10.0
+        while len(recs) < 10 and time.monotonic() < deadline:
+            r = link.get(0.5)
+            if r is not None:
+                recs.append(r)
+        link.stop()
+    finally:
+        p.terminate()
+        p.wait(10)
+    assert len(recs) >= 10 and stats.bad_checksum == 0
+    assert all(abs(r.gauge_m - 1.435) <= 0.00201 for r in recs)
