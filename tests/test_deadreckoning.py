@@ -86,3 +86,27 @@ def test_mounting_misalignment_is_applied():
     dr = dead_reckon(t, w_b, t, d, al, lat, 50.0, eps)
     expected = C.apply([1.0, 0.0, 0.0]) * dr.distance_m[-1]
     assert np.max(np.abs(dr.position_ned_m[-1] - expected)) < 1e-6
+
+
+def test_stop_levels_recover_roll_and_pitch_only_from_standing_samples():
+    from trolley.deadreckoning import stop_levels
+    t, w, f, d, C, lat = _straight_run(0.2, 0.003, 0.04)
+    # a bump while moving must not leak into the stop's level: add a lateral kick during motion
+    f = f.copy()
+    f[t > 101.0, 1] += 0.5
+    roll, pitch = stop_levels(t, f, t, d, np.array([50.0, 150.0]), np.zeros(3))
+    assert abs(roll[0] - 0.04) < 1e-9 and abs(pitch[0] - 0.003) < 1e-9
+    assert np.isnan(roll[1])  # no standing sample around t=150 s: not guessed
+
+
+def test_corrected_dead_reckoning_rotates_and_scales_exactly():
+    from trolley.engine import corrected_dead_reckoning
+    t, w, f, d, C, lat = _straight_run(0.6, 0.0, 0.0)
+    al = static_alignment(t, w, f, 100.0, lat, np.zeros(3))
+    dr = dead_reckon(t, w, t, d, al, lat, 50.0, np.zeros(3))
+    states = np.zeros((dr.t_s.size, 8))
+    states[:, 3] = 0.01   # heading error phi_D: the estimate is 0.01 rad short of the truth
+    states[:, 2] = 1e-3   # odometer reads 0.1 % long
+    fixed = corrected_dead_reckoning(dr, states)
+    expected = Rotation.from_rotvec([0.0, 0.0, 0.01]).apply(dr.position_ned_m[-1]) / 1.001
+    assert np.max(np.abs(fixed.position_ned_m[-1] - expected)) < 1e-9

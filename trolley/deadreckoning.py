@@ -228,3 +228,60 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
     pos = np.zeros((nb + 1, 3))
     np.cumsum(dr, axis=0, out=pos[1:])
     return DeadReckoning(t_s=tb, distance_m=dist, trolley_to_nav=trolley, position_ned_m=pos)
+
+
+def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, odo_distance_m: np.ndarray,
+                stop_times_s: np.ndarray, imu_misalignment_rad, window_s: float = 10.0,
+                min_samples: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch of the trolley from the accelerometers at each stop.
+
+    While the trolley stands, the specific force is gravity alone, so the accelerometers level
+    the trolley again at every stop (as in the static alignment). The gyro-integrated roll
+    drifts with the equivalent x-axis bias and is not observable from the fixes (Jiang 2017
+    Sec. 4.1 drops it), yet it moves the prism sideways by lever arm x roll error and it is the
+    cant: these levels bound it.
+
+    Parameters
+    ----------
+    imu_t_s, f_m_s2 : IMU times and specific force (IMU frame).
+    odo_t_s, odo_distance_m : odometer, to keep only standing samples.
+    stop_times_s : (S,) a time inside each stop (the fix times).
+    imu_misalignment_rad : nominal mounting angles.
+    window_s : half-width of the window around each stop time.
+    min_samples : fewer standing samples than this gives NaN for that stop.
+
+    Returns
+    -------
+    roll_rad, pitch_rad : (S,) trolley roll and pitch, NaN where the stop had too few samples.
+    """
+    d = np.interp(imu_t_s, odo_t_s, odo_distance_m)
+    standing = np.r_[True, np.abs(np.diff(d)) < 1e-6] & np.r_[np.abs(np.diff(d)) < 1e-6, True]
+    lo = np.searchsorted(imu_t_s, stop_times_s - window_s)
+    hi = np.searchsorted(imu_t_s, stop_times_s + window_s)
+    f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2)  # trolley frame
+    cs = np.zeros((f_t.shape[0] + 1, 3))
+    np.cumsum(np.where(standing[:, None], f_t, 0.0), axis=0, out=cs[1:])
+    cn = np.concatenate([[0], np.cumsum(standing)])
+    count = cn[hi] - cn[lo]
+    mean = (cs[hi] - cs[lo]) / np.maximum(count, 1)[:, None]
+    roll = np.arctan2(-mean[:, 1], -mean[:, 2])
+    pitch = np.arctan2(mean[:, 0], np.hypot(mean[:, 1], mean[:, 2]))
+    bad = count < min_samples
+    roll[bad] = np.nan
+    pitch[bad] = np.nan
+    return roll, pitch
+
+
+def with_roll_levelled(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_rad: np.ndarray) -> DeadReckoning:
+    """The dead reckoning with its roll re-levelled at the stops (error interpolated in time)."""
+    ok = np.isfinite(stop_roll_rad)
+    if not ok.any():
+        return dr
+    ts = stop_times_s[ok]
+    roll_dr = np.interp(ts, dr.t_s, dr.euler_rad()[:, 0])
+    err = np.angle(np.exp(1j * (roll_dr - stop_roll_rad[ok])))
+    order = np.argsort(ts)
+    err_t = np.interp(dr.t_s, ts[order], err[order])
+    att = dr.trolley_to_nav * Rotation.from_rotvec(np.column_stack([-err_t, np.zeros_like(err_t),
+                                                                    np.zeros_like(err_t)]))
+    return DeadReckoning(dr.t_s, dr.distance_m, att, dr.position_ned_m)
