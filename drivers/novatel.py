@@ -511,3 +511,31 @@ def parse_rawimusxa(line: str | bytes, t_host: float = float("nan")) -> ImuFrame
                      np.array([int(m.group(3), 16)], np.uint8), np.array([int(m.group(4))], np.uint8),
                      np.array([int(m.group(7), 16)], np.uint32),
                      np.array([[v[5], -v[4], v[3]]], np.int64), np.array([[v[2], -v[1], v[0]]], np.int64))
+
+
+def parse_rawimusxa_lines(text: str | bytes, stats=None) -> ImuFrames:
+    """Decode every ``%RAWIMUSXA`` line of a text log; bad lines are skipped (and counted).
+
+    Parameters
+    ----------
+    text : log text (other lines, e.g. other logs or comments, are ignored).
+    stats : optional :class:`drivers.stats.Stats`; ``frames_ok``, ``bad_checksum`` and
+        ``bad_format`` are updated.
+    """
+    s = text.decode("ascii", "replace") if isinstance(text, (bytes, bytearray)) else text
+    out = []
+    for line in s.splitlines():
+        j = line.rfind("%" + ASCII_NAME + ",")
+        if j < 0:
+            continue
+        try:
+            out.append(parse_rawimusxa(line[j:]))
+            if stats is not None:
+                stats.frames_ok += 1
+        except NovatelChecksumError:
+            if stats is not None:
+                stats.bad_checksum += 1
+        except ValueError:
+            if stats is not None:
+                stats.bad_format += 1
+    return ImuFrames.concat(out)

@@ -151,3 +151,17 @@ def test_error_bits_and_time_gaps_counted():
     nv.RawImuParser(stats, 200.0).feed(cut, 0.0)
     assert stats.extra["imu_error_frames"] == 2
     assert stats.extra["time_gaps"] == 1 and stats.extra["frames_missing"] == 3
+
+
+def test_ascii_log_parse_matches_binary_and_rejects_bad_lines():
+    buf, g, a, sow = _stream(30, 5)
+    lines = [nv.format_rawimusxa(2300, s, gi, ai) for s, gi, ai in zip(sow, g, a)]
+    lines[3] = lines[3].replace("*", "0*", 1)  # malformed
+    lines[7] = lines[7][:-5] + ("0" if lines[7][-5] != "0" else "1") + "\r\n"  # CRC digit changed
+    text = "#COMMENT line\r\n" + "".join(lines)
+    stats = Stats()
+    fr = nv.parse_rawimusxa_lines(text, stats)
+    keep = [i for i in range(30) if i not in (3, 7)]
+    assert np.array_equal(fr.gyro_counts, g[keep]) and np.array_equal(fr.accel_counts, a[keep])
+    assert np.allclose(fr.sow_s, sow[keep], atol=5e-7)
+    assert (stats.frames_ok, stats.bad_checksum, stats.bad_format) == (28, 1, 1)

@@ -142,3 +142,30 @@ def test_gauge_through_pty_with_faults_and_replay(tmp_path):
     assert stats.bytes_in == twin.bytes_sent and stats.balanced()
     rep, rst = replay_gauge(tmp_path / "g.rawlog")
     assert rep == recs
+
+
+def test_odometer_unplug_replug_keeps_counts_and_distance_continuous(tmp_path):
+    cfg = encoder.OdometerConfig(bits=16, rate_hz=100.0)
+    n = 4000
+    t = np.arange(n) / cfg.rate_hz
+    twin = OdometerTwin(t, 0.5 * t, cfg, offset_counts=65000, mode="index", link_path=tmp_path / "odo-by-id")
+    link, stats = _odo_link(twin, cfg)
+    poller = encoder.OdometerPoller(link, cfg).start()
+    time.sleep(0.4)
+    twin.disappear(0.3)
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and link.snapshot().frames_ok < 60:
+        time.sleep(0.02)
+    poller.stop()
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    assert stats.reconnects == 1 and len(recs) >= 60
+    counts = np.array([r.count1 for r in recs])
+    # every reading is one the twin sent, in order; distance never goes backwards over the gap
+    sent = np.array(twin.sent_counts)
+    pos = [int(np.flatnonzero(sent == c)[0]) for c in counts]
+    assert np.all(np.diff(pos) > 0)
+    d = encoder.distance_m(counts, cfg)
+    assert np.all(np.diff(d) >= 0)
+    assert d[-1] == pytest.approx((pos[-1] - pos[0]) * 0.5 / cfg.rate_hz, abs=cfg.metres_per_count)
