@@ -150,6 +150,9 @@ def _acv(t, T, v, c: ChannelParameters):
 def smoothed_variance(t, T, v, c: ChannelParameters) -> np.ndarray:
     """Smoothed position variance at time t in [0, T] (Jiang 2017 Eq. 40/44/45, corrected).
 
+    Evaluated as the sum of :func:`variance_sources` (non-negative terms written without the
+    cancellation of ``A - C^2 / V``, which loses digits when a drift term dwarfs the fix variance).
+
     Parameters
     ----------
     t : time since the first fix, s (any shape broadcasting with the parameters).
@@ -161,6 +164,13 @@ def smoothed_variance(t, T, v, c: ChannelParameters) -> np.ndarray:
     -------
     ndarray of variances, m^2.
     """
+    parts = variance_sources(t, T, v, c)
+    return (parts["initial_position"] + parts["initial_angle"] + parts["gyro_bias"]
+            + parts["random_walk"] + parts["fix_noise"])
+
+
+def smoothed_variance_direct(t, T, v, c: ChannelParameters) -> np.ndarray:
+    """``A(t) - C(t)^2 / V``: the same variance in its direct (cancelling) form, for checks."""
     A, C, V = _acv(t, T, v, c)
     return A - C**2 / V
 
@@ -171,24 +181,37 @@ def variance_sources(t, T, v, c: ChannelParameters) -> dict[str, np.ndarray]:
     The smoothed estimate is ``g z`` with ``g = C / V``; its error ``r(t) - g (r(T) + n)`` is a sum
     of independent terms, one per source, whose variances add up to ``A - C^2 / V`` exactly:
     initial position ``(1-g)^2 p_r``, initial angle ``p_a v^2 (t - g T)^2``, gyro bias
-    ``p_b v^2 (t^2 - g T^2)^2 / 4``, random walk ``A_q - 2 g C_q + g^2 V_q`` and fix noise
-    ``g^2 sigma_r^2`` (``docs/budget_derivation.md``).
+    ``p_b v^2 (t^2 - g T^2)^2 / 4``, random walk ``Var(X_t - g X_T)`` of the integrated random
+    walk ``X`` and fix noise ``g^2 sigma_r^2`` (``docs/budget_derivation.md``). ``1 - g``,
+    ``t - g T`` and ``t^2 - g T^2`` are formed from their expanded numerators so that nothing
+    cancels.
 
     Returns
     -------
     dict source name -> variance, m^2 (keys :data:`SOURCES`).
     """
-    A, C, V = _acv(t, T, v, c)
-    g = C / V
+    t = np.asarray(t, dtype=float)
+    T = np.asarray(T, dtype=float)
     v2 = np.asarray(v, dtype=float) ** 2
-    Aq = c.q * v2 * t**3 / 3.0
-    Cq = c.q * v2 * (3.0 * t**2 * T - t**3) / 6.0
-    Vq = c.q * v2 * T**3 / 3.0
+    _, C, V = _acv(t, T, v, c)
+    g = C / V
+    u = T - t  # >= 0
+    # V - C, t V - C T and t^2 V - C T^2, expanded (see docs/budget_derivation.md)
+    one_minus_g = (c.fix_var + v2 * (c.p_a * T * u + c.q * u * (2 * T**2 + 2 * T * t - t**2) / 6.0
+                                     + c.p_b * T**2 * u * (T + t) / 4.0)) / V
+    t_minus_gT = (t * c.fix_var - u * c.p_r
+                  + v2 * (c.q * T * t * u * (2 * T - t) / 6.0 + c.p_b * t * T**3 * u / 4.0)) / V
+    t2_minus_gT2 = (t**2 * c.fix_var - (T**2 - t**2) * c.p_r
+                    - v2 * (c.p_a * t * T**2 * u + c.q * T**2 * t**2 * u / 6.0)) / V
+    # random walk: X_t - g X_T = (1-g) X_t - g (X_T - X_t), with Var X_t = q v^2 t^3/3,
+    # Var(X_T - X_t) = q v^2 u^2 (T + 2t)/3, Cov(X_t, X_T - X_t) = q v^2 t^2 u / 2
+    rw = c.q * v2 * (one_minus_g**2 * t**3 / 3.0 + g**2 * u**2 * (T + 2 * t) / 3.0
+                     - 2.0 * g * one_minus_g * t**2 * u / 2.0)
     return {
-        "initial_position": (1.0 - g) ** 2 * c.p_r,
-        "initial_angle": c.p_a * v2 * (t - g * T) ** 2,
-        "gyro_bias": c.p_b * v2 * (t**2 - g * T**2) ** 2 / 4.0,
-        "random_walk": Aq - 2.0 * g * Cq + g**2 * Vq,
+        "initial_position": one_minus_g**2 * c.p_r,
+        "initial_angle": c.p_a * v2 * t_minus_gT**2,
+        "gyro_bias": c.p_b * v2 * t2_minus_gT2**2 / 4.0,
+        "random_walk": rw,
         "fix_noise": g**2 * c.fix_var,
     }
 
@@ -318,12 +341,15 @@ def _with_fix_spacing(case: BudgetCase, x: float) -> BudgetCase:
     return replace(case, fix_spacing_m=x)
 
 
-SIZABLE: dict[str, tuple[Callable[[BudgetCase, float], BudgetCase], float]] = {
-    # name -> (setter, a starting scale for the bracket in SI)
-    "gyro_bias_rad_s": (_with_gyro_bias, 1e-7),
-    "gyro_arw_rad_sqrt_s": (_with_arw, 1e-6),
-    "odo_scale_noise_per_sqrt_s": (_with_odo_noise, 1e-5),
-    "fix_spacing_m": (_with_fix_spacing, 10.0),
+SIZABLE: dict[str, tuple[Callable[[BudgetCase, float], BudgetCase], float, float]] = {
+    # name -> (setter, a starting scale for the bracket, the largest value searched), SI.
+    # Beyond the cap (200 deg/h, 34 deg/sqrt(h), 1e-2/sqrt(s), 10 km) the sized term is so much
+    # larger than the fix variance that A - C^2/V is lost to rounding; a limit that high is
+    # reported as unbounded.
+    "gyro_bias_rad_s": (_with_gyro_bias, 1e-7, 1e-3),
+    "gyro_arw_rad_sqrt_s": (_with_arw, 1e-6, 1e-2),
+    "odo_scale_noise_per_sqrt_s": (_with_odo_noise, 1e-5, 1e-2),
+    "fix_spacing_m": (_with_fix_spacing, 10.0, 1e4),
 }
 
 
@@ -352,7 +378,8 @@ def max_allowed(case: BudgetCase, parameter: str, direction: str, target_m: floa
     Returns
     -------
     The limit in SI; ``inf`` if the parameter does not raise this direction above the target
-    at any value (it does not act on it, or its effect saturates below the target).
+    at any value up to the cap of :data:`SIZABLE` (it does not act on it, or its effect
+    saturates below the target).
 
     Raises
     ------
@@ -365,7 +392,7 @@ def max_allowed(case: BudgetCase, parameter: str, direction: str, target_m: floa
         raise ValueError(f"target must be a positive number of metres, got {target_m!r}")
     if parameter not in SIZABLE:
         raise ValueError(f"unknown parameter {parameter!r}; expected one of {sorted(SIZABLE)}")
-    setter, x1 = SIZABLE[parameter]
+    setter, x1, cap = SIZABLE[parameter]
 
     def f(x: float) -> float:
         return worst_sigma(setter(case, x), direction) - target_m
@@ -379,7 +406,9 @@ def max_allowed(case: BudgetCase, parameter: str, direction: str, target_m: floa
     for _ in range(max_expansions):
         if f(hi) > 0:
             break
-        x0, hi = hi, hi * 2.0
+        if hi >= cap:
+            return float("inf")
+        x0, hi = hi, min(hi * 2.0, cap)
     else:
         return float("inf")
     return float(scipy.optimize.brentq(f, x0, hi, xtol=1e-300, rtol=max(xtol_rel, 4 * np.finfo(float).eps)))
@@ -461,7 +490,8 @@ def max_allowed_grid(case: BudgetCase, parameter: str, direction: str, target_m,
             xs = np.where(finite & (dp > 0), xs - (wp.variance - tau2) / dp, xs)
     x = np.where(finite, xs, x)
     x = np.where(infeasible, np.nan, x)
-    return np.sqrt(x)
+    x = np.sqrt(x)
+    return np.where(x > SIZABLE[parameter][2], np.inf, x)
 
 
 # ----------------------------------------------------------------------------- Monte Carlo
