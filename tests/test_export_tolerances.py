@@ -89,3 +89,38 @@ def test_defects_are_runs_with_peak_and_violated_limit():
     assert d[1].peak == pytest.approx(-0.0015) and d[1].limit == pytest.approx(-0.001)
     with pytest.raises(ToleranceError, match="no geometry column"):
         find_defects(s, {"gauge_dev_m": gauge_dev}, t)
+
+
+def _defects_by_loop(s, v, lo, hi):
+    """Reference: walk the stations one by one."""
+    out, run = [], None
+    for i, x in enumerate(v):
+        bad = x == x and (x < lo or x > hi)
+        if bad:
+            exc = x - hi if x > hi else lo - x
+            if run is None:
+                run = [i, i, i, exc]
+            else:
+                run[1] = i
+                if exc > run[3]:
+                    run[2], run[3] = i, exc
+        elif run is not None:
+            out.append((s[run[0]], s[run[1]], v[run[2]], run[1] - run[0] + 1))
+            run = None
+    if run is not None:
+        out.append((s[run[0]], s[run[1]], v[run[2]], run[1] - run[0] + 1))
+    return out
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=50, deadline=None)
+@given(vals=st.lists(st.one_of(st.floats(-3e-3, 3e-3), st.just(float("nan"))), min_size=1, max_size=60))
+def test_find_defects_matches_station_loop(vals):
+    t = parse_tolerances(GOOD, "good.toml")
+    v = np.array(vals)
+    s = np.arange(v.size) * 0.625
+    cols = {"gauge_dev_m": v, "twist_rate_m_per_m": np.zeros(v.size), "gauge_m": np.full(v.size, 1.435)}
+    got = [(d.start_chainage_m, d.end_chainage_m, d.peak, d.stations) for d in find_defects(s, cols, t)]
+    assert got == _defects_by_loop(s, v, -0.001, 0.001)

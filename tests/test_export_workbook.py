@@ -93,6 +93,15 @@ def test_workbook_structure(exported):
     j = heads.index("Lateral dev [mm] +right") + 1
     assert ws.cell(row, j).number_format == "0.00"
     assert ws.cell(row, j).value == pytest.approx(g.columns["lateral_dev_m"][row - 2] * 1e3, abs=1e-4)
+    # every station, every column: the sheet holds the computed values (empty = NaN)
+    sheet = np.array([[np.nan if v is None else v for v in r]
+                      for r in ws.iter_rows(min_row=2, values_only=True)], dtype=float)
+    assert sheet.shape == (N, len(res.report.columns))
+    for k, col in enumerate(res.report.columns):
+        want = (g.chainage_m if col.key in ("chainage_m", "station_km") else g.columns[col.key])
+        want = col.display(want)
+        np.testing.assert_array_equal(np.isnan(sheet[:, k]), np.isnan(want), err_msg=col.key)
+        np.testing.assert_allclose(sheet[:, k], want, rtol=0, atol=1e-9, err_msg=col.key)
     # conditional formatting on every limited column, over all stations
     cf = {str(r.sqref): r.rules[0].formula[0] for r in ws.conditional_formatting}
     jg = heads.index("Gauge dev [mm] (nominal 1435)") + 1
