@@ -23,7 +23,7 @@ COMMAND_MODULES: list[str] = [
     "project",
     "export",
     "simulate",
-
+    "demo",
 ]
 
 for _name in COMMAND_MODULES:

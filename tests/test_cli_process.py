@@ -1,0 +1,62 @@
+"""`trolley simulate` then `trolley process` through the CLI: the contract of track.csv, bad input."""
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from survey.cli import app
+
+runner = CliRunner()
+TRACK_COLUMNS = ("chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,"
+                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm").split(",")
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "session"
+    r = runner.invoke(app, ["simulate", "--out", str(out), "--length-m", "180", "--static-s", "60",
+                            "--rate-hz", "100", "--seed", "3"])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def test_process_writes_track_csv_as_formats_says(session, tmp_path):
+    out = tmp_path / "processed"
+    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--smoother", "tfs"])
+    assert r.exit_code == 0, r.output
+    track = pd.read_csv(out / "track.csv")
+    assert list(track.columns) == TRACK_COLUMNS
+    assert (track["chainage_m"].diff().dropna() - 0.625).abs().max() < 1e-6
+    # sub-millimetre sigmas between fixes, deviations present because the session names a design
+    assert track["sigma_H_mm"].max() < 1.5
+    assert track["lateral_dev_mm"].notna().all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["smoother"] == "tfs" and summary["fixes_rejected"] == 0
+    assert summary["observability_ranks"] == [3, 5]
+    fixes = pd.read_csv(out / "fixes.csv")
+    assert len(fixes) == summary["fixes_used"]
+    assert "fixes used / rejected" in r.stdout
+
+
+def test_bad_cell_names_file_row_column_and_writes_nothing(session, tmp_path):
+    import shutil
+    bad = tmp_path / "bad"
+    shutil.copytree(session, bad)
+    lines = (bad / "imu.csv").read_text().splitlines()
+    cells = lines[10].split(",")
+    cells[3] = "abc"
+    lines[10] = ",".join(cells)
+    (bad / "imu.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["process", str(bad), "--out", str(out)])
+    assert r.exit_code == 2
+    assert "imu.csv" in r.stderr and "11" in r.stderr and "wz_rad_s" in r.stderr
+    assert "Traceback" not in r.output
+    assert not (out / "track.csv").exists()
+
+
+def test_unknown_smoother_is_refused(session, tmp_path):
+    r = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "o"), "--smoother", "ukf"])
+    assert r.exit_code == 2 and "smoother" in r.stderr
