@@ -246,7 +246,7 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float) -> 
     from trolley.landxml import LandXmlError, parse_landxml
 
     try:
-        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"))
+        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"), rail_spacing_m=rail_spacing_m)
     except (OSError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
     except LandXmlError as e:

@@ -228,3 +228,14 @@ def test_libreoffice_opens_workbook(exported, tmp_path):
     with open(tmp_path / "survey-Summary.csv", newline="", encoding="utf-8") as f:
         summ = {r[0]: r[1] for r in csv.reader(f) if len(r) > 1}
     assert summ["Project"] == "=1+1" and summ["Result"] == "FAIL"
+
+
+def test_design_from_session_landxml(exported):
+    base, res = exported
+    g = res.report.geometry
+    assert res.report.design_file.name == "alignment.xml"
+    # the synthetic cant is the design cant; the design E/N are the track minus the lateral offset
+    assert np.nanmax(np.abs(g.columns["cant_dev_m"])) < 1e-6
+    assert np.nanmax(g.columns["design_cant_m"]) == pytest.approx(1.5 * np.sin(0.08), rel=1e-6)
+    off = np.hypot(g.columns["E_m"] - g.columns["design_E_m"], g.columns["N_m"] - g.columns["design_N_m"])
+    np.testing.assert_allclose(off, np.abs(g.columns["lateral_dev_m"]), atol=2e-6)
