@@ -57,6 +57,18 @@ def _crc32_table() -> np.ndarray:
 CRC32_TABLE: np.ndarray = _crc32_table()
 _TABLE_LIST = [int(x) for x in CRC32_TABLE]
 
+
+def _crc32_table16() -> np.ndarray:
+    # two byte-steps at once: the CRC is linear, so feeding bytes b0, b1 equals XOR-ing the
+    # 16-bit word (b0 | b1 << 8) into the state and running two steps with zero input
+    s = np.arange(65536, dtype=np.uint32)
+    for _ in range(2):
+        s = CRC32_TABLE[s & np.uint32(0xFF)] ^ (s >> np.uint32(8))
+    return s
+
+
+CRC32_TABLE16: np.ndarray = _crc32_table16()
+
 #: numpy layout of one RAWIMUSXB frame (little-endian, packed).
 FRAME_DTYPE = np.dtype([
     ("sync", "u1", (3,)), ("body_len", "u1"), ("msg_id", "<u2"), ("hdr_week", "<u2"),
@@ -84,13 +96,18 @@ def crc32(data: bytes) -> int:
 def crc32_rows(rows: np.ndarray) -> np.ndarray:
     """NovAtel CRC-32 of every row of a (n, m) uint8 array, vectorised across rows.
 
-    One table look-up per byte column for all rows at once (m numpy steps, not n*m).
+    One table look-up per 16-bit column for all rows at once (m/2 numpy steps, not n*m).
     """
     rows = np.asarray(rows, dtype=np.uint8)
     crc = np.zeros(rows.shape[0], dtype=np.uint32)
-    mask = np.uint32(0xFF)
-    eight = np.uint32(8)
-    for j in range(rows.shape[1]):
+    m = rows.shape[1]
+    if m >= 2:  # 16 bits per step with the 64K-entry table (half the look-ups)
+        words = np.ascontiguousarray(rows[:, : m - m % 2]).view("<u2")
+        mask16, sixteen = np.uint32(0xFFFF), np.uint32(16)
+        for j in range(words.shape[1]):
+            crc = CRC32_TABLE16[(crc ^ words[:, j]) & mask16] ^ (crc >> sixteen)
+    mask, eight = np.uint32(0xFF), np.uint32(8)
+    for j in range(m - m % 2, m):
         crc = CRC32_TABLE[(crc ^ rows[:, j]) & mask] ^ (crc >> eight)
     return crc
 
@@ -324,28 +341,42 @@ class BufferParse:
 
     Attributes
     ----------
-    rows : accepted frames as a FRAME_DTYPE array.
-    starts : byte offsets of the accepted frames.
+    rows : accepted RAWIMUSX frames as a FRAME_DTYPE array.
+    starts : byte offsets of those frames.
+    span_starts, span_ends : offsets of every accepted frame (RAWIMUSX and other logs), sorted.
     bad_crc : sync candidates that were checked and failed the CRC (not inside a good frame).
-    other_msgs : CRC-valid frames that are not RAWIMUSX (other logs on the port).
+    other_msgs : CRC-valid short-header frames that are not RAWIMUSX (other logs on the port).
     keep_from : offset of the first byte that may still start a frame (needs more bytes).
-    bytes_ok : bytes inside accepted frames.
+    bytes_ok : bytes inside accepted frames (all kinds).
     """
 
     rows: np.ndarray
     starts: np.ndarray
+    span_starts: np.ndarray
+    span_ends: np.ndarray
     bad_crc: int
     other_msgs: int
     keep_from: int
     bytes_ok: int
 
 
+def _inside(x: np.ndarray, s: np.ndarray, e: np.ndarray, strict_start: bool = False) -> np.ndarray:
+    """Which offsets x lie inside one of the sorted, disjoint spans [s, e)."""
+    if s.size == 0 or x.size == 0:
+        return np.zeros(x.shape, bool)
+    k = np.searchsorted(s, x, side="left" if strict_start else "right") - 1
+    return (k >= 0) & (x < e[np.maximum(k, 0)])
+
+
 def parse_rawimusxb_buffer(buf: bytes | bytearray | memoryview | np.ndarray, final: bool = False) -> BufferParse:
     """Find and check every RAWIMUSXB frame in ``buf`` at once (numpy, no per-byte loop).
 
-    Sync candidates come from three shifted comparisons of the whole buffer; each candidate's
-    52 header+body bytes are gathered with a sliding-window view and CRC-checked column-wise.
-    A frame is accepted if its CRC holds and it does not overlap an earlier accepted frame.
+    Sync candidates come from three shifted comparisons of the whole buffer; the 52 header+body
+    bytes of every candidate with body length 40 are gathered with a sliding-window view and
+    CRC-checked column-wise. Candidates declaring another body length (other short-header logs
+    on the same port, or a corrupted length byte) are checked one by one with their own length;
+    valid ones are skipped as ``other_msgs``. A frame is accepted if its CRC holds and it does
+    not overlap an earlier accepted frame; failed candidates inside accepted frames are payload.
 
     Parameters
     ----------
@@ -354,45 +385,67 @@ def parse_rawimusxb_buffer(buf: bytes | bytearray | memoryview | np.ndarray, fin
     """
     b = np.frombuffer(buf, dtype=np.uint8) if not isinstance(buf, np.ndarray) else buf
     n = b.shape[0]
+    empty_i = np.zeros(0, np.int64)
     if n < 3:
-        return BufferParse(np.zeros(0, FRAME_DTYPE), np.zeros(0, np.int64), 0, 0, n if final else _tail_keep(b, n), 0)
-    cand = np.flatnonzero((b[:-2] == 0xAA) & (b[1:-1] == 0x44) & (b[2:] == 0x13))
-    complete = cand[cand + FRAME_LEN <= n]
-    incomplete = cand[cand + FRAME_LEN > n]
-    if complete.size:
-        win = np.lib.stride_tricks.sliding_window_view(b, FRAME_LEN)[complete]
-        crc_ok = crc32_rows(win[:, : HEADER_LEN + BODY_LEN]) == win[:, HEADER_LEN + BODY_LEN:].copy().view("<u4")[:, 0]
-        good = complete[crc_ok]
-        # drop good candidates overlapping the previous good one (a frame embedded in a frame)
-        if good.size > 1:
-            keep = np.ones(good.size, bool)
-            keep[1:] = np.diff(good) >= FRAME_LEN
-            good = good[keep]
-        rows_all = win[crc_ok]
-        if good.size != rows_all.shape[0]:
-            rows_all = np.lib.stride_tricks.sliding_window_view(b, FRAME_LEN)[good]
-        rec = np.ascontiguousarray(rows_all).view(FRAME_DTYPE)[:, 0] if good.size else np.zeros(0, FRAME_DTYPE)
-        # bad candidates that lie inside an accepted frame are payload bytes, not failures
-        bad = complete[~crc_ok]
-        if bad.size and good.size:
-            k = np.searchsorted(good, bad, side="right") - 1
-            inside = (k >= 0) & (bad < good[np.maximum(k, 0)] + FRAME_LEN)
-            bad = bad[~inside]
-        is_imu = (rec["msg_id"] == MSG_ID_RAWIMUSX) & (rec["body_len"] == BODY_LEN)
-        other = int((~is_imu).sum())
-        rec, good = rec[is_imu], good[is_imu]
-        n_bad = int(bad.size)
+        return BufferParse(np.zeros(0, FRAME_DTYPE), empty_i, empty_i, empty_i, 0, 0,
+                           n if final else _tail_keep(b, n), 0)
+    cand = np.flatnonzero((b[:-2] == 0xAA) & (b[1:-1] == 0x44) & (b[2:] == 0x13)).astype(np.int64)
+    has_len = cand + 4 <= n
+    lens = np.full(cand.size, -1, np.int64)
+    lens[has_len] = b[cand[has_len] + 3]
+    total = HEADER_LEN + lens + CRC_LEN
+    complete = has_len & (cand + total <= n)
+    is40 = complete & (lens == BODY_LEN)
+    # RAWIMUSX-sized candidates: vectorised CRC across all of them
+    c40 = cand[is40]
+    if c40.size:
+        win = np.lib.stride_tricks.sliding_window_view(b, FRAME_LEN)[c40]
+        ok40 = crc32_rows(win[:, : HEADER_LEN + BODY_LEN]) == np.ascontiguousarray(win[:, HEADER_LEN + BODY_LEN:]).view("<u4")[:, 0]
     else:
-        rec, good, n_bad, other = np.zeros(0, FRAME_DTYPE), np.zeros(0, np.int64), 0, 0
-    end_good = int(good[-1]) + FRAME_LEN if good.size else 0
-    if final:
+        win, ok40 = np.zeros((0, FRAME_LEN), np.uint8), np.zeros(0, bool)
+    # other lengths: rare, checked one by one with their declared length
+    co = cand[complete & ~is40]
+    ok_o = np.array([crc32(b[p: p + HEADER_LEN + int(b[p + 3])].tobytes())
+                     == int.from_bytes(b[p + HEADER_LEN + int(b[p + 3]): p + HEADER_LEN + int(b[p + 3]) + 4].tobytes(), "little")
+                     for p in co.tolist()], bool) if co.size else np.zeros(0, bool)
+    g_start = np.concatenate([c40[ok40], co[ok_o]])
+    g_len = np.concatenate([np.full(int(ok40.sum()), FRAME_LEN, np.int64), (HEADER_LEN + CRC_LEN + b[co[ok_o] + 3]).astype(np.int64)])
+    order = np.argsort(g_start, kind="stable")
+    g_start, g_len = g_start[order], g_len[order]
+    if g_start.size > 1:  # drop frames overlapping the previous one (a frame embedded in a frame)
+        keep = np.ones(g_start.size, bool)
+        keep[1:] = g_start[1:] >= g_start[:-1] + g_len[:-1]
+        g_start, g_len = g_start[keep], g_len[keep]
+    g_end = g_start + g_len
+    # failed candidates, and pending ones that a later valid frame proves bogus
+    bad = np.concatenate([c40[~ok40], co[~ok_o]])
+    bad = bad[~_inside(bad, g_start, g_end)]
+    pend = cand[~complete]
+    pend = pend[~_inside(pend, g_start, g_end)]
+    if g_start.size and pend.size:
+        proven = pend < g_start[-1]
+        bad = np.concatenate([bad, pend[proven]])
+        pend = pend[~proven]
+    # decode the accepted RAWIMUSX-sized frames
+    if c40.size and g_start.size:  # both sorted: membership by binary search
+        k = np.minimum(np.searchsorted(g_start, c40), g_start.size - 1)
+        acc40 = g_start[k] == c40
+    else:
+        acc40 = np.zeros(c40.size, bool)
+    rows = np.ascontiguousarray(win[acc40 & ok40]).view(FRAME_DTYPE)[:, 0] if (acc40 & ok40).any() else np.zeros(0, FRAME_DTYPE)
+    starts40 = c40[acc40 & ok40]
+    is_imu = (rows["msg_id"] == MSG_ID_RAWIMUSX) & (rows["body_len"] == BODY_LEN)
+    other = int(g_start.size - is_imu.sum())
+    end_good = int(g_end[-1]) if g_end.size else 0
+    if final:  # what never completed is a lost frame too
+        bad = np.concatenate([bad, pend])
         keep_from = n
-    elif incomplete.size:
-        inc = incomplete[incomplete >= end_good]
-        keep_from = int(inc[0]) if inc.size else max(end_good, _tail_keep(b, n))
+    elif pend.size:
+        keep_from = max(int(pend[0]), end_good)
     else:
         keep_from = max(end_good, _tail_keep(b, n))
-    return BufferParse(rec, good, n_bad, other, keep_from, int(good.size) * FRAME_LEN + other * FRAME_LEN)
+    return BufferParse(rows[is_imu], starts40[is_imu], g_start, g_end, int(bad.size), other,
+                       keep_from, int(g_len.sum()))
 
 
 def _tail_keep(b: np.ndarray, n: int) -> int:
@@ -449,8 +502,8 @@ class RawImuParser:
         st.extra["other_msgs"] += res.other_msgs
         # a resync is a run of skipped bytes before a frame start (or before the kept tail)
         if discarded:
-            edges = np.concatenate([[0], res.starts + FRAME_LEN]) if res.starts.size else np.array([0])
-            ends = np.concatenate([res.starts, [consumed]]) if res.starts.size else np.array([consumed])
+            edges = np.concatenate([[0], res.span_ends])
+            ends = np.concatenate([res.span_starts, [consumed]])
             st.resyncs += int((ends - edges > 0).sum())
         del self._buf[:consumed]
         st.bytes_pending = len(self._buf)

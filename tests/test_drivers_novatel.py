@@ -165,3 +165,47 @@ def test_ascii_log_parse_matches_binary_and_rejects_bad_lines():
     assert np.array_equal(fr.gyro_counts, g[keep]) and np.array_equal(fr.accel_counts, a[keep])
     assert np.allclose(fr.sow_s, sow[keep], atol=5e-7)
     assert (stats.frames_ok, stats.bad_checksum, stats.bad_format) == (28, 1, 1)
+
+
+@given(st.integers(1, 60), st.integers(1, 30), st.integers(0, 1000))
+@settings(max_examples=30, deadline=None)
+def test_crc32_rows_any_width(width, n, seed):
+    rows = np.random.default_rng(seed).integers(0, 256, (n, width)).astype(np.uint8)
+    assert [int(x) for x in nv.crc32_rows(rows)] == [_zlib_based(r.tobytes()) for r in rows]
+
+
+def _other_log(body_len, seed):
+    """A valid short-header log of another type (e.g. INSPVAS, id 508) with its own length."""
+    rng = np.random.default_rng(seed)
+    hdr = nv.SYNC_SHORT + bytes([body_len]) + (508).to_bytes(2, "little") + (2300).to_bytes(2, "little") + (5).to_bytes(4, "little")
+    msg = hdr + rng.integers(0, 256, body_len, dtype=np.uint8).tobytes()
+    return msg + nv.crc32(msg).to_bytes(4, "little")
+
+
+@given(st.integers(0, 10_000))
+@settings(max_examples=30, deadline=None)
+def test_other_logs_on_the_port_are_skipped_not_counted_as_bad(seed):
+    rng = np.random.default_rng(seed)
+    buf, g, a, _ = _stream(40, seed)
+    pieces, n_other, other_bytes = [], 0, 0
+    damaged = set()
+    for i in range(40):
+        fr = bytearray(buf[i * 56:(i + 1) * 56])
+        if rng.random() < 0.1:  # corrupt the length byte: must end as one bad CRC
+            fr[3] ^= int(rng.integers(1, 256))
+            damaged.add(i)
+        pieces.append(bytes(fr))
+        if rng.random() < 0.3:
+            m = _other_log(int(rng.choice([20, 40, 88, 200])), seed + i)
+            pieces.append(m)
+            n_other += 1
+            other_bytes += len(m)
+    data = b"".join(pieces)
+    stats = Stats()
+    p = nv.RawImuParser(stats)
+    out = [p.feed(data[k: k + 61], 0.0) for k in range(0, len(data), 61)] + [p.flush()]
+    got = nv.ImuFrames.concat(out)
+    good = [i for i in range(40) if i not in damaged]
+    assert np.array_equal(got.gyro_counts, g[good])
+    assert stats.extra["other_msgs"] == n_other and stats.bad_checksum == len(damaged)
+    assert stats.bytes_ok == 56 * len(good) + other_bytes and stats.balanced()
