@@ -396,6 +396,9 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     from openpyxl import Workbook
 
     path = Path(path)
+    if rep.geometry.chainage_m.size + 1 > 1_048_576:
+        raise ValueError(f"{path}: {rep.geometry.chainage_m.size} stations exceed the 1 048 575 data rows "
+                         "of an Excel sheet; export a shorter stretch or use --csv")
     timings = {} if timings is None else timings
     t0 = time.perf_counter()
     n = rep.geometry.chainage_m.size
