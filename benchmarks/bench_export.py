@@ -43,6 +43,8 @@ def make_outputs(out: Path, n: int, step: float = 0.625) -> None:
     rng = np.random.default_rng(0)
     lat = 0.0008 * np.sin(2 * np.pi * s / 17.0) + 0.001 * np.sin(2 * np.pi * s / 120.0) + rng.normal(0, 1e-4, n)
     vert = 0.0006 * np.sin(2 * np.pi * s / 13.0 + 1.0) + rng.normal(0, 1e-4, n)
+    for c in rng.uniform(100.0, L - 100.0, 20):         # 20 lateral kinks of 3 mm over 4 m: defects
+        lat[(s >= c) & (s < c + 4.0)] += 0.003
     pd.DataFrame({"chainage_m": s, "E_m": d.E_m + lat * np.cos(d.heading_rad),
                   "N_m": d.N_m - lat * np.sin(d.heading_rad), "H_m": d.H_m + vert,
                   "sigma_E_mm": 0.4, "sigma_N_mm": 0.5, "sigma_H_mm": 0.3,
