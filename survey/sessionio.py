@@ -330,13 +330,25 @@ def _header(path: Path) -> list[str]:
         cols = pd.read_csv(path, nrows=0, encoding="utf-8-sig", engine="c").columns
     except FileNotFoundError:
         raise SessionFormatError(f"{path.name}: file missing") from None
-    except UnicodeDecodeError as exc:
-        raise SessionFormatError(f"{path.name}: row 1: not UTF-8 ({exc.reason})") from None
+    except UnicodeDecodeError:
+        raise _utf8_error(path) from None
     except pd.errors.EmptyDataError:
         raise SessionFormatError(f"{path.name}: row 1: empty file, no header row") from None
     except pd.errors.ParserError as exc:
         raise SessionFormatError(f"{path.name}: row 1: cannot parse header ({exc})") from None
     return [str(c) for c in cols]
+
+
+def _utf8_error(path: Path) -> SessionFormatError:
+    """Name the row of the first byte that is not UTF-8."""
+    data = path.read_bytes()
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        row = data.count(b"\n", 0, exc.start) + 1
+        return SessionFormatError(f"{path.name}: row {row}: not UTF-8 (byte {exc.object[exc.start]:#04x}"
+                                  f" at file offset {exc.start})")
+    return SessionFormatError(f"{path.name}: not UTF-8")
 
 
 def _require(path: Path, header: list[str], required: list[str]) -> dict[str, str]:
@@ -395,12 +407,12 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> dict
         # no usecols: with it pandas silently accepts rows with too many fields
         df = pd.read_csv(path, dtype={names[c]: "float64" for c in required},
                          skip_blank_lines=False, encoding="utf-8-sig", engine="c")
+    except UnicodeDecodeError:   # a ValueError too: catch it first
+        raise _utf8_error(path) from None
     except ValueError as exc:
         if isinstance(exc, pd.errors.ParserError):
             raise _parser_error(path, exc) from None
         raise _locate_bad_cell(path, names, required) from None
-    except UnicodeDecodeError as exc:
-        raise SessionFormatError(f"{path.name}: not UTF-8 ({exc.reason})") from None
     out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
     n = len(df)
     if n < min_rows:
@@ -434,10 +446,10 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         raw = pd.read_csv(path, dtype=str,
                           keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
                           engine="c")
+    except UnicodeDecodeError:
+        raise _utf8_error(path) from None
     except pd.errors.ParserError as exc:
         raise _parser_error(path, exc) from None
-    except UnicodeDecodeError as exc:
-        raise SessionFormatError(f"{path.name}: not UTF-8 ({exc.reason})") from None
     n = len(raw)
     if n < 1:
         raise SessionFormatError(f"{path.name}: row 2: no data rows")
@@ -761,6 +773,8 @@ def _read_numeric_generic(path: Path, required: list[str]) -> dict[str, np.ndarr
         df = pd.read_csv(path, usecols=[names[c] for c in required],
                          dtype={names[c]: "float64" for c in required},
                          skip_blank_lines=False, encoding="utf-8-sig", engine="c")
+    except UnicodeDecodeError:
+        raise _utf8_error(path) from None
     except ValueError:
         raise _locate_bad_cell(path, names, required) from None
     out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}

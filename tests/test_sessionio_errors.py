@@ -82,11 +82,19 @@ def test_missing_file_named(folder, fname):
         read_session(folder)
 
 
-def test_not_utf8_and_ragged_rows(folder):
+def test_not_utf8_named_with_row(folder, tmp_path):
     p = folder / "odometer.csv"
     p.write_bytes(p.read_bytes().replace(b"0.01,", b"\xff0.01,", 1))
-    with pytest.raises(SessionFormatError, match=r"odometer\.csv.*UTF-8"):
+    with pytest.raises(SessionFormatError, match=r"odometer\.csv: row 3: not UTF-8"):
         read_session(folder)
+    # far into a big file (beyond pandas' first buffer)
+    write_session(tmp_path / "big", tiny_session(60000))
+    p = tmp_path / "big" / "imu.csv"
+    lines = p.read_bytes().split(b"\n")
+    lines[50000] = lines[50000].replace(b",", b",\xe9", 1)
+    p.write_bytes(b"\n".join(lines))
+    with pytest.raises(SessionFormatError, match=r"imu\.csv: row 50001: not UTF-8"):
+        read_session(tmp_path / "big")
 
 
 def test_ragged_row_named(folder):
