@@ -278,7 +278,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     # linear problem would give the same answer in every pass.
     correction = np.zeros((dr.t_s.shape[0], 8))
     dr_cur = dr
-    for _ in range(config.relinearisations + 1):
+    # the linearisation point must follow the error dynamics: only a smoothed estimate does
+    passes = 1 if config.smoother == "none" else config.relinearisations + 1
+    for _ in range(passes):
         lever_ned = dr_cur.trolley_to_nav[fix_blocks].apply(lever)
         p0 = fix_ned[0] - lever_ned[0] - dr_cur.position_ned_m[fix_blocks[0]]
         offset = correction[:, _POS] - correction[fix_blocks[0], _POS]
