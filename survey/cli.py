@@ -24,6 +24,7 @@ COMMAND_MODULES: list[str] = [
     "export",
     "simulate",
     "demo",
+    "budget",
 ]
 
 for _name in COMMAND_MODULES:

@@ -1,0 +1,134 @@
+"""`trolley budget`: JSON schema, consistency with trolley.budget, plots, bad input and exit codes."""
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from survey.cli import app
+from trolley import budget as B
+from trolley import units
+
+runner = CliRunner()
+
+
+def _run(*args):
+    return runner.invoke(app, ["budget", *args])
+
+
+def _json(*args):
+    res = _run(*args, "--json")
+    assert "Traceback" not in res.output
+    return res, json.loads(res.stdout)
+
+
+def test_json_schema_and_values_for_the_rlg():
+    res, out = _json()
+    assert res.exit_code == 0
+    for d in ("vertical", "lateral", "longitudinal"):
+        assert set(out[d]) >= {"mid_mm", "max_mm", "pass", "margin_mm", "sources_mid_mm", "sources_max_mm"}
+        assert out[d]["max_mm"] >= out[d]["mid_mm"] > 0
+        # the breakdown adds up in quadrature
+        assert np.sqrt(sum(x**2 for x in out[d]["sources_max_mm"].values())) == pytest.approx(out[d]["max_mm"], rel=1e-9)
+    lim = out["limits"]
+    assert set(lim["max_gyro_bias_deg_h"]) == {"lateral", "vertical"}
+    assert set(lim["max_gyro_arw_deg_sqrt_h"]) == {"lateral", "vertical"}
+    assert lim["max_odo_scale_noise_per_sqrt_s"] == pytest.approx(1.1e-5, rel=0.03)
+    assert lim["max_fix_spacing_m"] > 60
+    assert out["pass"] is True
+    inp = out["inputs"]
+    assert inp["imu"] == "rlg" and inp["gyro_bias_route"] == "derived"
+    assert inp["gyro_bias_instability_deg_h"] == pytest.approx(0.03)
+    # derived route at 30 deg with a gyrocompassing heading: equivalent = 2 x bias instability
+    assert inp["equivalent_gyro_bias_deg_h"] == pytest.approx(0.06, rel=1e-9)
+    assert inp["equivalent_gyro_bias_rad_s"] == pytest.approx(units.deg_h_to_rad_s(0.06), rel=1e-9)
+    assert inp["heading_error_source"] == "gyrocompassing"
+    # the same numbers straight from the library
+    r = B.resolve_case(B.SensorFigures(units.deg_sqrt_h_to_rad_sqrt_s(0.005),
+                                       gyro_bias_instability_rad_s=units.deg_h_to_rad_s(0.03)))
+    assert out["lateral"]["max_mm"] == pytest.approx(B.worst_sigma(r.case, "lateral") * 1e3, rel=1e-12)
+
+
+def test_fog_fails_lateral_with_exit_code_1_and_limits_explain_why():
+    res, out = _json("--imu", "fog", "--heading-error-deg", "0.6")
+    assert res.exit_code == 1
+    assert out["pass"] is False and out["lateral"]["pass"] is False
+    assert out["lateral"]["max_mm"] > 0.67 and out["lateral"]["margin_mm"] < 0
+    assert out["inputs"]["equivalent_gyro_bias_deg_h"] > out["limits"]["max_gyro_bias_deg_h"]["lateral"]
+
+
+def test_equivalent_bias_route_is_used_as_given_and_echoed():
+    res, out = _json("--gyro-bias-deg-h", "0.25", "--gyro-arw-deg-sqrt-h", "0.007", "--heading-error-deg", "0.6")
+    assert out["inputs"]["imu"] == "custom"
+    assert out["inputs"]["gyro_bias_route"] == "given"
+    assert out["inputs"]["equivalent_gyro_bias_deg_h"] == pytest.approx(0.25)
+    assert out["inputs"]["gyro_bias_instability_deg_h"] is None
+
+
+def test_table_output_has_verdicts_and_limits():
+    res = _run("--imu", "fog", "--heading-error-deg", "0.6")
+    assert res.exit_code == 1
+    for word in ("vertical", "lateral", "longitudinal", "PASS", "FAIL", "Sizing limits", "equivalent gyro bias"):
+        assert word in res.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--gyro-bias-deg-h", "-0.1", "--gyro-arw-deg-sqrt-h", "0.005"], "--gyro-bias-deg-h must be"),
+    (["--speed-m-s", "0"], "--speed-m-s must be"),
+    (["--fix-spacing-m", "-5"], "--fix-spacing-m must be"),
+    (["--target-mm", "0.3"], "cannot be met by any IMU"),
+    (["--gyro-bias-deg-h", "0.1", "--gyro-bias-instability-deg-h", "0.1"], "not both"),
+    (["--imu", "gyroscope"], "--imu must be one of"),
+    (["--imu", "mems"], "heading error"),
+    (["--imu", "custom", "--gyro-arw-deg-sqrt-h", "0.005"], "--imu custom needs"),
+    (["--latitude-deg", "90"], "--latitude-deg"),
+    (["--monte-carlo", "-3"], "--monte-carlo"),
+    (["--odo-scale-noise", "nan"], "--odo-scale-noise must be"),
+])
+def test_bad_input_exits_2_with_one_line_and_no_output(args, message):
+    res = _run(*args, "--json")
+    assert res.exit_code == 2
+    assert res.stdout == ""
+    assert message in res.stderr
+    assert "Traceback" not in res.output
+    assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_non_numeric_figure_is_a_usage_error_not_a_traceback():
+    res = _run("--gyro-arw-deg-sqrt-h", "abc", "--json")
+    assert res.exit_code == 2
+    assert res.stdout == ""
+    assert "Traceback" not in res.output
+
+
+def test_plot_writes_pngs_and_csvs_and_json_stays_clean(tmp_path):
+    folder = tmp_path / "plots"
+    res, out = _json("--imu", "fog", "--heading-error-deg", "0.6", "--plot", str(folder))
+    names = sorted(p.name for p in folder.iterdir())
+    assert names == ["budget_requirements.csv", "budget_requirements.png", "budget_sigma.csv", "budget_sigma.png"]
+    for png in ("budget_sigma.png", "budget_requirements.png"):
+        assert (folder / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    sig = np.genfromtxt(folder / "budget_sigma.csv", delimiter=",", names=True)
+    assert sig["lateral_mm"].max() == pytest.approx(out["lateral"]["max_mm"], rel=1e-4)
+    req = np.genfromtxt(folder / "budget_requirements.csv", delimiter=",", names=True)
+    # the curve at this IMU's ARW passes through the tabulated lateral bias limit
+    y = np.interp(0.007, req["gyro_arw_deg_sqrt_h"], req["max_gyro_bias_lateral_deg_h"])
+    assert y == pytest.approx(out["limits"]["max_gyro_bias_deg_h"]["lateral"], rel=1e-3)
+
+
+def test_plot_into_a_file_is_refused(tmp_path):
+    f = tmp_path / "x"
+    f.write_text("")
+    res = _run("--plot", str(f))
+    assert res.exit_code == 2 and "not a folder" in res.stderr
+
+
+def test_monte_carlo_in_json_agrees_with_sigma():
+    res, out = _json("--imu", "fog", "--heading-error-deg", "0.6", "--monte-carlo", "3000", "--seed", "7")
+    mc = out["monte_carlo"]
+    assert mc["runs"] == 3000
+    tol = 4.5 * mc["relative_sampling_error"]
+    for d in ("vertical", "lateral", "longitudinal"):
+        assert mc[d]["mid_sigma_mm"] == pytest.approx(out[d]["mid_mm"], rel=1e-12)
+        assert abs(mc[d]["mid_rms_mm"] / mc[d]["mid_sigma_mm"] - 1) < tol
+        assert abs(mc[d]["worst_rms_mm"] / mc[d]["worst_sigma_mm"] - 1) < tol
