@@ -227,3 +227,38 @@ def test_gyro_errors_have_datasheet_size(noisy):
     # mean over the static period: turn-on bias + GM (both ~ BI), well inside 5 sigma
     assert np.all(np.abs(err.mean(axis=0)) < 5 * np.sqrt(2) * cfg.imu.gyro_bias_instability_rad_s
                   + 5 * sigma / np.sqrt(static.sum()))
+
+
+def test_odometer_scale_error_scales_the_3d_path():
+    """Constant scale error only: every leg's odometer/path ratio is the same 1 + dk0."""
+    from trolley.sensors import IMU_PRESETS, OdometerFigures
+
+    cfg = replace(BASE, odometer=OdometerFigures(scale_noise_per_sqrt_s=0.0, scale_error=1e-3,
+                                                 resolution_m=1e-4),
+                  imu=IMU_PRESETS["rlg"], seed=11)
+    sim = simulate_survey(small_alignment(), cfg)
+    m, ses = sim.truth.motion, sim.session
+    g = sim.truth.geometry
+    # odometer at the middle of each stop vs the true 3-D path length of each leg
+    t_mid = 0.5 * (m.stop_start_s + m.stop_end_s)
+    odo = np.interp(t_mid, ses.odo_t_s, ses.odo_distance_m)
+    p = np.column_stack([sim.truth.E_m, sim.truth.N_m, sim.truth.H_m])
+    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    path = np.interp(t_mid, sim.truth.t_s, chord)
+    ratio = np.diff(odo) / np.diff(path)
+    assert np.ptp(ratio[:3]) < 2 * 1e-4 / 60.0 + 1e-9       # one count over a 60 m leg
+    dk0 = ratio[0] - 1.0
+    assert 1e-6 < abs(dk0) < 5e-3
+    assert g.arclength(g.end_chainage_m) == pytest.approx(chord[-1], abs=1e-6)
+
+
+def test_accelerometer_bias_and_noise_sizes(noisy, clean):
+    cfg = noisy.config
+    static = noisy.session.imu_t_s < cfg.static_s
+    err = noisy.session.imu_f_m_s2[static] - clean.session.imu_f_m_s2[static]
+    sigma = cfg.imu.accel_vrw_m_s_sqrt_s * np.sqrt(cfg.imu_rate_hz)
+    np.testing.assert_allclose(err.std(axis=0), sigma, rtol=0.1)
+    mean = err.mean(axis=0)
+    # the residual mounting (3e-3 deg) tilts gravity by < 5e-4 m/s^2 on x, y
+    assert np.all(np.abs(mean) < 5 * cfg.imu.accel_bias_m_s2 + 5e-4)
+    assert np.any(np.abs(mean) > 0.05 * cfg.imu.accel_bias_m_s2)
