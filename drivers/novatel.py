@@ -444,6 +444,7 @@ def parse_rawimusxb_buffer(buf: bytes | bytearray | memoryview | np.ndarray, fin
         keep_from = max(int(pend[0]), end_good)
     else:
         keep_from = max(end_good, _tail_keep(b, n))
+    bad = bad[bad < keep_from]  # the rest is looked at again with the next read
     return BufferParse(rows[is_imu], starts40[is_imu], g_start, g_end, int(bad.size), other,
                        keep_from, int(g_len.sum()))
 
