@@ -476,6 +476,7 @@ class RawImuParser:
         self.stats = stats
         self.rate_hz = rate_hz
         self._buf = bytearray()
+        self._discarding = False
         self._last_t: float | None = None
         for k in ("time_gaps", "frames_missing", "imu_error_frames", "other_msgs"):
             stats.extra.setdefault(k, 0)
@@ -502,10 +503,15 @@ class RawImuParser:
         st.bad_checksum += res.bad_crc
         st.extra["other_msgs"] += res.other_msgs
         # a resync is a run of skipped bytes before a frame start (or before the kept tail)
-        if discarded:
-            edges = np.concatenate([[0], res.span_ends])
-            ends = np.concatenate([res.span_starts, [consumed]])
-            st.resyncs += int((ends - edges > 0).sum())
+        # a resync is one run of skipped bytes; a run may continue across reads
+        edges = np.concatenate([[0], res.span_ends])
+        ends = np.concatenate([res.span_starts, [consumed]])
+        runs = ends - edges > 0
+        st.resyncs += int(runs.sum()) - int(bool(runs[0]) and self._discarding and edges[0] == 0)
+        if res.span_starts.size == 0:
+            self._discarding = self._discarding if consumed == 0 else bool(runs[-1])
+        else:
+            self._discarding = bool(runs[-1])
         del self._buf[:consumed]
         st.bytes_pending = len(self._buf)
         frames = _frames_from_rows(res.rows, np.full(len(res.rows), t_host))

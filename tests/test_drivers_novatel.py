@@ -214,3 +214,34 @@ def test_other_logs_on_the_port_are_skipped_not_counted_as_bad(seed):
     assert np.array_equal(got.gyro_counts, g[good])
     assert stats.extra["other_msgs"] == n_other and stats.bad_checksum == len(damaged)
     assert stats.bytes_ok == 56 * len(good) + other_bytes and stats.balanced()
+
+
+@given(st.integers(0, 10_000), st.lists(st.integers(1, 150), min_size=1, max_size=80))
+@settings(max_examples=30, deadline=None)
+def test_damaged_stream_parse_is_independent_of_read_sizes(seed, cuts):
+    rng = np.random.default_rng(seed)
+    buf, *_ = _stream(50, seed)
+    b = bytearray(buf)
+    for _ in range(5):
+        b[int(rng.integers(0, len(b)))] ^= int(rng.integers(1, 256))
+    for _ in range(3):
+        del b[int(rng.integers(0, len(b)))]
+    for _ in range(3):
+        k = int(rng.integers(0, len(b)))
+        b[k:k] = _other_log(int(rng.choice([20, 88, 200])), seed) if rng.random() < 0.5 else \
+            rng.integers(0, 256, 30, dtype=np.uint8).tobytes() + nv.SYNC_SHORT
+
+    def run(sizes):
+        stats = Stats()
+        p = nv.RawImuParser(stats, 200.0)
+        out, pos = [], 0
+        for c in sizes:
+            out.append(p.feed(bytes(b[pos: pos + c]), 0.0))
+            pos += c
+        out += [p.feed(bytes(b[pos:]), 0.0), p.flush()]
+        stats.bytes_pending = 0
+        return nv.ImuFrames.concat(out).sow_s.tolist(), stats
+
+    whole, s1 = run([])
+    split, s2 = run(cuts)
+    assert whole == split and s1 == s2 and s1.balanced()
