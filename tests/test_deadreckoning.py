@@ -78,7 +78,7 @@ def test_transport_rate_matters():
 def test_mounting_misalignment_is_applied():
     eps = np.array([0.001, -0.002, 0.003])
     t, w_t, f_t, d, C, lat = _straight_run(0.3, 0.0, 0.0)
-    b_to_bt = Rotation.from_rotvec(eps)  # C_b^bt
+    b_to_bt = Rotation.from_euler("ZYX", eps[::-1])  # C_b^bt = Rz Ry Rx
     w_b = b_to_bt.inv().apply(w_t)  # IMU-frame measurements of a misaligned IMU
     f_b = b_to_bt.inv().apply(f_t)
     al = static_alignment(t, w_b, f_b, 100.0, lat, eps)

@@ -78,11 +78,13 @@ class DeadReckoning:
 def mounting_rotation(imu_misalignment_rad) -> Rotation:
     """C_b^bt, the rotation taking IMU-frame vectors into the trolley frame.
 
-    The misalignment angles eps (about the trolley's forward, right, down axes) rotate the IMU
-    away from the trolley: C_b^bt = exp([eps x]); Jiang 2017 Eq. 10 is its small-angle transpose
-    C_bt^b = I - [eps x].
+    The misalignment angles eps = (roll, pitch, yaw) of the IMU in the trolley frame (about its
+    forward, right, down axes) give C_b^bt = Rz(yaw) Ry(pitch) Rx(roll), the same ZYX order as
+    every attitude here (and the simulator's mounting); Jiang 2017 Eq. 10 is its small-angle
+    transpose C_bt^b = I - [eps x].
     """
-    return Rotation.from_rotvec(np.asarray(imu_misalignment_rad, dtype=float))
+    e = np.asarray(imu_misalignment_rad, dtype=float)
+    return Rotation.from_euler("ZYX", [e[2], e[1], e[0]])
 
 
 def static_alignment(t_s: np.ndarray, w_rad_s: np.ndarray, f_m_s2: np.ndarray, static_s: float,

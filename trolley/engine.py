@@ -23,8 +23,8 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from trolley import error_models as em
-from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, static_alignment, stop_levels,
-                                   with_roll_levelled)
+from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation,
+                                   static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
 from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
 
@@ -391,7 +391,7 @@ def _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign
     C = Rotation.from_euler("z", dpsi) * align.imu_to_nav
     dist = float(np.hypot(meas_d[j, 0], meas_d[j, 1]))
     sig = float(np.sqrt(2.0) * max(session.meta.fix_sigma_m, 1e-4) / dist)
-    ypr = (C * Rotation.from_rotvec(np.asarray(misalign, dtype=float)).inv()).as_euler("ZYX")
+    ypr = (C * mounting_rotation(misalign).inv()).as_euler("ZYX")
     new = StaticAlignment(C, float(ypr[2]), float(ypr[1]), float(ypr[0]), align.level_sigma_rad,
                           max(sig, np.deg2rad(0.01)), "fixes", align.t_end_s)
     m = session.meta
