@@ -121,6 +121,7 @@ class PtyTwin:
         self.link_path = Path(link_path) if link_path else None
         self._stop = threading.Event()
         self._present = threading.Event()
+        self._ready = threading.Event()  # present and opened by the application
         self._thread: threading.Thread | None = None
         self._io_lock = threading.RLock()
         self.bytes_sent = 0
@@ -141,6 +142,7 @@ class PtyTwin:
         self._present.set()
 
     def _close_pty(self) -> None:
+        self._ready.clear()
         self._present.clear()
         if self.link_path and self.link_path.is_symlink():
             self.link_path.unlink()
@@ -176,6 +178,7 @@ class PtyTwin:
         # let the application re-open before the device speaks again
         if self.wait_client(30.0):
             time.sleep(0.1)  # pyserial flushes the input just after switching to raw mode
+            self._ready.set()
 
     # ------------------------------------------------------------------ I/O
     def send(self, data: bytes, inject: bool = True) -> bool:
@@ -189,7 +192,7 @@ class PtyTwin:
             if self._stop.is_set():
                 return False
             with self._io_lock:
-                if not self._present.is_set():
+                if not self._ready.is_set():
                     return False
                 try:
                     _, w, _ = select.select([], [self.master], [], 0.05)
@@ -231,6 +234,7 @@ class PtyTwin:
             if self.wait_client(wait_client_s):
                 if not self._opened_before_start:
                     time.sleep(0.1)  # pyserial flushes the input just after switching to raw mode
+                self._ready.set()
                 self.serve()
 
         self._thread = threading.Thread(target=run, name=type(self).__name__, daemon=True)
@@ -239,6 +243,11 @@ class PtyTwin:
 
     def serve(self) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def wait_ready(self) -> None:
+        """Block until the port is back and re-opened after :meth:`disappear` (or stopped)."""
+        while not self.stopped and not self._ready.wait(0.01):
+            pass
 
     def stop(self) -> None:
         """Stop the worker and close the pty."""

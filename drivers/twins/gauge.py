@@ -44,7 +44,6 @@ class GaugeTwin(PtyTwin):
             else:
                 j = min(i + 16, n)
             if not self.send(b"".join(self.lines[i:j])) and not self.stopped:
-                while not self.stopped and not self._present.is_set():
-                    time.sleep(0.01)
+                self.wait_ready()
             i = j
             self.lines_sent = i

@@ -59,7 +59,6 @@ class ImuTwin(PtyTwin):
                 j = min(i + self.chunk_frames, self.n_frames)
             if not self.send(self.stream[i * L: j * L]) and not self.stopped:
                 # port vanished: those frames are lost, like on a real unplug
-                while not self.stopped and not self._present.is_set():
-                    time.sleep(0.01)
+                self.wait_ready()
             i = j
             self.frames_sent = i

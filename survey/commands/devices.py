@@ -127,6 +127,12 @@ def record_cmd(
     except KeyError as e:
         _err(f"IMU on {imu}: {str(e).strip(chr(34))}")
         raise typer.Exit(code=2)
+    stats = {k: v.as_dict() for k, v in rec.stats.items()}
+    _write_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
+    if len(rec.imu_t_s) == 0:
+        _err(f"IMU on {imu}: no valid RAWIMUSXB frame in {seconds:g} s; nothing written but "
+             f"{out / 'stats.json'} and the raw logs")
+        raise typer.Exit(code=1)
     w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
     _write_atomic(out / "imu.csv", _csv(["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
                                         [rec.imu_t_s, w[:, 0], w[:, 1], w[:, 2], f[:, 0], f[:, 1], f[:, 2]]))
@@ -134,8 +140,6 @@ def record_cmd(
         _write_atomic(out / "odometer.csv", _csv(["t_s", "distance_m"], [rec.odo_t_s, rec.odo_distance_m]))
     if rec.gauge_t_s is not None:
         _write_atomic(out / "gauge.csv", _csv(["t_s", "gauge_m"], [rec.gauge_t_s, rec.gauge_m]))
-    stats = {k: v.as_dict() for k, v in rec.stats.items()}
-    _write_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
     from rich.console import Console
 
     Console(stderr=True).print(
@@ -143,9 +147,6 @@ def record_cmd(
         + (f", {len(rec.odo_t_s)} odometer reads" if rec.odo_t_s is not None else "")
         + (f", {len(rec.gauge_t_s)} gauge readings" if rec.gauge_t_s is not None else "")
         + f" into {out}", highlight=False)
-    if len(rec.imu_t_s) == 0:
-        _err(f"IMU on {imu}: no valid RAWIMUSXB frame in {seconds:g} s (see {out / 'stats.json'})")
-        raise typer.Exit(code=1)
 
 
 class Device(str, Enum):
