@@ -95,9 +95,10 @@ def test_closed_forms_equal_rts_and_tfs(**kw):
 )
 @settings(max_examples=20, deadline=None)
 def test_closed_forms_equal_numerics_over_wide_ranges(**kw):
-    # drift/fix variance ratios up to ~1e8: the TFS still agrees to 1e-8 (1e-11 typically);
-    # the filterpy-gain RTS loses digits there (1.1e-6 found at 1 deg heading, 0.25 mm fix, 87 m)
-    _check_against_numerics(**kw, tol_rts=1e-5, tol_tfs=1e-8)
+    # drift/fix variance ratios up to ~1e8: the TFS still agrees to 1e-7 (1e-11 typically, 1.0e-8
+    # the worst of 400 examples); the filterpy-gain RTS loses digits there (1.1e-6 found at
+    # 1 deg heading, 0.25 mm fix, 87 m)
+    _check_against_numerics(**kw, tol_rts=1e-5, tol_tfs=1e-7)
 
 
 def _eq46_case():

@@ -241,12 +241,13 @@ class WorstPoint:
     time_s: np.ndarray
 
 
-def worst_point(T, v, c: ChannelParameters, n_grid: int = 65, newton_steps: int = 8) -> WorstPoint:
+def worst_point(T, v, c: ChannelParameters, n_grid: int = 33, newton_steps: int = 6) -> WorstPoint:
     """Maximum over t in [0, T] of the smoothed variance, vectorised over parameter grids.
 
-    ``p(t)`` is a polynomial of degree 8 in t (V does not depend on t), so a grid of 65 points
-    brackets every local maximum; Newton steps on ``p'(t) = 0`` inside the bracketing cell then
-    give the maximum to rounding.
+    ``p(t)`` is a polynomial of degree 8 in t (V does not depend on t) with at most four local
+    maxima, broad on the scale of T; a grid of 33 points (direct form, cheap) brackets the largest
+    and Newton steps on ``p'(t) = 0`` inside the bracketing cell find it. The value returned is
+    the cancellation-free form at the better of the grid point and the Newton point.
     """
     T = np.asarray(T, dtype=float)
     s = np.linspace(0.0, 1.0, n_grid)
@@ -257,21 +258,26 @@ def worst_point(T, v, c: ChannelParameters, n_grid: int = 65, newton_steps: int 
                              for x in (c.p_r, c.fix_var, c.p_a, c.q, c.p_b)))
     vb = np.broadcast_to(np.asarray(v, float), shape)[..., None]
     tg = s * Tb
-    pg = smoothed_variance(tg, Tb, vb, cb)
+    pg = smoothed_variance_direct(tg, Tb, vb, cb)
     i = np.argmax(pg, axis=-1)[..., None]
-    best_p = np.take_along_axis(pg, i, -1)
     best_t = np.take_along_axis(tg, i, -1)
     lo = np.take_along_axis(tg, np.maximum(i - 1, 0), -1)
     hi = np.take_along_axis(tg, np.minimum(i + 1, n_grid - 1), -1)
-    t = best_t.copy()
+    t = _newton_max(best_t, lo, hi, Tb, vb, cb, newton_steps)
+    p_grid = smoothed_variance(best_t, Tb, vb, cb)
+    p_new = smoothed_variance(t, Tb, vb, cb)
+    better = p_new > p_grid
+    return WorstPoint(np.where(better, p_new, p_grid)[..., 0], np.where(better, t, best_t)[..., 0])
+
+
+def _newton_max(t, lo, hi, T, v, c: ChannelParameters, steps: int):
+    """Newton steps towards a local maximum of p(t), kept inside [lo, hi]."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        for _ in range(newton_steps):
-            d1, d2 = _derivatives(t, Tb, vb, cb)
+        for _ in range(steps):
+            d1, d2 = _derivatives(t, T, v, c)
             step = np.where(d2 < 0, d1 / d2, 0.0)
             t = np.clip(t - np.nan_to_num(step), lo, hi)
-    p_new = smoothed_variance(t, Tb, vb, cb)
-    better = p_new > best_p
-    return WorstPoint(np.where(better, p_new, best_p)[..., 0], np.where(better, t, best_t)[..., 0])
+    return t
 
 
 @dataclass
@@ -434,22 +440,40 @@ def _linear_split(case: BudgetCase, direction: str, parameter: str):
     return c0, c1
 
 
+def _quadratic_root(t, T, v, c0: ChannelParameters, c1: ChannelParameters, tau2):
+    """The x >= 0 with p(t; c0 + x c1) = tau^2: nan if none (target below p(t; c0)), inf if any.
+
+    ``(A0 + x A1 - tau^2)(V0 + x V1) - (C0 + x C1)^2 = a x^2 + b x + cc`` with ``a >= 0``
+    (Cauchy-Schwarz) and ``cc < 0`` when the target is reachable: one positive root, taken in the
+    form ``2 (-cc) / (b + sqrt(b^2 - 4 a cc))`` that does not cancel.
+    """
+    A0, C0, V0 = _acv(t, T, v, c0)
+    A1, C1, V1 = _acv(t, T, v, c1)
+    a = A1 * V1 - C1**2
+    b = (A0 - tau2) * V1 + A1 * V0 - 2 * C0 * C1
+    cc = (A0 - tau2) * V0 - C0**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = 2.0 * (-cc) / (b + np.sqrt(np.maximum(b * b - 4.0 * a * cc, 0.0)))
+    root = np.where(np.isnan(root) | (root < 0), np.inf, root)
+    return np.where(cc >= 0, np.nan, root)
+
+
 def max_allowed_grid(case: BudgetCase, parameter: str, direction: str, target_m,
-                     n_grid: int = 129, polish_steps: int = 4) -> np.ndarray:
+                     n_grid: int = 33, polish_steps: int = 6) -> np.ndarray:
     """Vectorised :func:`max_allowed` over parameter grids (requirement curves, Fig. 6b/d/f).
 
     The sized variance ``x`` (bias^2, ARW^2 or scale-noise^2) enters A, C and V linearly, so at
-    each t the equation ``p(t; x) = target^2`` is the quadratic
-    ``(A0 + x A1 - tau^2)(V0 + x V1) - (C0 + x C1)^2 = 0`` with one positive root (its leading
-    coefficient ``A1 V1 - C1^2 >= 0`` by Cauchy-Schwarz, its constant term negative when the target
-    is reachable). The limit is the smallest root over t: a grid minimum, polished by Newton steps
-    on ``max_t p(t; x) = tau^2`` whose derivative in x is the partial derivative at the worst t.
-    ``case`` fields may be arrays (e.g. ARW along one axis, fix spacing along another).
+    each t the equation ``p(t; x) = target^2`` is a quadratic in x with one positive root
+    ``x*(t)`` (:func:`_quadratic_root`). The limit is ``min_t x*(t)``: a grid minimum, then
+    alternating steps that move t to the worst point of ``p(.; x)`` (Newton on ``p'(t) = 0``,
+    which is where ``dx*/dt = 0``) and x to ``x*(t)``. ``case`` fields may be arrays (e.g. ARW
+    along one axis, fix spacing along another).
 
     Returns
     -------
     ndarray of limits in SI units of the parameter (bias rad/s, ARW rad/sqrt(s), noise
-    1/sqrt(s)); ``nan`` where no value meets the target, ``inf`` where any value does.
+    1/sqrt(s)); ``nan`` where no value meets the target, ``inf`` where any value up to the
+    cap of :data:`SIZABLE` does.
     """
     c0, c1 = _linear_split(case, direction, parameter)
     T = np.asarray(case.interval_s, dtype=float)
@@ -457,39 +481,44 @@ def max_allowed_grid(case: BudgetCase, parameter: str, direction: str, target_m,
     tau2 = np.asarray(target_m, dtype=float) ** 2
     shape = np.broadcast_shapes(T.shape, v.shape, tau2.shape, *(np.shape(x) for x in
                                 (c0.p_r, c0.fix_var, c0.p_a, c0.q, c0.p_b)))
-    ex = lambda x: np.broadcast_to(np.asarray(x, float), shape)[..., None]  # noqa: E731
+    # trailing axis for the t grid; leave the parameters unbroadcast (fewer, smaller temporaries)
+    ex = lambda x: np.asarray(x, float)[..., None]  # noqa: E731
     Tb, vb, tb2 = ex(T), ex(v), ex(tau2)
     cb0 = ChannelParameters(*(ex(x) for x in (c0.p_r, c0.fix_var, c0.p_a, c0.q, c0.p_b)))
-    t = np.linspace(0.0, 1.0, n_grid) * Tb
-    A0, C0, V0 = _acv(t, Tb, vb, cb0)
-    # the x-coefficients: the same polynomials with the unit variance alone (no p_r, no fix)
-    A1, C1, V1 = _acv(t, Tb, vb, ChannelParameters(*(ex(x) for x in
-                                                    (c1.p_r, c1.fix_var, c1.p_a, c1.q, c1.p_b))))
-    a = A1 * V1 - C1**2
-    b = (A0 - tb2) * V1 + A1 * V0 - 2 * C0 * C1
-    cc = (A0 - tb2) * V0 - C0**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        root = 2.0 * (-cc) / (b + np.sqrt(np.maximum(b * b - 4.0 * a * cc, 0.0)))
-        root = np.where(cc >= 0, np.nan, np.where(np.isnan(root), np.inf, root))
-        root = np.where(root < 0, np.inf, root)
-    infeasible = np.isnan(root).any(axis=-1)
-    x = np.min(np.where(np.isnan(root), np.inf, root), axis=-1)
-    # polish: the grid minimum over t can only overestimate the limit slightly
+    cb1 = ChannelParameters(*(ex(x) for x in (c1.p_r, c1.fix_var, c1.p_a, c1.q, c1.p_b)))
+    tg = np.broadcast_to(np.linspace(0.0, 1.0, n_grid) * Tb, shape + (n_grid,))
+    root = np.broadcast_to(_quadratic_root(tg, Tb, vb, cb0, cb1, tb2), shape + (n_grid,))
+    infeasible = np.isnan(root).any(axis=-1)[..., None]
+    rootf = np.where(np.isnan(root), np.inf, root)
+    i = np.argmin(rootf, axis=-1)[..., None]
+    x = np.take_along_axis(rootf, i, -1)
+    t = np.take_along_axis(tg, i, -1)
+    lo = np.take_along_axis(tg, np.maximum(i - 1, 0), -1)
+    hi = np.take_along_axis(tg, np.minimum(i + 1, n_grid - 1), -1)
     finite = np.isfinite(x) & ~infeasible
-    xs = np.where(finite, x, 0.0)
     for _ in range(polish_steps):
-        cx = ChannelParameters(*(np.asarray(p0, float) + xs * np.asarray(p1, float) for p0, p1 in
-                                 zip((cb0.p_r[..., 0], cb0.fix_var[..., 0], cb0.p_a[..., 0], cb0.q[..., 0],
-                                      cb0.p_b[..., 0]), (c1.p_r, c1.fix_var, c1.p_a, c1.q, c1.p_b))))
-        wp = worst_point(Tb[..., 0], vb[..., 0], cx)
-        tw = wp.time_s
-        A, C, V = _acv(tw, Tb[..., 0], vb[..., 0], cx)
-        a1, cc1, v1 = _acv(tw, Tb[..., 0], vb[..., 0], c1)
-        dp = a1 - (2 * C * cc1 * V - C**2 * v1) / V**2
+        xs = np.where(finite, x, 0.0)
+        cx = ChannelParameters(*(p0 + xs * p1 for p0, p1 in zip(
+            (cb0.p_r, cb0.fix_var, cb0.p_a, cb0.q, cb0.p_b), (cb1.p_r, cb1.fix_var, cb1.p_a, cb1.q, cb1.p_b))))
+        t_new = _newton_max(t, lo, hi, Tb, vb, cx, 2)
+        x_new = _quadratic_root(t_new, Tb, vb, cb0, cb1, tb2)
+        # x*(t) is minimal where p(.; x) peaks: accept only steps that lower the limit
+        take = finite & np.isfinite(x_new) & (x_new < x)
+        x = np.where(take, x_new, x)
+        t = np.where(take, t_new, t)
+    # the quadratic carries the cancellation of A V - C^2; two Newton steps in x on the
+    # cancellation-free p(t; x) = tau^2 at the worst t remove it
+    for _ in range(2):
+        xs = np.where(finite, x, 0.0)
+        cx = ChannelParameters(*(p0 + xs * p1 for p0, p1 in zip(
+            (cb0.p_r, cb0.fix_var, cb0.p_a, cb0.q, cb0.p_b), (cb1.p_r, cb1.fix_var, cb1.p_a, cb1.q, cb1.p_b))))
+        A, C, V = _acv(t, Tb, vb, cx)
+        A1, C1, V1 = _acv(t, Tb, vb, cb1)
+        dp = A1 - 2 * C * C1 / V + C**2 * V1 / V**2
         with np.errstate(divide="ignore", invalid="ignore"):
-            xs = np.where(finite & (dp > 0), xs - (wp.variance - tau2) / dp, xs)
-    x = np.where(finite, xs, x)
-    x = np.where(infeasible, np.nan, x)
+            step = (smoothed_variance(t, Tb, vb, cx) - tb2) / dp
+        x = np.where(finite & (dp > 0) & np.isfinite(step), x - step, x)
+    x = np.where(infeasible, np.nan, x)[..., 0]
     x = np.sqrt(x)
     return np.where(x > SIZABLE[parameter][2], np.inf, x)
 
