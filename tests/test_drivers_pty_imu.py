@@ -91,7 +91,7 @@ def test_drops_garbage_corruption_all_good_frames_recovered_and_bytes_accounted(
 
 def test_unplug_and_replug_keeps_received_frames_and_replays_identically(tmp_path):
     rate = 500.0
-    n = 1000  # 2 s of real time
+    n = 600  # 1.2 s of real time
     t, w, f = _arrays(n, rate, 2)
     twin = ImuTwin(t, w, f, rate_hz=rate, realtime=True, link_path=tmp_path / "imu-by-id")
     stats = Stats()
@@ -99,7 +99,7 @@ def test_unplug_and_replug_keeps_received_frames_and_replays_identically(tmp_pat
     link.open()
     link.start()
     twin.start()
-    time.sleep(0.5)
+    time.sleep(0.35)
     before = nv.ImuFrames.concat(link.drain())
     twin.disappear(0.3)
     deadline = time.monotonic() + 20.0
@@ -111,7 +111,7 @@ def test_unplug_and_replug_keeps_received_frames_and_replays_identically(tmp_pat
     after = nv.ImuFrames.concat(link.drain())
     live = nv.ImuFrames.concat([before, after])
     assert stats.reconnects == 1
-    assert len(before) > 50 and len(after) > 50
+    assert len(before) > 30 and len(after) > 30
     # frames are in order, each exactly one that was sent; the gap is the unplugged time
     idx = np.searchsorted(twin.sow, live.sow_s)
     assert np.array_equal(twin.sow[idx], live.sow_s) and np.all(np.diff(idx) > 0)

@@ -46,10 +46,10 @@ def _odo_link(twin, cfg, raw=None):
 
 
 def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
-    cfg = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.1, bits=16, rate_hz=200.0)
-    n = 200
+    cfg = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.1, bits=16, rate_hz=300.0)
+    n = 150
     t = np.arange(n) / cfg.rate_hz
-    dist = 1.5 * t  # 1.5 m/s: ~1950 counts/s, the 16-bit counter wraps
+    dist = 1.5 * t  # 1.5 m/s: ~19600 counts/s, the 16-bit counter wraps
     twin = OdometerTwin(t, dist, cfg, offset_counts=2**16 - 300, mode="index")
     link, stats = _odo_link(twin, cfg, tmp_path / "odo.rawlog")
     poller = encoder.OdometerPoller(link, cfg).start()
@@ -72,7 +72,7 @@ def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
 
 def test_odometer_faults_only_undetectable_digit_swaps_can_pass():
     cfg = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.1, bits=32, rate_hz=400.0, max_speed_m_s=5.0)
-    n = 600
+    n = 400
     t = np.arange(n) / cfg.rate_hz
     twin = OdometerTwin(t, 1.0 * t, cfg, offset_counts=2**32 - 1000, mode="index",
                         faults=Faults(corrupt_rate=3e-3, drop_rate=1e-3, garbage_rate=0.05, missing_rate=0.02, seed=5))

@@ -65,7 +65,7 @@ def test_probe_sequence_geometry_and_station():
 
 
 def test_retryable_codes_are_retried_then_succeed_and_others_raise_at_once():
-    twin, ts = _pair()
+    twin, ts = _pair(retry=RetryPolicy(attempts=5, base_delay_s=0.01))
     try:
         twin.inject_rc(8710, gc.AUT_FINEADJUST, times=2)  # no target, twice
         twin.inject_rc(8725, gc.TMC_DOMEASURE)  # ATR not locked
@@ -92,15 +92,15 @@ def test_retryable_codes_are_retried_then_succeed_and_others_raise_at_once():
 
 
 def test_missing_and_late_replies_time_out_retry_and_stale_reply_is_ignored():
-    twin, ts = _pair(timeout_s=0.5)
+    twin, ts = _pair(timeout_s=0.4, retry=RetryPolicy(attempts=5, base_delay_s=0.01))
     try:
         twin.drop_replies(2)
         ts.fine_adjust()
         assert ts.stats.timeouts == 2
-        twin.delay_replies(1, 1.0)
+        twin.delay_replies(1, 0.8)
         ts.do_measure()  # its reply comes after the timeout; the retry is answered in time
         hz, v, sd, _ = ts.simple_mea()
-        time.sleep(0.6)  # the late reply of the first DoMeasure arrives now
+        time.sleep(0.5)  # the late reply of the first DoMeasure arrives now
         e, n, h, _ = ts.coordinate()
         assert (e, n, h) == pytest.approx(TARGET, abs=1e-9)
         assert ts.stats.timeouts == 3 and ts.stats.extra["stale_replies"] >= 1
