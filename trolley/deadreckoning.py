@@ -204,7 +204,9 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
     t = t_s[start:]
     w = w_rad_s[start:]
     dt = np.diff(t)
-    incr = 0.5 * (w[1:] + w[:-1]) * dt[:, None]  # trapezoidal rate integration
+    # each sample is the mean rate over the interval that ends at its time (what an IMU's delta
+    # angles give, and what the simulator writes), so it integrates over (t[k-1], t[k]]
+    incr = w[1:] * dt[:, None]
     alpha = _block_rotvecs(incr, block_size)
     nb = alpha.shape[0]
     idx = np.minimum(np.arange(nb + 1) * block_size, t.shape[0] - 1)

@@ -144,6 +144,53 @@ def _enh(ned: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
     return np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]]) + origin_enh
 
 
+#: The fixes observe the position errors N, E, D of the 8-state vector.
+FIX_H = np.zeros((3, 8))
+FIX_H[0, _IDX_N] = FIX_H[1, _IDX_E] = FIX_H[2, _IDX_D] = 1.0
+
+
+def filter_noise(meta, config: ProcessConfig) -> em.ChannelNoise:
+    """Process noise of the error filters from the datasheet figures in the session metadata."""
+    imu = meta.imu
+    return em.ChannelNoise(
+        gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
+        odo_scale_noise_per_sqrt_s=meta.odometer.scale_noise_per_sqrt_s,
+        gyro_bias_rw_rad_s_sqrt_s=imu.gyro_bias_instability_rad_s * np.sqrt(2.0 / config.bias_correlation_s))
+
+
+def initial_covariance(meta, align: StaticAlignment, static_s: float, config: ProcessConfig
+                       ) -> tuple[np.ndarray, float]:
+    """P0 of the 8-state filter at the first node, and the heading 1-sigma it uses.
+
+    Level: accelerometer bias / g with the residual mounting error in quadrature. Heading: the
+    alignment's (gyrocompassing: bias / (omega_ie cos L), plus the angle random walk over the
+    static window). Equivalent biases: Jiang 2017 Eq. 6 via
+    :func:`trolley.error_models.equivalent_gyro_bias`.
+    """
+    imu = meta.imu
+    heading_sigma = align.heading_sigma_rad
+    if align.heading_source == "gyrocompassing":
+        heading_sigma = float(np.hypot(heading_sigma, em.heading_error_from_gyrocompassing(
+            imu.gyro_arw_rad_sqrt_s / np.sqrt(max(static_s, 1.0)), meta.latitude_rad)))
+    eq_bias = float(em.equivalent_gyro_bias(imu.gyro_bias_instability_rad_s, heading_sigma, meta.latitude_rad))
+    p0u = em.InitialUncertainty(
+        position_m=config.prior_position_m,
+        pitch_rad=float(np.hypot(align.level_sigma_rad, config.residual_level_rad)),
+        heading_rad=heading_sigma, gyro_bias_y_rad_s=eq_bias, gyro_bias_z_rad_s=eq_bias,
+        odo_scale_error=meta.odometer.scale_error)
+    return block_diag(em.level_initial_covariance(p0u), em.vertical_initial_covariance(p0u)), heading_sigma
+
+
+def fix_covariances(sigma_enh_m: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) noise covariances of fixes in the filter's N, E, D order from E, N, H sigmas."""
+    sig = np.atleast_2d(sigma_enh_m)
+    R = np.zeros((sig.shape[0], 3, 3))
+    R[:, 0, 0] = sig[:, 1] ** 2
+    R[:, 1, 1] = sig[:, 0] ** 2
+    R[:, 2, 2] = sig[:, 2] ** 2
+    return R
+
+
 def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: float,
                  max_node_dt_s: float) -> np.ndarray:
     """Indices of the DR blocks used as filter nodes (sorted, unique)."""
@@ -242,30 +289,11 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
 
     nodes = filter_nodes(dr, fix_blocks, config.node_spacing_m, config.max_node_dt_s)
     fix_nodes = np.searchsorted(nodes, fix_blocks)
-    noise = em.ChannelNoise(
-        gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
-        odo_scale_noise_per_sqrt_s=meta.odometer.scale_noise_per_sqrt_s,
-        gyro_bias_rw_rad_s_sqrt_s=imu.gyro_bias_instability_rad_s * np.sqrt(2.0 / config.bias_correlation_s))
-    static_len = max(align.t_end_s - session.imu_t_s[0], 1.0)
-    heading_sigma = align.heading_sigma_rad
-    if align.heading_source == "gyrocompassing":
-        # angle random walk over the averaging window adds to the bias term in quadrature
-        heading_sigma = float(np.hypot(heading_sigma, em.heading_error_from_gyrocompassing(
-            imu.gyro_arw_rad_sqrt_s / np.sqrt(static_len), meta.latitude_rad)))
-    eq_bias = float(em.equivalent_gyro_bias(imu.gyro_bias_instability_rad_s, heading_sigma, meta.latitude_rad))
-    p0u = em.InitialUncertainty(
-        position_m=config.prior_position_m,
-        pitch_rad=float(np.hypot(align.level_sigma_rad, config.residual_level_rad)),
-        heading_rad=heading_sigma, gyro_bias_y_rad_s=eq_bias, gyro_bias_z_rad_s=eq_bias,
-        odo_scale_error=meta.odometer.scale_error)
-    P0 = block_diag(em.level_initial_covariance(p0u), em.vertical_initial_covariance(p0u))
+    noise = filter_noise(session.meta, config)
+    P0, heading_sigma = initial_covariance(session.meta, align, align.t_end_s - session.imu_t_s[0], config)
     scale = np.sqrt(np.diag(P0))
-    H = np.zeros((3, 8))
-    H[0, _IDX_N] = H[1, _IDX_E] = H[2, _IDX_D] = 1.0
-    R = np.zeros((len(fix_t), 3, 3))
-    R[:, 0, 0] = fix_sig[:, 1] ** 2  # N
-    R[:, 1, 1] = fix_sig[:, 0] ** 2  # E
-    R[:, 2, 2] = fix_sig[:, 2] ** 2  # D from H
+    H = FIX_H
+    R = fix_covariances(fix_sig)
     forced = np.array([p in set(config.force_accept) for p in fix_pt], dtype=bool)
     if config.smoother not in ("rts", "tfs", "none"):
         raise ValueError(f"unknown smoother {config.smoother!r}: use rts, tfs or none")
