@@ -68,10 +68,10 @@ def test_record_writes_session_files_raw_logs_and_stats(tmp_path):
     assert np.allclose(imu_csv["wy_rad_s"], -0.02, atol=sc.gyro * rate)
     assert np.allclose(imu_csv["fz_m_s2"], -9.8, atol=sc.accel * rate)
     odo_csv = np.genfromtxt(out / "odometer.csv", delimiter=",", names=True)
-    assert odo_csv.dtype.names == ("t_s", "distance_m") and odo_csv.size > 100
+    assert odo_csv.dtype.names == ("t_s", "distance_m") and odo_csv.size > 50
     assert np.all(np.diff(odo_csv["distance_m"]) >= 0) and np.all(np.diff(odo_csv["t_s"]) > 0)
-    span = odo_csv["t_s"][-1] - odo_csv["t_s"][0]
-    assert odo_csv["distance_m"][-1] == pytest.approx(0.8 * 1.002 * span, rel=0.1)
+    speed = np.polyfit(odo_csv["t_s"], odo_csv["distance_m"], 1)[0]
+    assert speed == pytest.approx(0.8 * 1.002, rel=0.1)  # twin speed x calibrated scale
     g_csv = np.genfromtxt(out / "gauge.csv", delimiter=",", names=True)
     assert g_csv.dtype.names == ("t_s", "gauge_m") and np.all(np.abs(g_csv["gauge_m"] - 1.435) <= 0.00101)
     stats = json.loads((out / "stats.json").read_text())

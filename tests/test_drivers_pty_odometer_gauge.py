@@ -52,7 +52,7 @@ def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
     dist = 1.5 * t  # 1.5 m/s: ~19600 counts/s, the 16-bit counter wraps
     twin = OdometerTwin(t, dist, cfg, offset_counts=2**16 - 300, mode="index")
     link, stats = _odo_link(twin, cfg, tmp_path / "odo.rawlog")
-    poller = encoder.OdometerPoller(link, cfg).start()
+    poller = encoder.OdometerPoller(link, cfg, reply_timeout_s=2.0).start()  # no faults here
     deadline = time.monotonic() + 20.0
     while twin.polls < n + 5 and time.monotonic() < deadline:
         time.sleep(0.01)
