@@ -57,6 +57,17 @@ def test_probe_sequence_geometry_and_station():
         assert e == pytest.approx(e0 + sd2 * math.sin(v2) * math.sin(1.0), abs=1e-9)
         assert n == pytest.approx(n0 + sd2 * math.sin(v2) * math.cos(1.0), abs=1e-9)
         assert h == pytest.approx(h0 + hi + sd2 * math.cos(v2), abs=1e-9)
+        # BAP_MeasDistanceAngle and TMC_GetAngle agree with TMC_GetSimpleMea
+        hz3, v3, sd3 = ts.meas_distance_angle()
+        assert (hz3, v3, sd3) == pytest.approx((hz2, v2, sd2), abs=1e-12)
+        assert ts.angle() == pytest.approx((hz2, v2), abs=1e-12)
+        # reflector height: the measured point is that far below the prism
+        ts.set_reflector_height(0.25)
+        ts.do_measure()
+        assert ts.coordinate()[2] == pytest.approx(h - 0.25, abs=1e-9)
+        # turning away and back with ATR positioning finds the prism again
+        ts.make_positioning(0.0, 1.5, atr=True)
+        assert ts.angle()[0] == pytest.approx(1.0, abs=1e-12)
         assert ts.stats.balanced() and ts.stats.bad_checksum == 0
         assert all(r.crc_present and r.crc_ok for r in twin.requests)
     finally:
