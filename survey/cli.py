@@ -25,6 +25,7 @@ COMMAND_MODULES: list[str] = [
     "simulate",
     "demo",
     "budget",
+    "tgms",
 ]
 
 for _name in COMMAND_MODULES:

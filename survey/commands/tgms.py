@@ -1,0 +1,248 @@
+"""``trolley tgms ...``: synthetic TGMS recordings, processing into irregularities, tuning.
+
+* ``trolley tgms simulate --out DIR`` writes a recording folder (FORMATS.md section 3) and truth.csv.
+* ``trolley tgms process DIR --out OUT`` writes irregularities.csv and PNG plots; when DIR holds a
+  truth.csv (synthetic recording) the accuracy against it is added to the JSON summary.
+* ``trolley tgms tune DIR --out params.toml`` estimates the noise parameters by constrained
+  maximum likelihood (Gonzalez-Carbajal 2023 Sec. 4.2).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+
+console = Console(stderr=True)
+
+tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers + IMU + encoder -> track irregularities.",
+                       no_args_is_help=True)
+
+
+def _fail(msg: str) -> None:
+    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code=2)
+
+
+def parse_band(text: str, step_m: float):
+    """``--band``: D1, D2, D3, none, SHORT-LONG (e.g. 3-25) or LONG (a cut-off: keeps wavelengths
+    from 2 steps up to LONG). Returns (short_m, long_m) or None."""
+    from trolley.bands import BANDS
+    t = text.strip()
+    if t.lower() == "none":
+        return None
+    if t.upper() in BANDS:
+        return BANDS[t.upper()]
+    try:
+        if "-" in t:
+            a, b = (float(x) for x in t.split("-", 1))
+        else:
+            a, b = 2.5 * step_m, float(t)
+    except ValueError:
+        raise ValueError(f"--band {text!r}: expected D1, D2, D3, none, SHORT-LONG or LONG in metres") from None
+    if not (0 < a < b):
+        raise ValueError(f"--band {text!r}: need 0 < short < long")
+    return (a, b)
+
+
+def read_params(path: Path):
+    """TgmsParams from a TOML file written by ``tune`` (keys of TgmsParams at top level)."""
+    import tomllib
+
+    from trolley.tgms.params import TgmsParams
+    try:
+        d = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"{path.name}: cannot read parameters ({exc})") from None
+    d.pop("format", None)
+    d.pop("loglik", None)
+    try:
+        return TgmsParams.from_dict(d)
+    except ValueError as exc:
+        raise ValueError(f"{path.name}: {exc}") from None
+
+
+def params_toml_text(params, extra: dict | None = None) -> str:
+    lines = ['format = "trolley-tgms-params/1"']
+    for k, v in (extra or {}).items():
+        lines.append(f"{k} = {v!r}")
+    for k, v in params.to_dict().items():
+        lines.append(f'{k} = "{v}"' if isinstance(v, str) else f"{k} = {float(v)!r}")
+    return "\n".join(lines) + "\n"
+
+
+@tgms_app.command("simulate")
+def simulate_cmd(
+    out: Annotated[Path, typer.Option("--out", help="recording folder to write")],
+    seed: Annotated[int, typer.Option(help="random seed")] = 0,
+    length_m: Annotated[float, typer.Option("--length-m", min=60.0, help="track length ridden, m")] = 200.0,
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=1.0, max=40.0, help="nominal speed, m/s")] = 10.0,
+    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0)] = 100.0,
+    rail_profile: Annotated[str, typer.Option("--rail-profile", help="60E1 or 54E1")] = "60E1",
+) -> None:
+    """Write a synthetic TGMS recording folder plus truth.csv."""
+    from survey import tgms_io
+    from trolley.tgms.simulate import SimulationSettings, simulate
+    if rail_profile not in ("60E1", "54E1"):
+        _fail(f"--rail-profile must be 60E1 or 54E1, got {rail_profile!r}")
+    st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
+                            camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
+    with console.status("simulating"):
+        rec, truth = simulate(st)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        tgms_io.write_recording(out, rec)
+        tgms_io.write_truth(out / "truth.csv", truth)
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    n_frames = int(max(rec.lasers["left"].frame.max(), rec.lasers["right"].frame.max())) + 1
+    print(json.dumps({"out": str(out), "seed": seed, "length_m": length_m, "speed_m_s": speed_m_s,
+                      "duration_s": float(rec.imu_t_s[-1]), "frames": n_frames,
+                      "laser_points": int(len(rec.lasers["left"].frame) + len(rec.lasers["right"].frame))}))
+
+
+def _plots(out: Path, grid, band_label: str) -> list[str]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    files = []
+    titles = {"gauge_variation": "Gauge variation (> 0 wider)", "cross_level": "Cross level (> 0 left rail higher)",
+              "alignment": "Alignment (> 0 displaced right)", "vertical_profile": "Vertical profile (> 0 up)"}
+    for name, title in titles.items():
+        y = grid[f"{name}_mm"]
+        fig, ax = plt.subplots(figsize=(10, 3.2))
+        ax.plot(grid["s_m"], y, lw=0.8, color="C0")
+        sig = grid.get(f"sigma_{name}_mm")
+        if sig is not None and np.isfinite(sig).any() and band_label == "none":
+            ax.fill_between(grid["s_m"], y - 1.96 * sig, y + 1.96 * sig, color="C0", alpha=0.2, lw=0,
+                            label="95 % interval")
+            ax.legend(loc="upper right", fontsize=8)
+        ax.set_xlabel("station s (m)")
+        ax.set_ylabel(f"{name.replace('_', ' ')} (mm)")
+        ax.set_title(f"{title}; band: {band_label}", fontsize=10)
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        p = out / f"{name}.png"
+        tmp = out / f".{name}.png.tmp"
+        fig.savefig(tmp, dpi=110, format="png")
+        plt.close(fig)
+        os.replace(tmp, p)
+        files.append(p.name)
+    return files
+
+
+@tgms_app.command("process")
+def process_cmd(
+    folder: Annotated[Path, typer.Argument(help="TGMS recording folder (FORMATS.md section 3)")],
+    out: Annotated[Path, typer.Option("--out", help="output folder")],
+    step: Annotated[float, typer.Option("--step", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
+    band: Annotated[str, typer.Option("--band", help="D1, D2, D3, none, SHORT-LONG or LONG (m)")] = "none",
+    params_file: Annotated[Optional[Path], typer.Option("--params", help="parameter file from 'tgms tune'")] = None,
+    orientation: Annotated[Optional[str], typer.Option(help="kf or madgwick (overrides --params)")] = None,
+    trajectory: Annotated[Optional[str], typer.Option(help="ltv or ekf (overrides --params)")] = None,
+    no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
+    plots: Annotated[bool, typer.Option("--plots/--no-plots")] = True,
+) -> None:
+    """Process a recording into irregularities.csv (+ PNG plots)."""
+    import dataclasses
+
+    import numpy as np
+
+    from survey import tgms_io
+    from trolley.bands import bandpass_wavelength
+    from trolley.tgms.params import TgmsParams
+    from trolley.tgms.pipeline import process
+
+    try:
+        bounds = parse_band(band, step)
+    except ValueError as exc:
+        _fail(str(exc))
+    params = TgmsParams()
+    if params_file is not None:
+        try:
+            params = read_params(params_file)
+        except ValueError as exc:
+            _fail(str(exc))
+    try:
+        if orientation is not None or trajectory is not None:
+            d = params.to_dict()
+            if orientation is not None:
+                d["orientation"] = orientation
+            if trajectory is not None:
+                d["trajectory"] = trajectory
+            params = TgmsParams.from_dict(d)
+    except ValueError as exc:
+        _fail(str(exc))
+    try:
+        rec = tgms_io.read_recording(folder)
+    except tgms_io.TgmsFormatError as exc:
+        _fail(str(exc))
+    try:
+        with console.status("processing"):
+            res = process(rec, params, step_m=step, match_curves=not no_curve_matching)
+    except ValueError as exc:
+        _fail(f"{folder}: {exc}")
+    g = res.grid
+    cols = {"s_m": g.s_m}
+    for name in g.NAMES:
+        v = getattr(g, f"{name}_m")
+        if bounds is not None:
+            v = bandpass_wavelength(v, step, *bounds)
+        cols[f"{name}_mm"] = v * 1e3
+    for name in g.NAMES:
+        cols[f"sigma_{name}_mm"] = getattr(g, f"sigma_{name}_m") * 1e3
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        tgms_io.write_irregularities(out / "irregularities.csv", cols)
+        files = ["irregularities.csv"]
+        if plots:
+            label = "none" if bounds is None else f"{bounds[0]:g}-{bounds[1]:g} m"
+            files += _plots(out, cols, label)
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    summary = {
+        "out": str(out), "files": files, "rows": int(len(g.s_m)),
+        "frames": int(len(res.vision.frame)), "frames_flagged": int((~res.vision.ok).sum()),
+        "empty_cells": {n: int(np.isnan(getattr(g, f"{n}_m")).sum()) for n in g.NAMES},
+        "curve_anchors": [[float(a), float(d)] for a, d in zip(res.odometry.anchors_app_m, res.odometry.anchors_design_m)],
+        "params": dataclasses.asdict(params), "timings_s": res.timings_s,
+    }
+    truth_path = folder / "truth.csv"
+    if truth_path.exists():
+        from trolley.tgms.accuracy import accuracy
+        truth = tgms_io.read_truth(truth_path)
+        acc = accuracy(res.frames, truth, res.vision.t_s, step)
+        summary["accuracy_3_25m"] = dataclasses.asdict(acc)
+    print(json.dumps(summary))
+
+
+@tgms_app.command("tune")
+def tune_cmd(
+    folder: Annotated[Path, typer.Argument(help="TGMS recording folder")],
+    out: Annotated[Path, typer.Option("--out", help="parameter file to write (TOML)")],
+    evaluations: Annotated[int, typer.Option(min=10, max=2000, help="likelihood evaluations")] = 60,
+    seed: Annotated[int, typer.Option(help="seed of the global optimiser")] = 0,
+) -> None:
+    """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2)."""
+    from survey import tgms_io
+    from trolley.tgms.tuning import tune_cml
+    try:
+        rec = tgms_io.read_recording(folder)
+    except tgms_io.TgmsFormatError as exc:
+        _fail(str(exc))
+    with console.status("tuning (maximum likelihood)"):
+        params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed)
+    try:
+        tgms_io.write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    print(json.dumps({"out": str(out), "params": params.to_dict(), **info}))
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``tgms`` command group to the ``trolley`` app."""
+    app.add_typer(tgms_app, name="tgms")

@@ -1,0 +1,308 @@
+"""Reading and writing TGMS recording folders (FORMATS.md section 3), ``truth.csv`` of synthetic
+recordings, ``irregularities.csv`` and the tuning-parameter file.
+
+Every reader raises :class:`TgmsFormatError` with a one-line message naming the file, the row and
+the column (or the TOML key); writers write to a temporary file in the same folder and
+``os.replace`` it at the end, so an interrupted run never leaves a partial file.
+
+Optional keys we added where FORMATS.md is silent (documented in ``docs/tgms.md``):
+``[track].start_station_m`` (chainage at encoder count 0, default the alignment start) and
+``[camera.*].image_size_px`` (default [648, 488]).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trolley.landxml import landxml_text, parse_landxml
+from trolley.tgms.camera import Camera
+from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
+from trolley.tgms.recording import LaserPoints, Recording
+
+FORMAT = "trolley-tgms/1"
+IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
+
+
+class TgmsFormatError(ValueError):
+    """A recording folder or file that does not follow FORMATS.md section 3."""
+
+
+# ---------------------------------------------------------------------------------------------
+# atomic writing
+def _atomic_write_text(path: Path, text: str) -> None:
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write a text file atomically (temporary file in the same folder, then os.replace)."""
+    _atomic_write_text(Path(path), text)
+
+
+def _atomic_write_csv(path: Path, df: pd.DataFrame, float_format: str | None = None) -> None:
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        df.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+# ---------------------------------------------------------------------------------------------
+# tgms.toml
+def _fmt(x) -> str:
+    return repr(float(x))
+
+
+def _mat(m) -> str:
+    return "[" + ", ".join("[" + ", ".join(_fmt(v) for v in row) + "]" for row in np.asarray(m)) + "]"
+
+
+def _vec(v) -> str:
+    return "[" + ", ".join(_fmt(x) for x in np.asarray(v).ravel()) + "]"
+
+
+def tgms_toml_text(config: TgmsConfig) -> str:
+    """The ``tgms.toml`` text of a configuration."""
+    tr = config.track
+    lines = [f'format = "{FORMAT}"', "", "[track]",
+             f'rail_profile = "{tr.rail_profile}"',
+             f"half_rail_spacing_m = {_fmt(tr.half_rail_spacing_m)}",
+             f"rail_inclination = {_fmt(tr.rail_inclination)}",
+             f'alignment = "{tr.alignment}"']
+    if tr.start_station_m is not None:
+        lines.append(f"start_station_m = {_fmt(tr.start_station_m)}")
+    lines += ["", "[encoder]", f"pulses_per_rev = {int(config.encoder.pulses_per_rev)}",
+              f"wheel_diameter_m = {_fmt(config.encoder.wheel_diameter_m)}",
+              "", "[imu]", f"rate_hz = {_fmt(config.imu_rate_hz)}"]
+    for side in ("left", "right"):
+        c = config.cameras[side]
+        lines += ["", f"[camera.{side}]", f"K = {_mat(c.K)}", f"R_tgms_cam = {_mat(c.R_tgms_cam)}",
+                  f"t_tgms_cam_m = {_vec(c.t_tgms_cam_m)}", f"distortion = {_vec(c.distortion)}",
+                  f"laser_plane = {_vec(c.laser_plane)}",
+                  f"image_size_px = [{int(c.image_size_px[0])}, {int(c.image_size_px[1])}]"]
+    return "\n".join(lines) + "\n"
+
+
+def _get(table: dict, key: str, where: str, fname: str, default=None, required: bool = True):
+    if key not in table:
+        if required:
+            raise TgmsFormatError(f"{fname}: missing key {where}.{key}")
+        return default
+    return table[key]
+
+
+def _num(table, key, where, fname, default=None, required=True) -> float | None:
+    v = _get(table, key, where, fname, default, required)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise TgmsFormatError(f"{fname}: {where}.{key} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _array(table, key, where, fname, shape, default=None, required=True) -> np.ndarray:
+    v = _get(table, key, where, fname, default, required)
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise TgmsFormatError(f"{fname}: {where}.{key} must be numbers of shape {shape}") from None
+    if a.shape != shape or not np.all(np.isfinite(a)):
+        raise TgmsFormatError(f"{fname}: {where}.{key} must be finite numbers of shape {shape}, got shape {a.shape}")
+    return a
+
+
+def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
+    """Configuration from the text of ``tgms.toml``; TgmsFormatError naming the key if invalid."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise TgmsFormatError(f"{fname}: not valid TOML ({exc})") from None
+    fmt = doc.get("format")
+    if fmt != FORMAT:
+        raise TgmsFormatError(f"{fname}: format must be \"{FORMAT}\", got {fmt!r}")
+    tr = _get(doc, "track", "", fname)
+    prof = _get(tr, "rail_profile", "track", fname)
+    if prof not in ("60E1", "54E1"):
+        raise TgmsFormatError(f"{fname}: track.rail_profile must be \"60E1\" or \"54E1\", got {prof!r}")
+    track = TrackSettings(rail_profile=prof,
+                          half_rail_spacing_m=_num(tr, "half_rail_spacing_m", "track", fname),
+                          rail_inclination=_num(tr, "rail_inclination", "track", fname, 40.0, False),
+                          alignment=str(_get(tr, "alignment", "track", fname)),
+                          start_station_m=_num(tr, "start_station_m", "track", fname, None, False))
+    en = _get(doc, "encoder", "", fname)
+    ppr = _num(en, "pulses_per_rev", "encoder", fname)
+    enc = EncoderSettings(pulses_per_rev=int(ppr), wheel_diameter_m=_num(en, "wheel_diameter_m", "encoder", fname))
+    imu = _get(doc, "imu", "", fname)
+    rate = _num(imu, "rate_hz", "imu", fname)
+    cams_t = _get(doc, "camera", "", fname)
+    cams = {}
+    for side in ("left", "right"):
+        where = f"camera.{side}"
+        if side not in cams_t:
+            raise TgmsFormatError(f"{fname}: missing table [{where}]")
+        c = cams_t[side]
+        size = _array(c, "image_size_px", where, fname, (2,), [648, 488], False)
+        cams[side] = Camera(K=_array(c, "K", where, fname, (3, 3)),
+                            R_tgms_cam=_array(c, "R_tgms_cam", where, fname, (3, 3)),
+                            t_tgms_cam_m=_array(c, "t_tgms_cam_m", where, fname, (3,)),
+                            distortion=_array(c, "distortion", where, fname, (4,), [0, 0, 0, 0], False),
+                            laser_plane=_array(c, "laser_plane", where, fname, (4,)),
+                            image_size_px=(int(size[0]), int(size[1])), name=side)
+    cfg = TgmsConfig(track=track, encoder=enc, imu_rate_hz=rate, cameras=cams)
+    try:
+        cfg.validate()
+    except ValueError as exc:
+        raise TgmsFormatError(f"{fname}: {exc}") from None
+    return cfg
+
+
+# ---------------------------------------------------------------------------------------------
+# CSV
+def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
+              monotonic: str | None = "t_s", strict: bool = False) -> dict[str, np.ndarray]:
+    name = path.name
+    if not path.exists():
+        raise TgmsFormatError(f"{name}: file not found in {path.parent}")
+    try:
+        df = pd.read_csv(path, skipinitialspace=True)
+    except Exception as exc:  # pandas raises several types for broken CSV
+        raise TgmsFormatError(f"{name}: cannot read as CSV ({exc})") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise TgmsFormatError(f"{name}: missing column {missing[0]}")
+    if len(df) == 0:
+        raise TgmsFormatError(f"{name}: no data rows")
+    out = {}
+    for c in columns:
+        col = df[c]
+        if pd.api.types.is_numeric_dtype(col):
+            vals = col.to_numpy(dtype=float).copy()
+        else:
+            vals = pd.to_numeric(col.astype(str).str.strip(), errors="coerce").to_numpy(dtype=float)
+        bad = ~np.isfinite(vals)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({col.iloc[i]!r})")
+        if c in integer:
+            if np.any(vals != np.round(vals)):
+                i = int(np.argmax(vals != np.round(vals)))
+                raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not an integer")
+            vals = vals.astype(np.int64)
+        out[c] = vals
+    if monotonic is not None:
+        d = np.diff(out[monotonic])
+        back = d <= 0 if strict else d < 0
+        if back.any():
+            i = int(np.argmax(back)) + 1
+            raise TgmsFormatError(f"{name}: row {i + 2}, column {monotonic}: time goes backwards")
+    return out
+
+
+def read_recording(folder: str | os.PathLike) -> Recording:
+    """Read a TGMS recording folder (FORMATS.md section 3).
+
+    Raises
+    ------
+    TgmsFormatError : naming the file and row/column or key at fault.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise TgmsFormatError(f"{folder}: not a folder")
+    toml_path = folder / "tgms.toml"
+    if not toml_path.exists():
+        raise TgmsFormatError(f"tgms.toml: file not found in {folder}")
+    cfg = parse_tgms_toml(toml_path.read_text(encoding="utf-8"))
+    al_path = folder / cfg.track.alignment
+    if not al_path.exists():
+        raise TgmsFormatError(f"tgms.toml: track.alignment names {cfg.track.alignment!r}, not found in {folder}")
+    try:
+        alignment = parse_landxml(al_path.read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise TgmsFormatError(f"{al_path.name}: {exc}") from None
+    imu = _read_csv(folder / "imu.csv", ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"], strict=True)
+    enc = _read_csv(folder / "encoder.csv", ["t_s", "count"], integer=("count",))
+    lasers = {}
+    for side in ("left", "right"):
+        d = _read_csv(folder / f"laser_{side}.csv", ["frame", "t_s", "u_px", "v_px"], integer=("frame",))
+        f = d["frame"]
+        if np.any(np.diff(f) < 0):
+            i = int(np.argmax(np.diff(f) < 0)) + 1
+            raise TgmsFormatError(f"laser_{side}.csv: row {i + 2}, column frame: frame number goes backwards")
+        if f.min() < 0:
+            raise TgmsFormatError(f"laser_{side}.csv: row {int(np.argmin(f)) + 2}, column frame: negative frame number")
+        lasers[side] = LaserPoints(frame=f, t_s=d["t_s"], u_px=d["u_px"], v_px=d["v_px"])
+    return Recording(config=cfg, alignment=alignment, imu_t_s=imu["t_s"],
+                     imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),
+                     imu_f_m_s2=np.column_stack([imu["fx_m_s2"], imu["fy_m_s2"], imu["fz_m_s2"]]),
+                     enc_t_s=enc["t_s"], enc_count=enc["count"], lasers=lasers)
+
+
+def write_recording(folder: str | os.PathLike, rec: Recording) -> None:
+    """Write a recording folder (creates the folder; every file written atomically)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    _atomic_write_text(folder / rec.config.track.alignment, landxml_text(rec.alignment))
+    w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
+    _atomic_write_csv(folder / "imu.csv", pd.DataFrame({
+        "t_s": rec.imu_t_s, "wx_rad_s": w[:, 0], "wy_rad_s": w[:, 1], "wz_rad_s": w[:, 2],
+        "fx_m_s2": f[:, 0], "fy_m_s2": f[:, 1], "fz_m_s2": f[:, 2]}), "%.9g")
+    _atomic_write_csv(folder / "encoder.csv", pd.DataFrame({"t_s": rec.enc_t_s, "count": rec.enc_count}), "%.6f")
+    for side, lp in rec.lasers.items():
+        df = pd.DataFrame({"frame": lp.frame, "t_s": np.round(lp.t_s, 6),
+                           "u_px": np.round(lp.u_px, 3), "v_px": np.round(lp.v_px, 3)})
+        _atomic_write_csv(folder / f"laser_{side}.csv", df)
+    # tgms.toml last: a folder without it is not a recording
+    _atomic_write_text(folder / "tgms.toml", tgms_toml_text(rec.config))
+
+
+TRUTH_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm",
+                 "t_s", "r_y_m", "r_z_m", "roll_rad", "pitch_rad", "yaw_rad"]
+
+
+def write_truth(path: str | os.PathLike, truth) -> None:
+    """Write ``truth.csv`` of a synthetic recording (columns :data:`TRUTH_COLUMNS`)."""
+    _atomic_write_csv(Path(path), pd.DataFrame({c: getattr(truth, c) for c in TRUTH_COLUMNS}), "%.9g")
+
+
+def read_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Columns of ``truth.csv`` as arrays."""
+    return _read_csv(Path(path), TRUTH_COLUMNS, monotonic="s_m", strict=True)
+
+
+def write_irregularities(path: str | os.PathLike, columns: dict[str, np.ndarray]) -> None:
+    """Write ``irregularities.csv``: the FORMATS.md columns first, then any extra (sigma) columns;
+    NaN cells are written empty."""
+    df = pd.DataFrame(columns)
+    order = IRREGULARITY_COLUMNS + [c for c in df.columns if c not in IRREGULARITY_COLUMNS]
+    _atomic_write_csv(Path(path), df[order], "%.4f")
+
+
+def read_irregularities(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read ``irregularities.csv`` (empty cells become NaN)."""
+    path = Path(path)
+    df = pd.read_csv(path)
+    missing = [c for c in IRREGULARITY_COLUMNS if c not in df.columns]
+    if missing:
+        raise TgmsFormatError(f"{path.name}: missing column {missing[0]}")
+    return {c: df[c].to_numpy(dtype=float).copy() for c in df.columns}

@@ -1,0 +1,132 @@
+"""TGMS odometry (Escalona 2021 Eq. 40-43), relative attitude (Eq. 39, Briales Sec. 5.2),
+relative trajectory (Eq. 46) and irregularity formulas (Eq. 24, 27)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from trolley.tgms.irregularities import irregularities, resample
+from trolley.tgms.odometry import correct_stations, match_curves, remap
+from trolley.tgms.orientation import attitude_kf, attitude_madgwick
+from trolley.tgms.params import TgmsParams
+from trolley.tgms.simulate import design_alignment
+from trolley.tgms.track import GRAVITY_M_S2, TrackKinematics
+from trolley.tgms.trajectory import trajectory_ltv
+
+
+def test_remap_is_piecewise_linear_through_anchors():
+    s_app = np.array([0.0, 50.0, 100.0, 150.0, 250.0])
+    s, k = remap(s_app, np.array([0.0, 100.0]), np.array([0.0, 101.0]))
+    assert s == pytest.approx([0.0, 50.5, 101.0, 151.5, 252.5])
+    assert k == pytest.approx([1.01, 1.01, 1.01, 1.01, 1.01])
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(-3.0, 3.0), st.floats(-2e-3, 2e-3))
+def test_curvature_matching_finds_the_exit(shift_m, scale_err):
+    al = design_alignment(200.0)
+    s_true = np.arange(5.0, 215.0, 0.02)
+    g = al.evaluate(s_true)
+    rho = g.rho_h_1_m * np.cos(g.cant_rad) + np.random.default_rng(0).normal(0, 2e-4, len(s_true))
+    s_app = 5.0 + shift_m + (s_true - 5.0) * (1 + scale_err)
+    app, des, ne2 = match_curves(s_app, rho, al)
+    assert des[0] == pytest.approx(170.0)
+    # the exit within the encoder's stretch over the curve
+    assert app[0] == pytest.approx(5.0 + shift_m + 165.0 * (1 + scale_err), abs=0.06 + 140 * abs(scale_err))
+    assert ne2[0] < 0.05
+    # four passes from a known start on this clean curvature: a few cm along the whole ride
+    s, k, A, D, N = correct_stations(s_app - shift_m, rho, al, 5.0, passes=4)
+    assert np.abs(s - s_true).max() < 0.06
+
+
+def _straight_kinematics(n, dt, v=10.0, delta=-0.45):
+    t = np.arange(n) * dt
+    z = np.zeros(n)
+    return TrackKinematics(t_s=t, s_m=v * t, v_m_s=np.full(n, v), a_m_s2=z, rho_h=z, drho_h=z, rho_v=z,
+                           rho_tw=z, heading_rad=z, slope_rad=z, cant_rad=z, omega_t=np.zeros((n, 3)),
+                           alpha_t=np.zeros((n, 3)),
+                           f_design=np.column_stack([z, z, np.full(n, -GRAVITY_M_S2)]))
+
+
+def _body(n, dt, rng):
+    """Relative roll/pitch and lateral/vertical motion of a TGMS on a straight track, with the
+    IMU readings they produce (small-angle exact) plus white noise."""
+    t = np.arange(n) * dt
+    roll = 1e-3 * np.sin(2 * np.pi * 0.8 * t) + 5e-4 * np.sin(2 * np.pi * 0.23 * t + 1)
+    pitch = 4e-4 * np.sin(2 * np.pi * 0.5 * t + 2)
+    ry = 3e-3 * np.sin(2 * np.pi * 1.1 * t) + 2e-3 * np.sin(2 * np.pi * 0.4 * t + 0.5)
+    rz = 2e-3 * np.sin(2 * np.pi * 1.7 * t + 1.0)
+    w = np.column_stack([np.gradient(roll, dt), np.gradient(pitch, dt), np.zeros(n)])
+    ay = -(2 * np.pi * 1.1) ** 2 * 3e-3 * np.sin(2 * np.pi * 1.1 * t) - (2 * np.pi * 0.4) ** 2 * 2e-3 * np.sin(2 * np.pi * 0.4 * t + 0.5)
+    az = -(2 * np.pi * 1.7) ** 2 * 2e-3 * np.sin(2 * np.pi * 1.7 * t + 1.0)
+    g = GRAVITY_M_S2
+    # f = A^T (a - g): small angles, gravity [0, 0, g] in the level frame
+    f = np.column_stack([g * pitch, ay - g * roll, az - g])
+    w = w + rng.normal(0, 4.4e-5 / np.sqrt(dt), w.shape) + np.array([1e-5, -2e-5, 0])
+    f = f + rng.normal(0, 6e-4 / np.sqrt(dt), f.shape)
+    return roll, pitch, ry, rz, w, f
+
+
+def test_attitude_kf_and_madgwick_track_the_relative_roll():
+    dt, n = 0.01, 6000
+    rng = np.random.default_rng(3)
+    roll, pitch, ry, rz, w, f = _body(n, dt, rng)
+    kin = _straight_kinematics(n, dt)
+    kf = attitude_kf(kin, w, f)
+    mg = attitude_madgwick(kin, w, f)
+    mid = slice(1000, 5000)
+    e_kf = (kf.roll_rad - roll)[mid]
+    e_mg = (mg.roll_rad - roll)[mid]
+    # gyro-dominated in the band: errors far below the 1 mrad motion, after the mean
+    assert np.std(e_kf) < 1e-4 and np.std(e_mg) < 2e-4
+    assert np.std((kf.pitch_rad - pitch)[mid]) < 2e-4
+    # the filter sigma is conservative here (it carries the slowly observed gyro-bias uncertainty)
+    assert np.std(e_kf) < np.median(kf.sigma_roll_rad[mid]) < 1e-3
+
+
+def test_trajectory_ltv_recovers_lateral_and_vertical_motion():
+    dt, n = 0.01, 6000
+    rng = np.random.default_rng(4)
+    roll, pitch, ry, rz, w, f = _body(n, dt, rng)
+    kin = _straight_kinematics(n, dt)
+    tr = trajectory_ltv(kin, f, roll, pitch, TgmsParams(cutoff_wavelength_m=100.0))
+    from trolley.bands import bandpass_wavelength
+    mid = slice(1000, 5000)
+    step = 10.0 * dt                          # 10 m/s: the D1 band is 0.4-3.3 Hz
+    for est, true in ((tr.dr_y_m, ry), (tr.dr_z_m, rz)):
+        e = bandpass_wavelength(est - true, step, 3.0, 25.0)[mid]
+        assert np.std(e) < 0.08 * np.std(bandpass_wavelength(true, step, 3.0, 25.0)[mid])
+    # unfiltered, the error is the low-frequency drift the virtual measurements leave (< 1 mm)
+    assert np.std((tr.dr_y_m - ry)[mid]) < 1e-3
+
+
+def test_irregularity_formulas_signs_and_rotation():
+    L = 0.7175
+    # left rail 2 mm higher (smaller z), right rail 1 mm outwards, TGMS level and centred
+    irr = irregularities(np.array([0.0]), np.array([-L]), np.array([0.448]), np.array([L + 0.001]),
+                         np.array([0.450]), np.array([0.0]), np.array([0.0]), np.array([-0.449]), L)
+    assert irr.gauge_variation_m[0] == pytest.approx(0.001)
+    assert irr.cross_level_m[0] == pytest.approx(0.002)
+    assert irr.alignment_m[0] == pytest.approx(0.0005)
+    assert irr.vertical_profile_m[0] == pytest.approx(0.0, abs=1e-12)
+    # a perfect track seen from a TGMS rolled by phi: the vision sees the rails rotated by -phi
+    phi = 3e-3
+    c, s = np.cos(phi), np.sin(phi)
+    yl, zl = c * -L + s * 0.45, -s * -L + c * 0.45
+    yr, zr = c * L + s * 0.45, -s * L + c * 0.45
+    irr = irregularities(np.array([0.0]), np.array([yl]), np.array([zl]), np.array([yr]), np.array([zr]),
+                         np.array([phi]), np.array([0.0]), np.array([-0.45]), L)
+    for name in ("gauge_variation_m", "cross_level_m", "alignment_m", "vertical_profile_m"):
+        assert abs(getattr(irr, name)[0]) < 2e-5
+
+
+def test_resample_leaves_gaps_empty():
+    s = np.arange(0.0, 10.0, 0.1)
+    v = s.copy()
+    v[40:60] = np.nan            # flagged frames between 4.0 and 5.9
+    out = resample(s, v, np.arange(0.0, 10.0, 0.25), max_gap_m=0.5)
+    grid = np.arange(0.0, 10.0, 0.25)
+    gap = (grid > 3.9) & (grid < 6.0)
+    assert np.isnan(out[gap]).all()
+    assert np.allclose(out[~gap & (grid < 9.9)], grid[~gap & (grid < 9.9)])

@@ -1,0 +1,160 @@
+"""TGMS end to end: synthetic recording -> folder -> process -> irregularities against truth, and
+the CLI's handling of bad input."""
+from __future__ import annotations
+
+import dataclasses
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from survey import tgms_io
+from survey.cli import app
+from trolley.tgms.accuracy import accuracy
+from trolley.tgms.params import TgmsParams
+from trolley.tgms.pipeline import process
+from trolley.tgms.simulate import SimulationSettings, simulate
+
+
+@pytest.fixture(scope="module")
+def sim_folder(tmp_path_factory):
+    """A 180 m recording at 12 m/s (one whole curve, so the curvature matching has an exit)."""
+    rec, truth = simulate(SimulationSettings(length_m=180.0, speed_m_s=12.0, seed=11, camera_rate_hz=40.0))
+    d = tmp_path_factory.mktemp("tgms") / "rec"
+    tgms_io.write_recording(d, rec)
+    tgms_io.write_truth(d / "truth.csv", truth)
+    return d, rec, truth
+
+
+@pytest.fixture(scope="module")
+def processed(sim_folder):
+    d, rec, truth = sim_folder
+    rec2 = tgms_io.read_recording(d)
+    return rec2, process(rec2), tgms_io.read_truth(d / "truth.csv")
+
+
+def test_folder_round_trip(sim_folder):
+    d, rec, _ = sim_folder
+    back = tgms_io.read_recording(d)
+    assert np.allclose(back.imu_f_m_s2, rec.imu_f_m_s2, rtol=1e-8, atol=1e-7)
+    assert np.array_equal(back.enc_count, rec.enc_count)
+    assert np.allclose(back.lasers["right"].v_px, rec.lasers["right"].v_px, atol=6e-4)
+    assert np.array_equal(back.lasers["left"].frame, rec.lasers["left"].frame)
+    assert back.config.cameras["left"].K == pytest.approx(rec.config.cameras["left"].K)
+    assert back.config.track.start_station_m == pytest.approx(rec.config.track.start_station_m)
+    s = np.linspace(20, 180, 9)
+    assert back.alignment.evaluate(s).rho_h_1_m == pytest.approx(rec.alignment.evaluate(s).rho_h_1_m)
+
+
+def test_accuracy_against_truth_meets_the_targets(processed):
+    rec, res, truth = processed
+    acc = accuracy(res.frames, truth, res.vision.t_s)
+    # targets of the issue (3-25 m band, std in mm), as reported and registered on the true stations
+    limits = {"gauge_variation": 0.15, "cross_level": 0.15, "alignment": 0.7, "vertical_profile": 0.35}
+    for name, lim in limits.items():
+        assert acc.std_mm[name] < lim, (name, acc.std_mm)
+        assert acc.std_registered_mm[name] < lim, (name, acc.std_registered_mm)
+    # and the irregularities are really there (errors much smaller than the signal)
+    from trolley.bands import bandpass_wavelength
+    sig = np.nanstd(bandpass_wavelength(truth["cross_level_mm"], 0.05, 3.0, 25.0))
+    assert acc.std_mm["cross_level"] < 0.2 * sig
+
+
+def test_odometry_matched_the_curve_and_stations_are_close(processed):
+    rec, res, truth = processed
+    assert len(res.odometry.anchors_design_m) == 1
+    s_true = np.interp(res.odometry.t_s, truth["t_s"], truth["s_m"])
+    moving = res.odometry.v_m_s > 1.0
+    # the encoder is off by its 0.1 % scale error; on a ride with one curve the matching cannot do
+    # much better than that stretch over the curve (see trolley.tgms.odometry)
+    err_app = np.abs(res.odometry.s_app_m - s_true)[moving].max()
+    assert 0.1 < err_app < 0.2
+    assert np.abs(res.odometry.s_m - s_true)[moving].max() < err_app + 0.05
+
+
+def test_flagged_frames_give_empty_cells_never_guesses(sim_folder):
+    d, rec, truth = sim_folder
+    lp = rec.lasers["right"]
+    drop = (lp.frame >= 880) & (lp.frame < 920)          # 1 s (22-23 s, ~10 m) without the right rail
+    rec2 = dataclasses.replace(rec, lasers={"left": rec.lasers["left"],
+                                            "right": type(lp)(lp.frame[~drop], lp.t_s[~drop], lp.u_px[~drop], lp.v_px[~drop])})
+    res = process(rec2, match_curves=False)
+    t_gap = (rec.lasers["left"].t_s[rec.lasers["left"].frame == 885][0], rec.lasers["left"].t_s[rec.lasers["left"].frame == 915][0])
+    s_gap = np.interp(t_gap, res.odometry.t_s, res.odometry.s_m)
+    g = res.grid
+    inside = (g.s_m > s_gap[0]) & (g.s_m < s_gap[1])
+    assert inside.sum() > 20
+    assert np.isnan(g.gauge_variation_m[inside]).all() and np.isnan(g.alignment_m[inside]).all()
+
+
+def test_cli_process_writes_csv_and_plots(sim_folder, tmp_path):
+    d, _, _ = sim_folder
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["tgms", "process", str(d), "--out", str(out), "--band", "D1"])
+    assert r.exit_code == 0, r.output
+    import json
+    summary = json.loads(r.stdout)
+    assert summary["accuracy_3_25m"]["std_mm"]["gauge_variation"] < 0.15
+    data = tgms_io.read_irregularities(out / "irregularities.csv")
+    assert list(data)[:5] == tgms_io.IRREGULARITY_COLUMNS
+    assert np.allclose(np.diff(data["s_m"]), 0.25)
+    for name in ("gauge_variation", "cross_level", "alignment", "vertical_profile"):
+        assert (out / f"{name}.png").stat().st_size > 1000
+
+
+def _copy(sim_folder, tmp_path):
+    d, _, _ = sim_folder
+    dst = tmp_path / "bad"
+    shutil.copytree(d, dst)
+    return dst
+
+
+def test_cli_bad_input_names_the_item(sim_folder, tmp_path):
+    runner = CliRunner()
+    # missing calibration key
+    dst = _copy(sim_folder, tmp_path)
+    text = (dst / "tgms.toml").read_text()
+    start = text.index("[camera.right]")
+    k_line = text.index("K = ", start)
+    (dst / "tgms.toml").write_text(text[:k_line] + text[text.index("\n", k_line) + 1:])
+    r = runner.invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o1")])
+    assert r.exit_code == 2 and "camera.right.K" in r.stderr
+    assert not (tmp_path / "o1" / "irregularities.csv").exists()
+    # laser plane that the camera cannot see
+    dst2 = tmp_path / "bad2"
+    shutil.copytree(sim_folder[0], dst2)
+    text = (dst2 / "tgms.toml").read_text()
+    start = text.index("[camera.left]")
+    lp = text.index("laser_plane = ", start)
+    text = text[:lp] + "laser_plane = [1.0, 0.0, 0.0, 1.0]" + text[text.index("\n", lp):]
+    (dst2 / "tgms.toml").write_text(text)
+    r = runner.invoke(app, ["tgms", "process", str(dst2), "--out", str(tmp_path / "o2")])
+    assert r.exit_code == 2 and "camera left" in r.stderr and "laser plane" in r.stderr
+    # a non-numeric pixel
+    dst3 = tmp_path / "bad3"
+    shutil.copytree(sim_folder[0], dst3)
+    lines = (dst3 / "laser_left.csv").read_text().splitlines()
+    parts = lines[5].split(",")
+    parts[2] = "abc"
+    lines[5] = ",".join(parts)
+    (dst3 / "laser_left.csv").write_text("\n".join(lines) + "\n")
+    r = runner.invoke(app, ["tgms", "process", str(dst3), "--out", str(tmp_path / "o3")])
+    assert r.exit_code == 2 and "laser_left.csv: row 6, column u_px" in r.stderr
+    # empty laser file (no frames)
+    dst4 = tmp_path / "bad4"
+    shutil.copytree(sim_folder[0], dst4)
+    (dst4 / "laser_right.csv").write_text("frame,t_s,u_px,v_px\n")
+    r = runner.invoke(app, ["tgms", "process", str(dst4), "--out", str(tmp_path / "o4")])
+    assert r.exit_code == 2 and "laser_right.csv" in r.stderr and "no data rows" in r.stderr
+
+
+def test_params_file_round_trip(tmp_path):
+    from survey.commands.tgms import params_toml_text, read_params
+    p = TgmsParams(accel_noise_m_s2_sqrt_hz=2e-3, orientation="madgwick")
+    f = tmp_path / "p.toml"
+    f.write_text(params_toml_text(p, {"loglik": 1.5}))
+    assert read_params(f) == p
+    f.write_text('cutoff_wavelength_m = -3.0\n')
+    with pytest.raises(ValueError, match="p.toml: parameter cutoff_wavelength_m"):
+        read_params(f)

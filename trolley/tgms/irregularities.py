@@ -1,0 +1,106 @@
+"""Track irregularities from the vision, the relative attitude and the relative trajectory
+(Escalona 2021 Sec. 6), and their resampling on a uniform station grid.
+
+With the rail-profile origins O_l, O_r measured in the TGMS frame (``vision``), the relative roll
+phi and the relative position r = [0, r_y, r_z] of the TGMS (all FRD), rotating the vision
+vectors into the track frame with the small-angle matrix of Eq. 23 gives
+
+    gauge variation   = (dy - phi dz) - 2 L_r                      (Eq. 24)
+    cross level       = phi dy + dz                                (Eq. 24)
+    alignment         = (Y - phi Z) + r_y                          (Eq. 27)
+    vertical profile  = -((Z + phi Y) + r_z)                       (Eq. 27)
+
+with dy = y_r - y_l, dz = z_r - z_l, Y = (y_l + y_r) / 2, Z = (z_l + z_r) / 2. In FRD these are
+directly the published signs: gauge > 0 wider, cross level > 0 left rail higher (its z is
+smaller), alignment > 0 displaced right; the vertical profile changes sign because z is down.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Irregularities:
+    """Irregularities (m) with 1-sigma (m) at a set of stations; NaN where not measured."""
+
+    s_m: np.ndarray
+    gauge_variation_m: np.ndarray
+    cross_level_m: np.ndarray
+    alignment_m: np.ndarray
+    vertical_profile_m: np.ndarray
+    sigma_gauge_variation_m: np.ndarray
+    sigma_cross_level_m: np.ndarray
+    sigma_alignment_m: np.ndarray
+    sigma_vertical_profile_m: np.ndarray
+
+    NAMES = ("gauge_variation", "cross_level", "alignment", "vertical_profile")
+
+
+def irregularities(s_m, y_l, z_l, y_r, z_r, roll, r_y, r_z, half_rail_spacing_m: float,
+                   sig_yl=0.0, sig_zl=0.0, sig_yr=0.0, sig_zr=0.0, sig_roll=0.0, sig_ry=0.0,
+                   sig_rz=0.0) -> Irregularities:
+    """Escalona 2021 Eq. 24 and 27 (FRD form, see the module docstring) at every frame.
+
+    Parameters
+    ----------
+    s_m : stations of the frames.
+    y_l, z_l, y_r, z_r : rail-profile origins of the left and right rail in the TGMS frame, m.
+    roll : relative roll of the TGMS (FRD), rad.
+    r_y, r_z : TGMS position relative to the design TF (FRD, r_z < 0 above the rails), m.
+    half_rail_spacing_m : L_r.
+    sig_* : 1-sigma of the inputs (uncorrelated), for the first-order output sigmas.
+
+    Returns
+    -------
+    Irregularities
+    """
+    dy, dz = y_r - y_l, z_r - z_l
+    Y, Z = 0.5 * (y_l + y_r), 0.5 * (z_l + z_r)
+    gv = dy - roll * dz - 2 * half_rail_spacing_m
+    cl = roll * dy + dz
+    al = Y - roll * Z + r_y
+    vp = -(Z + roll * Y + r_z)
+    s_gv = np.sqrt(sig_yl ** 2 + sig_yr ** 2 + (dz * sig_roll) ** 2)
+    s_cl = np.sqrt(sig_zl ** 2 + sig_zr ** 2 + (dy * sig_roll) ** 2)
+    s_al = np.sqrt(0.25 * (sig_yl ** 2 + sig_yr ** 2) + (Z * sig_roll) ** 2 + sig_ry ** 2)
+    s_vp = np.sqrt(0.25 * (sig_zl ** 2 + sig_zr ** 2) + (Y * sig_roll) ** 2 + sig_rz ** 2)
+    return Irregularities(s_m, gv, cl, al, vp, s_gv, s_cl, s_al, s_vp)
+
+
+def resample(s_m: np.ndarray, values: np.ndarray, grid_m: np.ndarray, max_gap_m: float) -> np.ndarray:
+    """Linear interpolation of frame values (NaN = flagged) onto a station grid; a grid point is
+    NaN unless both neighbouring valid frames lie within ``max_gap_m`` of each other (never
+    guessed across a gap of flagged frames)."""
+    ok = np.isfinite(values) & np.isfinite(s_m)
+    out = np.full(grid_m.shape, np.nan)
+    if ok.sum() < 2:
+        return out
+    s, v = s_m[ok], values[ok]
+    order = np.argsort(s, kind="stable")
+    s, v = s[order], v[order]
+    keep = np.concatenate([[True], np.diff(s) > 0])
+    s, v = s[keep], v[keep]
+    j = np.searchsorted(s, grid_m)
+    exact = s[np.clip(j, 0, len(s) - 1)] == grid_m
+    inside = (j > 0) & (j < len(s))
+    jj = np.clip(j, 1, len(s) - 1)
+    gap = s[jj] - s[jj - 1]
+    good = exact | (inside & (gap <= max_gap_m))
+    out[good] = np.interp(grid_m[good], s, v)
+    return out
+
+
+def resample_irregularities(irr: Irregularities, step_m: float, max_gap_m: float | None = None) -> Irregularities:
+    """The irregularities on the uniform grid k * step within the measured stations."""
+    ok = np.isfinite(irr.s_m)
+    lo = np.ceil(np.nanmin(irr.s_m[ok]) / step_m) * step_m
+    hi = np.nanmax(irr.s_m[ok])
+    grid = np.round(np.arange(lo, hi + 1e-9, step_m) / step_m) * step_m
+    gap = max(2.0 * step_m, 0.5) if max_gap_m is None else max_gap_m
+    vals = {}
+    for name in Irregularities.NAMES:
+        vals[f"{name}_m"] = resample(irr.s_m, getattr(irr, f"{name}_m"), grid, gap)
+        vals[f"sigma_{name}_m"] = resample(irr.s_m, getattr(irr, f"sigma_{name}_m"), grid, gap)
+    return Irregularities(s_m=grid, **vals)

@@ -1,0 +1,62 @@
+"""Tunable parameters of the TGMS processing (what ``trolley tgms tune`` writes and ``process``
+reads), SI units."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+
+@dataclass(frozen=True)
+class TgmsParams:
+    """Noise parameters and choices of the TGMS estimators.
+
+    Attributes
+    ----------
+    process_rate_hz : rate of the orientation and trajectory estimators (IMU averaged to it).
+    gyro_noise_rad_sqrt_s : gyro white noise (angle random walk) assumed by the filters.
+    gyro_bias_rw_rad_s_sqrt_s : random walk of the gyro bias states.
+    accel_disturbance_m_s2 : 1-sigma of the accelerations the orientation filter does not model
+        (relative motion of the TGMS), per processing sample.
+    madgwick_beta_rad_s : gain of the gradient-descent variant (Briales Sec. 5.2).
+    madgwick_zeta_rad_s2 : gyro-bias gain of the gradient-descent variant.
+    accel_noise_m_s2_sqrt_hz : accelerometer input noise density of the trajectory model.
+    cutoff_wavelength_m : wavelength at which the virtual zero-position measurements take over
+        (their variance follows the speed so that the cut-off is fixed in space).
+    orientation : "kf" (Escalona Eq. 39) or "madgwick" (Briales Sec. 5.2).
+    trajectory : "ltv" (Escalona Eq. 46) or "ekf" (Gonzalez-Carbajal 2023 Appendix 1).
+    """
+
+    process_rate_hz: float = 100.0
+    gyro_noise_rad_sqrt_s: float = 4.4e-5
+    gyro_bias_rw_rad_s_sqrt_s: float = 1e-6
+    accel_disturbance_m_s2: float = 0.3
+    madgwick_beta_rad_s: float = 3e-5
+    madgwick_zeta_rad_s2: float = 1e-7
+    accel_noise_m_s2_sqrt_hz: float = 1e-3
+    cutoff_wavelength_m: float = 100.0
+    orientation: str = "kf"
+    trajectory: str = "ltv"
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TgmsParams":
+        """Parameters from a mapping; unknown keys are a ValueError naming them."""
+        names = {f.name: f.type for f in fields(cls)}
+        unknown = [k for k in d if k not in names]
+        if unknown:
+            raise ValueError(f"unknown parameter {unknown[0]!r}")
+        kw = {}
+        for k, v in d.items():
+            if k in ("orientation", "trajectory"):
+                kw[k] = str(v)
+            else:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+                    raise ValueError(f"parameter {k} must be a positive number, got {v!r}")
+                kw[k] = float(v)
+        p = cls(**kw)
+        if p.orientation not in ("kf", "madgwick"):
+            raise ValueError(f"orientation must be 'kf' or 'madgwick', got {p.orientation!r}")
+        if p.trajectory not in ("ltv", "ekf"):
+            raise ValueError(f"trajectory must be 'ltv' or 'ekf', got {p.trajectory!r}")
+        return p

@@ -1,0 +1,169 @@
+"""The whole TGMS processing chain for one recording (Escalona 2021 Sec. 11, modules 2-7):
+
+vision (Eq. 19 + profile fit) -> IMU averaged to the processing rate -> odometry (Eq. 40-43) ->
+track preprocessor (design TF kinematics at the nominal TGMS offset) -> relative attitude (Eq. 39
+or Briales Sec. 5.2) -> relative trajectory (Eq. 46, or the 12-state smoother) -> irregularities
+(Eq. 24, 27) per camera frame -> uniform station grid -> optional band-pass.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from trolley.tgms.camera import pixels_to_tgms
+from trolley.tgms.irregularities import Irregularities, irregularities, resample_irregularities
+from trolley.tgms.odometry import Odometry, odometry
+from trolley.tgms.orientation import RelativeAttitude, attitude_kf, attitude_madgwick
+from trolley.tgms.params import TgmsParams
+from trolley.tgms.profiles import rail_profile
+from trolley.tgms.recording import Recording
+from trolley.tgms.track import TrackKinematics, track_kinematics
+from trolley.tgms.trajectory import RelativeTrajectory, trajectory_ltv
+from trolley.tgms.vision import FitOptions, RailFit, fit_rail
+
+
+@dataclass
+class VisionResult:
+    """Per-frame output of the vision for both rails (frames paired by frame number)."""
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    left: RailFit
+    right: RailFit
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.left.ok & self.right.ok
+
+
+@dataclass
+class TgmsResult:
+    """Everything the processing produced.
+
+    Attributes
+    ----------
+    vision, odometry, kinematics, attitude, trajectory : intermediate results.
+    frames : irregularities at every camera frame (station from the odometry).
+    grid : irregularities on the uniform station grid (before band filtering).
+    r0_z_m : nominal TGMS offset below (z) the TF origin estimated from the vision.
+    timings_s : wall time of each stage.
+    """
+
+    vision: VisionResult
+    odometry: Odometry
+    kinematics: TrackKinematics
+    attitude: RelativeAttitude
+    trajectory: RelativeTrajectory
+    frames: Irregularities
+    grid: Irregularities
+    r0_z_m: float
+    timings_s: dict = field(default_factory=dict)
+
+
+def run_vision(rec: Recording, options: FitOptions = FitOptions()) -> VisionResult:
+    """Eq. 19 for every laser pixel and the robust profile fit of every frame, both cameras."""
+    cfg = rec.config
+    prof = rail_profile(cfg.track.rail_profile, cfg.track.rail_inclination)
+    n_frames = 1 + max(int(rec.lasers[s].frame.max()) if len(rec.lasers[s].frame) else 0 for s in ("left", "right"))
+    t = np.full(n_frames, np.nan)
+    fits = {}
+    for side in ("left", "right"):
+        lp = rec.lasers[side]
+        pts = pixels_to_tgms(cfg.cameras[side], lp.u_px, lp.v_px)
+        good = np.all(np.isfinite(pts), axis=1)
+        fits[side] = fit_rail(prof, lp.frame[good], pts[good, 1], pts[good, 2], n_frames, side, options)
+        tf = np.full(n_frames, np.nan)
+        tf[lp.frame] = lp.t_s
+        t = np.where(np.isfinite(t), t, tf)
+    return VisionResult(frame=np.arange(n_frames), t_s=t, left=fits["left"], right=fits["right"])
+
+
+def average_to_grid(t: np.ndarray, x: np.ndarray, t_grid: np.ndarray) -> np.ndarray:
+    """Mean of a sampled signal over each processing interval [t_k - dt/2, t_k + dt/2], through the
+    trapezoidal running integral (exact block average for any input rate)."""
+    dt = t_grid[1] - t_grid[0]
+    cum = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(t)[:, None], axis=0)])
+    lo = np.clip(t_grid - dt / 2, t[0], t[-1])
+    hi = np.clip(t_grid + dt / 2, t[0], t[-1])
+    c_lo = np.column_stack([np.interp(lo, t, cum[:, i]) for i in range(x.shape[1])])
+    c_hi = np.column_stack([np.interp(hi, t, cum[:, i]) for i in range(x.shape[1])])
+    width = np.maximum(hi - lo, 1e-12)[:, None]
+    return (c_hi - c_lo) / width
+
+
+def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0.25,
+            match_curves: bool = True, fit_options: FitOptions = FitOptions()) -> TgmsResult:
+    """Irregularities of one recording.
+
+    Parameters
+    ----------
+    rec : the recording.
+    params : estimator settings (see ``trolley tgms tune``).
+    step_m : station step of the output grid.
+    match_curves : correct the encoder station by curvature matching (Eq. 40-43).
+    fit_options : profile-fit settings.
+
+    Returns
+    -------
+    TgmsResult
+    """
+    tim = {}
+    cfg = rec.config
+    t0 = time.perf_counter()
+    vis = run_vision(rec, fit_options)
+    tim["vision"] = time.perf_counter() - t0
+    if not vis.ok.any():
+        raise ValueError("no camera frame could be used (every frame flagged by the profile fit)")
+    # processing grid and IMU averaged onto it
+    t1 = time.perf_counter()
+    dt = 1.0 / params.process_rate_hz
+    t_grid = np.arange(rec.imu_t_s[0] + dt / 2, rec.imu_t_s[-1] - dt / 2, dt)
+    w = average_to_grid(rec.imu_t_s, rec.imu_w_rad_s, t_grid)
+    f = average_to_grid(rec.imu_t_s, rec.imu_f_m_s2, t_grid)
+    s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else rec.alignment.start_chainage_m
+    odo = odometry(t_grid, rec.enc_t_s, rec.enc_count, cfg.encoder.metres_per_count, s0, w[:, 2],
+                   rec.alignment, match=match_curves)
+    tim["odometry"] = time.perf_counter() - t1
+    # nominal offset of the TGMS above the rails (Gonzalez-Carbajal 2023 Eq. 14's delta), from the vision
+    Zv = 0.5 * (vis.left.z_m + vis.right.z_m)
+    r0_z = -float(np.nanmedian(Zv))
+    t2 = time.perf_counter()
+    kin = track_kinematics(rec.alignment, t_grid, odo.s_m, np.array([0.0, 0.0, r0_z]))
+    kin.v_m_s, kin.a_m_s2 = odo.v_m_s, odo.a_m_s2
+    tim["track"] = time.perf_counter() - t2
+    t3 = time.perf_counter()
+    if params.orientation == "madgwick":
+        att = attitude_madgwick(kin, w, f, params)
+    else:
+        att = attitude_kf(kin, w, f, params)
+    tim["orientation"] = time.perf_counter() - t3
+    t4 = time.perf_counter()
+    if params.trajectory == "ekf":
+        from trolley.tgms.ekf import trajectory_ekf
+        traj = trajectory_ekf(kin, w, f, att, params)
+    else:
+        traj = trajectory_ltv(kin, f, att.roll_rad, att.pitch_rad, params)
+    tim["trajectory"] = time.perf_counter() - t4
+    # irregularities at the camera frames
+    t5 = time.perf_counter()
+    tf = vis.t_s
+    inside = np.isfinite(tf) & (tf >= t_grid[0]) & (tf <= t_grid[-1])
+    tfi = np.where(inside, tf, t_grid[0])
+
+    def at(x):
+        return np.where(inside, np.interp(tfi, t_grid, x), np.nan)
+
+    s_f = at(odo.s_m)
+    moving = at(odo.v_m_s) > 0.5
+    s_f = np.where(moving, s_f, np.nan)
+    L, R = vis.left, vis.right
+    fr = irregularities(s_f, L.y_m, L.z_m, R.y_m, R.z_m, at(att.roll_rad), at(traj.dr_y_m),
+                        r0_z + at(traj.dr_z_m), cfg.track.half_rail_spacing_m,
+                        L.sigma_y_m, L.sigma_z_m, R.sigma_y_m, R.sigma_z_m, at(att.sigma_roll_rad),
+                        at(traj.sigma_y_m), at(traj.sigma_z_m))
+    grid = resample_irregularities(fr, step_m)
+    tim["irregularities"] = time.perf_counter() - t5
+    return TgmsResult(vision=vis, odometry=odo, kinematics=kin, attitude=att, trajectory=traj,
+                      frames=fr, grid=grid, r0_z_m=r0_z, timings_s=tim)
