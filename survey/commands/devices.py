@@ -196,8 +196,12 @@ def simulate(
     if device is Device.imu:
         from drivers.twins.imu import ImuTwin
 
-        w = np.tile([0.0, 0.0, 7.292115e-5 * math.sin(math.radians(45.0))], (n, 1))
-        f = np.tile([0.0, 0.0, -9.80665], (n, 1))
+        from trolley import units
+
+        # level and facing north at 45 deg latitude: Earth rate (cos, 0, -sin) * Omega in FRD
+        lat = float(units.deg_to_rad(45.0))
+        w = np.tile([units.EARTH_RATE_RAD_S * math.cos(lat), 0.0, -units.EARTH_RATE_RAD_S * math.sin(lat)], (n, 1))
+        f = np.tile([0.0, 0.0, -units.STANDARD_GRAVITY_M_S2], (n, 1))
         twin = ImuTwin(t, w, f, imu_type=imu_type, rate_hz=rate_hz, faults=faults, link_path=link)
     elif device is Device.gauge:
         from drivers.twins.gauge import GaugeTwin
