@@ -196,7 +196,7 @@ def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: floa
     """Indices of the DR blocks used as filter nodes (sorted, unique)."""
     K = dr.t_s.shape[0]
     by_dist = np.flatnonzero(np.diff(np.floor(dr.distance_m / node_spacing_m)) != 0) + 1
-    by_time = np.flatnonzero(np.diff(np.floor((dr.t_s - dr.t_s[0]) / max_node_dt_s)) != 0) + 1
+    by_time = np.flatnonzero(np.diff(np.floor(dr.t_s / max_node_dt_s)) != 0) + 1
     return np.unique(np.concatenate([[0, K - 1], by_dist, by_time, fix_blocks]))
 
 
