@@ -132,3 +132,14 @@ def test_monte_carlo_in_json_agrees_with_sigma():
         assert mc[d]["mid_sigma_mm"] == pytest.approx(out[d]["mid_mm"], rel=1e-12)
         assert abs(mc[d]["mid_rms_mm"] / mc[d]["mid_sigma_mm"] - 1) < tol
         assert abs(mc[d]["worst_rms_mm"] / mc[d]["worst_sigma_mm"] - 1) < tol
+
+
+def test_mems_limits_are_null_with_a_reason():
+    res, out = _json("--imu", "mems", "--heading-error-deg", "0.5")
+    assert res.exit_code == 1 and out["pass"] is False
+    assert out["limits"]["max_gyro_bias_deg_h"]["lateral"] is None
+    assert "no equivalent gyro bias meets the lateral target" in out["limit_notes"]["max_gyro_bias_deg_h.lateral"]
+    # the fix spacing that would make it pass is still given, and it does pass there
+    spacing = out["limits"]["max_fix_spacing_m"]
+    res2, out2 = _json("--imu", "mems", "--heading-error-deg", "0.5", "--fix-spacing-m", f"{spacing * 0.999:.6f}")
+    assert res2.exit_code == 0 and out2["pass"] is True

@@ -84,7 +84,7 @@ def test_sizing_round_trip(seed, which):
 
 def test_unreachable_target_raises_and_unrelated_parameter_is_unbounded():
     r = _preset("rlg")
-    with pytest.raises(B.TargetNotReachableError, match="no gyro_bias_rad_s meets the lateral target"):
+    with pytest.raises(B.TargetNotReachableError, match="no equivalent gyro bias meets the lateral target"):
         B.max_allowed(r.case, "gyro_bias_rad_s", "lateral", 0.3e-3)
     assert np.isnan(B.max_allowed_grid(r.case, "gyro_bias_rad_s", "lateral", 0.3e-3))
     assert B.max_allowed(r.case, "gyro_bias_rad_s", "longitudinal", TARGET) == np.inf

@@ -49,6 +49,13 @@ from trolley import error_models as em
 
 DIRECTIONS = ("vertical", "lateral", "longitudinal")
 SOURCES = ("initial_position", "initial_angle", "gyro_bias", "random_walk", "fix_noise")
+#: what the sizable parameters are called in messages
+PARAMETER_LABELS = {
+    "gyro_bias_rad_s": "equivalent gyro bias",
+    "gyro_arw_rad_sqrt_s": "angle random walk",
+    "odo_scale_noise_per_sqrt_s": "odometer scale noise",
+    "fix_spacing_m": "fix spacing",
+}
 
 
 class TargetNotReachableError(ValueError):
@@ -63,9 +70,11 @@ class TargetNotReachableError(ValueError):
         self.direction = direction
         self.floor_m = floor_m
         self.target_m = target_m
+        label = PARAMETER_LABELS.get(parameter, parameter)
+        zero = "a 1 nm spacing" if parameter == "fix_spacing_m" else f"no {label}"
         super().__init__(
-            f"no {parameter} meets the {direction} target of {target_m * 1e3:.3f} mm: with "
-            f"{parameter} = 0 the worst point is already {floor_m * 1e3:.3f} mm")
+            f"no {label} meets the {direction} target of {target_m * 1e3:.3f} mm: with "
+            f"{zero} the worst point is already {floor_m * 1e3:.3f} mm")
 
 
 @dataclass(frozen=True)

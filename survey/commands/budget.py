@@ -209,7 +209,8 @@ def _limits(case, resolved, figs, target):
             notes[key] = str(exc)
             return None
         if math.isinf(x):
-            notes[key] = f"{parameter} up to its search cap does not bring {direction} above the target"
+            notes[key] = (f"no {B.PARAMETER_LABELS[parameter]} up to the search cap brings the {direction} "
+                          f"worst point above the target")
             return None
         return convert(x)
 
