@@ -118,3 +118,47 @@ def test_simulate_command_prints_a_port_that_speaks_the_protocol():
         p.wait(10)
     assert len(recs) >= 10 and stats.bad_checksum == 0
     assert all(abs(r.gauge_m - 1.435) <= 0.00201 for r in recs)
+
+
+def test_truthsim_session_through_twins_records_a_session_the_reader_accepts(tmp_path):
+    """Whole chain: simulator arrays -> twins -> ptys -> drivers -> CSV -> survey session reader."""
+    import shutil
+    from pathlib import Path
+
+    from survey.sessionio import read_session, write_session
+    from trolley.landxml import parse_landxml
+    from trolley.truthsim import SimulationConfig, simulate_survey
+
+    demo = Path(__file__).resolve().parents[1] / "projects" / "demo" / "alignment.xml"
+    sim = simulate_survey(parse_landxml(demo.read_text(encoding="utf-8")),
+                          SimulationConfig(length_m=30.0, static_s=1.0, stop_s=1.0, fix_spacing_m=15.0,
+                                           imu_rate_hz=200.0, seed=4))
+    s = sim.session
+    cfg = encoder.OdometerConfig()
+    imu = ImuTwin(s.imu_t_s, s.imu_w_rad_s, s.imu_f_m_s2, imu_type=26, rate_hz=200.0, realtime=False).start(30)
+    odo = OdometerTwin(s.odo_t_s, s.odo_distance_m, cfg, offset_counts=2**32 - 5000, mode="index").start(30)
+    gg = GaugeTwin(s.gauge_t_s, s.gauge_m, realtime=False).start(30)
+    rec = tmp_path / "rec"
+    try:
+        r = runner.invoke(app, ["devices", "record", "--imu", imu.port, "--odometer", odo.port, "--gauge", gg.port,
+                                "--seconds", "1.5", "--out", str(rec)])
+    finally:
+        for tw in (imu, odo, gg):
+            tw.stop()
+    assert r.exit_code == 0, r.output
+    write_session(tmp_path / "ref", s)
+    for name in ("session.toml", "fixes.csv"):
+        shutil.copy(tmp_path / "ref" / name, rec / name)
+    got = read_session(rec)
+    sc = novatel.imu_scale(26, 200.0)
+    assert got.imu_t_s.size == s.imu_t_s.size
+    assert np.allclose(np.diff(got.imu_t_s), np.diff(s.imu_t_s), atol=1e-9)
+    assert np.max(np.abs(got.imu_w_rad_s - s.imu_w_rad_s)) <= 0.5 * sc.gyro * 200.0 * 1.001
+    assert np.max(np.abs(got.imu_f_m_s2 - s.imu_f_m_s2)) <= 0.5 * sc.accel * 200.0 * 1.001
+    # the trolley stands still for the first second, so the first reading is distance 0 whichever
+    # poll it answered; every reading is one of the simulator's distances (to one count)
+    ref = s.odo_distance_m - s.odo_distance_m[0]
+    assert got.odo_t_s.size > 50 and got.odo_distance_m[-1] > 0.0
+    nearest = np.abs(got.odo_distance_m[:, None] - ref[None, : 4 * got.odo_t_s.size]).min(axis=1)
+    assert np.all(nearest <= cfg.metres_per_count)
+    assert np.allclose(got.gauge_m, s.gauge_m, atol=5.01e-6)
