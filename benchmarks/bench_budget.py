@@ -68,6 +68,18 @@ def numeric_mid(case, dt=0.25, psi=0.5):
     return out
 
 
+def printed_eq40_45(t, T, v, c, sign_last):
+    """Jiang 2017 Eq. 40 (sign_last = -1) and Eq. 45 (+1) as printed (docs/budget_derivation.md)."""
+    p, s2, pf, q, pw = c.p_r, c.fix_var, c.p_a, c.q, c.p_b
+    D = 12 * p + 12 * s2 + 12 * pf * v**2 * T**2 + 4 * q * v**2 * T**3 + 3 * pw * v**2 * T**4
+    N1 = (12 * p + 12 * s2 + 12 * pf * v**2 * (2 * t * T - t**2) + 4 * q * v**2 * (3 * t**2 * T - 2 * t**3)
+          + 3 * pw * v**2 * (2 * t**2 * T**2 - t**4))
+    N2 = 12 * p + 12 * s2 + 12 * pf * v**2 * t**2 + 4 * q * v**2 * t**3 + 3 * pw * v**2 * t**4
+    last = v**4 * t**2 * (t - T) ** 2 * (q**2 * t * (t - 4 * T) + 9 * pf * pw * T**2
+                                         + 3 * q * T * (4 * pf + pw * t * T)) / (3 * D)
+    return p - p * N1 / D + (s2 * N2 - 12 * s2**2) / D + sign_last * last
+
+
 def preset_case(name, heading_deg=None, latitude_deg=30.0):
     imu = IMU_PRESETS[name]
     return B.resolve_case(B.SensorFigures(
@@ -85,6 +97,18 @@ def main() -> None:
         r, t = num[("rts", d)], num[("tfs", d)]
         print(f"   {d:12s} analytic {ana * 1e3:.9f}  RTS {r * 1e3:.9f}  TFS {t * 1e3:.9f}  "
               f"max rel diff {max(abs(r / ana - 1), abs(t / ana - 1)):.1e}")
+    # Eq. 46 prints "(0.002)deg" for p_dk: read above as (0.002 deg)^2; the other reading, (0.002)^2
+    from dataclasses import replace
+    case2 = replace(case, initial=replace(case.initial, odo_scale_error=0.002))
+    num2 = numeric_mid(case2)
+    ana2 = np.sqrt(B.smoothed_variance(30.0, 60.0, 1.0, B.channel_parameters(case2, "longitudinal")))
+    print(f"   longitudinal with p_dk = (0.002)^2: analytic {ana2 * 1e3:.9f}  RTS {num2[('rts', 'longitudinal')] * 1e3:.9f}"
+          f"  TFS {num2[('tfs', 'longitudinal')] * 1e3:.9f}")
+    for d, sign in (("vertical", -1.0), ("lateral", 1.0)):
+        c = B.channel_parameters(case, d)
+        pr = printed_eq40_45(30.0, 60.0, 1.0, c, sign)
+        print(f"   printed Eq. {40 if d == 'vertical' else 45} at mid-interval: {np.sqrt(pr) * 1e3:.6f} mm "
+              f"(exact {np.sqrt(B.smoothed_variance(30.0, 60.0, 1.0, c)) * 1e3:.6f})")
 
     print("2. Sizing conclusions, target 0.67 mm at the worst point, 60 m at 1 m/s, fix 0.6 mm, latitude 30 deg")
     for name, heading in (("rlg", None), ("rlg", 0.18), ("fog", 0.6), ("fog", None)):
