@@ -38,12 +38,10 @@ def _write_atomic(path: Path, text: str) -> None:
 
 def _csv(header: list[str], cols: list) -> str:
     import numpy as np
+    import pandas as pd
 
-    lines = [",".join(header)]
-    if len(cols[0]):
-        m = np.column_stack([np.asarray(c, float) for c in cols])
-        lines += [",".join(repr(float(v)) for v in row) for row in m]
-    return "\n".join(lines) + "\n"
+    frame = pd.DataFrame({h: np.asarray(c, float) for h, c in zip(header, cols)})
+    return frame.to_csv(index=False, lineterminator="\n")
 
 
 @devices_app.command("probe")
