@@ -421,7 +421,7 @@ def budget_command(
         "--gyro-bias-deg-h", help="equivalent gyro bias, used as given (Jiang 2017 Eq. 15-16)")] = None,
     gyro_bias_instability_deg_h: Annotated[Optional[float], typer.Option(
         "--gyro-bias-instability-deg-h", help="datasheet bias instability; the equivalent bias is derived "
-                                              "with the Earth-rate term (needs --latitude-deg)")] = None,
+                                              "with the Earth-rate term at --latitude-deg")] = None,
     gyro_arw_deg_sqrt_h: Annotated[Optional[float], typer.Option(
         "--gyro-arw-deg-sqrt-h", help="gyro angle random walk")] = None,
     heading_error_deg: Annotated[Optional[float], typer.Option(
@@ -440,7 +440,11 @@ def budget_command(
     plot: Annotated[Optional[Path], typer.Option("--plot", help="write PNG figures and CSV data to this folder")] = None,
     json_output: Annotated[bool, typer.Option("--json", help="print one JSON object on stdout, nothing else")] = False,
 ) -> None:
-    """Accuracy budget of one fix interval and IMU/odometer sizing (Jiang 2017 Sec. 5)."""
+    """Accuracy budget of one fix interval and IMU/odometer sizing (Jiang 2017 Sec. 5).
+
+    Exit code 0: every direction meets the target; 1: at least one does not; 2: bad input.
+    See docs/budget.md.
+    """
     from trolley.budget import TargetNotReachableError
 
     try:
