@@ -34,6 +34,7 @@ class RecordConfig:
     imu_rate_hz : data rate for the increment scaling (None: the IMU type's rate).
     odometer : odometer settings.
     imu_baud, odometer_baud, gauge_baud : line speeds.
+    idle_timeout_s : a silence of a streaming device longer than this counts as a timeout.
     """
 
     imu_port: str
@@ -48,6 +49,7 @@ class RecordConfig:
     imu_baud: int = 460800
     odometer_baud: int = encoder.DEFAULT_BAUD
     gauge_baud: int = gauge.DEFAULT_BAUD
+    idle_timeout_s: float = 1.0
 
 
 @dataclass
@@ -97,13 +99,13 @@ def record(cfg: RecordConfig, stop: threading.Event | None = None) -> Recording:
     rate = cfg.imu_rate_hz or (novatel.IMU_SCALES[cfg.imu_type].rate_hz if cfg.imu_type in novatel.IMU_SCALES else None)
     imu_stats = Stats()
     links["imu"] = SerialLink(cfg.imu_port, novatel.RawImuParser(imu_stats, rate), "imu", cfg.imu_baud,
-                              raw / "imu.rawlog" if raw else None)
+                              raw / "imu.rawlog" if raw else None, idle_timeout_s=cfg.idle_timeout_s)
     if cfg.odometer_port:
         links["odometer"] = SerialLink(cfg.odometer_port, encoder.EncoderParser(Stats(), cfg.odometer),
                                        "odometer", cfg.odometer_baud, raw / "odometer.rawlog" if raw else None)
     if cfg.gauge_port:
         links["gauge"] = SerialLink(cfg.gauge_port, gauge.GaugeParser(Stats()), "gauge", cfg.gauge_baud,
-                                    raw / "gauge.rawlog" if raw else None)
+                                    raw / "gauge.rawlog" if raw else None, idle_timeout_s=cfg.idle_timeout_s)
     poller = None
     try:
         for link in links.values():

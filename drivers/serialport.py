@@ -48,13 +48,16 @@ class SerialLink:
     raw_log : path of the raw byte log, or None.
     queue_size : bound of the record queue.
     reconnect : re-open the port after it disappears.
+    idle_timeout_s : for streaming devices: a silence longer than this while connected counts
+        once in ``stats.timeouts`` (None: not checked; request/reply clients count their own).
     clock : host clock (monotonic).
     """
 
     def __init__(self, port: str, parser, name: str = "device", baudrate: int = 115200,
                  raw_log: str | Path | None = None, queue_size: int = 100_000,
                  reconnect: bool = True, reconnect_interval_s: float = 0.05,
-                 read_timeout_s: float = 0.05, clock: Callable[[], float] = CLOCK) -> None:
+                 read_timeout_s: float = 0.05, idle_timeout_s: float | None = None,
+                 clock: Callable[[], float] = CLOCK) -> None:
         self.port = str(port)
         self.parser = parser
         self.stats: Stats = parser.stats
@@ -65,6 +68,7 @@ class SerialLink:
         self.reconnect = reconnect
         self.reconnect_interval_s = reconnect_interval_s
         self.read_timeout_s = read_timeout_s
+        self.idle_timeout_s = idle_timeout_s
         self.clock = clock
         self.connected = threading.Event()
         self.lock = threading.Lock()  # guards parser + stats
@@ -149,6 +153,8 @@ class SerialLink:
         self.stop()
 
     def _run(self) -> None:
+        last_data = self.clock()
+        silent = False
         while not self._stop.is_set():
             ser = self._ser
             if ser is None:
@@ -168,8 +174,14 @@ class SerialLink:
                 self._drop_port(f"{self.name}: port lost: {e}")
                 continue
             if not data:
+                if (self.idle_timeout_s is not None and not silent
+                        and self.clock() - last_data > self.idle_timeout_s):
+                    silent = True
+                    with self.lock:
+                        self.stats.timeouts += 1
                 continue
             t = self.clock()
+            last_data, silent = t, False
             if self.rawlog:
                 self.rawlog.write(IN, t, data)
             with self.lock:

@@ -133,3 +133,23 @@ def test_axis_map_and_si_through_pty():
     sc = nv.imu_scale(58, 200.0)
     assert np.max(np.abs(wr - w)) <= 0.5 * sc.gyro * 200.0 * 1.0001
     assert np.max(np.abs(fr_si - f)) <= 0.5 * sc.accel * 200.0 * 1.0001
+
+
+def test_silence_counts_one_timeout_then_data_flows():
+    t, w, f = _arrays(100, 200.0, 6)
+    twin = ImuTwin(t, w, f, realtime=False)
+    stats = Stats()
+    link = SerialLink(twin.port, nv.RawImuParser(stats, 200.0), "imu", idle_timeout_s=0.15)
+    link.open()
+    link.start()
+    deadline = time.monotonic() + 10.0
+    while link.snapshot().timeouts == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.3)  # still silent: still one timeout
+    silent = link.snapshot()
+    twin.start()
+    while link.snapshot().frames_ok < 100 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    link.stop()
+    twin.stop()
+    assert silent.timeouts == 1 and silent.bytes_in == 0 and stats.frames_ok == 100
