@@ -132,3 +132,21 @@ def test_monte_carlo_rms_within_sampling_error_of_analytic_sigma():
     no_fix = np.sqrt(B.smoothed_variance(30.0, 60.0, 1.0, replace(B.channel_parameters(r.case, "lateral"),
                                                                    fix_var=np.asarray(1e6))))
     assert abs(mc.rms_m["lateral"][mc.mid_index] / no_fix - 1) > 10 * tol
+
+
+def test_monte_carlo_with_the_first_fix_simulated_confirms_the_reading_of_p0():
+    # truth starts with a 1.5 mm position prior and both fixes are simulated; the analytic sigma
+    # with p_r = p s^2 / (p + s^2) (P(0) = after the first fix) must match
+    r = _preset("fog", heading_error_rad=units.deg_to_rad(0.6))
+    fix = r.case.fix_sigma_m
+    prior = 1.5e-3
+    p_r = np.sqrt(prior**2 * fix**2 / (prior**2 + fix**2))
+    case = replace(r.case, initial=replace(r.case.initial, position_m=p_r))
+    mc = B.monte_carlo(case, 4000, seed=11, prior_position_m=prior)
+    tol = 4.5 * mc.relative_sampling_error()
+    for d in B.DIRECTIONS:
+        for k in (0, mc.mid_index, mc.worst_index[d]):
+            assert abs(mc.rms_m[d][k] / mc.sigma_m[d][k] - 1) < tol, (d, k)
+    # the other reading (the prior itself as P(0)) is far off at the first fix
+    wrong = B.sigma_along(replace(case, initial=replace(case.initial, position_m=prior)), np.array([0.0]))
+    assert abs(mc.rms_m["lateral"][0] / wrong["lateral"][0] - 1) > 10 * tol

@@ -594,7 +594,8 @@ def _gains(F, Q, P0, H, R, fix_nodes, scale):
 
 
 def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: float = 0.3,
-                seed: int | None = None, chunk: int = 20_000) -> MonteCarloResult:
+                seed: int | None = None, chunk: int = 20_000,
+                prior_position_m: float | None = None) -> MonteCarloResult:
     """Monte Carlo of the budget: simulate ``runs`` intervals of the linear error models.
 
     Both channels of :mod:`trolley.error_models` (vertical, and level at heading ``heading_rad``)
@@ -603,6 +604,11 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     with the fix sigma, and a Kalman filter plus RTS smoother with gains shared by all runs
     estimates the errors. The level errors are rotated to longitudinal and lateral (Eq. 43).
     Runs are processed in blocks of ``chunk`` to bound memory.
+
+    With ``prior_position_m`` the first fix is simulated too: the true position starts with that
+    sigma and a fix arrives at t = 0 as well; the case's ``initial.position_m`` must then be the
+    sigma after that fix, ``sqrt(p s^2 / (p + s^2))`` (see ``docs/budget_derivation.md``), for
+    the analytic sigma to apply. This checks the reading of P(0) by simulation.
 
     Returns
     -------
@@ -620,12 +626,16 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     paper_noise = replace(nz, gyro_bias_rw_rad_s_sqrt_s=0.0)
     Av, Gv = em.vertical_matrices(v)
     Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(paper_noise), dt)
+    fix_nodes = [K - 1]
+    if prior_position_m is not None:
+        ini = replace(ini, position_m=prior_position_m)
+        fix_nodes = [0, K - 1]
     P0v = em.vertical_initial_covariance(ini)
     Al, Gl = em.level_matrices(v * np.cos(heading_rad), v * np.sin(heading_rad))
     Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(paper_noise), dt)
     P0l = em.level_initial_covariance(ini)
-    vert = _Channel(Fv, Qv, P0v, em.VERTICAL_H, np.array([[fix_var]]), K)
-    level = _Channel(Fl, Ql, P0l, em.LEVEL_H, np.eye(2) * fix_var, K)
+    vert = _Channel(Fv, Qv, P0v, em.VERTICAL_H, np.array([[fix_var]]), K, fix_nodes)
+    level = _Channel(Fl, Ql, P0l, em.LEVEL_H, np.eye(2) * fix_var, K, fix_nodes)
     c, s = np.cos(heading_rad), np.sin(heading_rad)
     sumsq = {d: np.zeros(K) for d in DIRECTIONS}
     done = 0
@@ -648,39 +658,48 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
 
 
 class _Channel:
-    """One channel of the Monte Carlo: its model and the gains shared by all runs."""
+    """One channel of the Monte Carlo: its model and the gains shared by all runs.
 
-    def __init__(self, F1, Q1, P0, H, R, K):
+    ``fix_nodes`` are the nodes with a position fix: ``[K-1]`` (P0 after the first fix, the
+    paper's reading) or ``[0, K-1]`` (P0 a prior before the first fix).
+    """
+
+    def __init__(self, F1, Q1, P0, H, R, K, fix_nodes):
         self.F1, self.Q1, self.P0, self.H, self.R, self.K = F1, Q1, P0, H, R, K
+        self.fix_nodes = [int(k) for k in fix_nodes]
         F = np.repeat(F1[None], K - 1, 0)
         Q = np.repeat(Q1[None], K - 1, 0)
-        self.Kg, self.C = _gains(F, Q, P0, H, R, [K - 1], _safe_scale(P0, Q1))
+        self.Kg, self.C = _gains(F, Q, P0, H, R, self.fix_nodes, _safe_scale(P0, Q1))
         self.L0, self.LQ, self.LR = _sqrt_psd(P0), _sqrt_psd(Q1), _sqrt_psd(R)
 
     def errors(self, rng, runs: int) -> np.ndarray:
         """Smoothed minus true states, (K, runs, n), for ``runs`` fresh intervals.
 
-        Truth: x0 ~ N(0, P0), x[k+1] = F x[k] + w, fix z = H x[K-1] + n. The loops run over the
-        nodes; the runs are a batch axis of matrix products.
+        Truth: x0 ~ N(0, P0), x[k+1] = F x[k] + w, fixes z = H x[k] + n at the fix nodes. The
+        loops run over the nodes; the runs are a batch axis of matrix products with the gains
+        computed once.
         """
         K, F1, H = self.K, self.F1, self.H
         n = self.P0.shape[0]
+        m = H.shape[0]
         x = np.empty((K, runs, n))
         x[0] = rng.standard_normal((runs, n)) @ self.L0.T
         w = rng.standard_normal((K - 1, runs, n)) @ self.LQ.T
         for k in range(K - 1):
             x[k + 1] = x[k] @ F1.T + w[k]
-        z = x[K - 1] @ H.T + rng.standard_normal((runs, H.shape[0])) @ self.LR.T
-        # forward filter of the estimates (prior mean zero): only the last node has a fix, so
-        # the filtered estimate is zero before it
-        xf_prior_last = np.zeros((runs, n))
-        xf_last = xf_prior_last + (z - xf_prior_last @ H.T) @ self.Kg[K - 1].T
-        # RTS backwards: x_s[k] = x_f[k] + C_k (x_s[k+1] - x_pred[k+1]), with x_f = x_pred = 0
-        # before the last node
+        z = {k: x[k] @ H.T + rng.standard_normal((runs, m)) @ self.LR.T for k in self.fix_nodes}
+        # forward filter (prior mean zero) and RTS: x_s[k] = x_f[k] + C_k (x_s[k+1] - x_pred[k+1])
+        x_pred = np.empty_like(x)
+        x_filt = np.empty_like(x)
+        for k in range(K):
+            x_pred[k] = 0.0 if k == 0 else x_filt[k - 1] @ F1.T
+            x_filt[k] = x_pred[k]
+            if k in z:
+                x_filt[k] = x_pred[k] + (z[k] - x_pred[k] @ H.T) @ self.Kg[k].T
         xs = np.empty_like(x)
-        xs[-1] = xf_last
+        xs[-1] = x_filt[-1]
         for k in range(K - 2, -1, -1):
-            xs[k] = xs[k + 1] @ self.C[k].T
+            xs[k] = x_filt[k] + (xs[k + 1] - x_pred[k + 1]) @ self.C[k].T
         return xs - x
 
 
