@@ -502,7 +502,6 @@ class RawImuParser:
         st.bytes_discarded += discarded
         st.bad_checksum += res.bad_crc
         st.extra["other_msgs"] += res.other_msgs
-        # a resync is a run of skipped bytes before a frame start (or before the kept tail)
         # a resync is one run of skipped bytes; a run may continue across reads
         edges = np.concatenate([[0], res.span_ends])
         ends = np.concatenate([res.span_starts, [consumed]])

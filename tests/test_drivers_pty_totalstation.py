@@ -186,3 +186,20 @@ def test_noise_statistics():
     finally:
         ts.close()
         twin.stop()
+
+
+def test_slow_atr_and_edm_calls_use_the_long_timeout():
+    twin = TotalStationTwin(STATION, TARGET, atr_time_s=0.4, edm_time_s=0.3)
+    ts = TotalStation(twin.port, timeout_s=0.2, long_timeout_s=5.0, retry=RetryPolicy(attempts=1))
+    ts.link.open()
+    twin.start()
+    try:
+        ts.connect()
+        t0 = time.monotonic()
+        ts.fine_adjust()
+        m = ts.measure()
+        assert time.monotonic() - t0 >= 0.4 + 2 * 0.3
+        assert (m.E_m, m.N_m, m.H_m) == pytest.approx(TARGET, abs=1e-9) and ts.stats.timeouts == 0
+    finally:
+        ts.close()
+        twin.stop()

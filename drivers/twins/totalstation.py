@@ -30,13 +30,17 @@ class TotalStationTwin(PtyTwin):
     target : (E, N, H) of the prism it is aimed at, or None (no prism: ATR finds nothing).
     noise_angle_rad, noise_dist_m : 1-sigma noise of angle and distance readings.
     sw_version : (release, version, subversion) for COM_GetSWVersion.
+    atr_time_s, edm_time_s : how long ATR pointing (FineAdjust, positioning) and a distance
+        measurement take before the reply (real instruments: about 1-5 s and 1-3 s).
     faults : byte faults on replies plus ``delay_rate``/``missing_rate`` per reply.
     seed : noise seed.
     """
 
     def __init__(self, station=(0.0, 0.0, 0.0, 0.0), target=None, noise_angle_rad: float = 0.0,
                  noise_dist_m: float = 0.0, sw_version=(1, 50, 0), faults: Faults | None = None,
-                 link_path=None, seed: int = 0) -> None:
+                 link_path=None, seed: int = 0, atr_time_s: float = 0.0, edm_time_s: float = 0.0) -> None:
+        self.atr_time_s = atr_time_s
+        self.edm_time_s = edm_time_s
         self.station = tuple(float(x) for x in station)
         self.target = None if target is None else tuple(float(x) for x in target)
         self.noise_angle_rad = noise_angle_rad
@@ -236,6 +240,11 @@ class TotalStationTwin(PtyTwin):
             self.send(gc.encode_reply(3101, (), trid, com_rc=3101, with_crc=True))
             return
         rc, params = self.handle(req)
+        work = (self.atr_time_s if req.rpc in (gc.AUT_FINEADJUST, gc.AUT_MAKEPOSITIONING) else
+                self.edm_time_s if req.rpc in (gc.TMC_GETSIMPLEMEA, gc.TMC_GETCOORDINATE,
+                                               gc.BAP_MEASDISTANCEANGLE) else 0.0)
+        if work:
+            time.sleep(work)  # one request at a time, like the instrument
         with self._lock:
             if self._drop_next > 0:
                 self._drop_next -= 1
