@@ -206,3 +206,46 @@ def test_slow_atr_and_edm_calls_use_the_long_timeout():
     finally:
         ts.close()
         twin.stop()
+
+
+def test_free_station_on_cpiii_then_trolley_prism_coordinates():
+    """Free station: measure CPIII prisms, resect on the host (trolley.resection), set station and
+    orientation, then the trolley prism's TMC_GetCoordinate equals its true position."""
+    from trolley.resection import PolarModel, PolarObservations, ResectionConfig, resect
+
+    axis = np.array([1000.0, 2000.0, 51.55])  # where the instrument really stands (axis point)
+    twin = TotalStationTwin((*axis[:2], 50.0, 1.55), None, noise_angle_rad=2e-6, noise_dist_m=3e-4, seed=2)
+    twin.station = (0.0, 0.0, 0.0, 0.0)  # the crew does not know the station yet
+    twin.orientation = 0.7  # nor the circle's orientation
+    ts = TotalStation(twin.port, timeout_s=2.0, long_timeout_s=2.0)
+    ts.link.open()
+    twin.start()
+    rng = np.random.default_rng(1)
+    az = np.radians([20, 95, 170, 200, 260, 340])
+    dist = rng.uniform(20.0, 60.0, az.size)
+    cpiii = np.column_stack([axis[0] + dist * np.sin(az), axis[1] + dist * np.cos(az),
+                             50.4 + rng.uniform(-0.3, 0.3, az.size)])
+    try:
+        ts.connect()
+        obs = []
+        for p in cpiii:
+            twin.set_target(p)
+            ts.fine_adjust()
+            obs.append(ts.meas_distance_angle())
+        obs = np.array(obs)
+        res = resect([f"CP{k}" for k in range(len(cpiii))], cpiii, PolarObservations(*obs.T),
+                     ResectionConfig(model=PolarModel(curvature_refraction=False)))
+        assert res.station_enh_m == pytest.approx(axis, abs=2e-3)
+        assert res.orientation_rad == pytest.approx(0.7, abs=2e-5)
+        e, n, h_axis = res.station_enh_m
+        ts.set_station(e, n, h_axis - 1.55, 1.55)
+        hz_now = ts.angle()[0]  # still pointing at the last CPIII prism
+        ts.set_orientation((hz_now + res.orientation_rad) % (2 * np.pi))
+        prism = np.array([1015.0, 2025.0, 51.2])  # the trolley prism
+        twin.set_target(prism)
+        ts.fine_adjust()
+        m = ts.measure()
+        assert np.array([m.E_m, m.N_m, m.H_m]) == pytest.approx(prism, abs=4e-3)
+    finally:
+        ts.close()
+        twin.stop()

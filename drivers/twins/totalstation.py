@@ -1,7 +1,9 @@
 """Total-station twin: a GeoCOM server with a station setup and a prism it is aimed at.
 
-Geometry (what a real instrument computes): the trunnion axis is at (E0, N0, H0 + Hi); the
-prism at (E, N, H). Azimuth ``az = atan2(dE, dN)``; the Hz reading is ``az - orientation``
+Geometry (what a real instrument computes): the instrument physically stands with its trunnion
+axis at ``position`` (E, N, H of the axis point, fixed when the twin is made); the prism is at
+(E, N, H). TMC_SetStation changes only the station *coordinates* the instrument uses to compute
+TMC_GetCoordinate (E0, N0, H0, Hi), never where it physically stands. Azimuth ``az = atan2(dE, dN)``; the Hz reading is ``az - orientation``
 (``TMC_SetOrientation`` sets the orientation so that the current direction reads the given
 Hz); zenith angle ``V = atan2(horizontal distance, dH)``; slope distance is the 3-D distance.
 Coordinates returned by TMC_GetCoordinate are computed back from the (noisy) readings and the
@@ -26,7 +28,8 @@ class TotalStationTwin(PtyTwin):
 
     Parameters
     ----------
-    station : (E0, N0, H0, instrument height) at start.
+    station : (E0, N0, H0, instrument height) where the instrument physically stands; also its
+        initial TMC station setting.
     target : (E, N, H) of the prism it is aimed at, or None (no prism: ATR finds nothing).
     noise_angle_rad, noise_dist_m : 1-sigma noise of angle and distance readings.
     sw_version : (release, version, subversion) for COM_GetSWVersion.
@@ -42,6 +45,8 @@ class TotalStationTwin(PtyTwin):
         self.atr_time_s = atr_time_s
         self.edm_time_s = edm_time_s
         self.station = tuple(float(x) for x in station)
+        e0, n0, h0, hi = self.station
+        self.position = (e0, n0, h0 + hi)  # physical axis point; TMC_SetStation does not move it
         self.target = None if target is None else tuple(float(x) for x in target)
         self.noise_angle_rad = noise_angle_rad
         self.noise_dist_m = noise_dist_m
@@ -86,9 +91,9 @@ class TotalStationTwin(PtyTwin):
     # ------------------------------------------------------------------ geometry
     def true_polar(self) -> tuple[float, float, float]:
         """(azimuth, zenith, slope distance) from the trunnion axis to the prism."""
-        e0, n0, h0, hi = self.station
+        ea, na, ha = self.position
         e, n, h = self.target
-        de, dn, dh = e - e0, n - n0, h - (h0 + hi)
+        de, dn, dh = e - ea, n - na, h - ha
         hd = math.hypot(de, dn)
         return math.atan2(de, dn) % (2 * math.pi), math.atan2(hd, dh), math.sqrt(hd * hd + dh * dh)
 
