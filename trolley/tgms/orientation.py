@@ -74,7 +74,10 @@ def attitude_kf(kin: TrackKinematics, w: np.ndarray, f: np.ndarray, params: Tgms
     F[:, 1, 0] = -wz * dt
     F[:, 0, 2] = -dt
     F[:, 1, 3] = -dt
-    Bu = np.column_stack([u * dt, np.zeros((n, 2))])
+    # the processing samples are interval means centred on t_k: the step k -> k+1 integrates the
+    # mean of the two (a half-sample lag otherwise, 5 ms at 100 Hz, is 8e-5 rad on a 2 Hz roll)
+    um = np.vstack([0.5 * (u[:-1] + u[1:]), u[-1:]])
+    Bu = np.column_stack([um * dt, np.zeros((n, 2))])
     qa = params.gyro_noise_rad_sqrt_s ** 2 * dt
     qb = params.gyro_bias_rw_rad_s_sqrt_s ** 2 * dt
     Q = np.diag([qa, qa, qb, qb])

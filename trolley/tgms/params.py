@@ -31,7 +31,7 @@ class TgmsParams:
     accel_disturbance_m_s2: float = 0.3
     madgwick_beta_rad_s: float = 3e-5
     madgwick_zeta_rad_s2: float = 1e-7
-    accel_noise_m_s2_sqrt_hz: float = 1e-3
+    accel_noise_m_s2_sqrt_hz: float = 3e-3
     cutoff_wavelength_m: float = 100.0
     orientation: str = "kf"
     trajectory: str = "ltv"

@@ -143,6 +143,7 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     if params.trajectory == "ekf":
         from trolley.tgms.ekf import trajectory_ekf
         traj = trajectory_ekf(kin, w, f, att, params)
+        att = traj.attitude        # the 12-state smoother estimates the attitude jointly
     else:
         traj = trajectory_ltv(kin, f, att.roll_rad, att.pitch_rad, params)
     tim["trajectory"] = time.perf_counter() - t4

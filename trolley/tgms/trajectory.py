@@ -84,7 +84,8 @@ def trajectory_ltv(kin: TrackKinematics, f: np.ndarray, roll: np.ndarray, pitch:
     A[:, 3, 2] = wx ** 2 + wy ** 2
     F = np.eye(4) + A * dt + A @ A * (dt * dt / 2)
     G = np.array([[dt * dt / 2, 0.0], [dt, 0.0], [0.0, dt * dt / 2], [0.0, dt]])
-    Bu = a @ G.T
+    am = np.vstack([0.5 * (a[:-1] + a[1:]), a[-1:]])     # interval mean (see orientation.attitude_kf)
+    Bu = am @ G.T
     qa = params.accel_noise_m_s2_sqrt_hz ** 2 / dt          # variance of one averaged sample
     Q = G @ G.T * qa
     H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
