@@ -7,11 +7,11 @@ from trolley import earth
 from trolley.deadreckoning import _block_rotvecs, dead_reckon, prefix_compose, static_alignment
 
 
-@given(seed=st.integers(0, 10_000), n=st.integers(1, 70), reverse=st.booleans())
-@settings(max_examples=40, deadline=None)
-def test_prefix_compose_equals_sequential_product(seed, n, reverse):
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 70), reverse=st.booleans(), chunk=st.sampled_from([2, 3, 8, 64]))
+@settings(max_examples=60, deadline=None)
+def test_prefix_compose_equals_sequential_product(seed, n, reverse, chunk):
     rots = Rotation.random(n, random_state=seed)
-    got = prefix_compose(rots, reverse=reverse)
+    got = prefix_compose(rots, reverse=reverse, chunk=chunk)
     acc = rots[0]
     assert (got[0] * acc.inv()).magnitude() < 1e-12
     for k in range(1, n):

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from trolley import error_models as em
-from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation,
+from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation, quat_multiply,
                                    static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
 from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
@@ -62,10 +62,10 @@ class ProcessConfig:
 
     smoother: str = "rts"
     step_m: float = 0.625
-    node_spacing_m: float = 0.5
-    max_node_dt_s: float = 5.0
+    node_spacing_m: float = 1.0
+    max_node_dt_s: float = 10.0
     gate_probability: float | None = 0.9999
-    block_size: int = 10
+    block_size: int = 20
     bias_correlation_s: float = 1000.0
     residual_level_rad: float = float(np.deg2rad(0.003))
     given_heading_sigma_rad: float = float(np.deg2rad(0.5))
@@ -399,7 +399,7 @@ def corrected_dead_reckoning(dr: DeadReckoning, error_states: np.ndarray) -> Dea
     inc = Rotation.from_rotvec(mid).apply(np.diff(dr.position_ned_m, axis=0)) / (1.0 + dk)[:, None]
     pos = np.zeros_like(dr.position_ned_m)
     np.cumsum(inc, axis=0, out=pos[1:])
-    return DeadReckoning(t_s=dr.t_s, distance_m=dr.distance_m, trolley_to_nav=rot * dr.trolley_to_nav,
+    return DeadReckoning(t_s=dr.t_s, distance_m=dr.distance_m, trolley_to_nav=Rotation.from_quat(quat_multiply(rot.as_quat(), dr.trolley_to_nav.as_quat())),
                          position_ned_m=pos)
 
 
@@ -431,8 +431,12 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
     """Resample the corrected trajectory on a fixed chainage step (FORMATS.md section 2)."""
     enh = traj.enh_m
     if design is not None:
-        proj = design.project(enh[:, 0], enh[:, 1], enh[:, 2])
-        ch = np.asarray(proj.chainage_m, dtype=float)
+        # chainage is smooth in the odometer distance: project every 0.25 m and interpolate
+        d = traj.distance_m
+        idx = np.unique(np.concatenate([[0, d.size - 1], np.searchsorted(d, np.arange(d[0], d[-1], 0.25))]))
+        idx = idx[np.concatenate([[True], np.diff(d[idx]) > 0])]
+        proj = design.project(enh[idx, 0], enh[idx, 1], enh[idx, 2])
+        ch = np.interp(d, d[idx], np.asarray(proj.chainage_m, dtype=float))
     else:
         seg = np.linalg.norm(np.diff(enh, axis=0), axis=1)
         ch = np.concatenate([[0.0], np.cumsum(seg)])
