@@ -158,3 +158,25 @@ def test_params_file_round_trip(tmp_path):
     f.write_text('cutoff_wavelength_m = -3.0\n')
     with pytest.raises(ValueError, match="p.toml: parameter cutoff_wavelength_m"):
         read_params(f)
+
+
+def test_ekf_variant_agrees_with_truth_and_with_the_ltv(processed):
+    rec, res, truth = processed
+    res_e = process(rec, TgmsParams(trajectory="ekf"), match_curves=True)
+    acc = accuracy(res_e.frames, truth, res_e.vision.t_s)
+    assert acc.std_registered_mm["alignment"] < 0.7 and acc.std_registered_mm["vertical_profile"] < 0.35
+    # two independent trajectory estimators agree in the band far better than the motion itself
+    from trolley.bands import bandpass_wavelength
+    d = bandpass_wavelength(res_e.grid.alignment_m - res.grid.alignment_m, 0.25, 3.0, 25.0)
+    sig = bandpass_wavelength(res.grid.alignment_m, 0.25, 3.0, 25.0)
+    assert np.nanstd(d) < 0.25 * np.nanstd(sig)
+
+
+def test_cml_tuning_does_not_lower_the_likelihood(processed):
+    import dataclasses as dc
+    from trolley.tgms.tuning import tune_cml
+    rec, _, _ = processed
+    bad = dc.replace(TgmsParams(), accel_disturbance_m_s2=30.0, gyro_noise_rad_sqrt_s=1e-3)
+    p, info = tune_cml(rec, base=bad, max_evaluations=40, seed=1, decades=2.0)
+    assert info["loglik"] > info["loglik_default"] + 10.0
+    assert p.accel_disturbance_m_s2 < 30.0

@@ -53,7 +53,7 @@ def _band_errors(grid: Irregularities, truth: dict, step_m: float, band: tuple[f
 
 
 def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m: float = 0.25,
-             band: tuple[float, float] = (3.0, 25.0), trim_m: float = 15.0) -> Accuracy:
+             band: tuple[float, float] = (3.0, 25.0), trim_m: float = 25.0) -> Accuracy:
     """Band-passed error statistics of a processing result against the truth.
 
     Parameters
@@ -63,7 +63,8 @@ def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m:
     frame_t_s : camera frame times (for the registered comparison).
     step_m : output grid step.
     band : (short, long) wavelengths of the band-pass, m.
-    trim_m : stations this close to the ends are left out (filter edge effects).
+    trim_m : stations this close to the ends of the ride are left out: the band-pass edge
+        transients of the (large, long-wave) unfiltered error reach about one long wavelength in.
 
     Returns
     -------

@@ -244,7 +244,7 @@ class _Scenario:
 
     def speed(self, t):
         V0 = self.st.speed_m_s
-        t_ramp = max(3.0, V0 / 0.5)
+        t_ramp = max(3.0, V0 / 1.0)
         ramp = np.where(t < 1.0, 0.0, np.where(t < 1.0 + t_ramp,
                                                  0.5 - 0.5 * np.cos(np.pi * (t - 1.0) / t_ramp), 1.0))
         p = self.speed_phase
@@ -267,7 +267,7 @@ class _Scenario:
 def _ride(sc: _Scenario, dt: float):
     """Time grid, station and speed of the ride from rest at s_start until s_end."""
     V0 = sc.st.speed_m_s
-    T = 1.0 + max(3.0, V0 / 0.5) + 1.4 * sc.st.length_m / V0 + 5.0
+    T = 1.0 + max(3.0, V0 / 1.0) + 1.4 * sc.st.length_m / V0 + 5.0
     t = np.arange(0.0, T, dt)
     v = sc.speed(t)
     s = sc.s_start + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)])
