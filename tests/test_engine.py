@@ -86,3 +86,12 @@ def test_stations_follow_formats_and_design(design, simulated):
                           simulated.session.meta.trolley.rail_spacing_m * np.sin(truth.roll_rad))
     assert np.sqrt(np.mean((st.cant_m - true_cant) ** 2)) < 0.5e-3
     assert np.all(np.isfinite(st.gauge_m[5:-5]))
+
+
+def test_vectorised_and_filterpy_loops_give_the_same_track(design, simulated):
+    cfg = dict(with_observability=False)
+    fast = process_session(simulated.session, design, ProcessConfig(vectorised=True), **cfg)
+    loop = process_session(simulated.session, design, ProcessConfig(vectorised=False), **cfg)
+    assert np.max(np.abs(fast.trajectory.enh_m - loop.trajectory.enh_m)) < 1e-9
+    assert np.allclose(fast.trajectory.sigma_enh_m, loop.trajectory.sigma_enh_m, rtol=1e-7, atol=0)
+    assert np.allclose(fast.fixes.nis, loop.fixes.nis, rtol=1e-9)

@@ -26,7 +26,8 @@ from trolley import error_models as em
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation, quat_multiply,
                                    static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
-from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
+from trolley.smoothers import (Measurements, fast_forward_filter, fast_rts_smooth, forward_filter, rts_smooth,
+                               two_filter_smooth)
 
 #: Order of the combined 8-state error vector: level channel then vertical channel.
 STATE_NAMES = em.LEVEL_STATES + em.VERTICAL_STATES
@@ -54,6 +55,8 @@ class ProcessConfig:
     prior_position_m : 1-sigma of the position before the first fix.
     twist_base_m : base of the twist column.
     force_accept : point labels whose fixes skip the gate (the crew accepted them).
+    vectorised : forward filter and RTS as prefix scans (``fast_forward_filter``,
+        ``fast_rts_smooth``); False runs filterpy's step-by-step loops (same numbers, slower).
     level_at_stops : re-level the roll from the accelerometers at every stop
         (:func:`trolley.deadreckoning.stop_levels`).
     relinearisations : extra filter passes on the dead reckoning corrected with the previous
@@ -74,6 +77,7 @@ class ProcessConfig:
     force_accept: tuple[str, ...] = ()
     relinearisations: int = 1
     level_at_stops: bool = True
+    vectorised: bool = True
 
 
 @dataclass
@@ -315,10 +319,11 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         z = p0 + dr_cur.position_ned_m[fix_blocks] + lever_ned - fix_ned + offset[fix_blocks]
         meas = Measurements(fix_nodes, z, H, R)
         F, Q = error_model(dr_cur, nodes, noise)
-        fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
-                             force_accept=forced)
+        forward = fast_forward_filter if config.vectorised else forward_filter
+        fwd = forward(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
+                      force_accept=forced)
         if config.smoother == "rts":
-            sm = rts_smooth(F, Q, fwd, scale=scale)
+            sm = (fast_rts_smooth if config.vectorised else rts_smooth)(F, Q, fwd, scale=scale)
             xs, Ps = sm.x, sm.P
         elif config.smoother == "tfs":
             sm = two_filter_smooth(F, Q, meas.subset(fwd.accepted), fwd, scale=scale)

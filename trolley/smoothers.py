@@ -251,3 +251,136 @@ def two_filter_smooth(F: np.ndarray, Q: np.ndarray, meas: Measurements,
     Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
     xs = (Ps @ ((Pf_inv @ xf[:, :, None])[:, :, 0] + yb)[:, :, None])[:, :, 0]
     return SmoothedResult(xs * d[None, :], Ps * d[None, :, None] * d[None, None, :])
+
+
+# --------------------------------------------------------------------------------------------
+# Vectorised forms of the same filter and smoother.
+#
+# Between two fixes the forward filter only predicts, and the RTS recursion is affine in the
+# smoothed state and covariance at the next node. Affine maps compose associatively, so both
+# become prefix scans of batched 8x8 products: O(log n) numpy calls instead of n filterpy steps.
+# On a 10 km survey (12,000 nodes) the filterpy loops were the largest part of the processing
+# time; these give the same numbers (tests/test_smoothers.py checks them against filterpy's).
+# The covariance recursions below add positive terms only (no difference of nearly equal
+# matrices), like the Joseph-type form used in rts_smooth.
+# --------------------------------------------------------------------------------------------
+
+
+def _compose_forward(F: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Prefix compositions of M -> F M F^T + Q: (Phi_k, S_k) with P_k = Phi_k P_0 Phi_k^T + S_k.
+
+    Returns arrays for k = 1..n (the maps from node 0 to node k).
+    """
+    Phi = F.copy()
+    S = Q.copy()
+    n = F.shape[0]
+    d = 1
+    while d < n:
+        # (Phi_b, S_b) after (Phi_a, S_a): Phi_b Phi_a, Phi_b S_a Phi_b^T + S_b
+        Pa, Sa = Phi[:-d], S[:-d]
+        Pb, Sb = Phi[d:], S[d:]
+        S = np.concatenate([S[:d], Pb @ Sa @ np.swapaxes(Pb, -1, -2) + Sb])
+        Phi = np.concatenate([Phi[:d], Pb @ Pa])
+        d *= 2
+    return Phi, S
+
+
+def fast_forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+                        meas: Measurements, gate_probability: float | None = 0.9999,
+                        force_accept: np.ndarray | None = None) -> ForwardResult:
+    """:func:`forward_filter` with the predictions between measurements done by prefix scans.
+
+    Same parameters and result; the measurement updates (Joseph form) and the gate are applied
+    in a loop over the measurement nodes only.
+    """
+    K = F.shape[0] + 1
+    n = x0.shape[0]
+    M = len(meas)
+    m = meas.z.shape[1] if M else 1
+    x_prior = np.empty((K, n))
+    P_prior = np.empty((K, n, n))
+    x_post = np.empty((K, n))
+    P_post = np.empty((K, n, n))
+    innov = np.zeros((M, m))
+    S_all = np.zeros((M, m, m))
+    nis = np.zeros(M)
+    accepted = np.ones(M, dtype=bool)
+    eye = np.eye(n)
+    seg_starts = np.unique(np.concatenate([[0], meas.node])) if M else np.array([0])
+    x = np.asarray(x0, dtype=float).copy()
+    P = np.asarray(P0, dtype=float).copy()
+    starts = np.searchsorted(meas.node, np.arange(K + 1)) if M else np.zeros(K + 1, dtype=int)
+    bounds = np.concatenate([seg_starts, [K]])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        # node a: prior (x, P), then its measurements
+        x_prior[a], P_prior[a] = x, P
+        for j in range(starts[a], starts[a + 1]):
+            H, R = meas.H[j], meas.R[j]
+            y = meas.z[j] - H @ x
+            S = H @ P @ H.T + R
+            innov[j], S_all[j] = y, S
+            nis[j] = float(y @ np.linalg.solve(S, y))
+            forced = force_accept is not None and bool(force_accept[j])
+            if gate_probability is not None and not forced and nis[j] > gate_threshold(gate_probability, len(y)):
+                accepted[j] = False
+                continue
+            Kg = np.linalg.solve(S, H @ P).T
+            x = x + Kg @ y
+            IKH = eye - Kg @ H
+            P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
+        x_post[a], P_post[a] = x, P
+        if b - a > 1 or b < K:
+            # pure prediction over nodes a+1 .. b (b is the next measurement node, or K-1 at the end)
+            last = min(b, K - 1)
+            if last > a:
+                Phi, Sc = _compose_forward(F[a:last], Q[a:last])
+                xs = (Phi @ x)
+                Ps = Phi @ P @ np.swapaxes(Phi, -1, -2) + Sc
+                x_prior[a + 1:last + 1] = xs
+                P_prior[a + 1:last + 1] = Ps
+                x_post[a + 1:last + 1] = xs
+                P_post[a + 1:last + 1] = Ps
+                x, P = xs[-1].copy(), Ps[-1].copy()
+    return ForwardResult(x_prior, P_prior, x_post, P_post, innov, S_all, nis, accepted)
+
+
+def fast_rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult, scale: np.ndarray | None = None
+                    ) -> SmoothedResult:
+    """:func:`rts_smooth` as suffix scans of the affine backward recursions (Jiang 2017 Eq. 28).
+
+    x_s[k] = x_f[k] + C_k (x_s[k+1] - F_k x_f[k]) and
+    P_s[k] = (I - C_k F_k) P_f[k] (I - C_k F_k)^T + C_k (Q_k + P_s[k+1]) C_k^T with
+    C_k = P_f[k] F_k^T P_p[k+1]^-1, all gains at once, then both recursions composed.
+    """
+    K, n = fwd.x_post.shape
+    d = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
+    Dinv = 1.0 / d
+    Fs = F * Dinv[None, :, None] * d[None, None, :]
+    Qs = Q * Dinv[None, :, None] * Dinv[None, None, :]
+    Pf = fwd.P_post * Dinv[None, :, None] * Dinv[None, None, :]
+    xf = fwd.x_post * Dinv[None, :]
+    FT = np.swapaxes(Fs, -1, -2)
+    Pp = Fs @ Pf[:-1] @ FT + Qs
+    C = np.swapaxes(np.linalg.solve(Pp, Fs @ Pf[:-1]), -1, -2)  # P_f F^T P_p^-1 (P_p symmetric)
+    IKF = np.eye(n) - C @ Fs
+    A = IKF @ Pf[:-1] @ np.swapaxes(IKF, -1, -2) + C @ Qs @ np.swapaxes(C, -1, -2)
+    b = xf[:-1] - (C @ (Fs @ xf[:-1, :, None]))[:, :, 0]
+    # suffix scan of maps h_k(M) = A_k + C_k M C_k^T and g_k(v) = b_k + C_k v, from node k to K-1
+    G, Aacc, bacc = C.copy(), A.copy(), b.copy()
+    m = K - 1
+    step = 1
+    while step < m:
+        # compose k with k+step: h_k o h_{k+step}
+        Gk, Gn = G[:-step], G[step:]
+        Aacc = np.concatenate([Aacc[:-step] + Gk @ Aacc[step:] @ np.swapaxes(Gk, -1, -2), Aacc[-step:]])
+        bacc = np.concatenate([bacc[:-step] + (Gk @ bacc[step:, :, None])[:, :, 0], bacc[-step:]])
+        G = np.concatenate([Gk @ Gn, G[-step:]])
+        step *= 2
+    Pend, xend = Pf[-1], xf[-1]
+    Ps = np.empty_like(Pf)
+    xs = np.empty_like(xf)
+    Ps[-1], xs[-1] = Pend, xend
+    Ps[:-1] = Aacc + G @ Pend @ np.swapaxes(G, -1, -2)
+    xs[:-1] = bacc + (G @ xend[:, None])[:, :, 0]
+    Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
+    return SmoothedResult(xs * d[None, :], Ps * d[None, :, None] * d[None, None, :])
