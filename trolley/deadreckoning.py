@@ -300,16 +300,20 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     -------
     roll_rad, pitch_rad : (S,) trolley roll and pitch, NaN where the stop had too few samples.
     """
-    d = np.interp(imu_t_s, odo_t_s, odo_distance_m)
-    standing = np.r_[True, np.abs(np.diff(d)) < 1e-6] & np.r_[np.abs(np.diff(d)) < 1e-6, True]
     lo = np.searchsorted(imu_t_s, stop_times_s - window_s)
     hi = np.searchsorted(imu_t_s, stop_times_s + window_s)
-    f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2)  # trolley frame
-    cs = np.zeros((f_t.shape[0] + 1, 3))
-    np.cumsum(np.where(standing[:, None], f_t, 0.0), axis=0, out=cs[1:])
-    cn = np.concatenate([[0], np.cumsum(standing)])
-    count = cn[hi] - cn[lo]
-    mean = (cs[hi] - cs[lo]) / np.maximum(count, 1)[:, None]
+    # only the samples inside the windows: a few percent of a survey
+    idx = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)]) if len(lo) else np.array([], dtype=int)
+    t = imu_t_s[idx]
+    d = np.interp(t, odo_t_s, odo_distance_m)
+    moving_before = np.abs(np.interp(t - 0.05, odo_t_s, odo_distance_m) - d) > 1e-6
+    moving_after = np.abs(np.interp(t + 0.05, odo_t_s, odo_distance_m) - d) > 1e-6
+    standing = ~(moving_before | moving_after)
+    f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2[idx])  # trolley frame
+    seg = np.repeat(np.arange(len(lo)), hi - lo)
+    count = np.bincount(seg, weights=standing, minlength=len(lo))
+    mean = np.column_stack([np.bincount(seg, weights=f_t[:, i] * standing, minlength=len(lo)) for i in range(3)])
+    mean /= np.maximum(count, 1)[:, None]
     roll = np.arctan2(-mean[:, 1], -mean[:, 2])
     pitch = np.arctan2(mean[:, 0], np.hypot(mean[:, 1], mean[:, 2]))
     bad = count < min_samples
