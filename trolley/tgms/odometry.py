@@ -91,7 +91,7 @@ def curve_windows(alignment: Alignment) -> list[tuple[float, float]]:
 
 
 def match_curves(s_app: np.ndarray, rho_exp: np.ndarray, alignment: Alignment, ds: float = 0.05,
-                 search_m: float = 6.0, max_ne2: float = 0.3, smooth_m: float = 4.0):
+                 search_m: float = 6.0, max_ne2: float = 0.3, smooth_m: float = 8.0):
     """Curvature matching of Escalona 2021 Eq. 41-43.
 
     Parameters
