@@ -1,0 +1,187 @@
+"""``trolley survey start|resume``: the field survey session (docs/field_session.md).
+
+Bad input (unknown project, bad script or devices file, a device that does not answer) is one line
+naming the file, line or device, plus what to try, with exit code 2.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+
+err = Console(stderr=True)
+survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True)
+
+RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS", help="folder holding the projects")]
+SessionOption = Annotated[str, typer.Option("--session", "-s", help="session name")]
+DevicesOption = Annotated[Optional[Path], typer.Option("--devices", help="JSON file: device -> serial port")]
+SimulateOption = Annotated[bool, typer.Option("--simulate", help="simulated devices (twins on ptys fed by the truth simulator)")]
+ScriptOption = Annotated[Optional[Path], typer.Option("--script", help="the crew's actions as a script (no keyboard)")]
+SpeedupOption = Annotated[Optional[float], typer.Option("--speedup", help="simulated seconds per wall-clock second")]
+OutOption = Annotated[Optional[Path], typer.Option("--out", help="output folder [default: <project>/sessions/<session>]")]
+
+
+def fail(message: str, hint: str = "", code: int = 2) -> None:
+    """One line on stderr (and what to try), exit code ``code``."""
+    err.print(f"[bold red]error:[/] {message}" + (f"\n  try: {hint}" if hint else ""), highlight=False,
+              soft_wrap=True)
+    raise typer.Exit(code=code)
+
+
+def open_store(project: str, root: Path):
+    """The project store of PROJECT (a project folder, or a name under --root)."""
+    from survey.store import ProjectStore, StoreError
+
+    p = Path(project)
+    try:
+        if (p / "project.sqlite").is_file():
+            return ProjectStore.open(p)
+        return ProjectStore.open_project(root, project)
+    except StoreError as exc:
+        fail(str(exc), f"`trolley project new {p.name}`")
+
+
+def simulated_world(store, speedup: float):
+    """The simulated site of a project: its [simulation] settings (project.toml) or the defaults."""
+    from dataclasses import fields
+
+    from survey.commands.simulate import ProjectFileError, project_settings
+    from survey.session.simworld import SimOptions, SimWorld
+    from trolley.landxml import parse_landxml
+    from trolley.sensors import IMU_PRESETS
+    from trolley.truthsim import SimulationConfig, simulate_survey
+
+    settings = store.settings()
+    a = store.alignment()
+    if a is None:
+        fail(f"project {store.info().name!r} has no design alignment to simulate along",
+             "`trolley project import-alignment FILE.xml`")
+    folder = store.path.parent
+    kwargs = {}
+    if (folder / "project.toml").is_file():
+        try:
+            kwargs, preset, _ = project_settings(folder)
+        except ProjectFileError as exc:
+            fail(str(exc))
+        kwargs["imu"] = IMU_PRESETS.get(preset, settings.imu)
+    names = {f.name for f in fields(SimulationConfig)}
+    kwargs = {k: v for k, v in kwargs.items() if k in names}
+    kwargs.setdefault("imu", settings.imu)
+    kwargs.update(latitude_rad=settings.latitude_rad, height_m=settings.height_m, trolley=settings.trolley,
+                  fix_sigma_m=settings.fix_sigma_m)
+    design = parse_landxml(a.landxml_text, rail_spacing_m=settings.trolley.rail_spacing_m)
+    try:
+        sim = simulate_survey(design, SimulationConfig(**kwargs))
+    except ValueError as exc:
+        fail(f"{folder / 'project.toml'}: simulation: {exc}")
+    return SimWorld(sim, SimOptions(speedup=speedup))
+
+
+def read_devices(path: Path) -> tuple[dict, dict]:
+    """(device -> port, driver options) from a devices JSON file."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        fail(f"{path}: {exc}", 'a JSON object like {"imu": "/dev/ttyUSB0", "totalstation": "/dev/ttyUSB1"}')
+    if not isinstance(data, dict):
+        fail(f"{path}: expected a JSON object")
+    ports = {k: str(v) for k, v in data.items() if k in ("imu", "odometer", "gauge", "totalstation")}
+    options = {k: v for k, v in data.items() if k in ("imu_type", "imu_rate_hz", "imu_axes", "odometer")}
+    return ports, options
+
+
+def run_session(project: str, session: str, root: Path, devices: Optional[Path], simulate: bool,
+                script: Optional[Path], speedup: Optional[float], out: Optional[Path], resume: bool,
+                live: bool = True):
+    """Start or resume a session; prints where the results are. Returns the outcome."""
+    from survey.session.fieldsession import FieldSession, SessionAbort, SessionConfig
+    from survey.session.screen import KeyReader
+    from survey.session.script import ScriptError, read_script
+    from survey.store import SessionEvent, StoreError
+
+    store = open_store(project, root)
+    with store:
+        if resume:
+            try:
+                rec = store.session(session)
+            except StoreError as exc:
+                fail(str(exc), "`trolley project show` lists the sessions")
+            start = next((json.loads(e.detail) for e in store.events(rec.session_id) if e.kind == "start"), {})
+            simulate = simulate or start.get("simulate", False)
+            speedup = speedup if speedup is not None else start.get("speedup")
+            script = script if script is not None else (Path(start["script"]) if start.get("script") else None)
+            devices = devices if devices is not None else (Path(start["devices"]) if start.get("devices") else None)
+            out = out if out is not None else (Path(start["out"]) if start.get("out") else None)
+        if simulate == (devices is not None):
+            fail("give exactly one of --simulate and --devices PORTS.json")
+        actions = None
+        if script is not None:
+            try:
+                actions = read_script(script)
+            except ScriptError as exc:
+                fail(str(exc))
+        speedup = float(speedup) if speedup is not None else 1.0
+        if not speedup > 0:
+            fail(f"--speedup must be positive, not {speedup}")
+        out = out if out is not None else store.path.parent / "sessions" / session
+        world = ports = options = None
+        if simulate:
+            world = simulated_world(store, speedup)
+        else:
+            ports, options = read_devices(devices)
+        keys = None
+        if actions is None:
+            if not sys.stdin.isatty():
+                fail("no keyboard (stdin is not a terminal) and no --script", "--script FILE")
+            keys = KeyReader().start()
+        config = SessionConfig(script=actions, out_dir=out, live=live)
+        fs = FieldSession(store, session, config, world=world, ports=ports, console=err, keys=keys,
+                          resume=resume, device_options=options)
+        try:
+            if not resume:
+                fs.open_session()
+                store.add_event(fs.rec.session_id, SessionEvent(0.0, "start", json.dumps({
+                    "simulate": simulate, "speedup": speedup,
+                    "script": str(script.resolve()) if script else None,
+                    "devices": str(devices.resolve()) if devices else None, "out": str(out.resolve())})))
+                fs.open_session = lambda: None  # already open
+            outcome = fs.run()
+        except SessionAbort as exc:
+            fail(str(exc), exc.hint)
+        finally:
+            if keys is not None:
+                keys.stop()
+    con = Console()
+    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False)
+    if outcome.xlsx is not None:
+        con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
+                  f"survey sheet: {outcome.xlsx}\nplots:        {outcome.plots_dir}", highlight=False)
+    return outcome
+
+
+@survey_app.command("start")
+def start(project: Annotated[str, typer.Argument(help="project name (under --root) or project folder")],
+          session: SessionOption, root: RootOption = Path("projects"), devices: DevicesOption = None,
+          simulate: SimulateOption = False, script: ScriptOption = None, speedup: SpeedupOption = None,
+          out: OutOption = None) -> None:
+    """Start a field session: device check, free station, static alignment, stop-and-go survey."""
+    run_session(project, session, root, devices, simulate, script, speedup, out, resume=False)
+
+
+@survey_app.command("resume")
+def resume(project: Annotated[str, typer.Argument(help="project name (under --root) or project folder")],
+           session: SessionOption, root: RootOption = Path("projects"), devices: DevicesOption = None,
+           simulate: SimulateOption = False, script: ScriptOption = None, speedup: SpeedupOption = None,
+           out: OutOption = None) -> None:
+    """Continue a session after a crash, a power loss or kill -9 (fixes taken are kept)."""
+    run_session(project, session, root, devices, simulate, script, speedup, out, resume=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``survey`` group to the trolley app."""
+    app.add_typer(survey_app, name="survey")

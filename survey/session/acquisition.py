@@ -1,0 +1,338 @@
+"""Acquisition of a field session: device links, raw bytes and decoded records into the store.
+
+Every read of every port goes, as read, to the project store (``RecordWriter.append``, table
+``raw_chunk``) before it is parsed; the decoded samples, in session time and SI, go to
+``imu_sample``, ``odometer_sample`` and ``gauge_sample`` and to in-memory arrays for the live
+processing. The writer commits at least twice a second, so a crash loses at most that much.
+
+Session time: see :class:`TimeBase`. A device is *healthy* while its port is open and its data
+keep coming; the session pauses itself when one is not (``Acquisition.faults``).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers import encoder, gauge, novatel
+from drivers.serialport import SerialLink
+from drivers.stats import Stats
+from survey.store import GaugeRecord, ImuRecord, OdometerRecord
+
+#: a device whose data stop for this long (wall clock) is reported as failing
+STALE_AFTER_S = 1.0
+
+
+class RawTap:
+    """A parser wrapper that hands every read to the store before parsing it."""
+
+    def __init__(self, inner, device: str, sink) -> None:
+        self.inner = inner
+        self.stats = inner.stats
+        self.device = device
+        self.sink = sink  # callable(device, t_host, bytes)
+
+    def feed(self, data: bytes, t_host: float):
+        self.sink(self.device, t_host, data)
+        return self.inner.feed(data, t_host)
+
+
+@dataclass
+class TimeBase:
+    """How device times become session time (seconds since the session started).
+
+    Attributes
+    ----------
+    imu_week, imu_sow0_s : GPS time of session time 0 (IMU: ``t = gps - that``).
+    gauge_origin_s : session time of the gauge's millisecond clock zero.
+    odo_count0 : counter reading at odometer distance 0.
+    host_t0 : monotonic host time of session time 0 (odometer replies in a real session).
+    odometer_time : in a simulated session, the session time of the k-th poll (None: host time).
+    """
+
+    imu_week: int | None = None
+    imu_sow0_s: float | None = None
+    gauge_origin_s: float | None = None
+    gauge_ms0: int | None = None
+    odo_count0: int | None = None
+    host_t0: float = field(default_factory=time.monotonic)
+    odometer_time: object = None
+
+    def to_json(self) -> dict:
+        return {"imu_week": self.imu_week, "imu_sow0_s": self.imu_sow0_s, "odo_count0": self.odo_count0,
+                "host_t0": self.host_t0}
+
+
+@dataclass
+class DeviceHealth:
+    """What the live screen shows per device."""
+
+    name: str
+    connected: bool
+    last_data_age_s: float
+    samples: int
+    errors: int
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.connected and self.last_data_age_s < STALE_AFTER_S
+
+
+class Buffers:
+    """Growing in-memory copies of the decoded samples (appended in batches, read as arrays)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.imu: list[np.ndarray] = []  # (n, 7) t, w, f
+        self.odo: list[np.ndarray] = []  # (n, 2) t, d
+        self.gauge: list[np.ndarray] = []  # (n, 2) t, g
+
+    def add(self, kind: str, rows: np.ndarray) -> None:
+        if rows.shape[0]:
+            with self.lock:
+                getattr(self, kind).append(rows)
+
+    def array(self, kind: str, width: int) -> np.ndarray:
+        with self.lock:
+            parts = getattr(self, kind)
+            if len(parts) > 1:
+                parts[:] = [np.concatenate(parts)]
+            return parts[0] if parts else np.zeros((0, width))
+
+    def last_t(self, kind: str) -> float:
+        with self.lock:
+            parts = getattr(self, kind)
+            return float(parts[-1][-1, 0]) if parts else float("-inf")
+
+
+class SimOdometerPoller:
+    """Polls the simulated counter module on the simulation's schedule: every poll whose time has
+    come is sent at once, and the k-th reply is stamped with the k-th poll's session time."""
+
+    def __init__(self, link: SerialLink, world) -> None:
+        self.link = link
+        self.world = world
+        self.polls = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="sim-odometer-poll", daemon=True)
+
+    def start(self) -> "SimOdometerPoller":
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            now = self.world.now()
+            n = 0
+            while self.world.odometer_time(self.polls + n) <= now and n < 2000 and \
+                    self.world.odometer_time(self.polls + n) < self.world.duration_s + 1e-9 and \
+                    (self.polls + n) + self.world.odo_first_index < self.world.sim.session.odo_t_s.size:
+                n += 1
+            if n:
+                try:
+                    self.link.write(encoder.READ_COMMAND * n)
+                    self.polls += n
+                except Exception:  # port gone: the link reconnects; polls resume when it is back
+                    pass
+            self._stop.wait(0.004)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+class Acquisition:
+    """The three streaming devices of a session: links, time base, store writes, buffers, health.
+
+    Parameters
+    ----------
+    ports : device -> serial port ("imu" required; "odometer", "gauge" optional).
+    writer : the session's ``RecordWriter`` (raw bytes and decoded records).
+    timebase : device time -> session time.
+    world : the simulated world (simulated session) or None.
+    odometer : counter settings.
+    imu_type, imu_rate_hz, imu_axes : IMU scale and mounting.
+    """
+
+    def __init__(self, ports: dict[str, str], writer, timebase: TimeBase, world=None,
+                 odometer: encoder.OdometerConfig = encoder.OdometerConfig(), imu_type: int | None = None,
+                 imu_rate_hz: float | None = None, imu_axes: str = "x,y,z") -> None:
+        self.writer = writer
+        self.tb = timebase
+        self.world = world
+        self.odo_cfg = odometer
+        self.imu_type = imu_type
+        self.imu_rate_hz = imu_rate_hz
+        self.axes = novatel.axis_matrix(imu_axes)
+        self.buffers = Buffers()
+        self.write_error: str = ""
+        self.links: dict[str, SerialLink] = {}
+        mk = {"imu": lambda: novatel.RawImuParser(Stats(), imu_rate_hz),
+              "odometer": lambda: encoder.EncoderParser(Stats(), self._odo_parser_cfg()),
+              "gauge": lambda: gauge.GaugeParser(Stats())}
+        for name, port in ports.items():
+            if name in mk:
+                self.links[name] = SerialLink(port, RawTap(mk[name](), name, self._raw), name,
+                                              baudrate=460800 if name == "imu" else 9600)
+        self.last_data_host: dict[str, float] = {k: time.monotonic() for k in self.links}
+        self.samples: dict[str, int] = {k: 0 for k in self.links}
+        self._odo_reply_index = 0
+        self._gauge_unwrap: tuple[int, int] | None = None  # (last raw ms, accumulated)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.poller = None
+
+    def _odo_parser_cfg(self) -> encoder.OdometerConfig:
+        if self.world is None:
+            return self.odo_cfg
+        from dataclasses import replace
+        # the parser's speed gate runs on host time, which a simulation compresses
+        return replace(self.odo_cfg, max_speed_m_s=self.odo_cfg.max_speed_m_s * self.world.options.speedup)
+
+    def _raw(self, device: str, t_host: float, data: bytes) -> None:
+        try:
+            self.writer.append(device, t_host, data)
+        except Exception as exc:  # reported on the screen; the queue keeps the rows
+            self.write_error = str(exc)
+
+    # ------------------------------------------------------------------ lifecycle
+    def open(self, timeout_s: float = 5.0) -> None:
+        """Open every port (``drivers.serialport.PortNotFound`` names the one that fails)."""
+        for link in self.links.values():
+            link.open(timeout_s)
+
+    def start(self) -> None:
+        for link in self.links.values():
+            link.start()
+        if "odometer" in self.links:
+            if self.world is not None:
+                self.poller = SimOdometerPoller(self.links["odometer"], self.world).start()
+            else:
+                self.poller = encoder.OdometerPoller(self.links["odometer"], self.odo_cfg).start()
+        self._thread = threading.Thread(target=self._run, name="acquisition", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self.poller is not None:
+            self.poller.stop()
+        time.sleep(0.05)
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for link in self.links.values():
+            link.stop()
+        self.pump()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.pump()
+            except Exception as exc:  # never let the pump die silently
+                import traceback, sys
+                traceback.print_exc(file=sys.stderr)
+                self.write_error = f"acquisition: {exc}"
+            self._stop.wait(0.02)
+
+    # ------------------------------------------------------------------ decoding
+    def pump(self) -> None:
+        """Move everything the links decoded into the store and the buffers."""
+        now = time.monotonic()
+        if "imu" in self.links:
+            batches = self.links["imu"].drain()
+            if batches:
+                self._imu(novatel.ImuFrames.concat(batches))
+                self.last_data_host["imu"] = now
+        if "odometer" in self.links:
+            recs = self.links["odometer"].drain()
+            if recs:
+                self._odometer(recs)
+                self.last_data_host["odometer"] = now
+        if "gauge" in self.links:
+            recs = self.links["gauge"].drain()
+            if recs:
+                self._gauge(recs)
+                self.last_data_host["gauge"] = now
+
+    def _imu(self, fr: novatel.ImuFrames) -> None:
+        imu_type = self.imu_type if self.imu_type is not None else int(fr.imu_type[0])
+        w, f = fr.to_si(novatel.imu_scale(imu_type, self.imu_rate_hz), self.axes)
+        if self.tb.imu_week is None:  # first frames of a real session: smallest latency
+            self.tb.imu_week = int(fr.week[0])
+            dev = fr.seconds_since(fr.week[0], 0.0)
+            self.tb.imu_sow0_s = float(np.min(dev - (fr.t_host_s - self.tb.host_t0)))
+        t = fr.seconds_since(self.tb.imu_week, self.tb.imu_sow0_s)
+        rows = np.column_stack([t, w, f])
+        self._store("imu_sample", ImuRecord, rows)
+        self.buffers.add("imu", rows)
+        self.samples["imu"] += rows.shape[0]
+
+    def _odometer(self, recs) -> None:
+        c = np.array([r.count1 if self.odo_cfg.channel == 1 else r.count2 for r in recs], np.int64)
+        if self.world is not None:
+            k = self._odo_reply_index + np.arange(c.size)
+            t = np.array([self.world.odometer_time(int(i)) for i in k])
+            self._odo_reply_index += c.size
+        else:
+            t = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
+        if self.tb.odo_count0 is None:
+            self.tb.odo_count0 = int(c[0])
+        d = encoder.signed_delta(c, self.tb.odo_count0, self.odo_cfg.bits) * self.odo_cfg.metres_per_count
+        keep = np.append(np.diff(t) > 0, True)  # replies of one read share a host time
+        rows = np.column_stack([t[keep], d[keep]])
+        last = self.buffers.last_t("odo")
+        rows = rows[rows[:, 0] > last]
+        self._store("odometer_sample", OdometerRecord, rows)
+        self.buffers.add("odo", rows)
+        self.samples["odometer"] += rows.shape[0]
+
+    def _gauge(self, recs) -> None:
+        recs = [r for r in recs if r.status == gauge.STATUS_OK]
+        if not recs:
+            return
+        ms = np.array([r.t_device_ms for r in recs], np.int64)
+        if self._gauge_unwrap is None:
+            self._gauge_unwrap = (int(ms[0]), int(ms[0]))
+        prev, acc = self._gauge_unwrap
+        seq = np.concatenate([[prev], ms])
+        h = gauge.MS_MODULO // 2
+        steps = (seq[1:] - seq[:-1] + h) % gauge.MS_MODULO - h  # the device clock wraps
+        cum = acc + np.cumsum(steps)
+        self._gauge_unwrap = (int(ms[-1]), int(cum[-1]))
+        if self.tb.gauge_origin_s is None:
+            th = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
+            self.tb.gauge_origin_s = float(np.min(th - cum * 1e-3))
+        t = self.tb.gauge_origin_s + cum * 1e-3
+        rows = np.column_stack([t, [r.gauge_m for r in recs]])
+        self._store("gauge_sample", GaugeRecord, rows)
+        self.buffers.add("gauge", rows)
+        self.samples["gauge"] += rows.shape[0]
+
+    def _store(self, table: str, cls, rows: np.ndarray) -> None:
+        if not rows.shape[0]:
+            return
+        try:
+            self.writer.append_records(table, [cls(*r) for r in rows.tolist()])
+        except Exception as exc:
+            self.write_error = str(exc)
+
+    # ------------------------------------------------------------------ health
+    def health(self) -> list[DeviceHealth]:
+        now = time.monotonic()
+        out = []
+        for name, link in self.links.items():
+            st = link.stats
+            errors = st.bad_checksum + st.bad_format + st.timeouts
+            connected = link.connected.is_set()
+            age = now - self.last_data_host[name]
+            msg = "" if connected else (link.last_error or "port gone")
+            if connected and age >= STALE_AFTER_S:
+                msg = f"no data for {age:.1f} s"
+            out.append(DeviceHealth(name, connected, age, self.samples[name], errors, msg))
+        return out
+
+    def faults(self) -> list[DeviceHealth]:
+        """Devices that are not healthy now."""
+        return [h for h in self.health() if not h.ok]

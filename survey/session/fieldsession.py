@@ -1,0 +1,937 @@
+"""The field survey session: device check, free station, static alignment, stop-and-go loop, end.
+
+One loop drives the session, ticking about 20 times a wall-clock second: it moves the decoded
+samples into the store (through :class:`survey.session.acquisition.Acquisition`), follows the
+trolley (standing or moving, from the odometer), runs the static alignment, refreshes the live
+screen, and carries out the crew's actions, which come from the keyboard or from a script
+(:mod:`survey.session.script`). Everything the crew decides is written to the project store at
+once: fixes with their decisions, stops, notes, pause/resume/turn events and the script position,
+so ``trolley survey resume`` rebuilds the state from the store alone (:meth:`FieldSession.run`
+with ``resume=True``).
+
+See ``docs/field_session.md``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from survey.session.acquisition import Acquisition, TimeBase
+from survey.session.screen import KEYS_HELP, ScreenState, render
+from survey.session.script import Action
+from survey.store import (FixRecord, NoteRecord, ProjectStore, RecordWriter, SessionEvent, StopRecord,
+                          setup_rows)
+
+#: the trolley stands when the odometer moved less than this over ``STAND_WINDOW_S``
+STAND_TOLERANCE_M = 0.002
+STAND_WINDOW_S = 1.0
+TICK_S = 0.05
+
+
+class SessionAbort(RuntimeError):
+    """The session cannot go on; ``hint`` says what the crew can try."""
+
+    def __init__(self, message: str, hint: str = "") -> None:
+        super().__init__(message)
+        self.hint = hint
+
+
+@dataclass
+class SessionConfig:
+    """How a session runs.
+
+    Attributes
+    ----------
+    script : the crew's actions (None: keyboard).
+    out_dir : folder for the session export, the processed track, the sheet and the plots.
+    device_wait_s : wall-clock time a device has to deliver its first data at the device check.
+    setup_points : number of CPIII points measured for the free station.
+    live : process each interval as soon as its closing fix is accepted.
+    tolerances : tolerance set of the survey sheet.
+    """
+
+    script: list[Action] | None = None
+    out_dir: Path | None = None
+    device_wait_s: float = 10.0
+    setup_points: int = 8
+    live: bool = True
+    tolerances: str | None = None
+
+
+@dataclass
+class SessionOutcome:
+    """What the session produced (paths are None when not written)."""
+
+    session_id: int
+    fixes_accepted: int
+    session_dir: Path | None = None
+    track_csv: Path | None = None
+    xlsx: Path | None = None
+    plots_dir: Path | None = None
+    result: object = None
+    notes: list[str] = field(default_factory=list)
+
+
+class FieldSession:
+    """One field session on the project store.
+
+    Parameters
+    ----------
+    store : the open project store.
+    name : session name.
+    config : how to run.
+    world : a :class:`survey.session.simworld.SimWorld` (simulated session) or None.
+    ports : device -> port for real devices (``imu``, ``odometer``, ``gauge``, ``totalstation``).
+    console : rich console for the screen (stderr).
+    keys : a key source with ``get() -> str | None`` (interactive) or None.
+    resume : continue a stored session instead of creating one.
+    """
+
+    def __init__(self, store: ProjectStore, name: str, config: SessionConfig, world=None,
+                 ports: dict | None = None, console=None, keys=None, resume: bool = False,
+                 device_options: dict | None = None) -> None:
+        from rich.console import Console
+
+        self.store = store
+        self.name = name
+        self.config = config
+        self.world = world
+        self.ports = dict(ports or {})
+        self.device_options = dict(device_options or {})
+        self.console = console or Console(stderr=True)
+        self.keys = keys
+        self.resume = resume
+        self.screen = ScreenState(session=name)
+        self.settings = store.settings()
+        self.rec = None
+        self.acq: Acquisition | None = None
+        self.ts = None
+        self.writer: RecordWriter | None = None
+        self.setup_id: int | None = None
+        # session state (rebuilt from the store on resume)
+        self.static_start_s: float | None = None
+        self.aligned = False
+        self.paused = False
+        self.device_pause = ""
+        self.direction = 1.0
+        self.last_fix: FixRecord | None = None
+        self.last_fix_distance_m = 0.0
+        self.last_fix_chainage_m = float("nan")
+        self.accepted_fixes: list[FixRecord] = []
+        self.pending: tuple[int, FixRecord, object] | None = None
+        self.script_index = 0
+        self.stop_started_s: float | None = None
+        self.stop_count = 0
+        self.ended = False
+        self.note_buffer: str | None = None
+        self._action_state: dict = {}
+        self._live = None
+        self._live_thread: threading.Thread | None = None
+        self._live_fed_t = -math.inf
+        self._design = None
+        self._last_render = 0.0
+
+    # ================================================================== time and motion
+    def now(self) -> float:
+        """Session time now."""
+        if self.world is not None:
+            return self.world.now()
+        return time.monotonic() - self.acq.tb.host_t0
+
+    def _odometer(self) -> np.ndarray:
+        return self.acq.buffers.array("odo", 2)
+
+    def motion(self) -> tuple[bool, float, float]:
+        """(standing, speed, distance) from the latest odometer second."""
+        od = self._odometer()
+        if od.shape[0] < 2:
+            return True, 0.0, float(od[-1, 1]) if od.shape[0] else 0.0
+        t_last = od[-1, 0]
+        w = od[od[:, 0] >= t_last - STAND_WINDOW_S]
+        moved = float(np.ptp(w[:, 1]))
+        dt = max(float(w[-1, 0] - w[0, 0]), 1e-9)
+        return moved < STAND_TOLERANCE_M, abs(float(w[-1, 1] - w[0, 1])) / dt, float(od[-1, 1])
+
+    def data_time(self) -> float:
+        """Newest session time covered by the IMU and odometer data."""
+        return min(self.acq.buffers.last_t("imu"), self.acq.buffers.last_t("odo"))
+
+    # ================================================================== store helpers
+    def _event(self, kind: str, detail: str = "", t_s: float | None = None) -> None:
+        self.store.add_event(self.rec.session_id, SessionEvent(self.now() if t_s is None else t_s, kind, detail))
+
+    def say(self, text: str) -> None:
+        """A message on the screen and in the scroll-back."""
+        self.screen.message = text
+        self.console.print(text, highlight=False)
+
+    # ================================================================== start
+    def open_session(self) -> None:
+        """Create the session (or load it on resume) and its time base."""
+        from survey.store import StoreError
+
+        if self.resume:
+            self.rec = self.store.session(self.name)
+            if self.rec.state == "ended":
+                raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
+                                   "start a new session with `trolley survey start`")
+            if self.rec.source != "live":
+                raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
+        else:
+            design = self.store.alignment()
+            meta = self.settings.session_meta("alignment.xml" if design else None)
+            if self.world is not None:
+                meta = replace(meta, initial_heading_rad=self.world.sim.session.meta.initial_heading_rad,
+                               static_s=self.world.sim.session.meta.static_s)
+            try:
+                self.rec = self.store.create_session(self.name, meta, alignment_id=design.alignment_id if design else None)
+            except StoreError as exc:
+                raise SessionAbort(str(exc), "choose another --session name, or `trolley survey resume`") from None
+        if self.rec.alignment_id is not None:
+            from trolley.landxml import parse_landxml
+
+            a = self.store.alignment(self.rec.alignment_id)
+            self._design = parse_landxml(a.landxml_text, rail_spacing_m=self.rec.meta.trolley.rail_spacing_m)
+        self.store.set_session_state(self.rec.session_id, "open")
+
+    def _stored_state(self) -> dict:
+        """Everything a resumed session needs, from the store."""
+        sid = self.rec.session_id
+        events = self.store.events(sid)
+        c = self.store.connection
+        last = {}
+        for table, dev in (("imu_sample", "imu"), ("odometer_sample", "odometer"), ("gauge_sample", "gauge")):
+            r = c.execute(f"SELECT MAX(t_s) FROM {table} WHERE session_id = ?", (sid,)).fetchone()
+            if r[0] is not None:
+                last[dev] = float(r[0])
+        return {"events": events, "last": last}
+
+    def start_devices(self) -> None:
+        """Start the twins (simulated) or open the ports, then check every device."""
+        from drivers.serialport import DeviceError
+        from drivers.totalstation import TotalStation
+
+        stored = self._stored_state() if self.resume else {"events": [], "last": {}}
+        tb = TimeBase()
+        for ev in stored["events"]:
+            if ev.kind == "clock":
+                d = json.loads(ev.detail)
+                tb = TimeBase(imu_week=d["imu_week"], imu_sow0_s=d["imu_sow0_s"], odo_count0=d["odo_count0"],
+                              host_t0=d["host_t0"], gauge_origin_s=d.get("gauge_origin_s"))
+        self.writer = RecordWriter(self.store.path, self.rec.session_id, flush_interval_s=0.5)
+        if self.world is not None:
+            from survey.session.simworld import IMU_SOW0, IMU_WEEK, SIM_IMU_TYPE, SIM_ODOMETER
+
+            last = stored["last"]
+            t_start = min(last.values()) if last else 0.0
+            self.ports = self.world.start(t_start, last)
+            tb.imu_week, tb.imu_sow0_s = IMU_WEEK, IMU_SOW0
+            tb.gauge_origin_s = self.world.gauge_t0_s
+            tb.gauge_ms0 = 0
+            if tb.odo_count0 is None:
+                tb.odo_count0 = 0
+            opts = dict(odometer=SIM_ODOMETER, imu_type=SIM_IMU_TYPE)
+        else:
+            from drivers import encoder
+
+            opts = dict(odometer=encoder.OdometerConfig(**self.device_options.get("odometer", {})),
+                        imu_type=self.device_options.get("imu_type"),
+                        imu_rate_hz=self.device_options.get("imu_rate_hz"),
+                        imu_axes=self.device_options.get("imu_axes", "x,y,z"))
+        if "imu" not in self.ports or "totalstation" not in self.ports:
+            raise SessionAbort("the devices file must name at least an imu and a totalstation port",
+                               'e.g. {"imu": "/dev/ttyUSB0", "odometer": "/dev/ttyUSB1", "totalstation": "/dev/ttyUSB2"}')
+        self.acq = Acquisition({k: v for k, v in self.ports.items() if k != "totalstation"}, self.writer, tb,
+                               self.world, **opts)
+        if self.resume and not self.world:
+            self._load_buffers()
+        elif self.resume:
+            self._load_buffers()
+        self.screen.phase = "device check"
+        try:
+            self.acq.open(5.0)
+        except DeviceError as exc:
+            raise SessionAbort(str(exc), "check the cable and the port name (--devices file); "
+                                         "`trolley devices probe` tests one device") from None
+        self.ts = TotalStation(self.ports["totalstation"], raw_log=None, timeout_s=3.0)
+        from survey.session.acquisition import RawTap
+
+        self.ts.link.parser = RawTap(self.ts.link.parser, "totalstation", self.acq._raw)
+        try:
+            self.ts.link.open(5.0)
+        except DeviceError as exc:
+            raise SessionAbort(str(exc), "check the total station's cable and port") from None
+        if self.world is not None:
+            self.world.run_twins()
+        self.acq.start()
+        self.check_devices()
+        if not any(ev.kind == "clock" for ev in stored["events"]):
+            self._event("clock", json.dumps({**tb.to_json(), "gauge_origin_s": tb.gauge_origin_s}), t_s=0.0)
+
+    def _load_buffers(self) -> None:
+        sid = self.rec.session_id
+        t, w, f = self.store.imu_arrays(sid)
+        self.acq.buffers.add("imu", np.column_stack([t, w, f]))
+        ot, od = self.store.odometer_arrays(sid)
+        self.acq.buffers.add("odo", np.column_stack([ot, od]))
+        gt, gm = self.store.gauge_arrays(sid)
+        self.acq.buffers.add("gauge", np.column_stack([gt, gm]))
+        self.acq._odo_reply_index = 0
+
+    def check_devices(self) -> None:
+        """Every device probed, its status shown; a failing one stops the start with the reason."""
+        from rich.table import Table
+
+        from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
+
+        table = Table(title="device check")
+        for col in ("device", "port", "status"):
+            table.add_column(col)
+        problems = []
+        try:
+            self.ts.link.start()
+            self.ts.link.write(b"\n")
+            self.ts.null_proc()
+            rel, ver, sub = self.ts.sw_version()
+            table.add_row("totalstation", self.ports["totalstation"], f"[green]ok[/] GeoCOM {rel}.{ver}.{sub}")
+        except (GeoComError, DeviceError) as exc:
+            table.add_row("totalstation", self.ports["totalstation"], f"[red]{exc}[/]")
+            problems.append(("totalstation", str(exc), "switch the instrument on, check GeoCOM on the serial port "
+                                                       "and its baud rate"))
+        deadline = time.monotonic() + self.config.device_wait_s
+        while time.monotonic() < deadline and any(n == 0 for n in self._new_samples().values()):
+            time.sleep(0.05)
+        for name, n in self._new_samples().items():
+            port = self.ports[name]
+            if n == 0:
+                err = self.acq.links[name].last_error or "no data"
+                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({err})[/]")
+                problems.append((name, f"no data from {port} in {self.config.device_wait_s:g} s",
+                                 "check power, cable and baud rate; `trolley devices record` shows what arrives"))
+            else:
+                table.add_row(name, port, f"[green]ok[/] {n} samples")
+        self.console.print(table)
+        if problems:
+            name, why, hint = problems[0]
+            raise SessionAbort(f"{name}: {why}", hint)
+
+    def _new_samples(self) -> dict[str, int]:
+        return dict(self.acq.samples)
+
+    # ================================================================== station setup
+    def station_setup(self) -> None:
+        """Free station on the nearest CPIII points: measure, resect, show, accept / drop / re-measure."""
+        from rich.table import Table  # noqa: F401
+
+        from survey.commands.project import resection_table
+        from trolley.resection import PolarModel, PolarObservations, ResectionError, resect, suggest_point_to_drop
+
+        setups = [s for s in self.store.station_setups(self.rec.session_id) if s.accepted]
+        if setups:
+            self.setup_id = setups[-1].setup_id
+            self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
+            self.say(f"station setup {self.setup_id} restored from the store")
+            return
+        self.screen.phase = "station setup"
+        points = self._setup_points()
+        config = self.settings.resection_config()
+        if self.world is not None:  # the twin has no curvature/refraction model
+            config = replace(config, model=replace(config.model, curvature_refraction=False))
+        drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"]
+        exclude: list[str] = []
+        obs = self._measure_points(points)
+        while True:
+            ids = [p.point_id for p in points]
+            pts = np.array([[p.e_m, p.n_m, p.h_m] for p in points])
+            try:
+                res = resect(ids, pts, obs, config, exclude=exclude)
+            except ResectionError as exc:
+                raise SessionAbort(f"station setup: {exc}", "measure more CPIII points") from None
+            self.console.print(resection_table(res, "free station on CPIII"))
+            if self.config.script is not None:
+                if drops:
+                    exclude.append(drops.pop(0))
+                    continue
+                choice = "a"
+            else:
+                worst = suggest_point_to_drop(res)
+                choice = self._ask_key(f"a accept | d drop {worst or '-'} | m measure again", "adm")
+                if choice == "d" and worst:
+                    exclude.append(worst)
+                    continue
+                if choice == "m":
+                    obs = self._measure_points(points)
+                    exclude = []
+                    continue
+            break
+        setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
+        self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
+        self._give_station(res.station_enh_m, res.orientation_rad)
+        self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
+
+    def _setup_points(self):
+        pts = self.store.cpiii_points()
+        if len(pts) < 3:
+            raise SessionAbort("the project has fewer than 3 CPIII points",
+                               "import them with `trolley project import-cpiii FILE --project NAME`")
+        if self.world is not None:
+            st = self.world.station_enh_m
+        else:  # the crew stands near the first points of the file
+            st = np.array([pts[0].e_m, pts[0].n_m, pts[0].h_m])
+        d = [math.hypot(p.e_m - st[0], p.n_m - st[1]) for p in pts]
+        order = np.argsort(d)[: self.config.setup_points]
+        return [pts[i] for i in order]
+
+    def _measure_points(self, points):
+        from drivers.geocom import GeoComError
+        from trolley.resection import PolarObservations
+
+        hz, v, sd = [], [], []
+        for p in points:
+            if self.world is not None:
+                self.world.aim_at_point((p.e_m, p.n_m, p.h_m))
+            elif self.config.script is None:
+                self._ask_key(f"aim at {p.point_id} and press Enter", "\r\n")
+            try:
+                self.ts.fine_adjust()
+                m = self.ts.measure()
+            except GeoComError as exc:
+                raise SessionAbort(f"total station on {p.point_id}: {exc}", "check the prism and the line of sight") from None
+            self.console.print(f"  {p.point_id}: Hz {m.hz_rad:.6f} rad, V {m.v_rad:.6f} rad, {m.slope_m:.4f} m",
+                               highlight=False)
+            hz.append(m.hz_rad)
+            v.append(m.v_rad)
+            sd.append(m.slope_m)
+        return PolarObservations(np.array(hz), np.array(v), np.array(sd))
+
+    def _give_station(self, station_enh_m, orientation_rad: float) -> None:
+        """TMC_SetStation, then orient the circle so that it reads grid azimuths."""
+        e, n, h = (float(x) for x in station_enh_m)
+        self.ts.set_station(e, n, h, 0.0)
+        hz, _ = self.ts.angle()
+        self.ts.set_orientation(float((hz + orientation_rad) % (2 * math.pi)))
+        self.ts.set_reflector_height(0.0)
+
+    def _ask_key(self, prompt: str, allowed: str) -> str:
+        self.console.print(f"[bold]{prompt}[/]", highlight=False)
+        while True:
+            k = self.keys.get() if self.keys else None
+            if k is not None and k.lower() in allowed:
+                return k.lower()
+            self.acq.pump()
+            time.sleep(TICK_S)
+
+    # ================================================================== static alignment
+    def _alignment_step(self) -> None:
+        if self.aligned:
+            return
+        imu_t = self.acq.buffers.last_t("imu")
+        if not np.isfinite(imu_t):
+            return
+        static_s = self.rec.meta.static_s
+        if self.static_start_s is None:
+            self.static_start_s = float(self.acq.buffers.array("imu", 7)[0, 0])
+        t_end = self.static_start_s + static_s
+        od = self._odometer()
+        w = od[(od[:, 0] >= self.static_start_s) & (od[:, 0] <= min(t_end, od[-1, 0] if od.shape[0] else t_end))]
+        if w.shape[0] > 1 and np.ptp(w[:, 1]) > STAND_TOLERANCE_M:
+            moved_at = float(w[np.argmax(np.abs(w[:, 1] - w[0, 1]) > STAND_TOLERANCE_M), 0])
+            self.static_start_s = moved_at + STAND_WINDOW_S
+            self.say(f"the trolley moved at t = {moved_at:.1f} s: static alignment restarts; keep it still")
+            self._event("alignment_restart", f"{self.static_start_s!r}")
+            return
+        done = min(imu_t, od[-1, 0] if od.shape[0] else imu_t) - self.static_start_s
+        self.screen.progress = max(0.0, min(1.0, done / static_s))
+        self.screen.phase = f"static alignment: {max(static_s - done, 0.0):5.0f} s to go"
+        if done >= static_s:
+            self.aligned = True
+            self.screen.progress = None
+            self._event("aligned", json.dumps({"static_start_s": self.static_start_s, "static_s": static_s}))
+            self.say("static alignment done: push the trolley to the next stop")
+            self.screen.phase = "surveying"
+
+    # ================================================================== fixes
+    def take_fix(self) -> bool:
+        """Measure the prism; False when it cannot be done now (the reason is on the screen)."""
+        from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
+
+        standing, _, dist = self.motion()
+        if not standing:
+            self.screen.message = "the trolley is moving: a fix is taken when it stands"
+            return False
+        t = self.now()
+        sigma = self.rec.meta.fix_sigma_m
+        if self.world is not None:
+            self.world.aim_at_prism(t, sigma)
+        try:
+            self.ts.fine_adjust()
+            m = self.ts.measure()
+        except (GeoComError, DeviceError) as exc:
+            self._device_fault(f"total station: {exc}")
+            return False
+        label = f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}"
+        fix = FixRecord(t, label, m.E_m, m.N_m, m.H_m, sigma, sigma, sigma, setup_id=self.setup_id)
+        verdict = self._live_verdict(fix)
+        accepted = verdict is None or bool(verdict.accepted)
+        reason = "accepted" if accepted else f"innovation test failed: {verdict.reason}"
+        fix_id = self.store.add_fix(self.rec.session_id, replace(fix, accepted=accepted, reason=reason))
+        fix = replace(fix, fix_id=fix_id, accepted=accepted, reason=reason)
+        if accepted:
+            self._accepted(fix, dist)
+            self.say(f"fix {label} accepted at t = {t:.1f} s"
+                     + (f" (innovation {1e3 * np.linalg.norm(verdict.innovation_enh_m):.2f} mm)" if verdict else ""))
+        else:
+            self.pending = (fix_id, fix, verdict)
+            inn = 1e3 * np.asarray(verdict.innovation_enh_m)
+            self.say(f"suspicious fix {label}: innovation E {inn[0]:+.1f} N {inn[1]:+.1f} H {inn[2]:+.1f} mm "
+                     f"(NIS {verdict.nis:.1f}): {verdict.reason}. r = measure again, a = accept anyway")
+        return True
+
+    def _accepted(self, fix: FixRecord, distance_m: float) -> None:
+        self.accepted_fixes.append(fix)
+        self.last_fix = fix
+        self.last_fix_distance_m = distance_m
+        if self._design is not None:
+            p = self._design.project(np.array([fix.e_m]), np.array([fix.n_m]))
+            self.last_fix_chainage_m = float(np.asarray(p.chainage_m).ravel()[0])
+        self.screen.fixes_accepted = len(self.accepted_fixes)
+        if len(self.accepted_fixes) > 1:
+            self._process_interval_async()
+
+    def accept_pending(self) -> None:
+        if not self.pending:
+            self.screen.message = "no suspicious fix to accept"
+            return
+        fix_id, fix, _ = self.pending
+        self.pending = None
+        self.store.decide_fix(fix_id, True, "accepted by the crew despite the innovation test")
+        if self._live is not None:
+            try:
+                self._live.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
+                                   np.array([fix.sigma_e_m] * 3), force_accept=True)
+            except Exception:  # the final processing decides again
+                pass
+        self._accepted(replace(fix, accepted=True), self.motion()[2])
+        self.say(f"fix {fix.point} accepted by the crew")
+
+    def remeasure_pending(self) -> bool:
+        if self.pending:
+            fix_id, fix, _ = self.pending
+            self.store.decide_fix(fix_id, False, "rejected: measured again")
+            self.pending = None
+        return self.take_fix()
+
+    def undo_last_fix(self) -> None:
+        if not self.accepted_fixes:
+            self.screen.message = "no fix to undo"
+            return
+        fix = self.accepted_fixes.pop()
+        self.store.decide_fix(fix.fix_id, False, "undone by the crew")
+        if self._live is not None:
+            try:
+                self._live.undo_last_fix()
+            except Exception:
+                pass
+        self.last_fix = self.accepted_fixes[-1] if self.accepted_fixes else None
+        self.screen.fixes_accepted = len(self.accepted_fixes)
+        self.say(f"fix {fix.point} undone")
+
+    # ================================================================== live processing
+    def _live_processor(self):
+        """The incremental processor (``trolley.live``), created after the static alignment."""
+        if not self.config.live or self._live is False:
+            return None
+        if self._live is None:
+            try:
+                from trolley.live import LiveProcessor
+            except ImportError:
+                self._live = False
+                return None
+            self._live = LiveProcessor(self.rec.meta, self._design)
+            imu = self.acq.buffers.array("imu", 7)
+            t0 = self.static_start_s if self.static_start_s is not None else imu[0, 0]
+            sel = (imu[:, 0] >= t0) & (imu[:, 0] <= t0 + self.rec.meta.static_s)
+            self._live.align(imu[sel, 0], imu[sel, 1:4], imu[sel, 4:7])
+            self._live_fed_t = float(imu[sel, 0][-1])
+            for f in self.accepted_fixes:  # fixes taken during the static alignment
+                if f.t_s <= self._live_fed_t:
+                    self._live.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
+                                       np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
+        return self._live
+
+    def _feed_live(self, t_until: float) -> None:
+        lp = self._live
+        imu = self.acq.buffers.array("imu", 7)
+        od = self._odometer()
+        g = self.acq.buffers.array("gauge", 2)
+        a, b = self._live_fed_t, t_until
+        si = (imu[:, 0] > a) & (imu[:, 0] <= b)
+        so = (od[:, 0] > a) & (od[:, 0] <= b)
+        sg = (g[:, 0] > a) & (g[:, 0] <= b)
+        if np.any(si):
+            lp.add_samples(imu[si, 0], imu[si, 1:4], imu[si, 4:7], od[so, 0], od[so, 1],
+                           g[sg, 0] if np.any(sg) else None, g[sg, 1] if np.any(sg) else None)
+            self._live_fed_t = b
+
+    def _live_verdict(self, fix: FixRecord):
+        if not self.aligned:
+            return None
+        lp = self._live_processor()
+        if lp is None:
+            return None
+        try:
+            # the data up to the fix time must be there before the prediction
+            deadline = time.monotonic() + 2.0
+            while self.data_time() < fix.t_s and time.monotonic() < deadline:
+                self.acq.pump()
+                time.sleep(0.01)
+            if self._live_thread is not None:
+                self._live_thread.join()
+            self._feed_live(fix.t_s)
+            return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
+                              np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]))
+        except Exception as exc:  # never stop the survey for the live view
+            self.console.print(f"[yellow]live processing unavailable: {exc}[/]", highlight=False)
+            self._live = False
+            return None
+
+    def _process_interval_async(self) -> None:
+        lp = self._live if self._live not in (None, False) else None
+        if lp is None:
+            return
+
+        def run() -> None:
+            try:
+                t0 = time.perf_counter()
+                r = lp.smooth_last_interval()
+                dt = time.perf_counter() - t0
+                self.screen.last_interval = interval_summary_text(r, dt)
+                self.console.print(self.screen.last_interval, highlight=False)
+            except Exception as exc:
+                self.screen.last_interval = f"interval processing failed: {exc}"
+
+        if self._live_thread is not None:
+            self._live_thread.join()
+        self._live_thread = threading.Thread(target=run, name="interval", daemon=True)
+        self._live_thread.start()
+
+    # ================================================================== device faults
+    def _device_fault(self, message: str) -> None:
+        if not self.device_pause:
+            self._event("device_fault", message)
+            self.say(f"{message}: session paused; nothing received is lost. It continues when the device is back.")
+        self.device_pause = message
+
+    def _check_health(self) -> None:
+        faults = self.acq.faults()
+        if self.world is not None and self.world.finished(self.data_time()):
+            faults = []  # the simulated survey is over: no more data is right
+        if faults:
+            self._device_fault("; ".join(f"{f.name}: {f.message or 'fault'}" for f in faults))
+        elif self.device_pause and not self.device_pause.startswith("total station"):
+            self._event("device_back", self.device_pause)
+            self.say(f"devices back ({self.device_pause}); the session continues")
+            self.device_pause = ""
+
+    def _total_station_back(self) -> bool:
+        from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
+
+        try:
+            self.ts.null_proc()
+        except (GeoComError, DeviceError):
+            return False
+        self._event("device_back", self.device_pause)
+        self.say("total station answers again; the session continues")
+        self.device_pause = ""
+        return True
+
+    # ================================================================== the loop
+    def tick(self) -> None:
+        """One refresh: store, health, alignment, motion, stops, screen."""
+        self.acq.pump()
+        self._check_health()
+        self._alignment_step()
+        standing, speed, dist = self.motion()
+        t = self.now()
+        if standing and self.stop_started_s is None and self.aligned:
+            self.stop_started_s = t
+        elif not standing and self.stop_started_s is not None:
+            self.store.add_stop(self.rec.session_id, StopRecord(self.stop_started_s, t, f"S{self.stop_count:03d}",
+                                                                self.chainage_now(dist)))
+            self.stop_started_s = None
+            self.stop_count += 1
+        s = self.screen
+        s.t_s, s.standing, s.speed_m_s = t, standing, speed
+        s.distance_since_fix_m = abs(dist - self.last_fix_distance_m) if self.last_fix else dist
+        s.chainage_m = self.chainage_now(dist)
+        s.sigma_mm = predicted_sigma_mm(self.rec.meta, s.distance_since_fix_m, speed)
+        s.devices = self.acq.health()
+        if self.paused:
+            s.phase = "PAUSED (train): p to resume"
+        elif self.device_pause:
+            s.phase = "PAUSED: device fault"
+        elif self.aligned:
+            s.phase = "surveying"
+
+    def chainage_now(self, dist: float) -> float:
+        if not np.isfinite(self.last_fix_chainage_m):
+            return float("nan")
+        return self.last_fix_chainage_m + self.direction * (dist - self.last_fix_distance_m)
+
+    def _next_action(self) -> Action | None:
+        script = self.config.script
+        if script is not None:
+            while self.script_index < len(script) and script[self.script_index].name == "setup":
+                self.script_index += 1
+            return script[self.script_index] if self.script_index < len(script) else Action("end")
+        if self.keys is None:
+            return None
+        k = self.keys.get()
+        if k is None:
+            return None
+        if self.note_buffer is not None:
+            if k in "\r\n":
+                text, self.note_buffer = self.note_buffer.strip(), None
+                self.screen.prompt = KEYS_HELP
+                return Action("note", text=text) if text else None
+            self.note_buffer = self.note_buffer[:-1] if k in "\x7f\b" else self.note_buffer + k
+            self.screen.prompt = f"note: {self.note_buffer}_  (Enter to save)"
+            return None
+        mapping = {"f": "fix", "a": "accept", "r": "remeasure", "u": "undo", "p": "pause", "t": "turn", "e": "end"}
+        k = k.lower()
+        if k == "n":
+            self.note_buffer = ""
+            self.screen.prompt = "note: _  (Enter to save)"
+            return None
+        if k == "p" and self.paused:
+            return Action("resume")
+        return Action(mapping[k]) if k in mapping else None
+
+    def do(self, a: Action) -> bool:
+        """Carry out (a step of) an action; True when it is done."""
+        st = self._action_state
+        standing = self.motion()[0]
+        if a.name == "wait":
+            st.setdefault("until", self.now() + a.seconds)
+            return self.now() >= st["until"]
+        if a.name == "note":
+            dist = self.motion()[2]
+            self.store.add_note(self.rec.session_id, NoteRecord(self.now(), a.text, self.chainage_now(dist)))
+            self.say(f"note at {self.chainage_now(dist):.3f} m: {a.text}")
+            return True
+        if a.name == "pause":
+            self.paused = True
+            self._event("pause")
+            self.say("paused (train passing): p to resume")
+            return True
+        if a.name == "resume":
+            self.paused = False
+            self._event("resume")
+            self.say("resumed")
+            return True
+        if a.name == "turn":
+            self.direction = -self.direction
+            self._event("turn", f"direction {self.direction:+.0f}")
+            self.say("trolley turned around: chainage keeps increasing the right way")
+            return True
+        if a.name == "undo":
+            self.undo_last_fix()
+            return True
+        if a.name == "accept":
+            self.accept_pending()
+            return True
+        if a.name == "end":
+            if self.world is not None and self.config.script is not None:
+                # a simulated session records the whole simulated survey
+                if not self.world.finished(self.data_time()):
+                    return False
+            self.ended = True
+            return True
+        if self.paused or self.device_pause:
+            if self.device_pause.startswith("total station") and a.name in ("fix", "remeasure"):
+                if not self._total_station_back():
+                    return False
+            else:
+                return False
+        if a.name == "stop":
+            return standing
+        if a.name == "move":
+            if not self.aligned:
+                return False
+            if not st.get("moved"):
+                st["moved"] = not standing
+                return False
+            return standing
+        if a.name in ("fix", "remeasure"):
+            if not standing:
+                return self.config.script is None  # a key press while moving is answered on the screen
+            if self.world is not None and self.world.finished(self.now()):
+                return True
+            ok = self.remeasure_pending() if a.name == "remeasure" else self.take_fix()
+            return ok or self.config.script is None
+        return True
+
+    def loop(self) -> None:
+        """The stop-and-go loop until the session ends."""
+        from rich.live import Live
+
+        current: Action | None = None
+        with Live(render(self.screen), console=self.console, refresh_per_second=8, transient=True,
+                  redirect_stderr=False, redirect_stdout=False) as live:
+            while not self.ended:
+                self.tick()
+                if current is None:
+                    current = self._next_action()
+                    self._action_state = {}
+                if current is not None and self.do(current):
+                    if self.config.script is not None:
+                        self.script_index += 1
+                        self._event("script", str(self.script_index))
+                    current = None
+                live.update(render(self.screen))
+                time.sleep(TICK_S)
+
+    # ================================================================== resume
+    def restore(self) -> None:
+        """Rebuild the crew-visible state from the store (fixes, alignment, pauses, script position)."""
+        sid = self.rec.session_id
+        for ev in self.store.events(sid):
+            if ev.kind == "aligned":
+                d = json.loads(ev.detail)
+                self.static_start_s, self.aligned = d["static_start_s"], True
+            elif ev.kind == "alignment_restart":
+                self.static_start_s = float(ev.detail)
+            elif ev.kind == "pause":
+                self.paused = True
+            elif ev.kind == "resume":
+                self.paused = False
+            elif ev.kind == "turn":
+                self.direction = -self.direction
+            elif ev.kind == "script":
+                self.script_index = int(ev.detail)
+        fixes = self.store.fixes(sid, accepted_only=True)
+        self.stop_count = len(self.store.stops(sid))
+        od = self._odometer()
+        for f in fixes:
+            d = float(np.interp(f.t_s, od[:, 0], od[:, 1])) if od.shape[0] else 0.0
+            self.accepted_fixes.append(f)
+            self.last_fix, self.last_fix_distance_m = f, d
+            if self._design is not None:
+                p = self._design.project(np.array([f.e_m]), np.array([f.n_m]))
+                self.last_fix_chainage_m = float(np.asarray(p.chainage_m).ravel()[0])
+        # a fix stored after the last script step was that step: do not take it twice
+        script_events = [e for e in self.store.events(sid) if e.kind == "script"]
+        all_fixes = self.store.fixes(sid)
+        if self.config.script is not None and all_fixes and script_events:
+            last_step_t = script_events[-1].t_s
+            if all_fixes[-1].t_s > last_step_t and self.script_index < len(self.config.script) \
+                    and self.config.script[self.script_index].name in ("fix", "remeasure"):
+                self.script_index += 1
+                self._event("script", str(self.script_index))
+        self.screen.fixes_accepted = len(self.accepted_fixes)
+        if self.aligned and self.accepted_fixes and self.config.live:
+            self._replay_live()
+        self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
+                 f"data up to t = {self.data_time():.1f} s")
+
+    def _replay_live(self) -> None:
+        lp = self._live_processor()
+        if lp is None:
+            return
+        try:
+            for f in self.accepted_fixes:
+                self._feed_live(f.t_s)
+                lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
+                           np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
+        except Exception as exc:
+            self.console.print(f"[yellow]live processing unavailable after resume: {exc}[/]")
+            self._live = False
+
+    # ================================================================== end
+    def finish(self) -> SessionOutcome:
+        """Stop the devices, re-process the whole session, write the sheet and the plots."""
+        self._shutdown()
+        self._event("end")
+        self.store.set_session_state(self.rec.session_id, "ended")
+        out = SessionOutcome(self.rec.session_id, len(self.accepted_fixes))
+        if self.config.out_dir is None or len(self.accepted_fixes) < 2:
+            if len(self.accepted_fixes) < 2:
+                self.say("fewer than two accepted fixes: nothing to process")
+            return out
+        from survey.session.final import process_stored_session
+
+        return process_stored_session(self.store, self.name, self.config.out_dir, self.static_start_s,
+                                      out, self.console, self.config.tolerances)
+
+    def _shutdown(self) -> None:
+        if self._live_thread is not None:
+            self._live_thread.join()
+        if self.acq is not None:
+            self.acq.stop()
+        if self.ts is not None:
+            self.ts.close()
+        if self.writer is not None:
+            self.writer.close()
+        if self.world is not None:
+            self.world.stop()
+
+    def run(self) -> SessionOutcome:
+        """The whole session: start (or resume), setup, alignment, loop, end."""
+        self.open_session()
+        try:
+            self.start_devices()
+            if self.resume:
+                self.restore()
+            self.station_setup()
+            self.loop()
+        except BaseException:
+            self._shutdown()
+            raise
+        return self.finish()
+
+
+def interval_summary_text(r, seconds: float) -> str:
+    """One line for the crew about the interval just smoothed."""
+    mm = 1e3
+    return (f"interval {r.stations.chainage_m[0]:.1f}-{r.stations.chainage_m[-1]:.1f} m: max |lateral| "
+            f"{mm * r.max_abs_lateral_dev_m:.2f} mm, max |vertical| {mm * r.max_abs_vertical_dev_m:.2f} mm, "
+            f"max 1-sigma {mm * r.max_sigma_m:.2f} mm, gauge range {mm * (r.gauge_range_m[1] - r.gauge_range_m[0]):.2f} mm, "
+            f"cant range {mm * (r.cant_range_m[1] - r.cant_range_m[0]):.2f} mm ({seconds:.2f} s)")
+
+
+def predicted_sigma_mm(meta, distance_since_fix_m: float, speed_m_s: float, spacing_m: float = 60.0) -> float:
+    """Predicted smoothed 1-sigma (lateral/vertical, the larger) at the trolley's position.
+
+    Budget model ``trolley.budget`` (Jiang 2017 Sec. 4) for an interval of ``spacing_m`` travelled at the
+    nominal 1 m/s; the position in the interval is the distance since the last fix.
+    """
+    try:
+        from trolley.budget import SensorFigures, resolve_case, sigma_along
+
+        key = (id(meta), spacing_m)
+        case = _BUDGET_CACHE.get(key)
+        if case is None:
+            imu = meta.imu
+            fig = SensorFigures(gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
+                                gyro_bias_instability_rad_s=imu.gyro_bias_instability_rad_s,
+                                heading_error_rad=None if imu.gyrocompassing else math.radians(0.5),
+                                fix_spacing_m=spacing_m, speed_m_s=1.0, fix_sigma_m=meta.fix_sigma_m,
+                                latitude_rad=meta.latitude_rad, gyrocompassing=imu.gyrocompassing)
+            case = _BUDGET_CACHE.setdefault(key, resolve_case(fig).case)
+        t = min(max(distance_since_fix_m, 0.0), spacing_m)
+        s = sigma_along(case, np.array([t]))
+        return 1e3 * float(max(s["lateral"][0], s["vertical"][0]))
+    except Exception:
+        return float("nan")
+
+
+_BUDGET_CACHE: dict = {}

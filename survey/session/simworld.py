@@ -1,0 +1,243 @@
+"""The simulated site: the truth simulator's survey streamed by the device twins over real ptys.
+
+The IMU, odometer and gauge twins stream the simulated samples paced by one shared clock that runs
+``speedup`` times faster than the wall clock; the total-station twin is aimed at the CPIII prisms
+during the station setup and at the simulated prism position of the current stop for a fix. A
+resumed session restarts the twins just after the last sample the store holds, so the simulated
+world continues exactly where the record ends.
+
+Session time is the simulator's time: the IMU's GPS time minus ``IMU_SOW0``, the gauge sensor's
+millisecond clock plus the time of its first streamed sample, and the odometer's k-th poll at the
+k-th odometer sample time (the counter module has no clock; in a simulation the poll schedule is
+the clock).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from drivers import encoder, novatel
+from drivers.twins.gauge import GaugeTwin
+from drivers.twins.imu import ImuTwin
+from drivers.twins.odometer import OdometerTwin
+from drivers.twins.totalstation import TotalStationTwin
+
+#: NovAtel IMU type streamed by the twin (ISA-100C: 1e-9 rad per count, no visible quantisation)
+SIM_IMU_TYPE = 26
+#: GPS week and seconds of week of session time 0
+IMU_WEEK, IMU_SOW0 = 2300, 100000.0
+#: odometer counter whose count equals the simulator's quantised distance (1e-4 m per count)
+SIM_ODOMETER = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.4096 / math.pi)
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """How the simulated site runs.
+
+    Attributes
+    ----------
+    speedup : simulated seconds per wall-clock second.
+    angle_sigma_rad, distance_sigma_m : total-station noise during the station setup.
+    station_offset_m : the instrument stands this far to the left of the track, ``station_ahead_m``
+        ahead of the first stop.
+    orientation_rad : the instrument's unknown circle orientation.
+    seed : noise seed of the total station (fix noise is seeded per stop and attempt).
+    """
+
+    speedup: float = 1.0
+    angle_sigma_rad: float = 2.4e-6
+    distance_sigma_m: float = 0.0006
+    station_offset_m: float = 3.0
+    station_ahead_m: float = 40.0
+    orientation_rad: float = 1.2345
+    seed: int = 7
+
+
+class SimClock:
+    """Session time of the simulated world: ``t0_s + speedup * (monotonic() - start)``."""
+
+    def __init__(self, t0_s: float, speedup: float) -> None:
+        self.t0_s = float(t0_s)
+        self.speedup = float(speedup)
+        self.start_monotonic = time.monotonic()
+
+    def now(self) -> float:
+        return self.t0_s + self.speedup * (time.monotonic() - self.start_monotonic)
+
+    def host_at(self, t_s: float) -> float:
+        """Monotonic host time at which session time ``t_s`` comes."""
+        return self.start_monotonic + (t_s - self.t0_s) / self.speedup
+
+
+class _PacedImuTwin(ImuTwin):
+    """ImuTwin paced by the shared simulation clock (frames sent when their time has come)."""
+
+    def __init__(self, clock: SimClock, t_s, *args, **kw) -> None:
+        self.sim_clock = clock
+        self.t_abs = np.asarray(t_s, float)
+        super().__init__(t_s, *args, **kw)
+
+    def serve(self) -> None:
+        L = novatel.FRAME_LEN
+        i, n = 0, self.n_frames
+        while i < n and not self.stopped:
+            j = int(np.searchsorted(self.t_abs, self.sim_clock.now(), side="right"))
+            if j <= i:
+                time.sleep(0.004)
+                continue
+            if not self.send(self.stream[i * L: j * L]) and not self.stopped:
+                self.wait_ready()  # unplugged: those frames are lost, like on a real unplug
+            i = j
+            self.frames_sent = i
+
+
+class _PacedGaugeTwin(GaugeTwin):
+    """GaugeTwin paced by the shared simulation clock."""
+
+    def __init__(self, clock: SimClock, t_s, *args, **kw) -> None:
+        self.sim_clock = clock
+        self.t_abs = np.asarray(t_s, float)
+        super().__init__(t_s, *args, **kw)
+
+    def serve(self) -> None:
+        i, n = 0, len(self.lines)
+        while i < n and not self.stopped:
+            j = int(np.searchsorted(self.t_abs, self.sim_clock.now(), side="right"))
+            if j <= i:
+                time.sleep(0.01)
+                continue
+            if not self.send(b"".join(self.lines[i:j])) and not self.stopped:
+                self.wait_ready()
+            i = j
+            self.lines_sent = i
+
+
+def prism_position_enh(sim, t_s: float) -> np.ndarray:
+    """Grid E, N, H of the prism at simulated time ``t_s`` (no measurement noise).
+
+    The same construction as the simulator's fixes: track reference point plus the prism lever
+    arm rotated by the trolley attitude (ZYX Euler, NED), mapped NED -> ENH.
+    """
+    geo, motion = sim.truth.geometry, sim.truth.motion
+    s = motion.evaluate(np.array([float(t_s)]))[0]
+    p = geo.position(s)[0]
+    r, pch, y = (float(a[0]) for a in geo.attitude(s))
+    lever_n = Rotation.from_euler("ZYX", [y, pch, r]).apply(np.asarray(sim.config.trolley.prism_lever_arm_m, float))
+    return np.array([p[0] + geo.origin_E_m + lever_n[1], p[1] + geo.origin_N_m + lever_n[0], p[2] - lever_n[2]])
+
+
+def stop_index_at(sim, t_s: float) -> int:
+    """Index of the stop the simulated trolley stands at at ``t_s``, or -1 while it moves."""
+    m = sim.truth.motion
+    k = np.flatnonzero((m.stop_start_s <= t_s) & (t_s <= m.stop_end_s))
+    return int(k[0]) if k.size else -1
+
+
+class SimWorld:
+    """The simulated site around one session.
+
+    Parameters
+    ----------
+    sim : ``trolley.truthsim.SimulatedSurvey`` of the project.
+    options : speed-up and noise.
+    """
+
+    def __init__(self, sim, options: SimOptions = SimOptions()) -> None:
+        self.sim = sim
+        self.options = options
+        self.clock: SimClock | None = None
+        self.twins: dict = {}
+        self.fix_attempts: dict[int, int] = {}
+        raw = sim.session
+        self.gauge_t0_s = 0.0
+        # instrument beside the track, a little ahead of the first stop
+        geo = sim.truth.geometry
+        s0 = float(sim.truth.motion.stop_chainage_m[0]) + options.station_ahead_m
+        s0 = min(s0, float(geo.end_chainage_m))
+        p = geo.position(np.array([s0]))[0]
+        yaw = float(geo.attitude(np.array([s0]))[2][0])
+        left = np.array([-math.cos(yaw), math.sin(yaw)])  # (E, N) to the left of the heading
+        self.station_enh_m = np.array([p[0] + geo.origin_E_m + options.station_offset_m * left[0],
+                                       p[1] + geo.origin_N_m + options.station_offset_m * left[1],
+                                       p[2] + 1.2])
+        self.duration_s = float(max(raw.imu_t_s[-1], raw.odo_t_s[-1]))
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self, t_start_s: float = 0.0, after: dict[str, float] | None = None) -> dict[str, str]:
+        """Create the twins streaming from session time ``t_start_s``; returns device -> port.
+
+        ``after``: per device, the last sample time already stored (a resumed session); each twin
+        starts with the first sample after it.
+        """
+        after = after or {}
+        raw = self.sim.session
+        self.clock = SimClock(t_start_s, self.options.speedup)
+        i0 = int(np.searchsorted(raw.imu_t_s, after.get("imu", -np.inf), side="right"))
+        k0 = int(np.searchsorted(raw.odo_t_s, after.get("odometer", -np.inf), side="right"))
+        g0 = int(np.searchsorted(raw.gauge_t_s, after.get("gauge", -np.inf), side="right"))
+        self.odo_first_index = k0
+        imu = _PacedImuTwin(self.clock, raw.imu_t_s[i0:], raw.imu_w_rad_s[i0:], raw.imu_f_m_s2[i0:],
+                            imu_type=SIM_IMU_TYPE, rate_hz=None, week=IMU_WEEK,
+                            sow0=IMU_SOW0 + float(raw.imu_t_s[i0]) if i0 < raw.imu_t_s.size else IMU_SOW0)
+        odo = OdometerTwin(raw.odo_t_s[k0:], raw.odo_distance_m[k0:], SIM_ODOMETER, mode="index")
+        self.gauge_t0_s = float(raw.gauge_t_s[g0]) if g0 < raw.gauge_t_s.size else 0.0
+        gauge = _PacedGaugeTwin(self.clock, raw.gauge_t_s[g0:], raw.gauge_m[g0:])
+        o = self.options
+        ts = TotalStationTwin(station=(*self.station_enh_m, 0.0), target=None, noise_angle_rad=o.angle_sigma_rad,
+                              noise_dist_m=o.distance_sigma_m, seed=o.seed)
+        ts.orientation = o.orientation_rad
+        self.twins = {"imu": imu, "odometer": odo, "gauge": gauge, "totalstation": ts}
+        return {k: t.port for k, t in self.twins.items()}
+
+    def run_twins(self, wait_client_s: float = 30.0) -> None:
+        """Start the twins' workers (each waits until the application has opened its port)."""
+        for t in self.twins.values():
+            t.start(wait_client_s)
+
+    def stop(self) -> None:
+        for t in self.twins.values():
+            t.stop()
+
+    # ------------------------------------------------------------------ time
+    def now(self) -> float:
+        return self.clock.now() if self.clock else 0.0
+
+    def odometer_time(self, k: int) -> float:
+        """Session time of the ``k``-th poll since :meth:`start`."""
+        t = self.sim.session.odo_t_s
+        return float(t[min(self.odo_first_index + k, t.size - 1)])
+
+    def finished(self, t_s: float) -> bool:
+        """Whether the simulated data have all arrived by session time ``t_s`` (the last odometer
+        poll and the last IMU frame may differ by one IMU period)."""
+        raw = self.sim.session
+        return t_s >= min(raw.imu_t_s[-1], raw.odo_t_s[-1]) - 1e-9
+
+    # ------------------------------------------------------------------ total station
+    def aim_at_point(self, enh_m) -> None:
+        """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims)."""
+        self.twins["totalstation"].set_target(tuple(float(x) for x in enh_m))
+
+    def aim_at_prism(self, t_s: float, sigma_m: float) -> int:
+        """Aim at the trolley's prism at ``t_s`` (plus the fix noise, seeded per stop and attempt).
+
+        Returns the stop index (-1 if the trolley is moving: no noise seed, the prism where it is).
+        """
+        ts = self.twins["totalstation"]
+        ts.noise_angle_rad = 0.0
+        ts.noise_dist_m = 0.0
+        k = stop_index_at(self.sim, t_s)
+        attempt = self.fix_attempts.get(k, 0)
+        self.fix_attempts[k] = attempt + 1
+        rng = np.random.default_rng([self.options.seed, k + 1, attempt])
+        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + rng.standard_normal(3) * sigma_m))
+        return k
+
+    def orientation_hint(self) -> float:
+        """Not known to the session; the station setup finds it."""
+        return float("nan")
