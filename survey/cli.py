@@ -26,6 +26,7 @@ COMMAND_MODULES: list[str] = [
     "demo",
     "budget",
     "tgms",
+    "survey",
 ]
 
 for _name in COMMAND_MODULES:
