@@ -226,16 +226,19 @@ def tune_cmd(
     out: Annotated[Path, typer.Option("--out", help="parameter file to write (TOML)")],
     evaluations: Annotated[int, typer.Option(min=10, max=2000, help="likelihood evaluations")] = 60,
     seed: Annotated[int, typer.Option(help="seed of the global optimiser")] = 0,
+    model: Annotated[str, typer.Option(help="kf (attitude filter) or ekf (12-state smoother)")] = "kf",
 ) -> None:
     """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2)."""
     from survey import tgms_io
     from trolley.tgms.tuning import tune_cml
+    if model not in ("kf", "ekf"):
+        _fail(f"--model must be kf or ekf, got {model!r}")
     try:
         rec = tgms_io.read_recording(folder)
     except tgms_io.TgmsFormatError as exc:
         _fail(str(exc))
     with console.status("tuning (maximum likelihood)"):
-        params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed)
+        params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model)
     try:
         tgms_io.write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
     except OSError as exc:

@@ -16,8 +16,9 @@ Differences from the printed appendix, on purpose:
   force at r0 (``track``), which already holds R''^t and gravity;
 * the Jacobian J is computed by central differences of that function (the printed J has
   typesetting slips, e.g. J_4,3 carries rho_v V for rho_v V^2, and J_5,10 a misplaced bracket);
-* u_pos follows the speed so that the virtual measurements act at a fixed wavelength (as in
-  ``trajectory``).
+* u_pos follows the speed, u_pos(V) = u_pos(10 m/s) (10 m/s / V)^4, so that the virtual
+  measurements act at a fixed wavelength (as in ``trajectory``); one q for the three angles, one
+  for the two jerks, one u for the three accelerometer axes.
 """
 from __future__ import annotations
 
@@ -73,8 +74,7 @@ def _process(dt: float, p: TgmsParams, q):
 
 
 def trajectory_ekf(kin: TrackKinematics, w: np.ndarray, f: np.ndarray, att0: RelativeAttitude | None = None,
-                   params: TgmsParams = TgmsParams(), q=(1e-3, 1e-3, 1e-3, 10.0, 10.0),
-                   min_speed_m_s: float = 2.0, smooth: bool = True):
+                   params: TgmsParams = TgmsParams(), min_speed_m_s: float = 2.0, smooth: bool = True):
     """12-state extended Kalman filter + RTS smoother (Gonzalez-Carbajal 2023 Appendix 1).
 
     Parameters
@@ -82,8 +82,8 @@ def trajectory_ekf(kin: TrackKinematics, w: np.ndarray, f: np.ndarray, att0: Rel
     kin : design track kinematics (f_design at the nominal offset).
     w, f : (n, 3) gyro and accelerometer on the processing grid.
     att0 : unused except for its first sample as the initial relative attitude (may be None).
-    params : gyro noise and accelerometer noise give U's diagonal; cut-off wavelength gives u_pos.
-    q : (q_phi, q_theta, q_psi, q_y, q_z) PSDs of the angular accelerations and jerks.
+    params : ekf_q_angle_rad2_s3, ekf_q_jerk_m2_s5 (Q), gyro_noise_rad_sqrt_s, ekf_u_acc_m2_s4,
+        ekf_u_pos_m2 (U), see TgmsParams.
     smooth : RTS smoothing.
 
     Returns
@@ -96,13 +96,13 @@ def trajectory_ekf(kin: TrackKinematics, w: np.ndarray, f: np.ndarray, att0: Rel
     """
     n = len(kin.t_s)
     dt = float(kin.t_s[1] - kin.t_s[0])
-    F, Q = _process(dt, params, q)
+    qa, qj = params.ekf_q_angle_rad2_s3, params.ekf_q_jerk_m2_s5
+    F, Q = _process(dt, params, (qa, qa, qa, qj, qj))
     Ct = track_rotation(kin.heading_rad, kin.slope_rad, kin.cant_rad).as_matrix()
     u_w = params.gyro_noise_rad_sqrt_s ** 2 / dt
-    u_a = params.accel_noise_m_s2_sqrt_hz ** 2 / dt + 1e-4   # + unmodelled (relative yaw, lever arms)
+    u_a = params.ekf_u_acc_m2_s4
     v = np.maximum(kin.v_m_s, min_speed_m_s)
-    wc = 2 * np.pi * v / params.cutoff_wavelength_m
-    u_pos = params.accel_noise_m_s2_sqrt_hz ** 2 / (wc ** 4 * dt)
+    u_pos = params.ekf_u_pos_m2 * (10.0 / v) ** 4
     z = np.column_stack([w, f, np.zeros((n, 2))])
     x = np.zeros(12)
     x[0], x[2], x[4] = kin.cant_rad[0], kin.slope_rad[0], kin.heading_rad[0]

@@ -21,6 +21,12 @@ class TgmsParams:
     accel_noise_m_s2_sqrt_hz : accelerometer input noise density of the trajectory model.
     cutoff_wavelength_m : wavelength at which the virtual zero-position measurements take over
         (their variance follows the speed so that the cut-off is fixed in space).
+    ekf_q_angle_rad2_s3 : PSD of the angular accelerations of the 12-state smoother (q_phi = q_theta
+        = q_psi of Gonzalez-Carbajal 2023 Eq. 16).
+    ekf_q_jerk_m2_s5 : PSD of the jerks (q_y = q_z).
+    ekf_u_acc_m2_s4 : variance of one accelerometer sample (u_x^ac = u_y^ac = u_z^ac).
+    ekf_u_pos_m2 : variance of the virtual position measurements at 10 m/s (u_y^pos = u_z^pos); it
+        scales with (10 m/s / V)^4 so that they act at a fixed wavelength.
     orientation : "kf" (Escalona Eq. 39) or "madgwick" (Briales Sec. 5.2).
     trajectory : "ltv" (Escalona Eq. 46) or "ekf" (Gonzalez-Carbajal 2023 Appendix 1).
     """
@@ -33,6 +39,10 @@ class TgmsParams:
     madgwick_zeta_rad_s2: float = 1e-7
     accel_noise_m_s2_sqrt_hz: float = 3e-3
     cutoff_wavelength_m: float = 100.0
+    ekf_q_angle_rad2_s3: float = 1e-3
+    ekf_q_jerk_m2_s5: float = 10.0
+    ekf_u_acc_m2_s4: float = 1e-3
+    ekf_u_pos_m2: float = 1e-2
     orientation: str = "kf"
     trajectory: str = "ltv"
 
