@@ -62,9 +62,12 @@ def main() -> None:
         w = {n: max(x.std_mm[n] for x in accs) for n in NAMES}
         wr = {n: max(x.std_registered_mm[n] for x in accs) for n in NAMES}
         cov = {n: np.mean([x.coverage95[n] for x in accs]) for n in NAMES}
+        sm = {n: np.median([x.sigma_median_mm[n] for x in accs]) for n in NAMES}
+        eu = {n: np.median([x.error_std_unfiltered_mm[n] for x in accs]) for n in NAMES}
         print(f"  {name:14s} reported " + " ".join(f"{SHORT[n]} {w[n]:.3f}" for n in NAMES)
               + " | registered " + " ".join(f"{SHORT[n]} {wr[n]:.3f}" for n in NAMES)
-              + " | mean coverage " + " ".join(f"{SHORT[n]} {cov[n]:.2f}" for n in NAMES))
+              + " | mean coverage " + " ".join(f"{SHORT[n]} {cov[n]:.2f}" for n in NAMES)
+              + " | median sigma / unfiltered error std " + " ".join(f"{SHORT[n]} {sm[n]:.3f}/{eu[n]:.3f}" for n in NAMES))
     if a.km:
         t0 = time.perf_counter()
         rec, tr = simulate(SimulationSettings(length_m=1000.0, speed_m_s=10.0, seed=7))

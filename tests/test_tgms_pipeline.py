@@ -180,3 +180,27 @@ def test_cml_tuning_does_not_lower_the_likelihood(processed):
     p, info = tune_cml(rec, base=bad, max_evaluations=40, seed=1, decades=2.0)
     assert info["loglik"] > info["loglik_default"] + 10.0
     assert p.accel_disturbance_m_s2 < 30.0
+
+
+def test_cli_simulate_writes_a_readable_folder(tmp_path):
+    import json
+    out = tmp_path / "sim"
+    r = CliRunner().invoke(app, ["tgms", "simulate", "--out", str(out), "--length-m", "60", "--speed-m-s", "8",
+                                 "--camera-rate-hz", "10", "--seed", "4", "--rail-profile", "54E1"])
+    assert r.exit_code == 0, r.output
+    info = json.loads(r.stdout)
+    rec = tgms_io.read_recording(out)
+    assert rec.config.track.rail_profile == "54E1"
+    assert info["frames"] == 1 + max(int(rec.lasers[s].frame.max()) for s in ("left", "right"))
+    truth = tgms_io.read_truth(out / "truth.csv")
+    assert truth["s_m"][-1] - truth["s_m"][0] == pytest.approx(60.0, abs=0.5)
+
+
+def test_band_option_parsing():
+    from survey.commands.tgms import parse_band
+    assert parse_band("D1", 0.25) == (3.0, 25.0)
+    assert parse_band("none", 0.25) is None
+    assert parse_band("3-70", 0.25) == (3.0, 70.0)
+    assert parse_band("3", 0.25) == (0.625, 3.0)
+    with pytest.raises(ValueError, match="--band"):
+        parse_band("25-3", 0.25)

@@ -26,7 +26,8 @@ NAMES = Irregularities.NAMES
 @dataclass
 class Accuracy:
     """Error statistics per irregularity (mm): std and max |error| after band-pass, for the output
-    as reported and registered on the true stations; coverage of the 95 % interval (fraction)."""
+    as reported and registered on the true stations; coverage of the 95 % interval (fraction), the
+    median reported 1-sigma and the std of the unfiltered error (mean removed) it should match."""
 
     std_mm: dict
     max_mm: dict
@@ -34,6 +35,8 @@ class Accuracy:
     max_registered_mm: dict
     coverage95: dict
     n_points: int
+    sigma_median_mm: dict | None = None
+    error_std_unfiltered_mm: dict | None = None
 
 
 def _truth_on(truth: dict, s: np.ndarray, name: str) -> np.ndarray:
@@ -80,7 +83,7 @@ def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m:
     reg = Irregularities(np.where(np.isfinite(frames.s_m), s_true, np.nan), *list(vars(reg).values())[1:])
     greg = resample_irregularities(reg, step_m)
     er = _band_errors(greg, truth, step_m, band, trim_m)
-    cov = {}
+    cov, sig_med, err_unf = {}, {}, {}
     inside = (greg.s_m >= truth["s_m"][0] + trim_m) & (greg.s_m <= truth["s_m"][-1] - trim_m)
     for name in NAMES:
         d = getattr(greg, f"{name}_m") - _truth_on(truth, greg.s_m, name)
@@ -89,8 +92,10 @@ def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m:
         if ok.sum() > 10:
             dd = d[ok] - np.mean(d[ok])
             cov[name] = float(np.mean(np.abs(dd) <= 1.96 * sg[ok]))
+            sig_med[name] = float(np.median(sg[ok])) * 1e3
+            err_unf[name] = float(np.std(dd)) * 1e3
         else:
-            cov[name] = float("nan")
+            cov[name] = sig_med[name] = err_unf[name] = float("nan")
 
     def stats(err, f):
         return {k: float(f(np.abs(v[np.isfinite(v)]))) * 1e3 if np.isfinite(v).any() else float("nan")
@@ -99,4 +104,5 @@ def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m:
     return Accuracy(std_mm={k: float(np.nanstd(v)) * 1e3 for k, v in e.items()}, max_mm=stats(e, np.max),
                     std_registered_mm={k: float(np.nanstd(v)) * 1e3 for k, v in er.items()},
                     max_registered_mm=stats(er, np.max), coverage95=cov,
-                    n_points=int(np.isfinite(e["gauge_variation"]).sum()))
+                    n_points=int(np.isfinite(e["gauge_variation"]).sum()),
+                    sigma_median_mm=sig_med, error_std_unfiltered_mm=err_unf)
