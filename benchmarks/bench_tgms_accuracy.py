@@ -7,7 +7,7 @@ of the filters' 95 % intervals (unfiltered, mean error removed). The floor for t
 is the time to simulate the same kilometre (same run).
 
     /work/venv/bin/python benchmarks/bench_tgms_accuracy.py [--seeds 1 2 3] [--speeds 5 15]
-        [--length-m 300] [--km]
+        [--length-m 300] [--km] [--cml]
 """
 from __future__ import annotations
 
@@ -42,8 +42,11 @@ def main() -> None:
     ap.add_argument("--speeds", type=float, nargs="+", default=[5.0, 15.0])
     ap.add_argument("--length-m", type=float, default=300.0)
     ap.add_argument("--km", action="store_true", help="also time the whole pipeline on 1 km")
+    ap.add_argument("--cml", action="store_true", help="add kf+ltv with the attitude filter tuned by CML per recording")
     a = ap.parse_args()
     vs = variants()
+    if a.cml:
+        vs["kf(CML)+ltv"] = "cml"
     rows = {k: [] for k in vs}
     print(f"{'variant':14s} {'seed':>4s} {'V':>5s} | std as reported (mm): gv cl al vp | registered: gv cl al vp | 95% coverage gv cl al vp")
     for speed in a.speeds:
@@ -51,6 +54,9 @@ def main() -> None:
             rec, tr = simulate(SimulationSettings(length_m=a.length_m, speed_m_s=speed, seed=seed))
             truth = {k: getattr(tr, k) for k in dataclasses.asdict(tr)}
             for name, p in vs.items():
+                if p == "cml":
+                    from trolley.tgms.tuning import tune_cml
+                    p, _ = tune_cml(rec, max_evaluations=60, seed=0)
                 res = process(rec, p)
                 acc = accuracy(res.frames, truth, res.vision.t_s)
                 rows[name].append(acc)
@@ -73,6 +79,8 @@ def main() -> None:
         rec, tr = simulate(SimulationSettings(length_m=1000.0, speed_m_s=10.0, seed=7))
         t_sim = time.perf_counter() - t0
         for name, p in vs.items():
+            if p == "cml":
+                continue
             t0 = time.perf_counter()
             res = process(rec, p)
             t_proc = time.perf_counter() - t0

@@ -35,8 +35,8 @@ class TgmsParams:
     gyro_noise_rad_sqrt_s: float = 4.4e-5
     gyro_bias_rw_rad_s_sqrt_s: float = 1e-6
     accel_disturbance_m_s2: float = 0.3
-    madgwick_beta_rad_s: float = 3e-5
-    madgwick_zeta_rad_s2: float = 1e-7
+    madgwick_beta_rad_s: float = 3e-4
+    madgwick_zeta_rad_s2: float = 1e-5
     accel_noise_m_s2_sqrt_hz: float = 3e-3
     cutoff_wavelength_m: float = 100.0
     ekf_q_angle_rad2_s3: float = 1e-3
