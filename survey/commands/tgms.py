@@ -104,7 +104,7 @@ def simulate_cmd(
                       "laser_points": int(len(rec.lasers["left"].frame) + len(rec.lasers["right"].frame))}))
 
 
-def _plots(out: Path, grid, band_label: str) -> list[str]:
+def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[str]:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -115,7 +115,10 @@ def _plots(out: Path, grid, band_label: str) -> list[str]:
     for name, title in titles.items():
         y = grid[f"{name}_mm"]
         fig, ax = plt.subplots(figsize=(10, 3.2))
-        ax.plot(grid["s_m"], y, lw=0.8, color="C0")
+        ax.plot(grid["s_m"], y, lw=0.8, color="C0", label="TGMS")
+        if truth is not None:
+            ax.plot(grid["s_m"], truth[f"{name}_mm"], lw=0.8, color="C3", ls="--", label="truth (truth.csv)")
+            ax.legend(loc="upper right", fontsize=8)
         sig = grid.get(f"sigma_{name}_mm")
         if sig is not None and np.isfinite(sig).any() and band_label == "none":
             ax.fill_between(grid["s_m"], y - 1.96 * sig, y + 1.96 * sig, color="C0", alpha=0.2, lw=0,
@@ -195,13 +198,27 @@ def process_cmd(
         cols[f"{name}_mm"] = v * 1e3
     for name in g.NAMES:
         cols[f"sigma_{name}_mm"] = getattr(g, f"sigma_{name}_m") * 1e3
+    truth_path = folder / "truth.csv"
+    truth = truth_on_grid = None
+    if truth_path.exists():
+        try:
+            truth = tgms_io.read_truth(truth_path)
+        except tgms_io.TgmsFormatError as exc:
+            _fail(str(exc))
+        truth_on_grid = {}
+        for name in g.NAMES:
+            v = np.interp(g.s_m, truth["s_m"], truth[f"{name}_mm"])
+            v = np.where(np.isfinite(cols[f"{name}_mm"]) | (bounds is None), v, np.nan)
+            if bounds is not None:
+                v = bandpass_wavelength(np.where(np.isfinite(getattr(g, f"{name}_m")), v, np.nan), step, *bounds)
+            truth_on_grid[f"{name}_mm"] = v
     try:
         out.mkdir(parents=True, exist_ok=True)
         tgms_io.write_irregularities(out / "irregularities.csv", cols)
         files = ["irregularities.csv"]
         if plots:
             label = "none" if bounds is None else f"{bounds[0]:g}-{bounds[1]:g} m"
-            files += _plots(out, cols, label)
+            files += _plots(out, cols, label, truth_on_grid)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     summary = {
@@ -211,10 +228,8 @@ def process_cmd(
         "curve_anchors": [[float(a), float(d)] for a, d in zip(res.odometry.anchors_app_m, res.odometry.anchors_design_m)],
         "params": dataclasses.asdict(params), "timings_s": res.timings_s,
     }
-    truth_path = folder / "truth.csv"
-    if truth_path.exists():
+    if truth is not None:
         from trolley.tgms.accuracy import accuracy
-        truth = tgms_io.read_truth(truth_path)
         acc = accuracy(res.frames, truth, res.vision.t_s, step)
         summary["accuracy_3_25m"] = dataclasses.asdict(acc)
     print(json.dumps(summary))
