@@ -1,12 +1,19 @@
 """``trolley demo``: the whole chain on the sample project, in one command.
 
-Simulates a stop-and-go survey of ``projects/demo`` with the full 3-D truth simulator, writes the
-raw session folder, processes it (dead reckoning, filtering, RTS smoothing), writes the Excel
-survey sheet and the plots, compares the track with the simulator's truth, and prints where
-everything is.
+By default the demo runs a real field session (``trolley survey start --simulate --script``) on a
+copy of ``projects/demo``: the truth simulator feeds the device twins, which stream over
+pseudo-terminals to the drivers; the scripted crew sets up the free station on CPIII, waits for the
+static alignment, takes a fix at every stop; every interval is filtered and smoothed as its closing
+fix is accepted; at the end the whole session is re-processed, the Excel survey sheet and the plots
+are written, and the track is compared with the simulator's truth.
+
+``--direct`` is the short path without devices: simulate, write the raw session folder, process,
+export, compare.
 """
 from __future__ import annotations
 
+import re
+import shutil
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -17,15 +24,89 @@ from rich.console import Console
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
 
+def _demo_project() -> Path:
+    project = Path("projects/demo")
+    return project if (project / "project.toml").exists() else _REPO_DEMO
+
+
 def demo(
     out: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: projects/demo/out)")] = None,
     imu: Annotated[Optional[str], typer.Option(help="IMU grade: rlg, fog or mems (default: the project's)")] = None,
     seed: Annotated[Optional[int], typer.Option(help="random seed of the simulation")] = None,
+    direct: Annotated[bool, typer.Option("--direct", help="skip the field session: simulate, process, export")] = False,
+    speedup: Annotated[float, typer.Option(help="simulated seconds per wall-clock second in the field session")] = 40.0,
 ) -> None:
-    """Simulate, process and export a survey of the demo project; print where the results are."""
-    from dataclasses import replace
+    """Survey the demo project end to end (field session with simulated devices); print where the results are."""
+    project = _demo_project()
+    out = out if out is not None else project / "out"
+    if direct:
+        demo_direct(project, out, imu, seed)
+    else:
+        demo_session(project, out, imu, seed, speedup)
 
+
+def _accuracy_line(con: Console, result, truth) -> None:
     import numpy as np
+
+    from trolley.validation import track_errors
+
+    tj = result.trajectory
+    e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth)
+    rms = np.array(e.rms_m()) * 1e3
+    nr = e.normalised_rms()
+    con.print(f"accuracy against the truth: RMS lateral {rms[0]:.3f} mm, vertical {rms[2]:.3f} mm, "
+              f"longitudinal {rms[1]:.3f} mm; RMS error/sigma lateral {nr[0]:.2f}, vertical {nr[2]:.2f} "
+              f"(1 = honest sigmas)", highlight=False)
+
+
+def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[int], speedup: float) -> None:
+    """The demo through a scripted field session with the twins over ptys."""
+    from survey.commands.engine import fail
+    from survey.commands.project import new
+    from survey.commands.survey import run_session
+    from survey.session.script import survey_script
+    from trolley.sensors import IMU_PRESETS
+
+    con = Console()
+    err = Console(stderr=True)
+    t_start = time.perf_counter()
+    if imu is not None and imu not in IMU_PRESETS:
+        fail(f"--imu: unknown IMU preset {imu!r} (choose {', '.join(IMU_PRESETS)})")
+    root = out / "project"
+    folder = root / "demo"
+    if root.exists():
+        shutil.rmtree(root)  # the demo's own copy of the project, rebuilt every run
+    folder.mkdir(parents=True)
+    toml = (project / "project.toml").read_text(encoding="utf-8")
+    if imu is not None:
+        toml = re.sub(r'(?m)^preset\s*=\s*"[^"]*"', f'preset = "{imu}"', toml)
+    if seed is not None:
+        toml = re.sub(r"(?m)^seed\s*=\s*\d+", f"seed = {seed}", toml)
+    (folder / "project.toml").write_text(toml, encoding="utf-8")
+    for name in ("alignment.xml", "cpiii.csv"):
+        shutil.copy(project / name, folder / name)
+    err.print(f"1/3 project store {folder / 'project.sqlite'} from {project}", highlight=False)
+    new("demo", root=root, imu=None, latitude_deg=None, height=None, tolerance_set="default", use_toml=True)
+    from survey.commands.survey import open_store, simulated_world
+
+    with open_store(str(folder), root) as store:
+        n_stops = simulated_world(store, speedup).sim.truth.motion.stop_chainage_m.size
+    script = out / "crew_script.txt"
+    script.write_text(survey_script(n_stops, note_every=5), encoding="utf-8")
+    err.print(f"2/3 field session with simulated devices on ptys, {speedup:g}x real time, crew script {script}",
+              highlight=False)
+    outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False)
+    err.print("3/3 comparing with the simulator's truth ...")
+    if outcome.result is None:
+        fail("the session produced no processed track")
+    _accuracy_line(con, outcome.result, outcome.world.sim.truth)
+    con.print(f"project store: {folder / 'project.sqlite'}\ndone in {time.perf_counter() - t_start:.1f} s",
+              highlight=False)
+
+
+def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int]) -> None:
+    """Simulate, write the raw session folder, process, export and compare with the truth."""
+    from dataclasses import replace
 
     from survey.commands.engine import fail, print_summary, run_process
     from survey.commands.simulate import ProjectFileError, project_settings
@@ -34,15 +115,10 @@ def demo(
     from trolley.landxml import parse_landxml
     from trolley.sensors import IMU_PRESETS
     from trolley.truthsim import SimulationConfig, simulate_survey
-    from trolley.validation import track_errors
 
     con = Console()
     err = Console(stderr=True)
     t_start = time.perf_counter()
-    project = Path("projects/demo")
-    if not (project / "project.toml").exists():
-        project = _REPO_DEMO
-    out = out if out is not None else project / "out"
     try:
         kwargs, preset, xml = project_settings(project)
     except ProjectFileError as exc:
@@ -68,13 +144,7 @@ def demo(
     err.print("3/4 survey sheet and plots ...")
     exported = export_outputs(out / "processed", out / "survey.xlsx", None, out / "plots")
     err.print("4/4 comparing with the simulator's truth ...")
-    tj = result.trajectory
-    e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth)
-    rms = np.array(e.rms_m()) * 1e3
-    nr = e.normalised_rms()
-    con.print(f"accuracy against the truth: RMS lateral {rms[0]:.3f} mm, vertical {rms[2]:.3f} mm, "
-              f"longitudinal {rms[1]:.3f} mm; RMS error/sigma lateral {nr[0]:.2f}, vertical {nr[2]:.2f} "
-              f"(1 = honest sigmas)", highlight=False)
+    _accuracy_line(con, result, sim.truth)
     con.print(f"\nraw session:  {session_dir}\ntrack:        {written.track_csv}\n"
               f"survey sheet: {exported.xlsx}\nplots:        {out / 'plots'}\n"
               f"done in {time.perf_counter() - t_start:.1f} s", highlight=False)

@@ -161,6 +161,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     if outcome.xlsx is not None:
         con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
                   f"survey sheet: {outcome.xlsx}\nplots:        {outcome.plots_dir}", highlight=False)
+    outcome.world = world
     return outcome
 
 

@@ -183,6 +183,7 @@ class Acquisition:
         self._gauge_unwrap: tuple[int, int] | None = None  # (last raw ms, accumulated)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._pump_lock = threading.Lock()
         self.poller = None
 
     def _odo_parser_cfg(self) -> encoder.OdometerConfig:
@@ -230,15 +231,18 @@ class Acquisition:
         while not self._stop.is_set():
             try:
                 self.pump()
-            except Exception as exc:  # never let the pump die silently
-                import traceback, sys
-                traceback.print_exc(file=sys.stderr)
+            except Exception as exc:  # never let the pump die silently; shown on the screen
                 self.write_error = f"acquisition: {exc}"
             self._stop.wait(0.02)
 
     # ------------------------------------------------------------------ decoding
     def pump(self) -> None:
-        """Move everything the links decoded into the store and the buffers."""
+        """Move everything the links decoded into the store and the buffers (any thread; one at a time,
+        since the odometer's reply index and the device clocks are carried from batch to batch)."""
+        with self._pump_lock:
+            self._pump()
+
+    def _pump(self) -> None:
         now = time.monotonic()
         if "imu" in self.links:
             batches = self.links["imu"].drain()

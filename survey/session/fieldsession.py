@@ -336,6 +336,8 @@ class FieldSession:
         setups = [s for s in self.store.station_setups(self.rec.session_id) if s.accepted]
         if setups:
             self.setup_id = setups[-1].setup_id
+            if self.world is not None:
+                self.world.quiet_instrument()
             self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
             self.say(f"station setup {self.setup_id} restored from the store")
             return
@@ -371,6 +373,8 @@ class FieldSession:
                     exclude = []
                     continue
             break
+        if self.world is not None:
+            self.world.quiet_instrument()  # the setup pointings were noisy; fixes get their own noise
         setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
         self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
         self._give_station(res.station_enh_m, res.orientation_rad)
@@ -572,7 +576,10 @@ class FieldSession:
         imu = self.acq.buffers.array("imu", 7)
         od = self._odometer()
         g = self.acq.buffers.array("gauge", 2)
-        a, b = self._live_fed_t, t_until
+        # only what has fully arrived: a sample fed late would leave a hole in the dead reckoning
+        a, b = self._live_fed_t, min(t_until, self.data_time())
+        if b <= a:
+            return
         si = (imu[:, 0] > a) & (imu[:, 0] <= b)
         so = (od[:, 0] > a) & (od[:, 0] <= b)
         sg = (g[:, 0] > a) & (g[:, 0] <= b)
@@ -589,10 +596,13 @@ class FieldSession:
             return None
         try:
             # the data up to the fix time must be there before the prediction
-            deadline = time.monotonic() + 2.0
+            deadline = time.monotonic() + 10.0
             while self.data_time() < fix.t_s and time.monotonic() < deadline:
                 self.acq.pump()
                 time.sleep(0.01)
+            if self.data_time() < fix.t_s:
+                self.console.print("[yellow]the data up to the fix have not arrived: no live check of this fix[/]")
+                return None
             if self._live_thread is not None:
                 self._live_thread.join()
             self._feed_live(fix.t_s)
@@ -664,6 +674,8 @@ class FieldSession:
         t = self.now()
         if standing and self.stop_started_s is None and self.aligned:
             self.stop_started_s = t
+            if self.accepted_fixes:
+                self.say(f"standing at {self.chainage_now(dist):.1f} m: f = take a fix")
         elif not standing and self.stop_started_s is not None:
             self.store.add_stop(self.rec.session_id, StopRecord(self.stop_started_s, t, f"S{self.stop_count:03d}",
                                                                 self.chainage_now(dist)))
@@ -840,6 +852,7 @@ class FieldSession:
         self.screen.fixes_accepted = len(self.accepted_fixes)
         if self.aligned and self.accepted_fixes and self.config.live:
             self._replay_live()
+        self._event("resumed", f"data up to t = {self.data_time():.3f} s")
         self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
                  f"data up to t = {self.data_time():.1f} s")
 

@@ -177,9 +177,10 @@ class SimWorld:
         after = after or {}
         raw = self.sim.session
         self.clock = SimClock(t_start_s, self.options.speedup)
-        i0 = int(np.searchsorted(raw.imu_t_s, after.get("imu", -np.inf), side="right"))
-        k0 = int(np.searchsorted(raw.odo_t_s, after.get("odometer", -np.inf), side="right"))
-        g0 = int(np.searchsorted(raw.gauge_t_s, after.get("gauge", -np.inf), side="right"))
+        # stored times carry the rounding of the time bases: 1 us tolerance (samples are >= 1 ms apart)
+        i0 = int(np.searchsorted(raw.imu_t_s, after.get("imu", -np.inf) + 1e-6, side="right"))
+        k0 = int(np.searchsorted(raw.odo_t_s, after.get("odometer", -np.inf) + 1e-6, side="right"))
+        g0 = int(np.searchsorted(raw.gauge_t_s, after.get("gauge", -np.inf) + 1e-6, side="right"))
         self.odo_first_index = k0
         imu = _PacedImuTwin(self.clock, raw.imu_t_s[i0:], raw.imu_w_rad_s[i0:], raw.imu_f_m_s2[i0:],
                             imu_type=SIM_IMU_TYPE, rate_hz=None, week=IMU_WEEK,
@@ -222,6 +223,12 @@ class SimWorld:
     def aim_at_point(self, enh_m) -> None:
         """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims)."""
         self.twins["totalstation"].set_target(tuple(float(x) for x in enh_m))
+
+    def quiet_instrument(self) -> None:
+        """No reading noise from now on (the prism target carries the fix noise)."""
+        ts = self.twins["totalstation"]
+        ts.noise_angle_rad = 0.0
+        ts.noise_dist_m = 0.0
 
     def aim_at_prism(self, t_s: float, sigma_m: float) -> int:
         """Aim at the trolley's prism at ``t_s`` (plus the fix noise, seeded per stop and attempt).

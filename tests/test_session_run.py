@@ -1,0 +1,143 @@
+"""Scripted field sessions with the simulated devices on ptys; SIGKILL in an interval and resume.
+
+The same simulated survey (tests/session_project.py) is surveyed twice: once without interruption,
+once killed with SIGKILL in the middle of the second interval and resumed with
+``trolley survey resume``. The decoded record counts must be equal and the final tracks agree
+within 0.05 mm.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from session_project import make_project
+
+TROLLEY = [sys.executable, "-m", "survey.cli"]
+SPEEDUP = "25"
+SCRIPT = "fix\nmove\nfix\nnote hello from the crew\nmove\nfix\nend\n"
+
+
+def run_cli(args, cwd, timeout=120):
+    return subprocess.run(TROLLEY + args, cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "COLUMNS": "160"})
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    root = tmp_path_factory.mktemp("session_run")
+    make_project(root / "projects")
+    (root / "crew.txt").write_text(SCRIPT)
+    r = run_cli(["survey", "start", "t1", "--root", "projects", "--session", "ref", "--simulate",
+                 "--speedup", SPEEDUP, "--script", "crew.txt"], root)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return root, r
+
+
+def store(root):
+    from survey.store import ProjectStore
+
+    return ProjectStore.open(root / "projects" / "t1")
+
+
+def final_track(st, name):
+    sid = st.session(name).session_id
+    run = [r for r in st.processing_runs(sid) if r.kind == "final"][-1]
+    return st.track(run.run_id)
+
+
+def counts(st, name):
+    sid = st.session(name).session_id
+    return {c.table: c.rows for c in st.record_counts(sid) if c.table != "raw_chunk"}
+
+
+def test_scripted_session_records_everything_and_processes(project):
+    root, r = project
+    with store(root) as st:
+        sid = st.session("ref").session_id
+        assert st.session("ref").state == "ended"
+        # every simulated sample arrived through the ptys, decoded exactly (ISA-100C counts: 1e-9 rad)
+        from survey.commands.survey import simulated_world
+
+        raw = simulated_world(st, 1.0).sim.session
+        t, w, f = st.imu_arrays(sid)
+        assert t.size == raw.imu_t_s.size
+        assert np.max(np.abs(t - raw.imu_t_s)) < 1e-9
+        assert np.max(np.abs(w - raw.imu_w_rad_s)) <= 1e-9 * 200 / 2 + 1e-15
+        ot, od = st.odometer_arrays(sid)
+        assert np.array_equal(ot, raw.odo_t_s) and np.max(np.abs(od - raw.odo_distance_m)) < 1e-9
+        gt, gm = st.gauge_arrays(sid)
+        assert gt.size == raw.gauge_t_s.size and np.max(np.abs(gm - raw.gauge_m)) <= 5e-6 + 1e-12  # 0.01 mm
+        # raw bytes are kept per device: 56-byte RAWIMUSXB frames
+        imu_bytes = st.connection.execute("SELECT SUM(LENGTH(payload)) FROM raw_chunk WHERE session_id = ? AND "
+                                          "device = 'imu'", (sid,)).fetchone()[0]
+        assert imu_bytes == 56 * raw.imu_t_s.size
+        fixes = st.fixes(sid)
+        assert [f.accepted for f in fixes] == [True, True, True]
+        # each fix stands at a simulated stop, within 2 mm of the simulated prism (0.6 mm noise per axis)
+        from survey.session.simworld import prism_position_enh
+
+        sim = simulated_world(st, 1.0).sim
+        for fx in fixes:
+            d = np.array([fx.e_m, fx.n_m, fx.h_m]) - prism_position_enh(sim, fx.t_s)
+            assert np.max(np.abs(d)) < 0.003
+        notes = st.notes(sid)
+        assert [n.text for n in notes] == ["hello from the crew"]
+        assert abs(notes[0].chainage_m - 60.0) < 0.05  # taken at the second stop
+        setup = st.station_setups(sid)[0]
+        assert setup.accepted and setup.dof > 0
+        track = final_track(st, "ref")
+        assert len(track) > 150 and np.nanmax(track.sigma_enh_m) < 0.002
+    assert "survey.xlsx" in r.stdout and (root / "projects/t1/sessions/ref/survey.xlsx").is_file()
+
+
+def _odometer_distance(db: Path, name: str) -> float:
+    try:
+        c = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=1.0)
+        sid = c.execute("SELECT id FROM session WHERE name = ?", (name,)).fetchone()
+        if not sid:
+            return 0.0
+        return float(c.execute("SELECT COALESCE(MAX(distance_m), 0) FROM odometer_sample WHERE session_id = ?",
+                               sid).fetchone()[0])
+    except sqlite3.Error:
+        return 0.0
+
+
+def test_sigkill_in_an_interval_then_resume_matches_an_uninterrupted_run(project):
+    root, _ = project
+    db = root / "projects" / "t1" / "project.sqlite"
+    p = subprocess.Popen(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", "killed",
+                                    "--simulate", "--speedup", SPEEDUP, "--script", "crew.txt"],
+                         cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 90
+    while _odometer_distance(db, "killed") < 80.0:  # second interval: 60 .. 120 m
+        assert p.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+    at_kill = _odometer_distance(db, "killed")
+    assert 80.0 <= at_kill < 120.0
+    r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "killed"], root)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "resumed session killed: 2 fixes kept" in " ".join(r.stderr.split())
+    with store(root) as st:
+        assert counts(st, "killed") == counts(st, "ref")
+        assert [f.accepted for f in st.fixes(st.session("killed").session_id)] == [True, True, True]
+        a, b = final_track(st, "ref"), final_track(st, "killed")
+        assert np.array_equal(a.chainage_m, b.chainage_m)
+        assert np.max(np.abs(a.enh_m - b.enh_m)) < 0.05e-3
+        kinds = [e.kind for e in st.events(st.session("killed").session_id)]
+        assert "resumed" in kinds and kinds[-1] == "end"
+
+
+def test_resume_of_an_ended_session_is_refused(project):
+    root, _ = project
+    r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "ref"], root)
+    assert r.returncode == 2 and "has ended" in r.stderr and "Traceback" not in r.stderr

@@ -1,0 +1,47 @@
+"""The crew's script format (survey/session/script.py)."""
+from __future__ import annotations
+
+import pytest
+
+from survey.session.script import Action, ScriptError, parse_script, read_script, survey_script
+
+
+def test_every_action_and_comments():
+    text = "# crew\nsetup drop CP0003L\nwait 2.5\nfix   # first stop\nmove\nstop\naccept\nremeasure\nundo\n" \
+           "note rail clip loose # not a comment\npause\nresume\nturn\nend\n"
+    acts = parse_script(text)
+    assert [a.name for a in acts] == ["setup", "wait", "fix", "move", "stop", "accept", "remeasure", "undo",
+                                      "note", "pause", "resume", "turn", "end"]
+    assert acts[1] == Action("wait", seconds=2.5, line=3)
+    assert acts[0].text == "drop CP0003L"
+    assert acts[8].text == "rail clip loose # not a comment"  # a note keeps its text as typed
+    assert acts[2].line == 4
+
+
+@pytest.mark.parametrize("text, line, words", [
+    ("fix\njump\n", 2, "unknown action 'jump'"),
+    ("wait\n", 1, "needs a number"),
+    ("wait soon\n", 1, "needs a number"),
+    ("wait -1\n", 1, "non-negative"),
+    ("\n\nfix now\n", 3, "takes no argument"),
+    ("note\n", 1, "needs a text"),
+    ("setup keep CP1\n", 1, "setup takes 'drop POINT'"),
+])
+def test_errors_name_file_and_line(text, line, words):
+    with pytest.raises(ScriptError) as e:
+        parse_script(text, "crew.txt")
+    assert str(e.value).startswith(f"crew.txt:{line}:") and words in str(e.value)
+
+
+def test_generated_survey_script(tmp_path):
+    p = tmp_path / "s.txt"
+    p.write_text(survey_script(4, note_every=2))
+    acts = read_script(p)
+    names = [a.name for a in acts]
+    assert names.count("fix") == 4 and names.count("move") == 3 and names[-1] == "end"
+    assert [a.text for a in acts if a.name == "note"] == ["stop 2 checked"]
+
+
+def test_unreadable_script_names_the_file(tmp_path):
+    with pytest.raises(ScriptError, match="cannot read"):
+        read_script(tmp_path / "missing.txt")
