@@ -324,8 +324,15 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         meas = Measurements(fix_nodes, z, H, R)
         F, Q = error_model(dr_cur, nodes, noise)
         forward = fast_forward_filter if config.vectorised else forward_filter
-        fwd = forward(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
-                      force_accept=forced)
+        if it == 0:
+            fwd = forward(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
+                          force_accept=forced)
+            gated = fwd  # the gate decides once; later passes keep its verdicts
+        else:
+            kept = meas.subset(gated.accepted)
+            fwd = forward(F, Q, np.zeros(8), P0, kept, gate_probability=None)
+            meas = kept
+            fwd.accepted = np.ones(len(kept), dtype=bool)
         if config.smoother == "rts":
             sm = (fast_rts_smooth if config.vectorised else rts_smooth)(F, Q, fwd, scale=scale)
             xs, Ps = sm.x, sm.P
@@ -355,6 +362,8 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     traj = Trajectory(dr.t_s, dr.distance_m, enh, sigma_enh, roll, x_blocks)
 
     # innovation: the DR error the fix saw minus the error the filter predicted, in grid E, N, H
+    # (of the first pass, the one that gated the fixes)
+    fwd = gated
     y = fwd.innovation
     innov_enh = np.column_stack([y[:, 1], y[:, 0], -y[:, 2]])
     reasons = []
