@@ -365,22 +365,38 @@ def fast_rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult, scale: np.
     IKF = np.eye(n) - C @ Fs
     A = IKF @ Pf[:-1] @ np.swapaxes(IKF, -1, -2) + C @ Qs @ np.swapaxes(C, -1, -2)
     b = xf[:-1] - (C @ (Fs @ xf[:-1, :, None]))[:, :, 0]
-    # suffix scan of maps h_k(M) = A_k + C_k M C_k^T and g_k(v) = b_k + C_k v, from node k to K-1
-    G, Aacc, bacc = C.copy(), A.copy(), b.copy()
+    # Suffix compositions of the maps h_k(M) = A_k + C_k M C_k^T and g_k(v) = b_k + C_k v, node k
+    # to the last node, in two levels: backwards inside chunks of L nodes (all chunks at once),
+    # then chunk by chunk from the end, then joined: O(n) small products.
     m = K - 1
-    step = 1
-    while step < m:
-        # compose k with k+step: h_k o h_{k+step}
-        Gk, Gn = G[:-step], G[step:]
-        Aacc = np.concatenate([Aacc[:-step] + Gk @ Aacc[step:] @ np.swapaxes(Gk, -1, -2), Aacc[-step:]])
-        bacc = np.concatenate([bacc[:-step] + (Gk @ bacc[step:, :, None])[:, :, 0], bacc[-step:]])
-        G = np.concatenate([Gk @ Gn, G[-step:]])
-        step *= 2
-    Pend, xend = Pf[-1], xf[-1]
+    L = 64
+    nc = -(-m // L)
+    pad = nc * L - m
+    eye = np.eye(n)
+    Gc = np.concatenate([C, np.broadcast_to(eye, (pad, n, n))]).reshape(nc, L, n, n).copy()
+    Ac = np.concatenate([A, np.zeros((pad, n, n))]).reshape(nc, L, n, n).copy()
+    bc = np.concatenate([b, np.zeros((pad, n))]).reshape(nc, L, n).copy()
+    for i in range(L - 2, -1, -1):
+        Ci = Gc[:, i].copy()
+        Ac[:, i] = Ac[:, i] + Ci @ Ac[:, i + 1] @ np.swapaxes(Ci, -1, -2)
+        bc[:, i] = bc[:, i] + (Ci @ bc[:, i + 1, :, None])[:, :, 0]
+        Gc[:, i] = Ci @ Gc[:, i + 1]
+    # smoothed values at the first node of every chunk, from the end backwards
+    P_next = np.empty((nc + 1, n, n))
+    x_next = np.empty((nc + 1, n))
+    P_next[nc], x_next[nc] = Pf[-1], xf[-1]
+    for j in range(nc - 1, -1, -1):
+        G0 = Gc[j, 0]
+        P_next[j] = Ac[j, 0] + G0 @ P_next[j + 1] @ G0.T
+        x_next[j] = bc[j, 0] + G0 @ x_next[j + 1]
+    Pt = P_next[1:, None]
+    xt = x_next[1:, None, :, None]
+    Ps_body = Ac + Gc @ Pt @ np.swapaxes(Gc, -1, -2)
+    xs_body = bc + (Gc @ xt)[..., 0]
     Ps = np.empty_like(Pf)
     xs = np.empty_like(xf)
-    Ps[-1], xs[-1] = Pend, xend
-    Ps[:-1] = Aacc + G @ Pend @ np.swapaxes(G, -1, -2)
-    xs[:-1] = bacc + (G @ xend[:, None])[:, :, 0]
+    Ps[:-1] = Ps_body.reshape(-1, n, n)[:m]
+    xs[:-1] = xs_body.reshape(-1, n)[:m]
+    Ps[-1], xs[-1] = Pf[-1], xf[-1]
     Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
     return SmoothedResult(xs * d[None, :], Ps * d[None, :, None] * d[None, None, :])
