@@ -204,3 +204,15 @@ def test_band_option_parsing():
     assert parse_band("3", 0.25) == (0.625, 3.0)
     with pytest.raises(ValueError, match="--band"):
         parse_band("25-3", 0.25)
+
+
+def test_cml_constraints():
+    from trolley.tgms.tuning import attitude_crossover_hz, satisfies_constraint
+    p = TgmsParams()
+    assert attitude_crossover_hz(p.gyro_noise_rad_sqrt_s, p.accel_disturbance_m_s2, 0.01) == pytest.approx(
+        4.4e-5 * 9.80665 / (0.3 * 0.1) / (2 * np.pi))
+    assert satisfies_constraint(p, "kf") and satisfies_constraint(p, "ekf")
+    # the degenerate optimum found without the constraint: accelerometers explain everything
+    assert not satisfies_constraint(TgmsParams(gyro_noise_rad_sqrt_s=0.169, accel_disturbance_m_s2=0.035), "kf")
+    # Gonzalez-Carbajal 2023 Eq. 19
+    assert not satisfies_constraint(TgmsParams(ekf_u_acc_m2_s4=2e-3, ekf_u_pos_m2=1e-2), "ekf")
