@@ -28,6 +28,10 @@ from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, 
 from trolley.session import RawSession
 from trolley.smoothers import (Measurements, fast_forward_filter, fast_rts_smooth, forward_filter, rts_smooth,
                                two_filter_smooth)
+from trolley.trackgeometry import TrackInput
+
+_STATION_FIELDS = ("chainage_m", "E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m", "lateral_dev_m",
+                   "vertical_dev_m", "gauge_m", "cant_m", "twist_m", "t_s")
 
 #: Order of the combined 8-state error vector: level channel then vertical channel.
 STATE_NAMES = em.LEVEL_STATES + em.VERTICAL_STATES
@@ -98,22 +102,18 @@ class FixReport:
 
 
 @dataclass
-class Stations:
-    """Output stations (SI; NaN where a value is not available)."""
+class Stations(TrackInput):
+    """Output stations: the track table of ``trolley.trackgeometry`` plus what the engine knows
+    besides (SI; NaN where a value is not available).
 
-    chainage_m: np.ndarray
-    E_m: np.ndarray
-    N_m: np.ndarray
-    H_m: np.ndarray
-    sigma_E_m: np.ndarray
-    sigma_N_m: np.ndarray
-    sigma_H_m: np.ndarray
-    lateral_dev_m: np.ndarray
-    vertical_dev_m: np.ndarray
-    gauge_m: np.ndarray
-    cant_m: np.ndarray
-    twist_m: np.ndarray
-    t_s: np.ndarray
+    Attributes
+    ----------
+    twist_m : cant difference over ``ProcessConfig.twist_base_m``.
+    t_s : time the trolley passed the station.
+    """
+
+    twist_m: np.ndarray | None = None
+    t_s: np.ndarray | None = None
 
 
 @dataclass
@@ -470,7 +470,7 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
     c = sign * ch[keep]
     if c.size < 2:
         empty = np.array([])
-        return Stations(*([empty] * 13))
+        return Stations(**{k: empty for k in _STATION_FIELDS})
     step = config.step_m
     s = np.arange(np.ceil(c[0] / step) * step, c[-1] + 1e-9, step)
     s = s[(s >= c[0]) & (s <= c[-1])]
@@ -499,4 +499,4 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
         vert = np.full_like(s, np.nan)
     order = np.argsort(chain, kind="stable")
     cols = [chain, E, N, Hh, sE, sN, sH, lat, vert, gauge, cant, twist, t]
-    return Stations(*[np.asarray(x)[order] for x in cols])
+    return Stations(**{k: np.asarray(x)[order] for k, x in zip(_STATION_FIELDS, cols)})
