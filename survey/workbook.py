@@ -379,6 +379,17 @@ def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float])
     timings["zip"] = time.perf_counter() - t1
 
 
+def _print_setup(ws, landscape: bool) -> None:
+    """Print every sheet one page wide (the client prints the sheet), header row repeated."""
+    ws.page_setup.orientation = "landscape" if landscape else "portrait"
+    ws.page_setup.paperSize = ws.PAPERSIZE_A4
+    ws.page_setup.fitToWidth = 1
+    ws.page_setup.fitToHeight = 0  # as many pages down as needed
+    ws.sheet_properties.pageSetUpPr.fitToPage = True
+    if ws.title != "Summary" and ws.title != "Charts":
+        ws.print_title_rows = "1:1"
+
+
 def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | None = None) -> Path:
     """Write the survey workbook to ``path`` atomically (temp file + rename).
 
@@ -414,6 +425,8 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     _defects_sheet(defects, rep)
     _fixes_sheet(fixes, rep)
     _charts_sheet(charts, TRACK_SHEET, rep, n)
+    for ws, landscape in ((summary, True), (track, True), (defects, True), (fixes, True), (charts, True)):
+        _print_setup(ws, landscape)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xlsx", dir=path.parent)
     os.close(fd)
     try:
