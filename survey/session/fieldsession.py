@@ -469,7 +469,8 @@ class FieldSession:
 
         standing, _, dist = self.motion()
         if not standing:
-            self.screen.message = "the trolley is moving: a fix is taken when it stands"
+            if self.config.script is None:
+                self.say("the trolley is moving: a fix is taken when it stands")
             return False
         t = self.now()
         sigma = self.rec.meta.fix_sigma_m
@@ -674,7 +675,7 @@ class FieldSession:
         t = self.now()
         if standing and self.stop_started_s is None and self.aligned:
             self.stop_started_s = t
-            if self.accepted_fixes:
+            if self.accepted_fixes and abs(dist - self.last_fix_distance_m) > 1.0:
                 self.say(f"standing at {self.chainage_now(dist):.1f} m: f = take a fix")
         elif not standing and self.stop_started_s is not None:
             self.store.add_stop(self.rec.session_id, StopRecord(self.stop_started_s, t, f"S{self.stop_count:03d}",

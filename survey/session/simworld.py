@@ -14,9 +14,12 @@ the clock).
 from __future__ import annotations
 
 import math
+import shutil
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -182,15 +185,20 @@ class SimWorld:
         k0 = int(np.searchsorted(raw.odo_t_s, after.get("odometer", -np.inf) + 1e-6, side="right"))
         g0 = int(np.searchsorted(raw.gauge_t_s, after.get("gauge", -np.inf) + 1e-6, side="right"))
         self.odo_first_index = k0
+        # stable paths, like /dev/serial/by-id/...: a twin that is unplugged comes back at the same path
+        self.link_dir = Path(tempfile.mkdtemp(prefix="trolley-sim-"))
+        link = {k: self.link_dir / k for k in ("imu", "odometer", "gauge", "totalstation")}
         imu = _PacedImuTwin(self.clock, raw.imu_t_s[i0:], raw.imu_w_rad_s[i0:], raw.imu_f_m_s2[i0:],
                             imu_type=SIM_IMU_TYPE, rate_hz=None, week=IMU_WEEK,
-                            sow0=IMU_SOW0 + float(raw.imu_t_s[i0]) if i0 < raw.imu_t_s.size else IMU_SOW0)
-        odo = OdometerTwin(raw.odo_t_s[k0:], raw.odo_distance_m[k0:], SIM_ODOMETER, mode="index")
+                            sow0=IMU_SOW0 + float(raw.imu_t_s[i0]) if i0 < raw.imu_t_s.size else IMU_SOW0,
+                            link_path=link["imu"])
+        odo = OdometerTwin(raw.odo_t_s[k0:], raw.odo_distance_m[k0:], SIM_ODOMETER, mode="index",
+                           link_path=link["odometer"])
         self.gauge_t0_s = float(raw.gauge_t_s[g0]) if g0 < raw.gauge_t_s.size else 0.0
-        gauge = _PacedGaugeTwin(self.clock, raw.gauge_t_s[g0:], raw.gauge_m[g0:])
+        gauge = _PacedGaugeTwin(self.clock, raw.gauge_t_s[g0:], raw.gauge_m[g0:], link_path=link["gauge"])
         o = self.options
         ts = TotalStationTwin(station=(*self.station_enh_m, 0.0), target=None, noise_angle_rad=o.angle_sigma_rad,
-                              noise_dist_m=o.distance_sigma_m, seed=o.seed)
+                              noise_dist_m=o.distance_sigma_m, seed=o.seed, link_path=link["totalstation"])
         ts.orientation = o.orientation_rad
         self.twins = {"imu": imu, "odometer": odo, "gauge": gauge, "totalstation": ts}
         return {k: t.port for k, t in self.twins.items()}
@@ -203,6 +211,8 @@ class SimWorld:
     def stop(self) -> None:
         for t in self.twins.values():
             t.stop()
+        if getattr(self, "link_dir", None) is not None:
+            shutil.rmtree(self.link_dir, ignore_errors=True)
 
     # ------------------------------------------------------------------ time
     def now(self) -> float:

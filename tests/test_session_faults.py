@@ -1,0 +1,70 @@
+"""A device failing mid-session: the IMU port vanishes (USB unplug) and the total station finds no
+prism for a while. The session pauses with a clear message, keeps everything already received, and
+continues when the device is back."""
+from __future__ import annotations
+
+import threading
+import time
+
+from rich.console import Console
+
+from session_project import make_project
+
+
+def test_imu_unplug_and_total_station_fault_pause_and_resume(tmp_path):
+    from drivers import geocom as gc
+    from survey.commands.survey import simulated_world
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore
+
+    make_project(tmp_path, length_m="60.0", static_s="10.0", stop_s="20.0")
+    console = Console(stderr=True, record=True, width=150)
+    with ProjectStore.open(tmp_path / "t1") as st:
+        world = simulated_world(st, 10.0)
+    holder, errors = {}, []
+    script = parse_script("fix\nmove\nfix\nend\n")
+
+    def run():
+        try:
+            with ProjectStore.open(tmp_path / "t1") as st:  # a connection per thread
+                holder["fs"] = FieldSession(st, "faults", SessionConfig(script=script, out_dir=None),
+                                            world=world, console=console)
+                holder["fs"].run()
+        except BaseException as e:  # reported by the assertions below
+            errors.append(e)
+
+    th = threading.Thread(target=run)
+    th.start()
+    deadline = time.monotonic() + 60
+    while "fs" not in holder or not holder["fs"].accepted_fixes:  # first fix taken: the station is set up
+        assert time.monotonic() < deadline and th.is_alive(), errors
+        time.sleep(0.02)
+    fs = holder["fs"]
+    # the next fix finds no prism 6 times (more than one call's 5 attempts), then works
+    world.twins["totalstation"].inject_rc(8710, rpc=gc.AUT_FINEADJUST, times=6)
+    while not fs.aligned:
+        time.sleep(0.02)
+    world.twins["imu"].disappear(1.5)  # unplugged while the trolley moves; back after 1.5 s
+    th.join(90)
+    assert not th.is_alive() and not errors, errors
+    with ProjectStore.open(tmp_path / "t1") as st:
+        sid = fs.rec.session_id
+        events = st.events(sid)
+        faults = [e.detail for e in events if e.kind == "device_fault"]
+        assert any(d.startswith("imu:") for d in faults), faults
+        ts_faults = [d for d in faults if d.startswith("total station:")]
+        assert ts_faults and "target" in ts_faults[0].lower(), faults
+        assert sum(e.kind == "device_back" for e in events) >= 2
+        # nothing received was lost: every frame the driver decoded is stored
+        link = fs.acq.links["imu"]
+        t, _, _ = st.imu_arrays(sid)
+        assert link.stats.reconnects >= 1
+        assert t.size == link.stats.frames_ok
+        # the unplug lost the frames sent while the port was gone, and only those: one gap
+        gaps = (t[1:] - t[:-1]) > 0.0075
+        assert gaps.sum() == 1
+        assert [f.accepted for f in st.fixes(sid)] == [True, True]
+        text = console.export_text()
+        assert "session paused; nothing received is lost" in " ".join(text.split())
+        assert "the session continues" in text
