@@ -135,6 +135,8 @@ class FieldSession:
         self._live_thread: threading.Thread | None = None
         self._live_fed_t = -math.inf
         self._design = None
+        self._tolerances = None
+        self.interval_seconds: list[float] = []
         self._last_render = 0.0
 
     # ================================================================== time and motion
@@ -620,11 +622,18 @@ class FieldSession:
             return
 
         def run() -> None:
+            from survey.session.interval import defects_text, interval_check, tolerance_set
+
             try:
                 t0 = time.perf_counter()
                 r = lp.smooth_last_interval()
+                if self._tolerances is None:
+                    self._tolerances = tolerance_set(self.config.tolerances or self.settings.tolerance_set)
+                tr = self.rec.meta.trolley
+                chk = interval_check(r.stations, self._design, self._tolerances, tr.rail_spacing_m, tr.nominal_gauge_m)
                 dt = time.perf_counter() - t0
-                self.screen.last_interval = interval_summary_text(r, dt)
+                self.interval_seconds.append(dt)
+                self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
                 self.console.print(self.screen.last_interval, highlight=False)
             except Exception as exc:
                 self.screen.last_interval = f"interval processing failed: {exc}"
