@@ -58,7 +58,7 @@ def main() -> None:
                     from trolley.tgms.tuning import tune_cml
                     p, _ = tune_cml(rec, max_evaluations=60, seed=0)
                 res = process(rec, p)
-                acc = accuracy(res.frames, truth, res.vision.t_s)
+                acc = accuracy(res.frames, truth, res.vision.t_s, laser_offset_m=res.laser_offset_m)
                 rows[name].append(acc)
                 f = lambda d: " ".join(f"{d[n]:.3f}" for n in NAMES)
                 print(f"{name:14s} {seed:4d} {speed:5.1f} | {f(acc.std_mm)} | {f(acc.std_registered_mm)} | "

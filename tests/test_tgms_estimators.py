@@ -79,7 +79,7 @@ def test_attitude_kf_and_madgwick_track_the_relative_roll():
     e_kf = (kf.roll_rad - roll)[mid]
     e_mg = (mg.roll_rad - roll)[mid]
     # gyro-dominated in the band: errors far below the 1 mrad motion, after the mean
-    assert np.std(e_kf) < 1e-4 and np.std(e_mg) < 2e-4
+    assert np.std(e_kf) < 1e-4 and np.std(e_mg) < 3e-4
     assert np.std((kf.pitch_rad - pitch)[mid]) < 2e-4
     # the filter sigma is conservative here (it carries the slowly observed gyro-bias uncertainty)
     assert np.std(e_kf) < np.median(kf.sigma_roll_rad[mid]) < 1e-3

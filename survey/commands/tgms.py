@@ -230,7 +230,7 @@ def process_cmd(
     }
     if truth is not None:
         from trolley.tgms.accuracy import accuracy
-        acc = accuracy(res.frames, truth, res.vision.t_s, step)
+        acc = accuracy(res.frames, truth, res.vision.t_s, step, laser_offset_m=res.laser_offset_m)
         summary["accuracy_3_25m"] = dataclasses.asdict(acc)
     print(json.dumps(summary))
 

@@ -56,7 +56,8 @@ def _band_errors(grid: Irregularities, truth: dict, step_m: float, band: tuple[f
 
 
 def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m: float = 0.25,
-             band: tuple[float, float] = (3.0, 25.0), trim_m: float = 25.0) -> Accuracy:
+             band: tuple[float, float] = (3.0, 25.0), trim_m: float = 25.0,
+             laser_offset_m=0.0) -> Accuracy:
     """Band-passed error statistics of a processing result against the truth.
 
     Parameters
@@ -64,6 +65,8 @@ def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m:
     frames : per-frame irregularities (``TgmsResult.frames``).
     truth : columns of truth.csv (s_m, *_mm, t_s, ...).
     frame_t_s : camera frame times (for the registered comparison).
+    laser_offset_m : per-frame station offset of the laser cut ahead of the IMU
+        (``TgmsResult.laser_offset_m``), added to the IMU's true station when registering.
     step_m : output grid step.
     band : (short, long) wavelengths of the band-pass, m.
     trim_m : stations this close to the ends of the ride are left out: the band-pass edge
@@ -76,7 +79,7 @@ def accuracy(frames: Irregularities, truth: dict, frame_t_s: np.ndarray, step_m:
     grid = resample_irregularities(frames, step_m)
     e = _band_errors(grid, truth, step_m, band, trim_m)
     # registered: the frames at their true stations
-    s_true = np.interp(frame_t_s, truth["t_s"], truth["s_m"], left=np.nan, right=np.nan)
+    s_true = np.interp(frame_t_s, truth["t_s"], truth["s_m"], left=np.nan, right=np.nan) + laser_offset_m
     reg = Irregularities(s_true, *(getattr(frames, f) for f in (
         "gauge_variation_m", "cross_level_m", "alignment_m", "vertical_profile_m",
         "sigma_gauge_variation_m", "sigma_cross_level_m", "sigma_alignment_m", "sigma_vertical_profile_m")))

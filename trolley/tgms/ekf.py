@@ -144,7 +144,8 @@ def trajectory_ekf(kin: TrackKinematics, w: np.ndarray, f: np.ndarray, att0: Rel
     Cb = _euler_matrix(xs[:, [0, 2, 4]])
     rel = Rotation.from_matrix(np.einsum("nji,njk->nik", Ct, Cb)).as_euler("ZYX")
     att = RelativeAttitude(roll_rad=rel[:, 2], pitch_rad=rel[:, 1], sigma_roll_rad=np.sqrt(Ps[:, 0, 0]),
-                           sigma_pitch_rad=np.sqrt(Ps[:, 2, 2]), bias_rad_s=np.zeros((n, 2)), loglik=ll)
+                           sigma_pitch_rad=np.sqrt(Ps[:, 2, 2]), bias_rad_s=np.zeros((n, 2)), loglik=ll,
+                           yaw_rad=rel[:, 0])
     tr = RelativeTrajectory(dr_y_m=xs[:, 6], dr_z_m=xs[:, 9], sigma_y_m=np.sqrt(Ps[:, 6, 6]),
                             sigma_z_m=np.sqrt(Ps[:, 9, 9]), loglik=ll)
     tr.attitude = att

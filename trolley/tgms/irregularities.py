@@ -69,6 +69,43 @@ def irregularities(s_m, y_l, z_l, y_r, z_r, roll, r_y, r_z, half_rail_spacing_m:
     return Irregularities(s_m, gv, cl, al, vp, s_gv, s_cl, s_al, s_vp)
 
 
+def rails_in_laser_track_frame(alignment, s_imu, s_laser, roll, pitch, yaw, r_y, r_z, u_left, u_right):
+    """Rail-profile origins seen by the vision, expressed in the track frame at the laser's station.
+
+    The exact form of Eq. 20-22 for laser planes that are not through the IMU: a point u of the
+    TGMS frame is at R^t(s) + A^t(s) (r + A^{t,tgms} u) in the world (Eq. 12), and in the track
+    frame of the station s_L it cuts, A^t(s_L)^T (that - R^t(s_L)). With s_L = s and small angles
+    this reduces to the matrix of Eq. 23 used in :func:`irregularities`.
+
+    Parameters
+    ----------
+    alignment : design geometry.
+    s_imu, s_laser : (n,) stations of the IMU and of the laser cut.
+    roll, pitch, yaw : (n,) TGMS attitude relative to the TF at s_imu (FRD, ZYX).
+    r_y, r_z : (n,) TGMS position in the TF at s_imu.
+    u_left, u_right : (n, 3) rail-profile origins in the TGMS frame (x: the laser plane's).
+
+    Returns
+    -------
+    (q_left, q_right) : (n, 3) each, in the TF at s_laser (FRD).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from trolley.tgms.track import ned_position, track_rotation
+    g0 = alignment.evaluate(s_imu)
+    g1 = alignment.evaluate(s_laser)
+    R0 = track_rotation(g0.heading_rad, g0.slope_rad, g0.cant_rad)
+    R1 = track_rotation(g1.heading_rad, g1.slope_rad, g1.cant_rad)
+    O0, O1 = ned_position(g0), ned_position(g1)
+    Arel = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
+    r = np.column_stack([np.zeros_like(r_y), r_y, r_z])
+    out = []
+    for u in (u_left, u_right):
+        world = O0 + R0.apply(r + Arel.apply(u))
+        out.append(R1.inv().apply(world - O1))
+    return out[0], out[1]
+
+
 def resample(s_m: np.ndarray, values: np.ndarray, grid_m: np.ndarray, max_gap_m: float) -> np.ndarray:
     """Linear interpolation of frame values (NaN = flagged) onto a station grid; a grid point is
     NaN unless both neighbouring valid frames lie within ``max_gap_m`` of each other (never

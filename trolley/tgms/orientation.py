@@ -37,6 +37,7 @@ class RelativeAttitude:
     sigma_pitch_rad: np.ndarray
     bias_rad_s: np.ndarray
     loglik: float = float("nan")
+    yaw_rad: np.ndarray | None = None
 
 
 def _inputs(kin: TrackKinematics, w: np.ndarray, f: np.ndarray):
@@ -137,3 +138,24 @@ def attitude_madgwick(kin: TrackKinematics, w: np.ndarray, f: np.ndarray,
     nan = np.full(n, np.nan)
     return RelativeAttitude(roll_rad=x[:, 0], pitch_rad=x[:, 1], sigma_roll_rad=nan,
                             sigma_pitch_rad=nan.copy(), bias_rad_s=np.zeros((n, 2)))
+
+
+def relative_yaw(kin: TrackKinematics, w: np.ndarray, params: TgmsParams = TgmsParams(),
+                 min_speed_m_s: float = 2.0) -> np.ndarray:
+    """Relative yaw psi of the TGMS (rad): the gyro's yaw rate minus the track frame's, integrated
+    (Escalona 2021 Eq. 32, third row, with Eq. 15) by a Kalman filter + RTS smoother whose
+    virtual zero measurements (variance following the speed, as in ``trajectory``) remove the
+    drift beyond ``cutoff_wavelength_m``. Used only for the laser planes' lever arm ahead of the
+    IMU (psi x_L), which the relative-attitude filter of Eq. 39 does not provide.
+    """
+    n = len(kin.t_s)
+    dt = float(kin.t_s[1] - kin.t_s[0])
+    u = w[:, 2] - kin.omega_t[:, 2]
+    um = np.concatenate([0.5 * (u[:-1] + u[1:]), u[-1:]])
+    q = params.gyro_noise_rad_sqrt_s ** 2 * dt
+    v = np.maximum(kin.v_m_s, min_speed_m_s)
+    wc = 2 * np.pi * v / params.cutoff_wavelength_m
+    R = (params.gyro_noise_rad_sqrt_s ** 2 / (wc ** 2 * dt))[:, None, None]
+    res = ltv_filter(np.zeros(1), np.eye(1) * 1e-4, np.ones((1, 1)), (um * dt)[:, None], np.eye(1) * q,
+                     np.ones((1, 1)), R, np.zeros((n, 1)))
+    return res.x_s[:, 0]

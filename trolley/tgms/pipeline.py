@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trolley.tgms.camera import pixels_to_tgms
-from trolley.tgms.irregularities import Irregularities, irregularities, resample_irregularities
+from trolley.tgms.irregularities import (Irregularities, irregularities, rails_in_laser_track_frame,
+                                          resample_irregularities)
 from trolley.tgms.odometry import Odometry, odometry
-from trolley.tgms.orientation import RelativeAttitude, attitude_kf, attitude_madgwick
+from trolley.tgms.orientation import RelativeAttitude, attitude_kf, attitude_madgwick, relative_yaw
 from trolley.tgms.params import TgmsParams
 from trolley.tgms.profiles import rail_profile
 from trolley.tgms.recording import Recording
@@ -32,6 +33,8 @@ class VisionResult:
     t_s: np.ndarray
     left: RailFit
     right: RailFit
+    x_left_m: np.ndarray | None = None
+    x_right_m: np.ndarray | None = None
 
     @property
     def ok(self) -> np.ndarray:
@@ -48,6 +51,7 @@ class TgmsResult:
     frames : irregularities at every camera frame (station from the odometry).
     grid : irregularities on the uniform station grid (before band filtering).
     r0_z_m : nominal TGMS offset below (z) the TF origin estimated from the vision.
+    laser_offset_m : per frame, station of the laser cut minus station of the IMU (x of the planes).
     timings_s : wall time of each stage.
     """
 
@@ -60,6 +64,7 @@ class TgmsResult:
     grid: Irregularities
     r0_z_m: float
     timings_s: dict = field(default_factory=dict)
+    laser_offset_m: np.ndarray | None = None
 
 
 def run_vision(rec: Recording, options: FitOptions = FitOptions()) -> VisionResult:
@@ -68,16 +73,21 @@ def run_vision(rec: Recording, options: FitOptions = FitOptions()) -> VisionResu
     prof = rail_profile(cfg.track.rail_profile, cfg.track.rail_inclination)
     n_frames = 1 + max(int(rec.lasers[s].frame.max()) if len(rec.lasers[s].frame) else 0 for s in ("left", "right"))
     t = np.full(n_frames, np.nan)
-    fits = {}
+    fits, xs = {}, {}
     for side in ("left", "right"):
         lp = rec.lasers[side]
         pts = pixels_to_tgms(cfg.cameras[side], lp.u_px, lp.v_px)
         good = np.all(np.isfinite(pts), axis=1)
         fits[side] = fit_rail(prof, lp.frame[good], pts[good, 1], pts[good, 2], n_frames, side, options)
+        # where along x the laser cut the rail (the lever arm of the laser plane ahead of the IMU)
+        cnt = np.bincount(lp.frame[good], minlength=n_frames)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xs[side] = np.bincount(lp.frame[good], pts[good, 0], minlength=n_frames) / cnt
         tf = np.full(n_frames, np.nan)
         tf[lp.frame] = lp.t_s
         t = np.where(np.isfinite(t), t, tf)
-    return VisionResult(frame=np.arange(n_frames), t_s=t, left=fits["left"], right=fits["right"])
+    return VisionResult(frame=np.arange(n_frames), t_s=t, left=fits["left"], right=fits["right"],
+                        x_left_m=xs["left"], x_right_m=xs["right"])
 
 
 def average_to_grid(t: np.ndarray, x: np.ndarray, t_grid: np.ndarray) -> np.ndarray:
@@ -160,11 +170,28 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     moving = at(odo.v_m_s) > 0.5
     s_f = np.where(moving, s_f, np.nan)
     L, R = vis.left, vis.right
-    fr = irregularities(s_f, L.y_m, L.z_m, R.y_m, R.z_m, at(att.roll_rad), at(traj.dr_y_m),
-                        r0_z + at(traj.dr_z_m), cfg.track.half_rail_spacing_m,
+    roll_f, ry_f, rz_f = at(att.roll_rad), at(traj.dr_y_m), r0_z + at(traj.dr_z_m)
+    # first-order form (Eq. 24, 27) for the sigmas; the values come from the exact transform below
+    fr = irregularities(s_f, L.y_m, L.z_m, R.y_m, R.z_m, roll_f, ry_f, rz_f, cfg.track.half_rail_spacing_m,
                         L.sigma_y_m, L.sigma_z_m, R.sigma_y_m, R.sigma_z_m, at(att.sigma_roll_rad),
                         at(traj.sigma_y_m), at(traj.sigma_z_m))
+    yaw = att.yaw_rad if att.yaw_rad is not None else relative_yaw(kin, w, params)
+    x_l = np.where(np.isfinite(vis.x_left_m), vis.x_left_m, 0.0)
+    x_r = np.where(np.isfinite(vis.x_right_m), vis.x_right_m, 0.0)
+    s_las = s_f + 0.5 * (x_l + x_r)
+    use = np.isfinite(s_f) & np.isfinite(L.y_m) & np.isfinite(R.y_m) & np.isfinite(roll_f) & np.isfinite(ry_f)
+    if use.any():
+        ql, qr = rails_in_laser_track_frame(
+            rec.alignment, s_f[use], s_las[use], roll_f[use], at(att.pitch_rad)[use], at(yaw)[use],
+            ry_f[use], rz_f[use], np.column_stack([x_l[use], L.y_m[use], L.z_m[use]]),
+            np.column_stack([x_r[use], R.y_m[use], R.z_m[use]]))
+        Lr = cfg.track.half_rail_spacing_m
+        fr.gauge_variation_m[use] = qr[:, 1] - ql[:, 1] - 2 * Lr
+        fr.cross_level_m[use] = qr[:, 2] - ql[:, 2]
+        fr.alignment_m[use] = 0.5 * (ql[:, 1] + qr[:, 1])
+        fr.vertical_profile_m[use] = -0.5 * (ql[:, 2] + qr[:, 2])
+    fr.s_m = np.where(use, s_las, np.nan)
     grid = resample_irregularities(fr, step_m)
     tim["irregularities"] = time.perf_counter() - t5
     return TgmsResult(vision=vis, odometry=odo, kinematics=kin, attitude=att, trajectory=traj,
-                      frames=fr, grid=grid, r0_z_m=r0_z, timings_s=tim)
+                      frames=fr, grid=grid, r0_z_m=r0_z, timings_s=tim, laser_offset_m=0.5 * (x_l + x_r))

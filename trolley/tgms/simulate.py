@@ -84,6 +84,7 @@ class SimulationSettings:
     tgms_height_m : height of the IMU above the rail tops.
     pixel_noise_px, outlier_fraction, dropout_fraction, no_gauge_face_fraction : camera errors.
     point_spacing_m : spacing of the laser points along the head outline.
+    laser_plane_x_m : the laser planes are x = laser_plane_x_m in the TGMS frame (ahead of the IMU).
     wheel_scale_error : relative error of the nominal wheel diameter.
     latitude_deg : for the Earth rate.
     body_scale : multiplies all body-motion amplitudes (0 = TGMS rigid on the rails).
@@ -105,6 +106,7 @@ class SimulationSettings:
     dropout_fraction: float = 0.01
     no_gauge_face_fraction: float = 0.01
     point_spacing_m: float = 1.0e-3
+    laser_plane_x_m: float = 0.0
     wheel_scale_error: float = 1e-3
     latitude_deg: float = 40.0
     body_scale: float = 1.0
@@ -163,18 +165,19 @@ def design_alignment(length_m: float) -> Alignment:
     return Alignment(hz, vp, cp, name="tgms-sim")
 
 
-def default_cameras(half_rail_spacing_m: float = 0.7175, tgms_height_m: float = 0.45) -> dict[str, Camera]:
-    """Two cameras 0.30 m behind the laser plane x = 0, 0.40 m above the rail tops and 0.17 m
-    inboard of the gauge points, looking at the gauge corners; 648x488 px, f = 1400 px, mild
-    distortion."""
+def default_cameras(half_rail_spacing_m: float = 0.7175, tgms_height_m: float = 0.45,
+                    laser_plane_x_m: float = 0.0) -> dict[str, Camera]:
+    """Two cameras 0.30 m behind the laser plane x = laser_plane_x_m, 0.40 m above the rail tops
+    and 0.17 m inboard of the gauge points, looking at the gauge corners; 648x488 px, f = 1400 px,
+    mild distortion."""
     K = np.array([[1400.0, 0.0, 324.0], [0.0, 1400.0, 244.0], [0.0, 0.0, 1.0]])
     cams = {}
     for side, sgn in (("left", -1.0), ("right", 1.0)):
-        c = np.array([-0.30, sgn * (half_rail_spacing_m - 0.17), tgms_height_m - 0.40])
-        target = np.array([0.0, sgn * (half_rail_spacing_m + 0.012), tgms_height_m + 0.006])
+        c = np.array([laser_plane_x_m - 0.30, sgn * (half_rail_spacing_m - 0.17), tgms_height_m - 0.40])
+        target = np.array([laser_plane_x_m, sgn * (half_rail_spacing_m + 0.012), tgms_height_m + 0.006])
         dist = np.array([-0.08, 0.02, 1e-4, -1e-4]) * (1 if side == "left" else 1.1)
         cams[side] = Camera(K=K, R_tgms_cam=look_at(c, target), t_tgms_cam_m=c, distortion=dist,
-                            laser_plane=np.array([1.0, 0.0, 0.0, 0.0]), name=side)
+                            laser_plane=np.array([1.0, 0.0, 0.0, -laser_plane_x_m]), name=side)
     return cams
 
 
@@ -330,27 +333,35 @@ def _laser_chunk(sc: _Scenario, st: SimulationSettings, cams: dict[str, Camera],
     step = max(1, int(round(st.point_spacing_m / 2e-5)))
     outline = prof.outline_m[::step]
     normals = outline_normals(prof.outline_m)[::step]
-    Rt, Rb, p, (r_y, r_z, roll, pitch, yaw) = _pose(sc, t_f, s_f, v_f)
-    Rrel_inv = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).inv()
-    rails = sc.rails(s_f)
+    Rt, Rb, p, _ = _pose(sc, t_f, s_f, v_f)
+    # the rail cross-section the laser plane cuts: at the station s + x_L, in its own track frame,
+    # carried into the TGMS frame through the world (exact: design curvature, cant and slope
+    # changes between the IMU's and the laser's stations included)
+    s_c = s_f + st.laser_plane_x_m
+    gc = sc.al.evaluate(s_c)
+    Rc = track_rotation(gc.heading_rad, gc.slope_rad, gc.cant_rad)
+    Oc = ned_position(gc)
+    Rb_inv = Rb.inv()
+    rails = sc.rails(s_c)
     delta = rails["cl"] / (2 * st.half_rail_spacing_m)
     cd, sd = np.cos(delta)[:, None], np.sin(delta)[:, None]
     nf, npnt = len(t_f), len(outline)
+    rep = np.repeat(np.arange(nf), npnt)
     out = {}
     for side, sgn in (("left", -1.0), ("right", 1.0)):
         cam = cams[side]
         qy, qz = sgn * outline[:, 0][None, :], outline[:, 1][None, :]
         ny, nz = sgn * normals[:, 0][None, :], normals[:, 1][None, :]
-        Py = sgn * st.half_rail_spacing_m + rails[f"y_{side}"][:, None] + cd * qy - sd * qz - r_y[:, None]
-        Pz = rails[f"z_{side}"][:, None] + sd * qy + cd * qz - r_z[:, None]
+        Py = sgn * st.half_rail_spacing_m + rails[f"y_{side}"][:, None] + cd * qy - sd * qz
+        Pz = rails[f"z_{side}"][:, None] + sd * qy + cd * qz
         P = np.stack([np.zeros((nf, npnt)), Py, Pz], axis=-1).reshape(-1, 3)
         N = np.stack([np.zeros((nf, npnt)), cd * ny - sd * nz, sd * ny + cd * nz], axis=-1).reshape(-1, 3)
         d_tf = np.column_stack([np.ones(nf), rails[f"dy_{side}"], rails[f"dz_{side}"]])
-        rep = np.repeat(np.arange(nf), npnt)
-        Rinv = Rrel_inv[rep]
-        u = Rinv.apply(P)
-        d = Rinv.apply(d_tf[rep])
-        n_b = Rinv.apply(N)
+        Rc_p = Rc[rep]
+        Rb_inv_p = Rb_inv[rep]
+        u = Rb_inv_p.apply(Oc[rep] + Rc_p.apply(P) - p[rep])
+        d = Rb_inv_p.apply(Rc_p.apply(d_tf[rep]))
+        n_b = Rb_inv_p.apply(Rc_p.apply(N))
         pl = cam.laser_plane
         lam = -(u @ pl[:3] + pl[3]) / (d @ pl[:3])
         X = u + lam[:, None] * d
@@ -386,7 +397,7 @@ def simulate(settings: SimulationSettings = SimulationSettings()) -> tuple[Recor
     rng = np.random.default_rng(st.seed)
     alignment = design_alignment(st.length_m + 20.0)
     sc = _Scenario(st, alignment, rng)
-    cams = default_cameras(st.half_rail_spacing_m, st.tgms_height_m)
+    cams = default_cameras(st.half_rail_spacing_m, st.tgms_height_m, st.laser_plane_x_m)
     t_imu, s_imu, w, f = _imu(sc, st, rng)
     # encoder: wheel rolling along the centre line, diameter off by wheel_scale_error
     enc = EncoderSettings()
