@@ -7,7 +7,7 @@ of the filters' 95 % intervals (unfiltered, mean error removed). The floor for t
 is the time to simulate the same kilometre (same run).
 
     /work/venv/bin/python benchmarks/bench_tgms_accuracy.py [--seeds 1 2 3] [--speeds 5 15]
-        [--length-m 300] [--km] [--cml]
+        [--length-m 300] [--km] [--cml] [--laser-x-m 0.3]
 """
 from __future__ import annotations
 
@@ -43,6 +43,7 @@ def main() -> None:
     ap.add_argument("--length-m", type=float, default=300.0)
     ap.add_argument("--km", action="store_true", help="also time the whole pipeline on 1 km")
     ap.add_argument("--cml", action="store_true", help="add kf+ltv with the attitude filter tuned by CML per recording")
+    ap.add_argument("--laser-x-m", type=float, default=0.0, help="laser planes this far ahead of the IMU")
     a = ap.parse_args()
     vs = variants()
     if a.cml:
@@ -51,7 +52,8 @@ def main() -> None:
     print(f"{'variant':14s} {'seed':>4s} {'V':>5s} | std as reported (mm): gv cl al vp | registered: gv cl al vp | 95% coverage gv cl al vp")
     for speed in a.speeds:
         for seed in a.seeds:
-            rec, tr = simulate(SimulationSettings(length_m=a.length_m, speed_m_s=speed, seed=seed))
+            rec, tr = simulate(SimulationSettings(length_m=a.length_m, speed_m_s=speed, seed=seed,
+                                                  laser_plane_x_m=a.laser_x_m))
             truth = {k: getattr(tr, k) for k in dataclasses.asdict(tr)}
             for name, p in vs.items():
                 if p == "cml":
