@@ -22,7 +22,7 @@ from session_project import make_project
 
 TROLLEY = [sys.executable, "-m", "survey.cli"]
 SPEEDUP = "25"
-SCRIPT = "fix\nmove\nfix\nnote hello from the crew\nmove\nfix\nend\n"
+SCRIPT = "fix\nmove\nfix\nnote hello from the crew\nstation\nmove\nfix\nend\n"
 
 
 def run_cli(args, cwd, timeout=120):
@@ -80,7 +80,12 @@ def test_scripted_session_records_everything_and_processes(project):
                                           "device = 'imu'", (sid,)).fetchone()[0]
         assert imu_bytes == 56 * raw.imu_t_s.size
         fixes = st.fixes(sid)
-        assert [f.accepted for f in fixes] == [True, True, True]
+        # the third fix is the overlap check of the station change at the second stop
+        assert [f.accepted for f in fixes] == [True, True, True, True]
+        setups = st.station_setups(sid)
+        assert len(setups) == 2 and [f.setup_id for f in fixes] == [setups[0].setup_id] * 2 + [setups[1].setup_id] * 2
+        assert np.hypot(*(setups[1].station_enh_m - setups[0].station_enh_m)[:2]) > 50.0  # it moved ahead
+        assert abs(fixes[2].t_s - fixes[1].t_s) < 8.0  # same stop
         # each fix stands at a simulated stop, within 2 mm of the simulated prism (0.6 mm noise per axis)
         from survey.session.simworld import prism_position_enh
 
@@ -91,10 +96,11 @@ def test_scripted_session_records_everything_and_processes(project):
         notes = st.notes(sid)
         assert [n.text for n in notes] == ["hello from the crew"]
         assert abs(notes[0].chainage_m - 60.0) < 0.05  # taken at the second stop
-        setup = st.station_setups(sid)[0]
-        assert setup.accepted and setup.dof > 0
+        assert all(s.accepted and s.dof > 0 for s in setups)
         track = final_track(st, "ref")
         assert len(track) > 150 and np.nanmax(track.sigma_enh_m) < 0.002
+    text = " ".join(r.stderr.split())
+    assert "overlap check at FIX002: new - old station" in text and "within the tolerance of 2.0 mm" in text
     assert "survey.xlsx" in r.stdout and (root / "projects/t1/sessions/ref/survey.xlsx").is_file()
 
 
@@ -126,10 +132,10 @@ def test_sigkill_in_an_interval_then_resume_matches_an_uninterrupted_run(project
     assert 80.0 <= at_kill < 120.0
     r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "killed"], root)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert "resumed session killed: 2 fixes kept" in " ".join(r.stderr.split())
+    assert "resumed session killed: 3 fixes kept" in " ".join(r.stderr.split())
     with store(root) as st:
         assert counts(st, "killed") == counts(st, "ref")
-        assert [f.accepted for f in st.fixes(st.session("killed").session_id)] == [True, True, True]
+        assert [f.accepted for f in st.fixes(st.session("killed").session_id)] == [True] * 4
         a, b = final_track(st, "ref"), final_track(st, "killed")
         assert np.array_equal(a.chainage_m, b.chainage_m)
         assert np.max(np.abs(a.enh_m - b.enh_m)) < 0.05e-3

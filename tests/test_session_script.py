@@ -8,10 +8,10 @@ from survey.session.script import Action, ScriptError, parse_script, read_script
 
 def test_every_action_and_comments():
     text = "# crew\nsetup drop CP0003L\nwait 2.5\nfix   # first stop\nmove\nstop\naccept\nremeasure\nundo\n" \
-           "note rail clip loose # not a comment\npause\nresume\nturn\nend\n"
+           "note rail clip loose # not a comment\npause\nresume\nturn\nstation\nend\n"
     acts = parse_script(text)
     assert [a.name for a in acts] == ["setup", "wait", "fix", "move", "stop", "accept", "remeasure", "undo",
-                                      "note", "pause", "resume", "turn", "end"]
+                                      "note", "pause", "resume", "turn", "station", "end"]
     assert acts[1] == Action("wait", seconds=2.5, line=3)
     assert acts[0].text == "drop CP0003L"
     assert acts[8].text == "rail clip loose # not a comment"  # a note keeps its text as typed
@@ -35,10 +35,11 @@ def test_errors_name_file_and_line(text, line, words):
 
 def test_generated_survey_script(tmp_path):
     p = tmp_path / "s.txt"
-    p.write_text(survey_script(4, note_every=2))
+    p.write_text(survey_script(4, note_every=2, station_every=2))
     acts = read_script(p)
     names = [a.name for a in acts]
     assert names.count("fix") == 4 and names.count("move") == 3 and names[-1] == "end"
+    assert names.count("station") == 1 and names[names.index("station") - 2] == "fix"  # after the stop's fix
     assert [a.text for a in acts if a.name == "note"] == ["stop 2 checked"]
 
 

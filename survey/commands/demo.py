@@ -92,7 +92,7 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     with open_store(str(folder), root) as store:
         n_stops = simulated_world(store, speedup).sim.truth.motion.stop_chainage_m.size
     script = out / "crew_script.txt"
-    script.write_text(survey_script(n_stops, note_every=5), encoding="utf-8")
+    script.write_text(survey_script(n_stops, note_every=5, station_every=5), encoding="utf-8")
     err.print(f"2/3 field session with simulated devices on ptys, {speedup:g}x real time, crew script {script}",
               highlight=False)
     outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False)

@@ -330,25 +330,29 @@ class FieldSession:
     # ================================================================== station setup
     def station_setup(self) -> None:
         """Free station on the nearest CPIII points: measure, resect, show, accept / drop / re-measure."""
-        from rich.table import Table  # noqa: F401
-
-        from survey.commands.project import resection_table
-        from trolley.resection import PolarModel, PolarObservations, ResectionError, resect, suggest_point_to_drop
-
         setups = [s for s in self.store.station_setups(self.rec.session_id) if s.accepted]
         if setups:
             self.setup_id = setups[-1].setup_id
             if self.world is not None:
+                self.world.place_instrument(setups[-1].station_enh_m, len(setups) - 1)
                 self.world.quiet_instrument()
             self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
             self.say(f"station setup {self.setup_id} restored from the store")
             return
+        self.new_station("free station on CPIII")
+
+    def new_station(self, title: str) -> None:
+        """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
+        from survey.commands.project import resection_table
+        from trolley.resection import ResectionError, resect, suggest_point_to_drop
+
         self.screen.phase = "station setup"
         points = self._setup_points()
         config = self.settings.resection_config()
         if self.world is not None:  # the twin has no curvature/refraction model
             config = replace(config, model=replace(config.model, curvature_refraction=False))
-        drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"]
+        first = not self.store.station_setups(self.rec.session_id)
+        drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"] if first else []
         exclude: list[str] = []
         obs = self._measure_points(points)
         while True:
@@ -358,7 +362,7 @@ class FieldSession:
                 res = resect(ids, pts, obs, config, exclude=exclude)
             except ResectionError as exc:
                 raise SessionAbort(f"station setup: {exc}", "measure more CPIII points") from None
-            self.console.print(resection_table(res, "free station on CPIII"))
+            self.console.print(resection_table(res, title))
             if self.config.script is not None:
                 if drops:
                     exclude.append(drops.pop(0))
@@ -389,6 +393,8 @@ class FieldSession:
                                "import them with `trolley project import-cpiii FILE --project NAME`")
         if self.world is not None:
             st = self.world.station_enh_m
+        elif self.last_fix is not None:  # a station change: near the trolley
+            st = np.array([self.last_fix.e_m, self.last_fix.n_m, self.last_fix.h_m])
         else:  # the crew stands near the first points of the file
             st = np.array([pts[0].e_m, pts[0].n_m, pts[0].h_m])
         d = [math.hypot(p.e_m - st[0], p.n_m - st[1]) for p in pts]
@@ -550,6 +556,57 @@ class FieldSession:
         self.last_fix = self.accepted_fixes[-1] if self.accepted_fixes else None
         self.screen.fixes_accepted = len(self.accepted_fixes)
         self.say(f"fix {fix.point} undone")
+
+    def station_change(self) -> bool:
+        """Set up the instrument anew; the prism at this stop measured from both stations is the
+        overlap check. False while the trolley moves."""
+        from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
+        from trolley.resection import overlap_check
+
+        standing, _, dist = self.motion()
+        if not standing:
+            if self.config.script is None:
+                self.say("station change: stop the trolley first")
+            return False
+        k = sum(1 for s in self.store.station_setups(self.rec.session_id) if s.accepted)
+        if self.world is not None:
+            here = self.chainage_now(dist)
+            self.world.move_instrument(k, here if np.isfinite(here) else dist)
+            e, n, h = self.world.station_enh_m
+            self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
+        self.say(f"station change: setting up station {k + 1}")
+        self._event("station_change", f"setup {k + 1}")
+        self.new_station(f"station {k + 1} on CPIII")
+        first = self.last_fix
+        if first is None or abs(dist - self.last_fix_distance_m) > 0.01 or first.setup_id == self.setup_id:
+            return True
+        t = self.now()
+        if self.world is not None:
+            self.world.aim_at_prism(t, self.rec.meta.fix_sigma_m)
+        try:
+            self.ts.fine_adjust()
+            m = self.ts.measure()
+        except (GeoComError, DeviceError) as exc:
+            self.say(f"overlap check not measured: {exc}")
+            return True
+        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], [m.E_m, m.N_m, m.H_m],
+                           self.settings.overlap_tolerance_m)
+        d = oc.difference_enh_mm
+        verdict = "within" if oc.within_tolerance else "[bold red]OUTSIDE[/]"
+        self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
+                 f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
+        sigma = self.rec.meta.fix_sigma_m
+        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", m.E_m, m.N_m, m.H_m,
+                        sigma, sigma, sigma, setup_id=self.setup_id)
+        v = self._live_verdict(fix)
+        ok = oc.within_tolerance and (v is None or bool(v.accepted))
+        reason = f"overlap check from station {k + 1}: " + ("accepted" if ok else "difference outside the tolerance"
+                                                              if not oc.within_tolerance else v.reason)
+        fix_id = self.store.add_fix(self.rec.session_id, replace(fix, accepted=ok, reason=reason))
+        if ok:
+            self._accepted(replace(fix, fix_id=fix_id, accepted=True, reason=reason), dist)
+        return True
 
     # ================================================================== live processing
     def _live_processor(self):
@@ -728,7 +785,8 @@ class FieldSession:
             self.note_buffer = self.note_buffer[:-1] if k in "\x7f\b" else self.note_buffer + k
             self.screen.prompt = f"note: {self.note_buffer}_  (Enter to save)"
             return None
-        mapping = {"f": "fix", "a": "accept", "r": "remeasure", "u": "undo", "p": "pause", "t": "turn", "e": "end"}
+        mapping = {"f": "fix", "a": "accept", "r": "remeasure", "u": "undo", "p": "pause", "t": "turn", "e": "end",
+                   "s": "station"}
         k = k.lower()
         if k == "n":
             self.note_buffer = ""
@@ -793,6 +851,10 @@ class FieldSession:
                 st["moved"] = not standing
                 return False
             return standing
+        if a.name == "station":
+            if self.world is not None and self.world.finished(self.now()):
+                return True
+            return self.station_change() or self.config.script is None
         if a.name in ("fix", "remeasure"):
             if not standing:
                 return self.config.script is None  # a key press while moving is answered on the screen

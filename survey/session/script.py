@@ -15,6 +15,8 @@ session time (in a simulated session they pass ``--speedup`` times faster than t
 ``note TEXT``      a crew note at the current chainage
 ``pause``          pause the survey (train passing); ``resume`` continues
 ``turn``           the trolley was turned around
+``station``        station change: the instrument is set up again on the CPIII near the trolley;
+                   the prism at the current stop is measured from both stations (overlap check)
 ``end``            end the session (re-process, write the Excel sheet and the plots)
 =================  ============================================================================
 
@@ -30,7 +32,7 @@ from pathlib import Path
 #: action name -> whether it takes an argument ("number", "text", "point" or None)
 ACTIONS: dict[str, str | None] = {
     "wait": "number", "move": None, "stop": None, "fix": None, "accept": None, "remeasure": None,
-    "undo": None, "note": "text", "pause": None, "resume": None, "turn": None, "end": None,
+    "undo": None, "note": "text", "pause": None, "resume": None, "turn": None, "station": None, "end": None,
     "setup": "text",
 }
 
@@ -104,18 +106,21 @@ def read_script(path: Path) -> list[Action]:
     return parse_script(text, str(path))
 
 
-def survey_script(n_stops: int, note_every: int = 0) -> str:
+def survey_script(n_stops: int, note_every: int = 0, station_every: int = 0) -> str:
     """The script of a plain survey: a fix at the first stop, then move and fix ``n_stops - 1`` times, end.
 
     Parameters
     ----------
     n_stops : number of stops including the first (static alignment) one.
     note_every : add a note at every ``note_every``-th stop (0: none).
+    station_every : change the station at every ``station_every``-th stop, after its fix (0: never).
     """
     lines = ["# generated: fix at every stop", "fix"]
     for k in range(1, n_stops):
         lines += ["move", "fix"]
         if note_every and k % note_every == 0:
             lines.append(f"note stop {k} checked")
+        if station_every and k % station_every == 0 and k < n_stops - 1:
+            lines.append("station")
     lines.append("end")
     return "\n".join(lines) + "\n"

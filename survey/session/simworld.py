@@ -234,6 +234,28 @@ class SimWorld:
         """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims)."""
         self.twins["totalstation"].set_target(tuple(float(x) for x in enh_m))
 
+    def move_instrument(self, k: int, chainage_m: float) -> None:
+        """Station change: the instrument is set up anew beside the track near ``chainage_m``
+        (``station_ahead_m`` ahead), with setup ``k``'s circle orientation and its reading noise."""
+        geo = self.sim.truth.geometry
+        o = self.options
+        s = float(np.clip(chainage_m + o.station_ahead_m, geo.start_chainage_m, geo.end_chainage_m))
+        p = geo.position(np.array([s]))[0]
+        yaw = float(geo.attitude(np.array([s]))[2][0])
+        self.place_instrument(np.array([p[0] + geo.origin_E_m - o.station_offset_m * math.cos(yaw),
+                                        p[1] + geo.origin_N_m + o.station_offset_m * math.sin(yaw),
+                                        p[2] + 1.2]), k)
+
+    def place_instrument(self, station_enh_m, k: int) -> None:
+        """Put the instrument at ``station_enh_m`` with setup ``k``'s circle orientation (also on resume)."""
+        ts = self.twins["totalstation"]
+        self.station_enh_m = np.asarray(station_enh_m, float).copy()
+        with ts._lock:
+            ts.position = tuple(map(float, self.station_enh_m))  # where it physically stands
+            ts.orientation = (self.options.orientation_rad + 0.37 * k) % (2 * math.pi)
+        ts.noise_angle_rad = self.options.angle_sigma_rad
+        ts.noise_dist_m = self.options.distance_sigma_m
+
     def quiet_instrument(self) -> None:
         """No reading noise from now on (the prism target carries the fix noise)."""
         ts = self.twins["totalstation"]
