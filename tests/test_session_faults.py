@@ -68,3 +68,23 @@ def test_imu_unplug_and_total_station_fault_pause_and_resume(tmp_path):
         text = console.export_text()
         assert "session paused; nothing received is lost" in " ".join(text.split())
         assert "the session continues" in text
+
+
+def test_a_device_that_does_not_open_stops_the_start_with_the_reason(tmp_path):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    make_project(tmp_path / "projects")
+    (tmp_path / "ports.json").write_text(json.dumps({"imu": str(tmp_path / "no-imu"),
+                                                     "totalstation": str(tmp_path / "no-ts")}))
+    (tmp_path / "crew.txt").write_text("fix\nend\n")
+    r = subprocess.run([sys.executable, "-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                        "--session", "s1", "--devices", "ports.json", "--script", "crew.txt"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=60, env={**os.environ, "COLUMNS": "200"})
+    err = " ".join(r.stderr.split())
+    assert r.returncode == 2, r.stderr
+    assert f"imu: cannot open {tmp_path / 'no-imu'}" in err
+    assert "try: check the cable and the port name" in err and "trolley survey resume t1 --session s1" in err
+    assert "Traceback" not in r.stderr

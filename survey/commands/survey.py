@@ -152,7 +152,10 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                 fs.open_session = lambda: None  # already open
             outcome = fs.run()
         except SessionAbort as exc:
-            fail(str(exc), exc.hint)
+            hint = exc.hint
+            if not resume and fs.rec is not None:
+                hint += f"; then `trolley survey resume {project} --session {session}` (the session is stored)"
+            fail(str(exc), hint)
         finally:
             if keys is not None:
                 keys.stop()

@@ -181,8 +181,10 @@ class FieldSession:
         if self.resume:
             self.rec = self.store.session(self.name)
             if self.rec.state == "ended":
-                raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
-                                   "start a new session with `trolley survey start`")
+                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
+                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
+                                       "start a new session with `trolley survey start`")
+                return  # ended but its final processing did not finish: run() does only that
             if self.rec.source != "live":
                 raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
         else:
@@ -200,7 +202,8 @@ class FieldSession:
 
             a = self.store.alignment(self.rec.alignment_id)
             self._design = parse_landxml(a.landxml_text, rail_spacing_m=self.rec.meta.trolley.rail_spacing_m)
-        self.store.set_session_state(self.rec.session_id, "open")
+        if self.rec.state != "ended":
+            self.store.set_session_state(self.rec.session_id, "open")
 
     def _stored_state(self) -> dict:
         """Everything a resumed session needs, from the store."""
@@ -947,6 +950,15 @@ class FieldSession:
         self._shutdown()
         self._event("end")
         self.store.set_session_state(self.rec.session_id, "ended")
+        return self._final_processing()
+
+    def _final_processing(self) -> SessionOutcome:
+        if not self.accepted_fixes:
+            self.accepted_fixes = self.store.fixes(self.rec.session_id, accepted_only=True)
+        if self.static_start_s is None:
+            for ev in self.store.events(self.rec.session_id):
+                if ev.kind == "aligned":
+                    self.static_start_s = json.loads(ev.detail)["static_start_s"]
         out = SessionOutcome(self.rec.session_id, len(self.accepted_fixes))
         if self.config.out_dir is None or len(self.accepted_fixes) < 2:
             if len(self.accepted_fixes) < 2:
@@ -972,6 +984,8 @@ class FieldSession:
     def run(self) -> SessionOutcome:
         """The whole session: start (or resume), setup, alignment, loop, end."""
         self.open_session()
+        if self.rec.state == "ended":  # resumed after a crash during the final processing
+            return self._final_processing()
         try:
             self.start_devices()
             if self.resume:
