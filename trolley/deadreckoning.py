@@ -258,9 +258,13 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
     b_to_bt = mounting_rotation(imu_misalignment_rad)
     w_ie = earth.earth_rate_n(latitude_rad)
     v_n = np.zeros((nb, 3))
-    for _ in range(2):  # second pass: transport rate from the first pass's velocity
-        zeta = (w_ie[None, :] + earth.transport_rate_n(v_n, latitude_rad, height_m)) * dtb[:, None]
-        nav_prefix = prefix_compose(Rotation.from_rotvec(-zeta), reverse=True)
+    for npass in range(2):  # second pass: transport rate from the first pass's velocity
+        if npass == 0:
+            # Earth rate alone turns the nav frame about a fixed axis: the prefix is closed form
+            nav_prefix = Rotation.from_rotvec(-w_ie[None, :] * (tb[1:] - tb[0])[:, None])
+        else:
+            zeta = (w_ie[None, :] + earth.transport_rate_n(v_n, latitude_rad, height_m)) * dtb[:, None]
+            nav_prefix = prefix_compose(Rotation.from_rotvec(-zeta), reverse=True)
         q_att = quat_multiply(quat_multiply(nav_prefix.as_quat(), alignment.imu_to_nav.as_quat()),
                               body_prefix.as_quat())
         q_att = np.concatenate([alignment.imu_to_nav.as_quat()[None], q_att])

@@ -75,7 +75,7 @@ class ProcessConfig:
     node_spacing_m: float = 1.0
     max_node_dt_s: float = 10.0
     gate_probability: float | None = 0.9999
-    block_size: int = 20
+    block_size: int = 40
     bias_correlation_s: float = 1000.0
     residual_level_rad: float = float(np.deg2rad(0.003))
     given_heading_sigma_rad: float = float(np.deg2rad(0.5))
