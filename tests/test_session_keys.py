@@ -1,7 +1,7 @@
 """A person at the keyboard: the interactive session driven through a real pseudo-terminal (pexpect).
 
 Station setup accepted with ``a``, a fix at the first stop, a note, the static alignment, a fix at the
-next stop, a pause (train) and resume, end with ``e``: the store holds what was typed, and the sheet
+next stop, undone with ``u`` and taken again, a pause (train) and resume, end with ``e``: the store holds what was typed, and the sheet
 is written.
 """
 from __future__ import annotations
@@ -34,6 +34,10 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         child.expect("standing at 60")
         child.send("f")
         child.expect("FIX002 accepted")
+        child.send("u")
+        child.expect("FIX002 undone")
+        child.send("f")
+        child.expect("FIX003 accepted")
         child.send("p")
         child.expect("paused")
         child.send("p")
@@ -48,7 +52,9 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
 
     with ProjectStore.open(tmp_path / "projects" / "t1") as st:
         sid = st.session("kb").session_id
-        assert [f.accepted for f in st.fixes(sid)] == [True, True]
+        fixes = st.fixes(sid)
+        assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", False), ("FIX003", True)]
+        assert fixes[1].reason == "undone by the crew"
         assert [n.text for n in st.notes(sid)] == ["prism ok"]
         kinds = [e.kind for e in st.events(sid)]
         assert kinds.index("pause") < kinds.index("resume") < kinds.index("end")

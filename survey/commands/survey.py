@@ -149,7 +149,6 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                     "simulate": simulate, "speedup": speedup,
                     "script": str(script.resolve()) if script else None,
                     "devices": str(devices.resolve()) if devices else None, "out": str(out.resolve())})))
-                fs.open_session = lambda: None  # already open
             outcome = fs.run()
         except SessionAbort as exc:
             hint = exc.hint

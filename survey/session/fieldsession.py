@@ -178,6 +178,8 @@ class FieldSession:
         """Create the session (or load it on resume) and its time base."""
         from survey.store import StoreError
 
+        if self.rec is not None:  # already open
+            return
         if self.resume:
             self.rec = self.store.session(self.name)
             if self.rec.state == "ended":
