@@ -13,6 +13,7 @@ See ``docs/field_session.md``.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import threading
@@ -32,6 +33,10 @@ from survey.store import (FixRecord, NoteRecord, ProjectStore, RecordWriter, Ses
 STAND_TOLERANCE_M = 0.002
 STAND_WINDOW_S = 1.0
 TICK_S = 0.05
+#: a fix needs the data up to this long before its time (one period of the slowest stream it uses)
+DATA_SLACK_S = 0.02
+#: how long the device check retries opening a port (a USB adapter being plugged in)
+OPEN_TIMEOUT_S = 2.0
 
 
 class SessionAbort(RuntimeError):
@@ -164,6 +169,18 @@ class FieldSession:
         """Newest session time covered by the IMU and odometer data."""
         return min(self.acq.buffers.last_t("imu"), self.acq.buffers.last_t("odo"))
 
+    @contextlib.contextmanager
+    def crew_busy(self):
+        """While the crew measures: a simulated world waits (its clock stands still)."""
+        if self.world is None:
+            yield
+            return
+        with self.world.crew_busy():
+            yield
+        now = time.monotonic()
+        for k in self.acq.last_data_host:  # the streams paused with the clock: not a device fault
+            self.acq.last_data_host[k] = max(self.acq.last_data_host[k], now)
+
     # ================================================================== store helpers
     def _event(self, kind: str, detail: str = "", t_s: float | None = None) -> None:
         self.store.add_event(self.rec.session_id, SessionEvent(self.now() if t_s is None else t_s, kind, detail))
@@ -262,7 +279,7 @@ class FieldSession:
             self._load_buffers()
         self.screen.phase = "device check"
         try:
-            self.acq.open(5.0)
+            self.acq.open(OPEN_TIMEOUT_S)
         except DeviceError as exc:
             raise SessionAbort(str(exc), "check the cable and the port name (--devices file); "
                                          "`trolley devices probe` tests one device") from None
@@ -271,7 +288,7 @@ class FieldSession:
 
         self.ts.link.parser = RawTap(self.ts.link.parser, "totalstation", self.acq._raw)
         try:
-            self.ts.link.open(5.0)
+            self.ts.link.open(OPEN_TIMEOUT_S)
         except DeviceError as exc:
             raise SessionAbort(str(exc), "check the total station's cable and port") from None
         if self.world is not None:
@@ -344,7 +361,8 @@ class FieldSession:
             self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
             self.say(f"station setup {self.setup_id} restored from the store")
             return
-        self.new_station("free station on CPIII")
+        with self.crew_busy():
+            self.new_station("free station on CPIII")
 
     def new_station(self, title: str) -> None:
         """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
@@ -485,13 +503,14 @@ class FieldSession:
             if self.config.script is None:
                 self.say("the trolley is moving: a fix is taken when it stands")
             return False
-        t = self.now()
         sigma = self.rec.meta.fix_sigma_m
-        if self.world is not None:
-            self.world.aim_at_prism(t, sigma)
         try:
-            self.ts.fine_adjust()
-            m = self.ts.measure()
+            with self.crew_busy():
+                t = self.now()
+                if self.world is not None:
+                    self.world.aim_at_prism(t, sigma)
+                self.ts.fine_adjust()
+                m = self.ts.measure()
         except (GeoComError, DeviceError) as exc:
             self._device_fault(f"total station: {exc}")
             return False
@@ -565,15 +584,19 @@ class FieldSession:
     def station_change(self) -> bool:
         """Set up the instrument anew; the prism at this stop measured from both stations is the
         overlap check. False while the trolley moves."""
-        from drivers.geocom import GeoComError
-        from drivers.serialport import DeviceError
-        from trolley.resection import overlap_check
-
         standing, _, dist = self.motion()
         if not standing:
             if self.config.script is None:
                 self.say("station change: stop the trolley first")
             return False
+        with self.crew_busy():
+            return self._station_change(dist)
+
+    def _station_change(self, dist: float) -> bool:
+        from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
+        from trolley.resection import overlap_check
+
         k = sum(1 for s in self.store.station_setups(self.rec.session_id) if s.accepted)
         if self.world is not None:
             here = self.chainage_now(dist)
@@ -661,11 +684,13 @@ class FieldSession:
             return None
         try:
             # the data up to the fix time must be there before the prediction
+            # every stream up to its last sample before the fix (the odometer's period is 10 ms)
+            needed = fix.t_s - DATA_SLACK_S
             deadline = time.monotonic() + 10.0
-            while self.data_time() < fix.t_s and time.monotonic() < deadline:
+            while self.data_time() < needed and time.monotonic() < deadline:
                 self.acq.pump()
                 time.sleep(0.01)
-            if self.data_time() < fix.t_s:
+            if self.data_time() < needed:
                 self.console.print("[yellow]the data up to the fix have not arrived: no live check of this fix[/]")
                 return None
             if self._live_thread is not None:

@@ -13,6 +13,7 @@ the clock).
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
 import tempfile
@@ -68,9 +69,23 @@ class SimClock:
         self.t0_s = float(t0_s)
         self.speedup = float(speedup)
         self.start_monotonic = time.monotonic()
+        self.frozen_at: float | None = None
 
     def now(self) -> float:
+        if self.frozen_at is not None:
+            return self.frozen_at
         return self.t0_s + self.speedup * (time.monotonic() - self.start_monotonic)
+
+    def freeze(self) -> None:
+        """Stop simulated time (the world waits for the crew)."""
+        if self.frozen_at is None:
+            self.frozen_at = self.now()
+
+    def thaw(self) -> None:
+        """Let simulated time run on from where it was frozen."""
+        if self.frozen_at is not None:
+            self.start_monotonic = time.monotonic() - (self.frozen_at - self.t0_s) / self.speedup
+            self.frozen_at = None
 
     def host_at(self, t_s: float) -> float:
         """Monotonic host time at which session time ``t_s`` comes."""
@@ -215,6 +230,20 @@ class SimWorld:
             shutil.rmtree(self.link_dir, ignore_errors=True)
 
     # ------------------------------------------------------------------ time
+    @contextlib.contextmanager
+    def crew_busy(self):
+        """Simulated time stands still while the crew measures (a fix, a station change).
+
+        The simulator's motion is scripted in time; a real trolley waits for its crew. Freezing
+        the clock makes the measurement happen at one simulated instant whatever the wall-clock
+        time it takes, so scripted simulated sessions are reproducible at any ``speedup``.
+        """
+        self.clock.freeze()
+        try:
+            yield
+        finally:
+            self.clock.thaw()
+
     def now(self) -> float:
         return self.clock.now() if self.clock else 0.0
 
