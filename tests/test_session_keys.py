@@ -18,7 +18,7 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
     make_project(tmp_path / "projects", static_s="20.0")
     env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
     child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
-                                           "--session", "kb", "--simulate", "--speedup", "8"],
+                                           "--session", "kb", "--simulate", "--speedup", "15"],
                           cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
     try:
         child.expect("a accept")
