@@ -55,7 +55,6 @@ class TimeBase:
     imu_week: int | None = None
     imu_sow0_s: float | None = None
     gauge_origin_s: float | None = None
-    gauge_ms0: int | None = None
     odo_count0: int | None = None
     host_t0: float = field(default_factory=time.monotonic)
     odometer_time: object = None

@@ -142,7 +142,6 @@ class FieldSession:
         self._design = None
         self._tolerances = None
         self.interval_seconds: list[float] = []
-        self._last_render = 0.0
 
     # ================================================================== time and motion
     def now(self) -> float:
@@ -257,7 +256,6 @@ class FieldSession:
             self.ports = self.world.start(t_start, last)
             tb.imu_week, tb.imu_sow0_s = IMU_WEEK, IMU_SOW0
             tb.gauge_origin_s = self.world.gauge_t0_s
-            tb.gauge_ms0 = 0
             if tb.odo_count0 is None:
                 tb.odo_count0 = 0
             opts = dict(odometer=SIM_ODOMETER, imu_type=SIM_IMU_TYPE)
@@ -273,9 +271,7 @@ class FieldSession:
                                'e.g. {"imu": "/dev/ttyUSB0", "odometer": "/dev/ttyUSB1", "totalstation": "/dev/ttyUSB2"}')
         self.acq = Acquisition({k: v for k, v in self.ports.items() if k != "totalstation"}, self.writer, tb,
                                self.world, **opts)
-        if self.resume and not self.world:
-            self._load_buffers()
-        elif self.resume:
+        if self.resume:
             self._load_buffers()
         self.screen.phase = "device check"
         try:

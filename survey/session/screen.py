@@ -2,7 +2,7 @@
 
 Keys (one key, no Enter): ``f`` fix, ``a`` accept a suspicious fix, ``r`` re-measure it, ``u`` undo
 the last fix, ``n`` note (type the text, Enter), ``p`` pause / resume (train), ``t`` trolley turned
-around, ``e`` end the session. During the station setup: ``a`` accept, ``d`` drop the suggested
+around, ``s`` station change, ``e`` end the session. During the station setup: ``a`` accept, ``d`` drop the suggested
 point, ``m`` measure again.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from rich.console import Group
 from rich.panel import Panel
 from rich.table import Table
 
-KEYS_HELP = "f fix | u undo | n note | p pause/resume | t turned | e end"
+KEYS_HELP = "f fix | u undo | n note | p pause/resume | t turned | s station change | e end"
 
 
 @dataclass

@@ -305,7 +305,3 @@ class SimWorld:
         rng = np.random.default_rng([self.options.seed, k + 1, attempt])
         ts.set_target(tuple(prism_position_enh(self.sim, t_s) + rng.standard_normal(3) * sigma_m))
         return k
-
-    def orientation_hint(self) -> float:
-        """Not known to the session; the station setup finds it."""
-        return float("nan")
