@@ -21,7 +21,7 @@ def test_alignment_restarts_when_the_trolley_moves(tmp_path):
     make_project(tmp_path, static_s="10.0", stop_s="40.0")
     console = Console(stderr=True, record=True, width=150)
     with ProjectStore.open(tmp_path / "t1") as st:
-        world = simulated_world(st, 25.0)
+        world = simulated_world(st, 50.0)
         world.sim.session.meta = replace(world.sim.session.meta, static_s=30.0)
         fs = FieldSession(st, "realign", SessionConfig(script=parse_script("wait 50\nfix\nmove\nfix\nend\n"),
                                                         out_dir=tmp_path / "out"), world=world, console=console)
