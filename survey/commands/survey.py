@@ -23,7 +23,7 @@ DevicesOption = Annotated[Optional[Path], typer.Option("--devices", help="JSON f
 SimulateOption = Annotated[bool, typer.Option("--simulate", help="simulated devices (twins on ptys fed by the truth simulator)")]
 ScriptOption = Annotated[Optional[Path], typer.Option("--script", help="the crew's actions as a script (no keyboard)")]
 SpeedupOption = Annotated[Optional[float], typer.Option("--speedup", help="simulated seconds per wall-clock second")]
-OutOption = Annotated[Optional[Path], typer.Option("--out", help="output folder [default: <project>/sessions/<session>]")]
+OutOption = Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <project>/sessions/<session>)")]
 
 
 def fail(message: str, hint: str = "", code: int = 2) -> None:
