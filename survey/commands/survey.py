@@ -91,7 +91,9 @@ def read_devices(path: Path) -> tuple[dict, dict]:
     if not isinstance(data, dict):
         fail(f"{path}: expected a JSON object")
     ports = {k: str(v) for k, v in data.items() if k in ("imu", "odometer", "gauge", "totalstation")}
-    options = {k: v for k, v in data.items() if k in ("imu_type", "imu_rate_hz", "imu_axes", "odometer")}
+    options = {k: v for k, v in data.items() if k in ("imu_type", "imu_rate_hz", "imu_axes", "odometer_config")}
+    if not isinstance(options.get("odometer_config", {}), dict):
+        fail(f"{path}: odometer_config must be an object of OdometerConfig fields (ppr, decode, wheel_diameter_m, ...)")
     return ports, options
 
 

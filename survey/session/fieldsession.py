@@ -262,7 +262,7 @@ class FieldSession:
         else:
             from drivers import encoder
 
-            opts = dict(odometer=encoder.OdometerConfig(**self.device_options.get("odometer", {})),
+            opts = dict(odometer=encoder.OdometerConfig(**self.device_options.get("odometer_config", {})),
                         imu_type=self.device_options.get("imu_type"),
                         imu_rate_hz=self.device_options.get("imu_rate_hz"),
                         imu_axes=self.device_options.get("imu_axes", "x,y,z"))
