@@ -81,30 +81,48 @@ class DeviceHealth:
 
 
 class Buffers:
-    """Growing in-memory copies of the decoded samples (appended in batches, read as arrays)."""
+    """Growing in-memory copies of the decoded samples: arrays whose capacity doubles, so appending
+    is amortised O(1) and reading is a view (a reader keeps a consistent prefix while rows are added)."""
+
+    WIDTH = {"imu": 7, "odo": 2, "gauge": 2}  # t + values
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.imu: list[np.ndarray] = []  # (n, 7) t, w, f
-        self.odo: list[np.ndarray] = []  # (n, 2) t, d
-        self.gauge: list[np.ndarray] = []  # (n, 2) t, g
+        self._data = {k: np.zeros((1024, w)) for k, w in self.WIDTH.items()}
+        self._n = {k: 0 for k in self.WIDTH}
 
     def add(self, kind: str, rows: np.ndarray) -> None:
-        if rows.shape[0]:
-            with self.lock:
-                getattr(self, kind).append(rows)
-
-    def array(self, kind: str, width: int) -> np.ndarray:
+        m = rows.shape[0]
+        if not m:
+            return
         with self.lock:
-            parts = getattr(self, kind)
-            if len(parts) > 1:
-                parts[:] = [np.concatenate(parts)]
-            return parts[0] if parts else np.zeros((0, width))
+            a, n = self._data[kind], self._n[kind]
+            if n + m > a.shape[0]:
+                b = np.zeros((max(2 * a.shape[0], n + m), a.shape[1]))
+                b[:n] = a[:n]
+                self._data[kind] = a = b
+            a[n:n + m] = rows
+            self._n[kind] = n + m
+
+    def array(self, kind: str, width: int | None = None) -> np.ndarray:
+        """All rows so far (a read-only view)."""
+        with self.lock:
+            v = self._data[kind][: self._n[kind]].view()
+        v.flags.writeable = False
+        return v
+
+    def tail(self, kind: str, seconds: float) -> np.ndarray:
+        """The rows of the last ``seconds`` (by their time column)."""
+        a = self.array(kind)
+        if a.shape[0] == 0:
+            return a
+        i = int(np.searchsorted(a[:, 0], a[-1, 0] - seconds, side="left"))
+        return a[i:]
 
     def last_t(self, kind: str) -> float:
         with self.lock:
-            parts = getattr(self, kind)
-            return float(parts[-1][-1, 0]) if parts else float("-inf")
+            n = self._n[kind]
+            return float(self._data[kind][n - 1, 0]) if n else float("-inf")
 
 
 class SimOdometerPoller:

@@ -155,11 +155,10 @@ class FieldSession:
 
     def motion(self) -> tuple[bool, float, float]:
         """(standing, speed, distance) from the latest odometer second."""
-        od = self._odometer()
-        if od.shape[0] < 2:
-            return True, 0.0, float(od[-1, 1]) if od.shape[0] else 0.0
-        t_last = od[-1, 0]
-        w = od[od[:, 0] >= t_last - STAND_WINDOW_S]
+        w = self.acq.buffers.tail("odo", STAND_WINDOW_S)
+        if w.shape[0] < 2:
+            return True, 0.0, float(w[-1, 1]) if w.shape[0] else 0.0
+        od = w
         moved = float(np.ptp(w[:, 1]))
         dt = max(float(w[-1, 0] - w[0, 0]), 1e-9)
         return moved < STAND_TOLERANCE_M, abs(float(w[-1, 1] - w[0, 1])) / dt, float(od[-1, 1])
