@@ -779,6 +779,8 @@ class FieldSession:
         s.chainage_m = self.chainage_now(dist)
         s.sigma_mm = predicted_sigma_mm(self.rec.meta, s.distance_since_fix_m, speed)
         s.devices = self.acq.health()
+        if self.world is not None and self.world.finished(self.data_time()) and self.config.script is None:
+            s.message = "the simulated survey is over: e = end the session"
         if self.paused:
             s.phase = "PAUSED (train): p to resume"
         elif self.device_pause:
