@@ -88,3 +88,20 @@ def test_a_device_that_does_not_open_stops_the_start_with_the_reason(tmp_path):
     assert f"imu: cannot open {tmp_path / 'no-imu'}" in err
     assert "try: check the cable and the port name" in err and "trolley survey resume t1 --session s1" in err
     assert "Traceback" not in r.stderr
+
+
+def test_a_session_runs_in_one_process_at_a_time(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from survey.commands.survey import session_lock
+
+    code = ("import sys; from pathlib import Path; from survey.commands.survey import session_lock\n"
+            "with session_lock(Path(sys.argv[1]), 's1'): print('got it')")
+    with session_lock(tmp_path, "s1"):
+        r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=30,
+                           env={**os.environ, "COLUMNS": "200"})
+        assert r.returncode == 2 and f"running in another process (pid {os.getpid()})" in r.stderr
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and "got it" in r.stdout  # released with the holder (or its crash)

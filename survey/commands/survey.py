@@ -82,6 +82,34 @@ def simulated_world(store, speedup: float):
     return SimWorld(sim, SimOptions(speedup=speedup))
 
 
+class session_lock:
+    """An exclusive lock on one session for this process's lifetime (released by the OS on a crash),
+    so that a session is never run by two processes at once."""
+
+    def __init__(self, project_folder: Path, session: str) -> None:
+        self.path = Path(project_folder) / f".session-{session}.lock"
+        self.fd: int | None = None
+
+    def __enter__(self) -> "session_lock":
+        import fcntl
+
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            other = os.pread(self.fd, 32, 0).decode("ascii", "replace").strip()
+            os.close(self.fd)
+            fail(f"session {self.path.name[9:-5]!r} is running in another process (pid {other or '?'})",
+                 "wait for it to end, or stop it; after a crash the lock is released by itself")
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, str(os.getpid()).encode(), 0)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+
+
 def read_devices(path: Path) -> tuple[dict, dict]:
     """(device -> port, driver options) from a devices JSON file."""
     try:
@@ -107,7 +135,8 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.store import SessionEvent, StoreError
 
     store = open_store(project, root)
-    with store:
+    lock = session_lock(store.path.parent, session)
+    with store, lock:
         if resume:
             try:
                 rec = store.session(session)
@@ -152,6 +181,9 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                     "script": str(script.resolve()) if script else None,
                     "devices": str(devices.resolve()) if devices else None, "out": str(out.resolve())})))
             outcome = fs.run()
+        except KeyboardInterrupt:
+            fail("interrupted; everything recorded so far is in the store",
+                 f"`trolley survey resume {project} --session {session}` continues it", code=130)
         except SessionAbort as exc:
             hint = exc.hint
             if not resume and fs.rec is not None:
