@@ -97,8 +97,9 @@ def test_a_session_runs_in_one_process_at_a_time(tmp_path):
 
     from survey.commands.survey import session_lock
 
-    code = ("import sys; from pathlib import Path; from survey.commands.survey import session_lock\n"
-            "with session_lock(Path(sys.argv[1]), 's1'): print('got it')")
+    code = ("import sys, typer; from pathlib import Path; from survey.commands.survey import session_lock\n"
+            "try:\n    with session_lock(Path(sys.argv[1]), 's1'): print('got it')\n"
+            "except typer.Exit as e:\n    sys.exit(e.exit_code)")
     with session_lock(tmp_path, "s1"):
         r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=30,
                            env={**os.environ, "COLUMNS": "200"})
