@@ -40,6 +40,8 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         child.expect("FIX003 accepted")
         child.send("p")
         child.expect("paused")
+        child.send("f")  # no fix during a pause: answered, and the next key still works
+        child.expect("paused: p to resume first")
         child.send("p")
         child.expect("resumed")
         child.send("e")

@@ -864,11 +864,13 @@ class FieldSession:
             self.ended = True
             return True
         if self.paused or self.device_pause:
-            if self.device_pause.startswith("total station") and a.name in ("fix", "remeasure"):
+            if self.device_pause.startswith("total station") and a.name in ("fix", "remeasure", "station"):
                 if not self._total_station_back():
-                    return False
+                    return self._blocked("the total station does not answer")
+            elif self.paused:
+                return self._blocked("paused: p to resume first")
             else:
-                return False
+                return self._blocked(f"waiting for the devices ({self.device_pause})")
         if a.name == "stop":
             return standing
         if a.name == "move":
@@ -889,6 +891,14 @@ class FieldSession:
                 return True
             ok = self.remeasure_pending() if a.name == "remeasure" else self.take_fix()
             return ok or self.config.script is None
+        return True
+
+    def _blocked(self, why: str) -> bool:
+        """A script waits for the condition; a key press is answered and dropped (so that the next
+        key, e.g. ``p``, is read)."""
+        if self.config.script is not None:
+            return False
+        self.say(why)
         return True
 
     def loop(self) -> None:
