@@ -43,7 +43,7 @@ def open_store(project: str, root: Path):
             return ProjectStore.open(p)
         return ProjectStore.open_project(root, project)
     except StoreError as exc:
-        fail(str(exc), f"`trolley project new {p.name}`")
+        fail(str(exc), "" if "trolley project new" in str(exc) else f"`trolley project new {p.name}`")
 
 
 def simulated_world(store, speedup: float):
