@@ -24,27 +24,19 @@ from pathlib import Path
 import numpy as np
 
 from survey.session.acquisition import Acquisition, TimeBase
+from survey.session.errors import SessionAbort
+from survey.session.livefilter import LiveFiltering, predicted_sigma_mm
+from survey.session.stationsetup import StationSetupSteps
 from survey.session.screen import KEYS_HELP, ScreenState, render
 from survey.session.script import Action
-from survey.store import (FixRecord, NoteRecord, ProjectStore, RecordWriter, SessionEvent, StopRecord,
-                          setup_rows)
+from survey.store import FixRecord, NoteRecord, ProjectStore, RecordWriter, SessionEvent, StopRecord
 
 #: the trolley stands when the odometer moved less than this over ``STAND_WINDOW_S``
 STAND_TOLERANCE_M = 0.002
 STAND_WINDOW_S = 1.0
 TICK_S = 0.05
-#: a fix needs the data up to this long before its time (one period of the slowest stream it uses)
-DATA_SLACK_S = 0.02
 #: how long the device check retries opening a port (a USB adapter being plugged in)
 OPEN_TIMEOUT_S = 2.0
-
-
-class SessionAbort(RuntimeError):
-    """The session cannot go on; ``hint`` says what the crew can try."""
-
-    def __init__(self, message: str, hint: str = "") -> None:
-        super().__init__(message)
-        self.hint = hint
 
 
 @dataclass
@@ -83,7 +75,7 @@ class SessionOutcome:
     notes: list[str] = field(default_factory=list)
 
 
-class FieldSession:
+class FieldSession(StationSetupSteps, LiveFiltering):
     """One field session on the project store.
 
     Parameters
@@ -344,111 +336,6 @@ class FieldSession:
     def _new_samples(self) -> dict[str, int]:
         return dict(self.acq.samples)
 
-    # ================================================================== station setup
-    def station_setup(self) -> None:
-        """Free station on the nearest CPIII points: measure, resect, show, accept / drop / re-measure."""
-        setups = [s for s in self.store.station_setups(self.rec.session_id) if s.accepted]
-        if setups:
-            self.setup_id = setups[-1].setup_id
-            if self.world is not None:
-                self.world.place_instrument(setups[-1].station_enh_m, len(setups) - 1)
-                self.world.quiet_instrument()
-            self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
-            self.say(f"station setup {self.setup_id} restored from the store")
-            return
-        with self.crew_busy():
-            self.new_station("free station on CPIII")
-
-    def new_station(self, title: str) -> None:
-        """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
-        from survey.commands.project import resection_table
-        from trolley.resection import ResectionError, resect, suggest_point_to_drop
-
-        self.screen.phase = "station setup"
-        points = self._setup_points()
-        config = self.settings.resection_config()
-        if self.world is not None:  # the twin has no curvature/refraction model
-            config = replace(config, model=replace(config.model, curvature_refraction=False))
-        first = not self.store.station_setups(self.rec.session_id)
-        drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"] if first else []
-        exclude: list[str] = []
-        obs = self._measure_points(points)
-        while True:
-            ids = [p.point_id for p in points]
-            pts = np.array([[p.e_m, p.n_m, p.h_m] for p in points])
-            try:
-                res = resect(ids, pts, obs, config, exclude=exclude)
-            except ResectionError as exc:
-                raise SessionAbort(f"station setup: {exc}", "measure more CPIII points") from None
-            self.console.print(resection_table(res, title))
-            if self.config.script is not None:
-                if drops:
-                    exclude.append(drops.pop(0))
-                    continue
-                choice = "a"
-            else:
-                worst = suggest_point_to_drop(res)
-                choice = self._ask_key(f"a accept | d drop {worst or '-'} | m measure again", "adm")
-                if choice == "d" and worst:
-                    exclude.append(worst)
-                    continue
-                if choice == "m":
-                    obs = self._measure_points(points)
-                    exclude = []
-                    continue
-            break
-        if self.world is not None:
-            self.world.quiet_instrument()  # the setup pointings were noisy; fixes get their own noise
-        setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
-        self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
-        self._give_station(res.station_enh_m, res.orientation_rad)
-        self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
-
-    def _setup_points(self):
-        pts = self.store.cpiii_points()
-        if len(pts) < 3:
-            raise SessionAbort("the project has fewer than 3 CPIII points",
-                               "import them with `trolley project import-cpiii FILE --project NAME`")
-        if self.world is not None:
-            st = self.world.station_enh_m
-        elif self.last_fix is not None:  # a station change: near the trolley
-            st = np.array([self.last_fix.e_m, self.last_fix.n_m, self.last_fix.h_m])
-        else:  # the crew stands near the first points of the file
-            st = np.array([pts[0].e_m, pts[0].n_m, pts[0].h_m])
-        d = [math.hypot(p.e_m - st[0], p.n_m - st[1]) for p in pts]
-        order = np.argsort(d)[: self.config.setup_points]
-        return [pts[i] for i in order]
-
-    def _measure_points(self, points):
-        from drivers.geocom import GeoComError
-        from trolley.resection import PolarObservations
-
-        hz, v, sd = [], [], []
-        for p in points:
-            if self.world is not None:
-                self.world.aim_at_point((p.e_m, p.n_m, p.h_m))
-            elif self.config.script is None:
-                self._ask_key(f"aim at {p.point_id} and press Enter", "\r\n")
-            try:
-                self.ts.fine_adjust()
-                m = self.ts.measure()
-            except GeoComError as exc:
-                raise SessionAbort(f"total station on {p.point_id}: {exc}", "check the prism and the line of sight") from None
-            self.console.print(f"  {p.point_id}: Hz {m.hz_rad:.6f} rad, V {m.v_rad:.6f} rad, {m.slope_m:.4f} m",
-                               highlight=False)
-            hz.append(m.hz_rad)
-            v.append(m.v_rad)
-            sd.append(m.slope_m)
-        return PolarObservations(np.array(hz), np.array(v), np.array(sd))
-
-    def _give_station(self, station_enh_m, orientation_rad: float) -> None:
-        """TMC_SetStation, then orient the circle so that it reads grid azimuths."""
-        e, n, h = (float(x) for x in station_enh_m)
-        self.ts.set_station(e, n, h, 0.0)
-        hz, _ = self.ts.angle()
-        self.ts.set_orientation(float((hz + orientation_rad) % (2 * math.pi)))
-        self.ts.set_reflector_height(0.0)
-
     def _ask_key(self, prompt: str, allowed: str) -> str:
         self.console.print(f"[bold]{prompt}[/]", highlight=False)
         while True:
@@ -575,155 +462,6 @@ class FieldSession:
         self.last_fix = self.accepted_fixes[-1] if self.accepted_fixes else None
         self.screen.fixes_accepted = len(self.accepted_fixes)
         self.say(f"fix {fix.point} undone")
-
-    def station_change(self) -> bool:
-        """Set up the instrument anew; the prism at this stop measured from both stations is the
-        overlap check. False while the trolley moves."""
-        standing, _, dist = self.motion()
-        if not standing:
-            if self.config.script is None:
-                self.say("station change: stop the trolley first")
-            return False
-        with self.crew_busy():
-            return self._station_change(dist)
-
-    def _station_change(self, dist: float) -> bool:
-        from drivers.geocom import GeoComError
-        from drivers.serialport import DeviceError
-        from trolley.resection import overlap_check
-
-        k = sum(1 for s in self.store.station_setups(self.rec.session_id) if s.accepted)
-        if self.world is not None:
-            here = self.chainage_now(dist)
-            self.world.move_instrument(k, here if np.isfinite(here) else dist)
-            e, n, h = self.world.station_enh_m
-            self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
-        self.say(f"station change: setting up station {k + 1}")
-        self._event("station_change", f"setup {k + 1}")
-        self.new_station(f"station {k + 1} on CPIII")
-        first = self.last_fix
-        if first is None or abs(dist - self.last_fix_distance_m) > 0.01 or first.setup_id == self.setup_id:
-            return True
-        t = self.now()
-        if self.world is not None:
-            self.world.aim_at_prism(t, self.rec.meta.fix_sigma_m)
-        try:
-            self.ts.fine_adjust()
-            m = self.ts.measure()
-        except (GeoComError, DeviceError) as exc:
-            self.say(f"overlap check not measured: {exc}")
-            return True
-        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], [m.E_m, m.N_m, m.H_m],
-                           self.settings.overlap_tolerance_m)
-        d = oc.difference_enh_mm
-        verdict = "within" if oc.within_tolerance else "[bold red]OUTSIDE[/]"
-        self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
-                 f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
-        sigma = self.rec.meta.fix_sigma_m
-        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", m.E_m, m.N_m, m.H_m,
-                        sigma, sigma, sigma, setup_id=self.setup_id)
-        v = self._live_verdict(fix)
-        ok = oc.within_tolerance and (v is None or bool(v.accepted))
-        reason = f"overlap check from station {k + 1}: " + ("accepted" if ok else "difference outside the tolerance"
-                                                              if not oc.within_tolerance else v.reason)
-        fix_id = self.store.add_fix(self.rec.session_id, replace(fix, accepted=ok, reason=reason))
-        if ok:
-            self._accepted(replace(fix, fix_id=fix_id, accepted=True, reason=reason), dist)
-        return True
-
-    # ================================================================== live processing
-    def _live_processor(self):
-        """The incremental processor (``trolley.live``), created after the static alignment."""
-        if not self.config.live or self._live is False:
-            return None
-        if self._live is None:
-            try:
-                from trolley.live import LiveProcessor
-            except ImportError:
-                self._live = False
-                return None
-            self._live = LiveProcessor(self.rec.meta, self._design)
-            imu = self.acq.buffers.array("imu", 7)
-            t0 = self.static_start_s if self.static_start_s is not None else imu[0, 0]
-            sel = (imu[:, 0] >= t0) & (imu[:, 0] <= t0 + self.rec.meta.static_s)
-            self._live.align(imu[sel, 0], imu[sel, 1:4], imu[sel, 4:7])
-            self._live_fed_t = float(imu[sel, 0][-1])
-            for f in self.accepted_fixes:  # fixes taken during the static alignment
-                if f.t_s <= self._live_fed_t:
-                    self._live.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
-                                       np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
-        return self._live
-
-    def _feed_live(self, t_until: float) -> None:
-        lp = self._live
-        imu = self.acq.buffers.array("imu", 7)
-        od = self._odometer()
-        g = self.acq.buffers.array("gauge", 2)
-        # only what has fully arrived: a sample fed late would leave a hole in the dead reckoning
-        a, b = self._live_fed_t, min(t_until, self.data_time())
-        if b <= a:
-            return
-        si = (imu[:, 0] > a) & (imu[:, 0] <= b)
-        so = (od[:, 0] > a) & (od[:, 0] <= b)
-        sg = (g[:, 0] > a) & (g[:, 0] <= b)
-        if np.any(si):
-            lp.add_samples(imu[si, 0], imu[si, 1:4], imu[si, 4:7], od[so, 0], od[so, 1],
-                           g[sg, 0] if np.any(sg) else None, g[sg, 1] if np.any(sg) else None)
-            self._live_fed_t = b
-
-    def _live_verdict(self, fix: FixRecord):
-        if not self.aligned:
-            return None
-        lp = self._live_processor()
-        if lp is None:
-            return None
-        try:
-            # the data up to the fix time must be there before the prediction
-            # every stream up to its last sample before the fix (the odometer's period is 10 ms)
-            needed = fix.t_s - DATA_SLACK_S
-            deadline = time.monotonic() + 10.0
-            while self.data_time() < needed and time.monotonic() < deadline:
-                self.acq.pump()
-                time.sleep(0.01)
-            if self.data_time() < needed:
-                self.console.print("[yellow]the data up to the fix have not arrived: no live check of this fix[/]")
-                return None
-            if self._live_thread is not None:
-                self._live_thread.join()
-            self._feed_live(fix.t_s)
-            return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
-                              np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]))
-        except Exception as exc:  # never stop the survey for the live view
-            self.console.print(f"[yellow]live processing unavailable: {exc}[/]", highlight=False)
-            self._live = False
-            return None
-
-    def _process_interval_async(self) -> None:
-        lp = self._live if self._live not in (None, False) else None
-        if lp is None:
-            return
-
-        def run() -> None:
-            from survey.session.interval import defects_text, interval_check, tolerance_set
-
-            try:
-                t0 = time.perf_counter()
-                r = lp.smooth_last_interval()
-                if self._tolerances is None:
-                    self._tolerances = tolerance_set(self.config.tolerances or self.settings.tolerance_set)
-                tr = self.rec.meta.trolley
-                chk = interval_check(r.stations, self._design, self._tolerances, tr.rail_spacing_m, tr.nominal_gauge_m)
-                dt = time.perf_counter() - t0
-                self.interval_seconds.append(dt)
-                self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
-                self.console.print(self.screen.last_interval, highlight=False)
-            except Exception as exc:
-                self.screen.last_interval = f"interval processing failed: {exc}"
-
-        if self._live_thread is not None:
-            self._live_thread.join()
-        self._live_thread = threading.Thread(target=run, name="interval", daemon=True)
-        self._live_thread.start()
 
     # ================================================================== device faults
     def _device_fault(self, message: str) -> None:
@@ -965,19 +703,6 @@ class FieldSession:
         self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
                  f"data up to t = {self.data_time():.1f} s")
 
-    def _replay_live(self) -> None:
-        lp = self._live_processor()
-        if lp is None:
-            return
-        try:
-            for f in self.accepted_fixes:
-                self._feed_live(f.t_s)
-                lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
-                           np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
-        except Exception as exc:
-            self.console.print(f"[yellow]live processing unavailable after resume: {exc}[/]")
-            self._live = False
-
     # ================================================================== end
     def finish(self) -> SessionOutcome:
         """Stop the devices, re-process the whole session, write the sheet and the plots."""
@@ -1031,40 +756,3 @@ class FieldSession:
             raise
         return self.finish()
 
-
-def interval_summary_text(r, seconds: float) -> str:
-    """One line for the crew about the interval just smoothed."""
-    mm = 1e3
-    return (f"interval {r.stations.chainage_m[0]:.1f}-{r.stations.chainage_m[-1]:.1f} m: max |lateral| "
-            f"{mm * r.max_abs_lateral_dev_m:.2f} mm, max |vertical| {mm * r.max_abs_vertical_dev_m:.2f} mm, "
-            f"max 1-sigma {mm * r.max_sigma_m:.2f} mm, gauge range {mm * (r.gauge_range_m[1] - r.gauge_range_m[0]):.2f} mm, "
-            f"cant range {mm * (r.cant_range_m[1] - r.cant_range_m[0]):.2f} mm ({seconds:.2f} s)")
-
-
-def predicted_sigma_mm(meta, distance_since_fix_m: float, speed_m_s: float, spacing_m: float = 60.0) -> float:
-    """Predicted smoothed 1-sigma (lateral/vertical, the larger) at the trolley's position.
-
-    Budget model ``trolley.budget`` (Jiang 2017 Sec. 4) for an interval of ``spacing_m`` travelled at the
-    nominal 1 m/s; the position in the interval is the distance since the last fix.
-    """
-    try:
-        from trolley.budget import SensorFigures, resolve_case, sigma_along
-
-        key = (id(meta), spacing_m)
-        case = _BUDGET_CACHE.get(key)
-        if case is None:
-            imu = meta.imu
-            fig = SensorFigures(gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
-                                gyro_bias_instability_rad_s=imu.gyro_bias_instability_rad_s,
-                                heading_error_rad=None if imu.gyrocompassing else math.radians(0.5),
-                                fix_spacing_m=spacing_m, speed_m_s=1.0, fix_sigma_m=meta.fix_sigma_m,
-                                latitude_rad=meta.latitude_rad, gyrocompassing=imu.gyrocompassing)
-            case = _BUDGET_CACHE.setdefault(key, resolve_case(fig).case)
-        t = min(max(distance_since_fix_m, 0.0), spacing_m)
-        s = sigma_along(case, np.array([t]))
-        return 1e3 * float(max(s["lateral"][0], s["vertical"][0]))
-    except Exception:
-        return float("nan")
-
-
-_BUDGET_CACHE: dict = {}

@@ -17,7 +17,6 @@ import contextlib
 import math
 import shutil
 import tempfile
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path

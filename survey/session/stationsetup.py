@@ -1,0 +1,178 @@
+"""Station setups of a field session: the free station on CPIII, station changes, the overlap check.
+
+A mixin of :class:`survey.session.fieldsession.FieldSession` (it uses the session's store, total
+station, world, console and keys). The resection is ``trolley/resection.py``; the residual table
+is ``survey.commands.project.resection_table``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from survey.session.errors import SessionAbort
+from survey.store import FixRecord, setup_rows
+
+
+class StationSetupSteps:
+    """Free station, station change and overlap check (mixin of ``FieldSession``)."""
+
+    def station_setup(self) -> None:
+        """Free station on the nearest CPIII points: measure, resect, show, accept / drop / re-measure."""
+        setups = [s for s in self.store.station_setups(self.rec.session_id) if s.accepted]
+        if setups:
+            self.setup_id = setups[-1].setup_id
+            if self.world is not None:
+                self.world.place_instrument(setups[-1].station_enh_m, len(setups) - 1)
+                self.world.quiet_instrument()
+            self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
+            self.say(f"station setup {self.setup_id} restored from the store")
+            return
+        with self.crew_busy():
+            self.new_station("free station on CPIII")
+
+    def new_station(self, title: str) -> None:
+        """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
+        from survey.commands.project import resection_table
+        from trolley.resection import ResectionError, resect, suggest_point_to_drop
+
+        self.screen.phase = "station setup"
+        points = self._setup_points()
+        config = self.settings.resection_config()
+        if self.world is not None:  # the twin has no curvature/refraction model
+            config = replace(config, model=replace(config.model, curvature_refraction=False))
+        first = not self.store.station_setups(self.rec.session_id)
+        drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"] if first else []
+        exclude: list[str] = []
+        obs = self._measure_points(points)
+        while True:
+            ids = [p.point_id for p in points]
+            pts = np.array([[p.e_m, p.n_m, p.h_m] for p in points])
+            try:
+                res = resect(ids, pts, obs, config, exclude=exclude)
+            except ResectionError as exc:
+                raise SessionAbort(f"station setup: {exc}", "measure more CPIII points") from None
+            self.console.print(resection_table(res, title))
+            if self.config.script is not None:
+                if drops:
+                    exclude.append(drops.pop(0))
+                    continue
+                choice = "a"
+            else:
+                worst = suggest_point_to_drop(res)
+                choice = self._ask_key(f"a accept | d drop {worst or '-'} | m measure again", "adm")
+                if choice == "d" and worst:
+                    exclude.append(worst)
+                    continue
+                if choice == "m":
+                    obs = self._measure_points(points)
+                    exclude = []
+                    continue
+            break
+        if self.world is not None:
+            self.world.quiet_instrument()  # the setup pointings were noisy; fixes get their own noise
+        setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
+        self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
+        self._give_station(res.station_enh_m, res.orientation_rad)
+        self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
+
+    def _setup_points(self):
+        pts = self.store.cpiii_points()
+        if len(pts) < 3:
+            raise SessionAbort("the project has fewer than 3 CPIII points",
+                               "import them with `trolley project import-cpiii FILE --project NAME`")
+        if self.world is not None:
+            st = self.world.station_enh_m
+        elif self.last_fix is not None:  # a station change: near the trolley
+            st = np.array([self.last_fix.e_m, self.last_fix.n_m, self.last_fix.h_m])
+        else:  # the crew stands near the first points of the file
+            st = np.array([pts[0].e_m, pts[0].n_m, pts[0].h_m])
+        d = [math.hypot(p.e_m - st[0], p.n_m - st[1]) for p in pts]
+        order = np.argsort(d)[: self.config.setup_points]
+        return [pts[i] for i in order]
+
+    def _measure_points(self, points):
+        from drivers.geocom import GeoComError
+        from trolley.resection import PolarObservations
+
+        hz, v, sd = [], [], []
+        for p in points:
+            if self.world is not None:
+                self.world.aim_at_point((p.e_m, p.n_m, p.h_m))
+            elif self.config.script is None:
+                self._ask_key(f"aim at {p.point_id} and press Enter", "\r\n")
+            try:
+                self.ts.fine_adjust()
+                m = self.ts.measure()
+            except GeoComError as exc:
+                raise SessionAbort(f"total station on {p.point_id}: {exc}", "check the prism and the line of sight") from None
+            self.console.print(f"  {p.point_id}: Hz {m.hz_rad:.6f} rad, V {m.v_rad:.6f} rad, {m.slope_m:.4f} m",
+                               highlight=False)
+            hz.append(m.hz_rad)
+            v.append(m.v_rad)
+            sd.append(m.slope_m)
+        return PolarObservations(np.array(hz), np.array(v), np.array(sd))
+
+    def _give_station(self, station_enh_m, orientation_rad: float) -> None:
+        """TMC_SetStation, then orient the circle so that it reads grid azimuths."""
+        e, n, h = (float(x) for x in station_enh_m)
+        self.ts.set_station(e, n, h, 0.0)
+        hz, _ = self.ts.angle()
+        self.ts.set_orientation(float((hz + orientation_rad) % (2 * math.pi)))
+        self.ts.set_reflector_height(0.0)
+
+    def station_change(self) -> bool:
+        """Set up the instrument anew; the prism at this stop measured from both stations is the
+        overlap check. False while the trolley moves."""
+        standing, _, dist = self.motion()
+        if not standing:
+            if self.config.script is None:
+                self.say("station change: stop the trolley first")
+            return False
+        with self.crew_busy():
+            return self._station_change(dist)
+
+    def _station_change(self, dist: float) -> bool:
+        from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
+        from trolley.resection import overlap_check
+
+        k = sum(1 for s in self.store.station_setups(self.rec.session_id) if s.accepted)
+        if self.world is not None:
+            here = self.chainage_now(dist)
+            self.world.move_instrument(k, here if np.isfinite(here) else dist)
+            e, n, h = self.world.station_enh_m
+            self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
+        self.say(f"station change: setting up station {k + 1}")
+        self._event("station_change", f"setup {k + 1}")
+        self.new_station(f"station {k + 1} on CPIII")
+        first = self.last_fix
+        if first is None or abs(dist - self.last_fix_distance_m) > 0.01 or first.setup_id == self.setup_id:
+            return True
+        t = self.now()
+        if self.world is not None:
+            self.world.aim_at_prism(t, self.rec.meta.fix_sigma_m)
+        try:
+            self.ts.fine_adjust()
+            m = self.ts.measure()
+        except (GeoComError, DeviceError) as exc:
+            self.say(f"overlap check not measured: {exc}")
+            return True
+        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], [m.E_m, m.N_m, m.H_m],
+                           self.settings.overlap_tolerance_m)
+        d = oc.difference_enh_mm
+        verdict = "within" if oc.within_tolerance else "[bold red]OUTSIDE[/]"
+        self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
+                 f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
+        sigma = self.rec.meta.fix_sigma_m
+        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", m.E_m, m.N_m, m.H_m,
+                        sigma, sigma, sigma, setup_id=self.setup_id)
+        v = self._live_verdict(fix)
+        ok = oc.within_tolerance and (v is None or bool(v.accepted))
+        reason = f"overlap check from station {k + 1}: " + ("accepted" if ok else "difference outside the tolerance"
+                                                              if not oc.within_tolerance else v.reason)
+        fix_id = self.store.add_fix(self.rec.session_id, replace(fix, accepted=ok, reason=reason))
+        if ok:
+            self._accepted(replace(fix, fix_id=fix_id, accepted=True, reason=reason), dist)
+        return True
