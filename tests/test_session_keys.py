@@ -22,6 +22,9 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
                           cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
     try:
         child.expect("a accept")
+        child.send("d")  # drop the point data snooping suggests, see the table again, accept
+        child.expect("dropped: CP")
+        child.expect("a accept")
         child.send("a")
         child.expect("station accepted")
         child.send("f")
@@ -61,4 +64,7 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         kinds = [e.kind for e in st.events(sid)]
         assert kinds.index("pause") < kinds.index("resume") < kinds.index("end")
         assert st.session("kb").state == "ended"
+        setup = st.station_setups(sid)[0]
+        assert len(setup.excluded) == 1
+        assert [o.used for o in st.setup_observations(setup.setup_id)].count(False) == 1
     assert (tmp_path / "projects" / "t1" / "sessions" / "kb" / "survey.xlsx").is_file()

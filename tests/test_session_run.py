@@ -79,6 +79,13 @@ def test_scripted_session_records_everything_and_processes(project):
         imu_bytes = st.connection.execute("SELECT SUM(LENGTH(payload)) FROM raw_chunk WHERE session_id = ? AND "
                                           "device = 'imu'", (sid,)).fetchone()[0]
         assert imu_bytes == 56 * raw.imu_t_s.size
+        # what the session sent is kept too: one poll per odometer sample, the GeoCOM requests
+        polls = st.connection.execute("SELECT SUM(LENGTH(payload)) FROM raw_chunk WHERE session_id = ? AND "
+                                      "device = 'odometer>'", (sid,)).fetchone()[0]
+        assert polls == 5 * raw.odo_t_s.size  # "$0R0\r"
+        requests = b"".join(r[0] for r in st.connection.execute(
+            "SELECT payload FROM raw_chunk WHERE session_id = ? AND device = 'totalstation>' ORDER BY id", (sid,)))
+        assert requests.count(b"%R1Q,9037,") == 8 + 8 + 4  # ATR on 2 x 8 CPIII points and 4 prism fixes
         fixes = st.fixes(sid)
         # the third fix is the overlap check of the station change at the second stop
         assert [f.accepted for f in fixes] == [True, True, True, True]

@@ -1,7 +1,8 @@
 """Acquisition of a field session: device links, raw bytes and decoded records into the store.
 
 Every read of every port goes, as read, to the project store (``RecordWriter.append``, table
-``raw_chunk``) before it is parsed; the decoded samples, in session time and SI, go to
+``raw_chunk``, device ``imu``, ``odometer``, ``gauge``, ``totalstation``) before it is parsed, and
+every write (odometer polls, GeoCOM requests) as device ``<name>>``; the decoded samples, in session time and SI, go to
 ``imu_sample``, ``odometer_sample`` and ``gauge_sample`` and to in-memory arrays for the live
 processing. The writer commits at least twice a second, so a crash loses at most that much.
 
@@ -37,6 +38,32 @@ class RawTap:
     def feed(self, data: bytes, t_host: float):
         self.sink(self.device, t_host, data)
         return self.inner.feed(data, t_host)
+
+
+class TappedLink(SerialLink):
+    """A serial link whose writes (polls, requests) also go to the store, as device ``<name>>``."""
+
+    def __init__(self, *args, sink=None, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.sink = sink
+
+    def write(self, data: bytes) -> float:
+        t = super().write(data)
+        if self.sink is not None:
+            self.sink(f"{self.name}>", t, data)
+        return t
+
+
+def tap_writes(link: SerialLink, sink) -> None:
+    """Send what ``link`` writes to ``sink`` too (a link made elsewhere, e.g. the total station's)."""
+    write = link.write
+
+    def tapped(data: bytes) -> float:
+        t = write(data)
+        sink(f"{link.name}>", t, data)
+        return t
+
+    link.write = tapped
 
 
 @dataclass
@@ -192,8 +219,8 @@ class Acquisition:
               "gauge": lambda: gauge.GaugeParser(Stats())}
         for name, port in ports.items():
             if name in mk:
-                self.links[name] = SerialLink(port, RawTap(mk[name](), name, self._raw), name,
-                                              baudrate=460800 if name == "imu" else 9600)
+                self.links[name] = TappedLink(port, RawTap(mk[name](), name, self._raw), name,
+                                              baudrate=460800 if name == "imu" else 9600, sink=self._raw)
         self.last_data_host: dict[str, float] = {k: time.monotonic() for k in self.links}
         self.samples: dict[str, int] = {k: 0 for k in self.links}
         self._odo_reply_index = 0

@@ -271,9 +271,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             raise SessionAbort(str(exc), "check the cable and the port name (--devices file); "
                                          "`trolley devices probe` tests one device") from None
         self.ts = TotalStation(self.ports["totalstation"], raw_log=None, timeout_s=3.0)
-        from survey.session.acquisition import RawTap
+        from survey.session.acquisition import RawTap, tap_writes
 
         self.ts.link.parser = RawTap(self.ts.link.parser, "totalstation", self.acq._raw)
+        tap_writes(self.ts.link, self.acq._raw)
         try:
             self.ts.link.open(OPEN_TIMEOUT_S)
         except DeviceError as exc:

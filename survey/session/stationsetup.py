@@ -60,10 +60,15 @@ class StationSetupSteps:
                     continue
                 choice = "a"
             else:
-                worst = suggest_point_to_drop(res)
-                choice = self._ask_key(f"a accept | d drop {worst or '-'} | m measure again", "adm")
-                if choice == "d" and worst:
-                    exclude.append(worst)
+                # data snooping's suggestion, else the point with the largest standardized residual
+                worst = suggest_point_to_drop(res) or max(
+                    res.residuals, key=lambda r: r.max_standardized if np.isfinite(r.max_standardized) else -1.0).point_id
+                if len(ids) - len(exclude) <= 3:
+                    worst = None  # three points are the minimum
+                choice = self._ask_key(f"a accept | d drop {worst or '- (3 points left)'} | m measure again", "adm")
+                if choice == "d":
+                    if worst:
+                        exclude.append(worst)
                     continue
                 if choice == "m":
                     obs = self._measure_points(points)
