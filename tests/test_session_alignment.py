@@ -5,11 +5,13 @@ import json
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from rich.console import Console
 
 from session_project import make_project
 
 
+@pytest.mark.slow  # 7 s; the session tests' budget is spent on the required ones
 def test_alignment_restarts_when_the_trolley_moves(tmp_path):
     from survey.commands.survey import simulated_world
     from survey.session.fieldsession import FieldSession, SessionConfig

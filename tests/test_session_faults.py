@@ -18,7 +18,7 @@ def test_imu_unplug_and_total_station_fault_pause_and_resume(tmp_path):
     from survey.session.script import parse_script
     from survey.store import ProjectStore
 
-    make_project(tmp_path, length_m="60.0", static_s="10.0", stop_s="10.0")
+    make_project(tmp_path, length_m="60.0", static_s="10.0", stop_s="30.0")
     console = Console(stderr=True, record=True, width=150)
     with ProjectStore.open(tmp_path / "t1") as st:
         world = simulated_world(st, 15.0)

@@ -15,7 +15,7 @@ from session_project import make_project
 
 
 def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
-    make_project(tmp_path / "projects", static_s="20.0")
+    make_project(tmp_path / "projects", static_s="20.0", stop_s="30.0")  # 2 s per stop at 15x: time to type
     env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
     child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
                                            "--session", "kb", "--simulate", "--speedup", "15"],
