@@ -25,7 +25,7 @@ import numpy as np
 
 from survey.session.acquisition import Acquisition, TimeBase
 from survey.session.errors import SessionAbort
-from survey.session.livefilter import LiveFiltering, predicted_sigma_mm
+from survey.session.livefilter import DATA_SLACK_S, LiveFiltering, predicted_sigma_mm
 from survey.session.stationsetup import StationSetupSteps
 from survey.session.screen import KEYS_HELP, ScreenState, render
 from survey.session.script import Action
@@ -35,6 +35,8 @@ from survey.store import FixRecord, NoteRecord, ProjectStore, RecordWriter, Sess
 STAND_TOLERANCE_M = 0.002
 STAND_WINDOW_S = 1.0
 TICK_S = 0.05
+#: a scripted crew looks at the simulated world at least every this many simulated seconds
+SIM_STEP_S = 2.0
 #: how long the device check retries opening a port (a USB adapter being plugged in)
 OPEN_TIMEOUT_S = 2.0
 
@@ -133,6 +135,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._live_fed_t = -math.inf
         self._design = None
         self._tolerances = None
+        self._world_held = False
         self.interval_seconds: list[float] = []
 
     # ================================================================== time and motion
@@ -472,6 +475,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self.device_pause = message
 
     def _check_health(self) -> None:
+        if self.world is not None and self.world.clock.frozen:
+            now = time.monotonic()  # the streams wait with the simulated clock: not a fault
+            for k in self.acq.last_data_host:
+                self.acq.last_data_host[k] = now
         faults = self.acq.faults()
         if self.world is not None and self.world.finished(self.data_time()):
             faults = []  # the simulated survey is over: no more data is right
@@ -610,6 +617,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 return self._blocked("paused: p to resume first")
             else:
                 return self._blocked(f"waiting for the devices ({self.device_pause})")
+        if self.world is not None and a.name in ("stop", "move") and self.world.finished(self.data_time()):
+            return True  # the simulated survey is over
         if a.name == "stop":
             return standing
         if a.name == "move":
@@ -632,6 +641,31 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return ok or self.config.script is None
         return True
 
+    def _step_world(self) -> None:
+        """A scripted crew sees every simulated second: the world runs at most ``SIM_STEP_S`` ahead
+        of what the crew has looked at, and the crew looks only at complete data (the streams up to
+        the world's time). A loaded machine then slows the world down instead of skipping a stop."""
+        if self.world is None or self.config.script is None:
+            return
+        clock = self.world.clock
+        deadline = time.monotonic() + 0.5  # a device that is gone is the health check's business
+        while self.data_time() < clock.now() - DATA_SLACK_S and time.monotonic() < deadline \
+                and not self.world.finished(self.data_time()) \
+                and all(link.connected.is_set() for link in self.acq.links.values()):
+            self.acq.pump()
+            time.sleep(0.005)
+        clock.limit = clock.now() + SIM_STEP_S
+
+    def _hold_world(self, on: bool) -> None:
+        """Freeze (or let run) a simulated world's clock for a scripted crew."""
+        if self.world is None or self.config.script is None or on == self._world_held:
+            return
+        if on:
+            self.world.clock.freeze()
+        else:
+            self.world.clock.thaw()
+        self._world_held = on
+
     def _blocked(self, why: str) -> bool:
         """A script waits for the condition; a key press is answered and dropped (so that the next
         key, e.g. ``p``, is read)."""
@@ -652,7 +686,15 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 if current is None:
                     current = self._next_action()
                     self._action_state = {}
-                if current is not None and self.do(current):
+                # a scripted crew in a simulated world: the world runs only while the crew waits for
+                # it (move, wait, stop, end, or a fix waiting for the trolley to stand); the crew's
+                # own actions take no simulated time, however slow the machine
+                self._hold_world(current is not None)
+                self._step_world()
+                done = current is not None and self.do(current)
+                if not done:
+                    self._hold_world(False)
+                if done:
                     if self.config.script is not None:
                         self.script_index += 1
                         self._event("script", str(self.script_index))

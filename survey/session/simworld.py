@@ -17,6 +17,7 @@ import contextlib
 import math
 import shutil
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,22 +70,36 @@ class SimClock:
         self.speedup = float(speedup)
         self.start_monotonic = time.monotonic()
         self.frozen_at: float | None = None
+        self.limit: float | None = None  # simulated time stands at this limit until it is raised
+        self._lock = threading.Lock()
 
     def now(self) -> float:
         if self.frozen_at is not None:
             return self.frozen_at
-        return self.t0_s + self.speedup * (time.monotonic() - self.start_monotonic)
+        with self._lock:
+            t = self.t0_s + self.speedup * (time.monotonic() - self.start_monotonic)
+            if self.limit is not None and t > self.limit:
+                # stand at the limit: the time past it is not lost, it never happened
+                self.start_monotonic = time.monotonic() - (self.limit - self.t0_s) / self.speedup
+                t = self.limit
+            return t
 
     def freeze(self) -> None:
-        """Stop simulated time (the world waits for the crew)."""
+        """Stop simulated time (the world waits for the crew). Nested: one ``thaw`` per ``freeze``."""
+        self.holds = getattr(self, "holds", 0) + 1
         if self.frozen_at is None:
             self.frozen_at = self.now()
 
     def thaw(self) -> None:
-        """Let simulated time run on from where it was frozen."""
-        if self.frozen_at is not None:
+        """Let simulated time run on from where it was frozen, once every ``freeze`` is thawed."""
+        self.holds = max(getattr(self, "holds", 0) - 1, 0)
+        if self.frozen_at is not None and self.holds == 0:
             self.start_monotonic = time.monotonic() - (self.frozen_at - self.t0_s) / self.speedup
             self.frozen_at = None
+
+    @property
+    def frozen(self) -> bool:
+        return self.frozen_at is not None
 
     def host_at(self, t_s: float) -> float:
         """Monotonic host time at which session time ``t_s`` comes."""
