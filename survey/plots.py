@@ -111,7 +111,8 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
         ax = axes[-1, 0]
         ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(x, 1)))
         ax.set_xlabel("chainage [km+m]")
-        axes[0, 0].set_title(f"{title} - {rep.info.project or rep.track_csv.parent.name}")
+        names = " / ".join(x for x in (rep.info.project, rep.info.session) if x) or str(rep.track_csv)
+        axes[0, 0].set_title(f"{title} - {names}")
         fig.tight_layout()
         out = folder / f"{stem}.png"
         fd, tmp = tempfile.mkstemp(prefix=f".{stem}-", suffix=".png", dir=folder)

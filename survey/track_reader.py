@@ -2,7 +2,8 @@
 
 ``track.csv`` follows FORMATS.md section 2; ``fixes.csv`` and ``summary.json`` are the engine's
 (survey/trackio.py). Bad input is a :class:`ExportInputError` whose message names the file, the
-row (file line number) and the column.
+row (data row + 1, i.e. the row number a spreadsheet shows; blank lines are not counted) and
+the column.
 
 Missing values: in track.csv the columns lateral_dev_mm, vertical_dev_mm, gauge_mm, cant_mm and
 twist_mm may be empty (no design / not measured); an empty cell or the text ``nan`` there is
@@ -48,9 +49,57 @@ class FixRow:
     reason: str
 
 
+#: equipment figures of session.toml in display units: key -> (Summary label, number format)
+EQUIPMENT = {
+    "gyro_bias_instability_deg_h": ("Gyro bias instability [deg/h]", "0.0000"),
+    "gyro_arw_deg_sqrt_h": ("Gyro ARW [deg/sqrt(h)]", "0.0000"),
+    "accel_bias_ug": ("Accelerometer bias [µg]", "0.0"),
+    "odometer_scale_noise_per_sqrt_s": ("Odometer scale noise [1/sqrt(s)]", "0.0E+00"),
+    "totalstation_sigma_mm": ("Total-station sigma [mm]", "0.00"),
+    "prism_lever_arm_m": ("Prism lever arm x, y, z (FRD) [m]", "0.000"),
+    "rail_spacing_m": ("Rail spacing [m]", "0.000"),
+    "nominal_gauge_mm": ("Nominal gauge [mm]", "0.0"),
+}
+
+
+def equipment_figures(meta) -> dict:
+    """The equipment figures of a session's metadata in display units (keys of :data:`EQUIPMENT`).
+
+    Parameters
+    ----------
+    meta : trolley.session.SessionMeta (session.toml, SI).
+
+    Returns
+    -------
+    dict, JSON-ready (summary.json ``equipment``); the IMU figures are absent when
+    session.toml has no [imu] table.
+    """
+    def back(x) -> float:
+        # session.toml -> SI -> display units again: 15 digits give 0.005, not 0.005000000000000001
+        return float(f"{float(x):.15g}")
+
+    tr = meta.trolley
+    out: dict = {}
+    if meta.imu is not None:
+        imu = meta.imu
+        out.update(imu_name=str(imu.name),
+                   gyro_bias_instability_deg_h=back(units.rad_s_to_deg_h(imu.gyro_bias_instability_rad_s)),
+                   gyro_arw_deg_sqrt_h=back(units.rad_sqrt_s_to_deg_sqrt_h(imu.gyro_arw_rad_sqrt_s)),
+                   accel_bias_ug=back(units.m_s2_to_ug(imu.accel_bias_m_s2)))
+    out.update(odometer_scale_noise_per_sqrt_s=float(meta.odometer.scale_noise_per_sqrt_s),
+               totalstation_sigma_mm=back(units.m_to_mm(meta.fix_sigma_m)),
+               prism_lever_arm_m=[float(x) for x in np.asarray(tr.prism_lever_arm_m, dtype=float)],
+               rail_spacing_m=float(tr.rail_spacing_m), nominal_gauge_mm=back(units.m_to_mm(tr.nominal_gauge_m)))
+    return out
+
+
 @dataclass
 class SurveyInfo:
-    """What the Summary sheet shows about the survey (from summary.json; defaults if absent)."""
+    """What the Summary sheet shows about the survey (from summary.json; defaults if absent).
+
+    ``equipment`` holds the figures of :data:`EQUIPMENT` that are known (summary.json
+    ``equipment``, else the session's session.toml); ``equipment_source`` says where from.
+    """
 
     project: str = ""
     session: str = ""
@@ -58,6 +107,8 @@ class SurveyInfo:
     imu_name: str = ""
     gyro_bias_instability_deg_h: float = math.nan
     gyro_arw_deg_sqrt_h: float = math.nan
+    equipment: dict = field(default_factory=dict)
+    equipment_source: str = ""
     smoother: str = ""
     fixes_used: int | None = None
     fixes_rejected: int | None = None
@@ -71,13 +122,23 @@ class SurveyInfo:
 
 
 def resolve_track_csv(path: Path) -> Path:
-    """A track.csv path from a file or a processing output folder holding one."""
+    """The track.csv to export, from a file or a folder.
+
+    Accepted: a track.csv file; a processing output folder holding ``track.csv``
+    (``trolley process SESSION --out OUT``); a field-session or demo output folder holding
+    ``processed/track.csv`` (survey/session/final.py). A raw session folder (session.toml and
+    imu.csv, FORMATS.md section 1) has no track yet: the error says to process it first.
+    """
     path = Path(path)
     if path.is_dir():
-        cand = path / "track.csv"
-        if not cand.is_file():
-            raise ExportInputError(f"{path}: folder has no track.csv")
-        return cand
+        for cand in (path / "track.csv", path / "processed" / "track.csv"):
+            if cand.is_file():
+                return cand
+        if (path / "session.toml").is_file() and (path / "imu.csv").is_file():
+            raise ExportInputError(
+                f"{path}: a raw session folder (session.toml, imu.csv), not yet processed: run "
+                f"`trolley process {path} --out OUT` first, then `trolley export OUT`")
+        raise ExportInputError(f"{path}: folder has no track.csv (nor processed/track.csv)")
     if not path.is_file():
         raise ExportInputError(f"{path}: no such file or folder")
     return path
@@ -139,6 +200,37 @@ def _numeric_columns(path: Path, header: list[str], body: list[list[str]], names
     return out
 
 
+def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
+    """The track.csv columns parsed by pandas' C reader, or None when anything is unusual.
+
+    Only a clean file is accepted here (every required value finite, optional values finite or
+    empty); anything else (text, inf, ``nan`` text, blank cells, odd header) returns None and
+    :func:`_numeric_columns` reads the file again cell by cell to name the bad row, so the
+    result and the messages are those of the strict reader.
+    """
+    import pandas as pd
+
+    try:
+        df = pd.read_csv(path, encoding="utf-8-sig", keep_default_na=False, na_values=[""], engine="c")
+    except (ValueError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError):
+        return None
+    names = list(df.columns)
+    if len(set(names)) != len(names) or any(not isinstance(h, str) or h != h.strip() for h in names):
+        return None
+    if any(n not in names for n in TRACK_REQUIRED) or df.shape[0] == 0:
+        return None
+    out = {}
+    for name in TRACK_REQUIRED + [n for n in TRACK_OPTIONAL if n in names]:
+        if df[name].dtype.kind not in "fi":
+            return None
+        arr = np.array(df[name], dtype=float)       # a writable copy (pandas 3 arrays are read-only)
+        ok = np.isfinite(arr) if name in TRACK_REQUIRED else ~np.isinf(arr)
+        if not ok.all():
+            return None
+        out[name] = arr
+    return out
+
+
 def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
     """Read a track.csv (FORMATS.md section 2).
 
@@ -147,11 +239,13 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
     track : TrackInput in SI (no design columns yet).
     twist_file_m : the file's own twist column, m (NaN where empty).
     """
-    header, body = _read_csv_rows(path)
-    if not body:
-        raise ExportInputError(f"{path}: no stations (only a header row)")
-    present_optional = [n for n in TRACK_OPTIONAL if n in header]
-    cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
+    cols = _track_columns_fast(path)
+    if cols is None:
+        header, body = _read_csv_rows(path)
+        if not body:
+            raise ExportInputError(f"{path}: no stations (only a header row)")
+        present_optional = [n for n in TRACK_OPTIONAL if n in header]
+        cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
     s = cols["chainage_m"]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
@@ -206,18 +300,62 @@ def read_summary_json(path: Path) -> SurveyInfo:
         v = doc.get(k)
         return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
-    known = {"session_dir", "project", "session", "imu", "smoother", "fixes_used", "fixes_rejected",
-             "rms_innovation_mm", "max_sigma_mm", "step_m", "rail_spacing_m", "nominal_gauge_m"}
+    known = {"session_dir", "project", "session", "imu", "equipment", "smoother", "fixes_used",
+             "fixes_rejected", "rms_innovation_mm", "max_sigma_mm", "step_m", "rail_spacing_m",
+             "nominal_gauge_m"}
+    equipment = _equipment_from_json(path, doc.get("equipment"))
     return SurveyInfo(
         project=str(doc.get("project", "")), session=str(doc.get("session", "")),
         session_dir=str(doc.get("session_dir", "")), imu_name=str(imu.get("name", "")),
         gyro_bias_instability_deg_h=num(imu, "gyro_bias_instability_deg_h"),
         gyro_arw_deg_sqrt_h=num(imu, "gyro_arw_deg_sqrt_h"), smoother=str(doc.get("smoother", "")),
+        equipment=equipment, equipment_source=f"{path} (equipment)" if equipment else "",
         fixes_used=integer("fixes_used"), fixes_rejected=integer("fixes_rejected"),
         rms_innovation_mm=num(doc, "rms_innovation_mm"), max_sigma_mm=num(doc, "max_sigma_mm"),
         step_m=num(doc, "step_m"), rail_spacing_m=num(doc, "rail_spacing_m", 1.500),
         nominal_gauge_m=num(doc, "nominal_gauge_m", 1.435), present=True,
         extra={k: v for k, v in doc.items() if k not in known})
+
+
+def _equipment_from_json(path: Path, eq) -> dict:
+    """summary.json ``equipment``: numbers (the lever arm a list of 3) and the IMU name."""
+    if eq is None:
+        return {}
+    if not isinstance(eq, dict):
+        raise ExportInputError(f"{path}: key equipment: expected an object")
+    out: dict = {}
+    for k, v in eq.items():
+        if k == "imu_name":
+            out[k] = str(v)
+        elif k == "prism_lever_arm_m":
+            if (not isinstance(v, list) or len(v) != 3
+                    or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)):
+                raise ExportInputError(f"{path}: key equipment.prism_lever_arm_m: expected 3 numbers")
+            out[k] = [float(x) for x in v]
+        elif k in EQUIPMENT:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ExportInputError(f"{path}: key equipment.{k}: expected a number, got {v!r:.40}")
+            out[k] = float(v)
+    return out
+
+
+def session_equipment(session_dir: Path) -> tuple[dict, str]:
+    """Equipment figures read from ``session_dir/session.toml`` (for a summary.json without them).
+
+    Returns
+    -------
+    figures : as :func:`equipment_figures` ({} when session.toml is absent).
+    note : "" or why session.toml could not be used (the Summary sheet shows it).
+    """
+    from survey.sessionio import SessionFormatError, read_session_meta
+
+    toml_path = Path(session_dir) / "session.toml"
+    if not toml_path.is_file():
+        return {}, ""
+    try:
+        return equipment_figures(read_session_meta(Path(session_dir))), ""
+    except SessionFormatError as e:
+        return {}, f"equipment figures not read: {e}"
 
 
 def design_alignment_path(info: SurveyInfo) -> Path | None:

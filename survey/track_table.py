@@ -57,11 +57,47 @@ def _g(x: float) -> str:
     return f"{x:g}"
 
 
-def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
-    """The Track table columns for a geometry configuration, in sheet order."""
+def _tags(config: GeometryConfig) -> tuple[str, str, str]:
+    """Short sign tags for the headers: lateral ("+right"), cant ("+left high"), versine."""
     lat = "+right" if config.lateral_sign == "right" else "+left"
     cant = "+left high" if config.cant_sign == "left_high" else "+right high"
     vs = "centre-chord" if config.versine_sign == "centre_minus_chord" else "chord-centre"
+    return lat, cant, vs
+
+
+def conventions(config: GeometryConfig) -> list[tuple[str, str]]:
+    """The sign conventions in force, as (name, text) lines for the Summary sheet.
+
+    Each says whether it is the default (docs/track_geometry.md; FORMATS.md section 2 for
+    lateral and cant), so a non-default choice is visible on the sheet, never silent.
+    """
+    dflt = GeometryConfig()
+
+    def state(name: str) -> str:
+        v = getattr(config, name)
+        return f"setting {name} = {v}" + (" (default)" if v == getattr(dflt, name) else " (NOT the default)")
+
+    side = "RIGHT" if config.lateral_sign == "right" else "LEFT"
+    rail = "LEFT" if config.cant_sign == "left_high" else "RIGHT"
+    L = _g(config.versine_chord_m)
+    if config.versine_sign == "centre_minus_chord":
+        v = f"v(s) = z(s) - (z(s-L/2) + z(s+L/2))/2, L = {L} m (centre minus chord)"
+    else:
+        v = f"v(s) = (z(s-L/2) + z(s+L/2))/2 - z(s), L = {L} m (chord minus centre)"
+    return [
+        ("Lateral sign", f"+ to the {side} facing increasing chainage: lateral dev, slew, horizontal "
+                         f"versines, lateral chords, alignment bands; {state('lateral_sign')}"),
+        ("Cant sign", f"+ when the {rail} rail is higher: cant, design cant, cant dev, twist; "
+                      f"{state('cant_sign')}"),
+        ("Versine sign", f"{v}; z = height (V) or offset along the lateral axis (H); "
+                         f"{state('versine_sign')}"),
+        ("Vertical sign", "+ up: vertical dev, lift, vertical versines and chords, level bands (fixed)"),
+    ]
+
+
+def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
+    """The Track table columns for a geometry configuration, in sheet order."""
+    lat, cant, vs = _tags(config)
     L, tb, gb = _g(config.versine_chord_m), _g(config.twist_base_m), _g(config.gauge_rate_base_m)
     cols = [
         ("chainage_m", "Chainage [m]", "chainage_m", "m", "0.000"),
@@ -85,27 +121,27 @@ def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
         ("gauge_rate_m_per_m", f"Gauge rate {gb} m [mm/m]", "gauge_rate_mm_per_m", "mm/m", "0.000"),
         ("cant_m", f"Cant [mm] {cant}", "cant_mm", "mm", "0.00"),
         ("design_cant_m", f"Design cant [mm] {cant}", "design_cant_mm", "mm", "0.00"),
-        ("cant_dev_m", "Cant dev [mm]", "cant_dev_mm", "mm", "0.00"),
-        ("twist_m", f"Twist {tb} m [mm]", "twist_mm", "mm", "0.00"),
-        ("twist_rate_m_per_m", f"Twist rate {tb} m [mm/m]", "twist_rate_mm_per_m", "mm/m", "0.000"),
-        ("twist_dev_m", f"Twist less design {tb} m [mm]", "twist_dev_mm", "mm", "0.00"),
-        ("versine_h_m", f"Versine H {L} m [mm] {lat}", "versine_h_mm", "mm", "0.00"),
-        ("design_versine_h_m", f"Design versine H {L} m [mm]", "design_versine_h_mm", "mm", "0.00"),
-        ("versine_h_dev_m", f"Alignment {L} m chord [mm] ({vs})", "versine_h_dev_mm", "mm", "0.00"),
-        ("versine_v_m", f"Versine V {L} m [mm] +up", "versine_v_mm", "mm", "0.00"),
-        ("design_versine_v_m", f"Design versine V {L} m [mm]", "design_versine_v_mm", "mm", "0.00"),
-        ("versine_v_dev_m", f"Level {L} m chord [mm] ({vs})", "versine_v_dev_mm", "mm", "0.00"),
+        ("cant_dev_m", f"Cant dev [mm] {cant}", "cant_dev_mm", "mm", "0.00"),
+        ("twist_m", f"Twist {tb} m [mm] {cant}", "twist_mm", "mm", "0.00"),
+        ("twist_rate_m_per_m", f"Twist rate {tb} m [mm/m] {cant}", "twist_rate_mm_per_m", "mm/m", "0.000"),
+        ("twist_dev_m", f"Twist less design {tb} m [mm] {cant}", "twist_dev_mm", "mm", "0.00"),
+        ("versine_h_m", f"Versine H {L} m [mm] {vs} {lat}", "versine_h_mm", "mm", "0.00"),
+        ("design_versine_h_m", f"Design versine H {L} m [mm] {vs} {lat}", "design_versine_h_mm", "mm", "0.00"),
+        ("versine_h_dev_m", f"Alignment {L} m chord [mm] {vs} {lat}", "versine_h_dev_mm", "mm", "0.00"),
+        ("versine_v_m", f"Versine V {L} m [mm] {vs} +up", "versine_v_mm", "mm", "0.00"),
+        ("design_versine_v_m", f"Design versine V {L} m [mm] {vs} +up", "design_versine_v_mm", "mm", "0.00"),
+        ("versine_v_dev_m", f"Level {L} m chord [mm] {vs} +up", "versine_v_dev_mm", "mm", "0.00"),
     ]
     for chord, spacing in config.long_chords_m:
         tag = f"chord{chord:g}_{spacing:g}".replace(".", "p")
-        cols.append((f"{tag}_lat_m", f"Chord {chord:g}/{spacing:g} m lat [mm]", f"{tag}_lat_mm", "mm", "0.00"))
-        cols.append((f"{tag}_vert_m", f"Chord {chord:g}/{spacing:g} m vert [mm]", f"{tag}_vert_mm", "mm", "0.00"))
+        cols.append((f"{tag}_lat_m", f"Chord {chord:g}/{spacing:g} m lat [mm] {lat}", f"{tag}_lat_mm", "mm", "0.00"))
+        cols.append((f"{tag}_vert_m", f"Chord {chord:g}/{spacing:g} m vert [mm] +up", f"{tag}_vert_mm", "mm", "0.00"))
     for b in config.bands:
         lo, hi = BANDS[b]
-        cols.append((f"align_{b}_m", f"Alignment {b} {lo:g}-{hi:g} m [mm]", f"align_{b}_mm", "mm", "0.00"))
+        cols.append((f"align_{b}_m", f"Alignment {b} {lo:g}-{hi:g} m [mm] {lat}", f"align_{b}_mm", "mm", "0.00"))
     for b in config.bands:
         lo, hi = BANDS[b]
-        cols.append((f"level_{b}_m", f"Level {b} {lo:g}-{hi:g} m [mm]", f"level_{b}_mm", "mm", "0.00"))
+        cols.append((f"level_{b}_m", f"Level {b} {lo:g}-{hi:g} m [mm] +up", f"level_{b}_mm", "mm", "0.00"))
     return [SheetColumn(*c) for c in cols]
 
 

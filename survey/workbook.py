@@ -31,7 +31,8 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from survey.sheet_text import put_text
-from survey.track_table import KM_FORMAT, SurveyReport, column_values, limit_in_display
+from survey.track_reader import EQUIPMENT
+from survey.track_table import KM_FORMAT, SurveyReport, column_values, conventions, limit_in_display
 
 _NS_MAIN = "http://schemas.openxmlformats.org/spreadsheetml/2006/main"
 _NS_REL = "http://schemas.openxmlformats.org/officeDocument/2006/relationships"
@@ -103,12 +104,23 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     r += 1
     put_text(ws, r, 1, "Equipment").font = Font(bold=True, size=12)
     r += 1
-    kv("IMU", info.imu_name or "(not given)")
-    kv("Gyro bias instability [deg/h]", info.gyro_bias_instability_deg_h, "0.000")
-    kv("Gyro ARW [deg/sqrt(h)]", info.gyro_arw_deg_sqrt_h, "0.0000")
+    eq = info.equipment
+    kv("IMU", eq.get("imu_name") or info.imu_name or "(not given)")
+    legacy = {"gyro_bias_instability_deg_h": info.gyro_bias_instability_deg_h,
+              "gyro_arw_deg_sqrt_h": info.gyro_arw_deg_sqrt_h}
+    for key, (label, fmt) in EQUIPMENT.items():
+        if key == "rail_spacing_m":
+            kv(label, cfg.rail_spacing_m, fmt)          # the values the geometry used
+        elif key == "nominal_gauge_mm":
+            kv(label, cfg.nominal_gauge_m * 1e3, fmt)
+        elif key == "prism_lever_arm_m":
+            v = eq.get(key)
+            kv(label, ", ".join(f"{x:.3f}" for x in v) if v else "(not given)")
+        else:
+            v = eq.get(key, legacy.get(key, math.nan))
+            kv(label, v if math.isfinite(v) else "(not given)", fmt)
+    kv("Equipment figures from", info.equipment_source or "(not given: summary.json and session.toml lack them)")
     kv("Smoother", info.smoother or "(not given)")
-    kv("Rail spacing [m]", cfg.rail_spacing_m, "0.000")
-    kv("Nominal gauge [mm]", cfg.nominal_gauge_m * 1e3, "0.0")
     r += 1
     put_text(ws, r, 1, "Control-point fixes").font = Font(bold=True, size=12)
     r += 1
@@ -122,9 +134,8 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
     kv("Design alignment", str(rep.design_file) if rep.design_file else "none: design columns empty")
-    kv("Lateral sign", f"{cfg.lateral_sign} positive (facing increasing chainage)")
-    kv("Cant sign", f"{cfg.cant_sign.replace('_', ' ')} positive")
-    kv("Versine sign", f"{cfg.versine_sign.replace('_', ' ')}; chord {cfg.versine_chord_m:g} m")
+    for name, text in conventions(cfg):
+        kv(name, text)
     kv("Twist", f"cant(s) - cant(s - {cfg.twist_base_m:g} m)")
     kv("Gauge change rate", f"(gauge(s) - gauge(s - {cfg.gauge_rate_base_m:g} m)) / {cfg.gauge_rate_base_m:g} m")
     kv("Long chords", ", ".join(f"{a:g} m / {b:g} m" for a, b in cfg.long_chords_m))
@@ -187,8 +198,8 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
 
 
 def _defects_sheet(ws, rep: SurveyReport) -> None:
-    heads = ["#", "Parameter", "From [m]", "To [m]", "From [km+m]", "Length [m]", "Peak", "Limit",
-             "Unit", "Stations", "Limit source"]
+    heads = ["#", "Parameter", "From [m]", "To [m]", "From [km+m]", "To [km+m]", "Length [m]", "Peak",
+             "Limit", "Unit", "Stations", "Limit source"]
     _header(ws, 1, heads)
     ws.freeze_panes = "A2"
     limits = {lim.column: lim for lim in rep.tolerances.limits}
@@ -203,18 +214,19 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
         _num(ws, r, 3, d.start_chainage_m, "0.000")
         _num(ws, r, 4, d.end_chainage_m, "0.000")
         _num(ws, r, 5, d.start_chainage_m, KM_FORMAT)
-        _num(ws, r, 6, d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, "0.000")
+        _num(ws, r, 6, d.end_chainage_m, KM_FORMAT)
+        _num(ws, r, 7, d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, "0.000")
         conv = col.display if col else (lambda x: x)
-        _num(ws, r, 7, float(conv(np.array([d.peak]))[0]), fmt)
-        _num(ws, r, 8, float(conv(np.array([d.limit]))[0]), fmt)
-        put_text(ws, r, 9, col.unit if col else "")
-        _num(ws, r, 10, d.stations)
-        put_text(ws, r, 11, "example value" if lim.example else lim.source)
+        _num(ws, r, 8, float(conv(np.array([d.peak]))[0]), fmt)
+        _num(ws, r, 9, float(conv(np.array([d.limit]))[0]), fmt)
+        put_text(ws, r, 10, col.unit if col else "")
+        _num(ws, r, 11, d.stations)
+        put_text(ws, r, 12, "example value" if lim.example else lim.source)
     if not rep.defects:
         put_text(ws, 2, 2, "no value beyond tolerance")
     else:
-        ws.auto_filter.ref = f"A1:K{len(rep.defects) + 1}"
-    for j, w in enumerate((6, 34, 11, 11, 12, 10, 10, 10, 7, 9, 60), start=1):
+        ws.auto_filter.ref = f"A1:L{len(rep.defects) + 1}"
+    for j, w in enumerate((6, 34, 11, 11, 12, 12, 10, 10, 10, 7, 9, 60), start=1):
         ws.column_dimensions[_col_letter(j)].width = w
 
 
@@ -251,23 +263,33 @@ CHARTS = [
 ]
 
 
+#: x-axis tick labels of the charts: km+m without decimals (1+234)
+CHART_KM_FORMAT = '0"+"000'
+
+
 def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
+    """Scatter charts with straight lines (``scatterStyle`` "line", which Excel and LibreOffice
+    draw as line charts): x = the Track sheet's chainage column (numeric, so the axis is scaled
+    in metres, unlike a LineChart's category axis), labelled km+m; y = one column per series."""
     from openpyxl.chart import Reference, ScatterChart, Series
 
     index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
     track = ws.parent[track_ws_title]
-    xref = Reference(track, min_col=1, min_row=2, max_row=n + 1)
-    put_text(ws, 1, 1, "Charts of the Track sheet against chainage [m]")
+    xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
+    s0, s1 = float(rep.geometry.chainage_m[0]), float(rep.geometry.chainage_m[-1])
+    put_text(ws, 1, 1, "Charts of the Track sheet against chainage [km+m]")
     row = 3
     for title, ytitle, keys in CHARTS:
         keys = [k for k in keys if rep.stats[k].count > 0]
         if not keys:
             continue
-        ch = ScatterChart()
+        ch = ScatterChart(scatterStyle="line")
         ch.title = title
         ch.style = 13
-        ch.x_axis.title = "chainage [m]"
+        ch.x_axis.title = "chainage [km+m]"
         ch.y_axis.title = ytitle
+        ch.x_axis.number_format = CHART_KM_FORMAT
+        ch.x_axis.scaling.min, ch.x_axis.scaling.max = s0, s1
         ch.x_axis.delete = False      # openpyxl 3.1 omits <delete val=0>: Excel would hide the axes
         ch.y_axis.delete = False
         ch.height, ch.width = 8.5, 26.0
@@ -330,7 +352,14 @@ def _sheet_part(z: zipfile.ZipFile, title: str) -> str:
 
 
 def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
-    """SpreadsheetML ``<row>`` elements 2..n+1 of the Track sheet."""
+    """SpreadsheetML ``<row>`` elements 2..n+1 of the Track sheet.
+
+    The values come per column as numpy arrays; the text is built by one comprehension per
+    column (repr: the shortest text that reads back to the same float). Measured on 16 000 x 45
+    values, this (0.22-0.29 s) beats every vectorised alternative tried with identical output:
+    numpy StringDType concatenation (np.strings.add, 0.68 s; its float-to-text is slower than
+    repr) and one %-template per run of rows with the same empty cells (0.28-0.43 s).
+    """
     n = rep.geometry.chainage_m.size
     rows_num = [str(i) for i in range(2, n + 2)]
     per_col = []

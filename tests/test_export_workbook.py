@@ -81,8 +81,9 @@ def test_workbook_structure(exported):
     ws = wb["Track"]
     heads = [c.value for c in ws[1]]
     assert heads[:3] == ["Chainage [m]", "Station [km+m]", "E [m]"]
-    assert "Lateral dev [mm] +right" in heads and "Twist 3 m [mm]" in heads
-    assert "Alignment D1 3-25 m [mm]" in heads and "Chord 300/150 m vert [mm]" in heads
+    assert "Lateral dev [mm] +right" in heads and "Twist 3 m [mm] +left high" in heads
+    assert "Alignment D1 3-25 m [mm] +right" in heads and "Chord 300/150 m vert [mm] +up" in heads
+    assert "Versine H 10 m [mm] centre-chord +right" in heads and "Level 10 m chord [mm] centre-chord +up" in heads
     assert ws.max_row == N + 1 and ws.freeze_panes == "C2"
     assert ws.auto_filter.ref == f"A1:{ws.cell(1, len(heads)).column_letter}{N + 1}"
     # number formats and values of one row against the computed geometry
@@ -108,10 +109,25 @@ def test_workbook_structure(exported):
     L = ws.cell(1, jg).column_letter
     assert cf[f"{L}2:{L}{N + 1}"] == f"AND(ISNUMBER({L}2),OR({L}2<-1.0,{L}2>1.0))"
     assert len(cf) == len(res.report.tolerances.limits)
-    # charts present, axes not deleted
+    # charts: scatter with lines, x = the chainage column, y = the right columns, all N rows
+    from openpyxl.chart import ScatterChart
+
     charts = wb["Charts"]._charts
-    assert len(charts) == 4
-    assert all(ch.x_axis.delete is False and ch.y_axis.delete is False for ch in charts)
+    assert [ch.title.tx.rich.p[0].r[0].t for ch in charts] == ["Deviation from design", "Gauge deviation",
+                                                               "Cant", "Twist"]
+    want = [["Lateral dev [mm] +right", "Vertical dev [mm] +up"], ["Gauge dev [mm] (nominal 1435)"],
+            ["Cant [mm] +left high", "Design cant [mm] +left high", "Cant dev [mm] +left high"],
+            ["Twist 3 m [mm] +left high", "Twist less design 3 m [mm] +left high"]]
+    for ch, names in zip(charts, want):
+        assert isinstance(ch, ScatterChart) and ch.scatterStyle == "line"
+        assert ch.x_axis.delete is False and ch.y_axis.delete is False
+        assert ch.x_axis.numFmt.formatCode == '0"+"000' and ch.x_axis.scaling.max == pytest.approx(g.chainage_m[-1])
+        assert len(ch.series) == len(names)
+        for ser, name in zip(ch.series, names):
+            L = ws.cell(1, heads.index(name) + 1).column_letter
+            assert ser.xVal.numRef.f == f"'Track'!$A$2:$A${N + 1}"
+            assert ser.yVal.numRef.f == f"'Track'!${L}$2:${L}${N + 1}"
+            assert ser.tx.strRef.f == f"'Track'!{L}1"
 
 
 def test_defects_summary_and_hostile_text(exported):
@@ -127,6 +143,13 @@ def test_defects_summary_and_hostile_text(exported):
     wb = load_workbook(base / "survey.xlsx")
     dws = wb["Defects"]
     assert dws.max_row == len(rep.defects) + 1
+    dh = [c.value for c in dws[1]]
+    assert dh[2:6] == ["From [m]", "To [m]", "From [km+m]", "To [km+m]"]
+    for r, d in enumerate(rep.defects, start=2):
+        assert (dws.cell(r, 4).value, dws.cell(r, 6).value) == (pytest.approx(d.end_chainage_m),) * 2
+        assert dws.cell(r, 5).value == pytest.approx(d.start_chainage_m)
+        assert dws.cell(r, 6).number_format == '0"+"000.000'
+        assert dws.cell(r, 7).value == pytest.approx(d.end_chainage_m - d.start_chainage_m + STEP)
     summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
     assert summary["Result"] == "FAIL" and summary["Defects"] == len(rep.defects)
     assert summary["Project"] == "=1+1" and wb["Summary"]["B3"].data_type == "s"
@@ -207,14 +230,24 @@ def test_cli_export_and_clear_errors(tmp_path):
     assert r.exit_code == 2 and "nope" in r.stderr and not (tmp_path / "z.xlsx").exists()
 
 
-@pytest.mark.skipif(shutil.which("soffice") is None, reason="LibreOffice (soffice) not installed")
+def _soffice_convert(src, outdir, target: str):
+    """Convert ``src`` with LibreOffice headless into ``outdir`` (own profile: no clash with a desktop)."""
+    outdir.mkdir(exist_ok=True)
+    p = subprocess.run(["soffice", f"-env:UserInstallation=file://{outdir}/lo-profile", "--headless",
+                        "--convert-to", target, "--outdir", str(outdir), str(src)],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+
+
+needs_soffice = pytest.mark.skipif(shutil.which("soffice") is None, reason="LibreOffice (soffice) not installed")
+
+
+@needs_soffice
 def test_libreoffice_opens_workbook(exported, tmp_path):
+    """LibreOffice computes and shows the sheets as we wrote them (CSV export of every sheet)."""
     base, res = exported
     opts = "csv:Text - txt - csv (StarCalc):44,34,UTF8,1,,0,false,true,false,false,false,-1"
-    p = subprocess.run(["soffice", f"-env:UserInstallation=file://{tmp_path}/lo-profile", "--headless",
-                        "--convert-to", opts, "--outdir", str(tmp_path), str(base / "survey.xlsx")],
-                       capture_output=True, text=True, timeout=120)
-    assert p.returncode == 0, p.stderr
+    _soffice_convert(base / "survey.xlsx", tmp_path, opts)
     with open(tmp_path / "survey-Track.csv", newline="", encoding="utf-8") as f:
         rows = list(csv.reader(f))
     assert len(rows) == N + 1 and rows[0][0] == "Chainage [m]"
@@ -225,9 +258,50 @@ def test_libreoffice_opens_workbook(exported, tmp_path):
     with open(tmp_path / "survey-Fixes.csv", newline="", encoding="utf-8") as f:
         fixes = list(csv.reader(f))
     assert fixes[2][1] == HOSTILE                # stayed text: not evaluated to "y"
+    assert fixes[3][1] == "-12" and fixes[4][1] == "CP\\x014"
     with open(tmp_path / "survey-Summary.csv", newline="", encoding="utf-8") as f:
         summ = {r[0]: r[1] for r in csv.reader(f) if len(r) > 1}
     assert summ["Project"] == "=1+1" and summ["Result"] == "FAIL"
+    with open(tmp_path / "survey-Defects.csv", newline="", encoding="utf-8") as f:
+        drows = list(csv.reader(f))
+    d0 = res.report.defects[0]
+    assert drows[0][4:6] == ["From [km+m]", "To [km+m]"] and len(drows) == len(res.report.defects) + 1
+    assert float(drows[1][5]) == pytest.approx(d0.end_chainage_m)     # raw values (not "as shown")
+
+
+@needs_soffice
+def test_libreoffice_round_trip_keeps_values_formats_and_charts(exported, tmp_path):
+    """Saved again as .xlsx by LibreOffice and re-read with openpyxl: every Track value, the
+    text cells, the conditional-formatting ranges and the charts with their series survive."""
+    from openpyxl import load_workbook
+
+    base, res = exported
+    _soffice_convert(base / "survey.xlsx", tmp_path, "xlsx:Calc MS Excel 2007 XML")
+    ours = load_workbook(base / "survey.xlsx")
+    lo = load_workbook(tmp_path / "survey.xlsx")
+    assert lo.sheetnames == ours.sheetnames
+    a = np.array([[np.nan if v is None else v for v in r] for r in ours["Track"].iter_rows(min_row=2, values_only=True)],
+                 dtype=float)
+    b = np.array([[np.nan if v is None else v for v in r] for r in lo["Track"].iter_rows(min_row=2, values_only=True)],
+                 dtype=float)
+    np.testing.assert_array_equal(a, b)                   # bit-identical numbers, same empty cells
+    assert [c.value for c in lo["Track"][1]] == [c.value for c in ours["Track"][1]]
+    for ref in ("B3", "B4", "B5"):
+        assert lo["Fixes"][ref].value == ours["Fixes"][ref].value and lo["Fixes"][ref].data_type == "s"
+    assert lo["Summary"]["B3"].value == "=1+1" and lo["Summary"]["B3"].data_type == "s"
+    assert lo["Track"]["B2"].number_format.replace("\\", "").replace('"', "") == "0+000.000"
+
+    def cf(ws):
+        return {str(r.sqref): r.rules[0].formula[0].split(",OR(")[0] for r in ws.conditional_formatting}
+
+    assert cf(lo["Track"]) == cf(ours["Track"]) and len(cf(ours["Track"])) == len(res.report.tolerances.limits)
+
+    def series(ws):
+        return [[(s.xVal.numRef.f.replace("'", ""), s.yVal.numRef.f.replace("'", "")) for s in ch.series]
+                for ch in ws._charts]
+
+    assert series(lo["Charts"]) == series(ours["Charts"]) and len(series(ours["Charts"])) == 4
+    assert all(ch.scatterStyle == "line" for ch in lo["Charts"]._charts)
 
 
 def test_design_from_session_landxml(exported):

@@ -1,7 +1,7 @@
 """``trolley export``: the survey sheet of a processed track (xlsx, CSV, PNG plots).
 
-Reads track.csv (or a processing output folder holding it, with fixes.csv and summary.json),
-computes the geometry parameters, checks them against a tolerance set and writes the outputs
+Reads track.csv (or a processing output folder holding it, with fixes.csv and summary.json, or a
+field-session output folder holding processed/track.csv), computes the geometry parameters, checks them against a tolerance set and writes the outputs
 (docs/track_geometry.md). A JSON summary goes to stdout; errors are one line on stderr, exit 2.
 """
 from __future__ import annotations
@@ -29,7 +29,11 @@ class VersineSign(str, Enum):
 
 
 def export(
-    track: Path = typer.Argument(..., help="track.csv, or a processing output folder holding track.csv."),
+    track: Path = typer.Argument(..., metavar="TRACK_CSV_OR_SESSION",
+                                 help="track.csv; a processing output folder holding track.csv "
+                                      "(`trolley process SESSION --out OUT`); or a field-session / demo "
+                                      "output folder holding processed/track.csv. A raw session folder "
+                                      "must be processed first."),
     xlsx: Path = typer.Option(None, "--xlsx", help="Excel survey sheet to write."),
     tolerances: str = typer.Option("hsr_ballastless_static", "--tolerances",
                                    help="Built-in tolerance set (hsr_ballastless_static, en13848_5_alert) or a TOML file."),
@@ -42,6 +46,8 @@ def export(
     lateral_sign: LateralSign = typer.Option(LateralSign.right, "--lateral-sign", help="Side that is positive for lateral values."),
     cant_sign: CantSign = typer.Option(CantSign.left_high, "--cant-sign", help="Cant positive when this rail is higher."),
     versine_sign: VersineSign = typer.Option(VersineSign.centre_minus_chord, "--versine-sign", help="Versine sign convention."),
+    project: str = typer.Option(None, "--project", help="Project name for the Summary sheet (default: summary.json's)."),
+    session: str = typer.Option(None, "--session", help="Session name for the Summary sheet (default: summary.json's)."),
     fail_on_defects: bool = typer.Option(False, "--fail-on-defects", help="Exit with code 1 when any defect is found."),
 ) -> None:
     """Compute track geometry, check tolerances, write the Excel survey sheet / CSV / plots."""
@@ -59,6 +65,7 @@ def export(
     try:
         with console.status("computing track geometry and writing the survey sheet"):
             result = export_outputs(track, xlsx, csv, plots, tolerances=tolerances, design=design,
+                                    project_name=project, session_name=session,
                                     twist_base_m=twist_base_m, versine_chord_m=chord_m,
                                     gauge_rate_base_m=gauge_rate_base_m, lateral_sign=lateral_sign.value,
                                     cant_sign=cant_sign.value, versine_sign=versine_sign.value)

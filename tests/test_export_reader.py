@@ -1,0 +1,200 @@
+"""What ``trolley export`` reads: which folder holds the track, track.csv parsing (fast and strict
+paths agree), the names and equipment figures the Summary sheet shows."""
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from survey.export import export_outputs
+from survey.track_reader import (TRACK_OPTIONAL, TRACK_REQUIRED, ExportInputError, _numeric_columns,
+                                 _read_csv_rows, _track_columns_fast, read_track_csv, resolve_track_csv)
+
+HEADER = TRACK_REQUIRED + TRACK_OPTIONAL
+
+
+def _track(path, n=40, step=0.625):
+    """A small straight track.csv (no design: deviations empty)."""
+    s = np.arange(n) * step
+    lines = [",".join(HEADER)]
+    for x in s.tolist():
+        lines.append(f"{x!r},{1000 + x!r},5000.0,50.0,0.4,0.5,0.3,,,1435.2,0.0,")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+SESSION_TOML = """format = "trolley-raw-session/1"
+[site]
+latitude_deg = 28.0
+[trolley]
+prism_lever_arm_m = [0.01, -0.02, -0.6]
+rail_spacing_m = 1.507
+nominal_gauge_m = 1.435
+[imu]
+gyro_bias_instability_deg_h = 0.03
+gyro_arw_deg_sqrt_h = 0.005
+accel_bias_ug = 50.0
+name = "nav"
+[odometer]
+scale_noise_per_sqrt_s = 8e-6
+[totalstation]
+sigma_m = 0.0006
+"""
+
+
+def test_resolve_track_csv_accepts_file_process_and_field_session_folders(tmp_path):
+    f = _track(tmp_path / "proc" / "track.csv")
+    assert resolve_track_csv(f) == f
+    assert resolve_track_csv(tmp_path / "proc") == f
+    field = _track(tmp_path / "field" / "processed" / "track.csv")       # survey/session/final.py layout
+    assert resolve_track_csv(tmp_path / "field") == field
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    (raw / "session.toml").write_text(SESSION_TOML, encoding="utf-8")
+    (raw / "imu.csv").write_text("t_s,wx_rad_s,wy_rad_s,wz_rad_s,fx_m_s2,fy_m_s2,fz_m_s2\n", encoding="utf-8")
+    with pytest.raises(ExportInputError, match=r"raw session folder.*trolley process .*raw --out OUT"):
+        resolve_track_csv(raw)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ExportInputError, match="no track.csv"):
+        resolve_track_csv(tmp_path / "empty")
+
+
+def test_cli_export_field_session_folder_and_raw_session_error(tmp_path):
+    from typer.testing import CliRunner
+
+    from survey.cli import app
+
+    _track(tmp_path / "field" / "processed" / "track.csv")
+    runner = CliRunner()
+    r = runner.invoke(app, ["export", str(tmp_path / "field"), "--xlsx", str(tmp_path / "a.xlsx"),
+                            "--project", "Line 7", "--session", "night 3"])
+    assert r.exit_code == 0, r.stderr
+    assert json.loads(r.stdout)["stations"] == 40 and (tmp_path / "a.xlsx").is_file()
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    (raw / "session.toml").write_text(SESSION_TOML, encoding="utf-8")
+    (raw / "imu.csv").write_text("t_s\n", encoding="utf-8")
+    r = runner.invoke(app, ["export", str(raw), "--xlsx", str(tmp_path / "b.xlsx")])
+    assert r.exit_code == 2 and "trolley process" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "b.xlsx").exists()
+    r = runner.invoke(app, ["export", "--help"])
+    assert "processed/track.csv" in r.stdout
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=11, max_size=11),
+                min_size=1, max_size=30),
+       st.lists(st.booleans(), min_size=5, max_size=5))
+def test_fast_reader_equals_strict_reader(tmp_path_factory, rows, empty_optional):
+    """pandas' C reader gives exactly the floats of the strict cell-by-cell reader."""
+    path = tmp_path_factory.mktemp("fast") / "track.csv"
+    lines = [",".join(HEADER)]
+    for i, r in enumerate(rows):
+        cells = [repr(float(i))] + [repr(v) for v in r]
+        cells = [("" if (k >= len(TRACK_REQUIRED) and empty_optional[k - len(TRACK_REQUIRED)]) else c)
+                 for k, c in enumerate(cells)]
+        lines.append(",".join(cells))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    fast = _track_columns_fast(path)
+    assert fast is not None
+    header, body = _read_csv_rows(path)
+    strict = _numeric_columns(path, header, body, HEADER, set(TRACK_OPTIONAL))
+    assert fast.keys() == strict.keys()
+    for k in strict:
+        np.testing.assert_array_equal(fast[k], strict[k], err_msg=k)
+
+
+def test_unusual_file_takes_strict_path_with_same_result(tmp_path):
+    clean = _track(tmp_path / "a" / "track.csv")
+    text = clean.read_text(encoding="utf-8").splitlines()
+    odd = [text[0], text[1], "   ", text[2].replace(",,,", ",nan, NaN ,", 1)] + text[3:]  # blank line, nan text
+    p = tmp_path / "b" / "track.csv"
+    p.parent.mkdir()
+    p.write_text("\n".join(odd) + "\n", encoding="utf-8")
+    assert _track_columns_fast(p) is None
+    a, _ = read_track_csv(clean)
+    b, _ = read_track_csv(p)
+    for k in ("chainage_m", "E_m", "gauge_m", "cant_m", "lateral_dev_m"):
+        np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
+    bad = tmp_path / "c.csv"
+    bad.write_text("\n".join(text[:3] + [text[3].replace("1435.2", "abc")]) + "\n", encoding="utf-8")
+    with pytest.raises(ExportInputError, match="row 4, column gauge_mm: not a number"):
+        read_track_csv(bad)
+
+
+def _summary(wb) -> dict:
+    return {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2) if r[0].value}
+
+
+def test_summary_names_and_equipment_from_session_toml(tmp_path):
+    """summary.json without equipment: the figures come from its session's session.toml;
+    explicit names win over summary.json's."""
+    from openpyxl import load_workbook
+
+    out = tmp_path / "out"
+    _track(out / "processed" / "track.csv")
+    sess = out / "session"
+    sess.mkdir()
+    (sess / "session.toml").write_text(SESSION_TOML, encoding="utf-8")
+    (out / "processed" / "summary.json").write_text(json.dumps({
+        "session_dir": str(sess), "project": "", "session": "session", "rail_spacing_m": 1.507}))
+    res = export_outputs(out, tmp_path / "s.xlsx", None, tmp_path / "plots", project_name="Line 7",
+                         session_name="=night 3")
+    s = _summary(load_workbook(tmp_path / "s.xlsx"))
+    assert s["Project"] == "Line 7" and s["Session"] == "=night 3"
+    assert s["IMU"] == "nav"
+    assert s["Gyro bias instability [deg/h]"] == pytest.approx(0.03, rel=1e-12)
+    assert s["Gyro ARW [deg/sqrt(h)]"] == 0.005 and s["Total-station sigma [mm]"] == 0.6   # no 0.6000000000000001
+    assert s["Accelerometer bias [µg]"] == pytest.approx(50.0, rel=1e-12)
+    assert s["Odometer scale noise [1/sqrt(s)]"] == pytest.approx(8e-6, rel=1e-12)
+    assert s["Total-station sigma [mm]"] == pytest.approx(0.6, rel=1e-12)
+    assert s["Prism lever arm x, y, z (FRD) [m]"] == "0.010, -0.020, -0.600"
+    assert s["Rail spacing [m]"] == pytest.approx(1.507) and s["Nominal gauge [mm]"] == pytest.approx(1435.0)
+    assert s["Equipment figures from"].endswith("session.toml")
+    assert all(p.is_file() for p in res.plots) and len(res.plots) >= 2
+
+
+def test_summary_dict_names_and_equipment_reach_the_sheet(tmp_path):
+    """trackio.summary_dict records the names it is given (no parent-folder guess) and every
+    equipment figure; the export shows them from summary.json."""
+    from openpyxl import load_workbook
+
+    from survey.sessionio import _parse_meta
+    from survey.trackio import summary_dict
+    session = SimpleNamespace(meta=_parse_meta(SESSION_TOML))     # summary_dict reads only .meta
+    result = SimpleNamespace(
+        summary={"fixes_used": 3, "fixes_rejected": 1, "rms_innovation_m": 3e-4, "max_sigma_m": 6e-4,
+                 "heading_source": "gyrocompassing", "initial_heading_deg": 10.0, "heading_sigma_deg": 0.1},
+        config=SimpleNamespace(smoother="rts", step_m=0.625), observability_ranks=None, node_count=10,
+        stations=SimpleNamespace(chainage_m=np.zeros(40)))
+    d = summary_dict(result, session, tmp_path / "out" / "session")
+    assert d["project"] == "" and d["session"] == "session"
+    d = summary_dict(result, session, tmp_path / "out" / "session", project_name="Line 7", session_name="night 3")
+    assert d["project"] == "Line 7" and d["session"] == "night 3"
+    eq = d["equipment"]
+    assert eq["accel_bias_ug"] == pytest.approx(50.0) and eq["totalstation_sigma_mm"] == pytest.approx(0.6)
+    assert eq["prism_lever_arm_m"] == [0.01, -0.02, -0.6] and eq["nominal_gauge_mm"] == pytest.approx(1435.0)
+    out = tmp_path / "proc"
+    _track(out / "track.csv")
+    (out / "summary.json").write_text(json.dumps(d), encoding="utf-8")
+    export_outputs(out, tmp_path / "s.xlsx", None, None)
+    s = _summary(load_workbook(tmp_path / "s.xlsx"))
+    assert s["Project"] == "Line 7" and s["Session"] == "night 3"
+    assert s["Odometer scale noise [1/sqrt(s)]"] == pytest.approx(8e-6)
+    assert s["Equipment figures from"].endswith("summary.json (equipment)")
+    assert s["Fixes rejected"] == 1 and math.isclose(s["RMS innovation [mm]"], 0.3)
+
+
+def test_summary_json_bad_equipment_is_a_clear_error(tmp_path):
+    out = tmp_path / "proc"
+    _track(out / "track.csv")
+    (out / "summary.json").write_text(json.dumps({"equipment": {"accel_bias_ug": "fifty"}}), encoding="utf-8")
+    with pytest.raises(ExportInputError, match=r"summary.json: key equipment.accel_bias_ug: expected a number"):
+        export_outputs(out, tmp_path / "s.xlsx", None, None)
+    assert not (tmp_path / "s.xlsx").exists()
