@@ -1,15 +1,14 @@
 """Writing the processed track: ``track.csv`` (FORMATS.md section 2), ``fixes.csv``, ``summary.json``.
 
-Conversions to mm happen here, at the edge. Files are written into a temporary folder beside the
-output and moved into place only when all of them are complete, so a failure never leaves a
-partial output.
+Conversions to mm happen here, at the edge. The files are written into a temporary folder beside
+the output folder, which takes the output folder's place in one rename when all of them are
+complete, so a failure never leaves a partial output.
 """
 from __future__ import annotations
 
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +18,8 @@ import pandas as pd
 from trolley import units
 from trolley.engine import ProcessResult
 from trolley.session import RawSession
+
+from survey.track_reader import equipment_figures
 
 TRACK_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm",
                  "lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm"]
@@ -60,19 +61,33 @@ def fixes_frame(result: ProcessResult) -> pd.DataFrame:
     }, columns=FIX_COLUMNS)
 
 
-def summary_dict(result: ProcessResult, session: RawSession, session_dir: Path) -> dict:
-    """The run summary that the export and the terminal show."""
+def summary_dict(result: ProcessResult, session: RawSession, session_dir: Path, *,
+                 project_name: str | None = None, session_name: str | None = None) -> dict:
+    """The run summary that the export and the terminal show.
+
+    Parameters
+    ----------
+    result, session : the processing result and the raw session it came from.
+    session_dir : the raw session folder.
+    project_name, session_name : the names the Summary sheet shows. The raw session format
+        (FORMATS.md section 1) does not carry them, so callers that know them (the field
+        session: project store and session name) pass them; otherwise the session is named
+        after its folder and the project is left empty ("" = not given) rather than guessed
+        from the parent folder.
+    """
     imu = session.meta.imu
     s = result.summary
+    folder = Path(session_dir).resolve()
     return {
-        "session_dir": str(Path(session_dir).resolve()),
-        "project": Path(session_dir).resolve().parent.name,
-        "session": Path(session_dir).resolve().name,
+        "session_dir": str(folder),
+        "project": project_name or "",
+        "session": session_name or folder.name,
         "imu": {
             "name": imu.name,
             "gyro_bias_instability_deg_h": float(units.rad_s_to_deg_h(imu.gyro_bias_instability_rad_s)),
             "gyro_arw_deg_sqrt_h": float(units.rad_sqrt_s_to_deg_sqrt_h(imu.gyro_arw_rad_sqrt_s)),
         },
+        "equipment": equipment_figures(session.meta),
         "smoother": result.config.smoother,
         "fixes_used": s["fixes_used"],
         "fixes_rejected": s["fixes_rejected"],
@@ -90,18 +105,59 @@ def summary_dict(result: ProcessResult, session: RawSession, session_dir: Path) 
     }
 
 
+OUTPUT_NAMES = ("track.csv", "fixes.csv", "summary.json")
+
+
+class OutputFolderError(ValueError):
+    """The output folder cannot be (re)placed: it is a file, or it holds files of something else."""
+
+
 def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, session_dir: Path) -> WrittenOutputs:
-    """Write track.csv, fixes.csv and summary.json into ``out_dir``, all or nothing."""
+    """Write track.csv, fixes.csv and summary.json as the folder ``out_dir``, all or nothing.
+
+    The files are written into a new hidden folder beside ``out_dir`` and that folder is renamed
+    to ``out_dir`` when all three are complete. An existing ``out_dir`` (from an earlier run)
+    stays as it was until then; it is renamed aside just before and deleted just after (POSIX
+    has no portable atomic exchange of two folders; if the second rename fails the first is
+    undone). A failure at any point leaves either the old folder or the new one, never a mix.
+
+    Raises
+    ------
+    OutputFolderError if ``out_dir`` is a file or holds anything but these three files (it is
+    replaced as a whole, so it must not be, say, the session folder).
+    """
+    import secrets
+
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".partial-", dir=out_dir))
+    if out_dir.exists():
+        if not out_dir.is_dir():
+            raise OutputFolderError(f"{out_dir}: exists and is not a folder")
+        others = sorted(p.name for p in out_dir.iterdir() if p.name not in OUTPUT_NAMES)
+        if others:
+            raise OutputFolderError(f"{out_dir}: holds {others[0]!r} (and {len(others) - 1} more), not only the "
+                                    f"outputs of trolley process; give a new folder or one that trolley process "
+                                    f"wrote (it is replaced as a whole)")
+    parent = out_dir.absolute().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    token = secrets.token_hex(4)
+    tmp = parent / f".{out_dir.name}.partial-{token}"
+    old = parent / f".{out_dir.name}.old-{token}"
+    tmp.mkdir()  # plain mkdir: the folder keeps the user's umask once it is renamed to out_dir
     try:
         track_frame(result).to_csv(tmp / "track.csv", index=False, float_format="%.6f", na_rep="")
         fixes_frame(result).to_csv(tmp / "fixes.csv", index=False, float_format="%.6f", na_rep="")
         (tmp / "summary.json").write_text(json.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
                                           encoding="utf-8")
-        for name in ("track.csv", "fixes.csv", "summary.json"):
-            os.replace(tmp / name, out_dir / name)
+        if out_dir.exists():
+            os.rename(out_dir, old)
+            try:
+                os.rename(tmp, out_dir)
+            except BaseException:
+                os.rename(old, out_dir)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return WrittenOutputs(out_dir / "track.csv", out_dir / "fixes.csv", out_dir / "summary.json")

@@ -1,6 +1,5 @@
 """`trolley simulate` then `trolley process` through the CLI: the contract of track.csv, bad input."""
 import json
-from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -29,6 +28,8 @@ def test_process_writes_track_csv_as_formats_says(session, tmp_path):
     track = pd.read_csv(out / "track.csv")
     assert list(track.columns) == TRACK_COLUMNS
     assert (track["chainage_m"].diff().dropna() - 0.625).abs().max() < 1e-6
+    # a 0-180 m run: the end stations are there (its projected ends lie 0.4 mm inside)
+    assert track["chainage_m"].iloc[0] == 0.0 and track["chainage_m"].iloc[-1] == 180.0
     # sub-millimetre sigmas between fixes, deviations present because the session names a design
     assert track["sigma_H_mm"].max() < 1.5
     assert track["lateral_dev_mm"].notna().all()
@@ -60,3 +61,40 @@ def test_bad_cell_names_file_row_column_and_writes_nothing(session, tmp_path):
 def test_unknown_smoother_is_refused(session, tmp_path):
     r = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "o"), "--smoother", "ukf"])
     assert r.exit_code == 2 and "smoother" in r.stderr
+
+
+def test_rerun_replaces_the_output_folder_whole_and_a_failure_keeps_the_old(session, tmp_path, monkeypatch):
+    out = tmp_path / "processed"
+    assert runner.invoke(app, ["process", str(session), "--out", str(out)]).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert sorted(before) == ["fixes.csv", "summary.json", "track.csv"]
+    # a failure while writing (after track.csv was written) leaves the old folder exactly as it was
+    import survey.trackio as trackio
+
+    def broken(result):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(trackio, "fixes_frame", broken)
+    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--step", "1.0"])
+    assert r.exit_code == 2 and "No space left" in r.stderr and "Traceback" not in r.output
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["processed"]  # no partial folder left
+    monkeypatch.undo()
+    # a successful rerun replaces all three files
+    assert runner.invoke(app, ["process", str(session), "--out", str(out), "--step", "1.0"]).exit_code == 0
+    track = pd.read_csv(out / "track.csv")
+    assert (track["chainage_m"].diff().dropna() - 1.0).abs().max() < 1e-6
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["processed"]
+
+
+def test_output_folder_with_other_files_is_refused_and_left_alone(session, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    r = runner.invoke(app, ["process", str(session), "--out", str(out)])
+    assert r.exit_code == 2 and "notes.txt" in r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    # the session folder itself can never be the output
+    files = sorted(p.name for p in session.iterdir())
+    r = runner.invoke(app, ["process", str(session), "--out", str(session)])
+    assert r.exit_code == 2 and "not only the outputs" in r.stderr
+    assert sorted(p.name for p in session.iterdir()) == files

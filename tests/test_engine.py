@@ -1,16 +1,20 @@
 """The survey engine on data from the full 3-D truth simulator: errors inside their own sigmas."""
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from trolley.engine import ProcessConfig, process_session
+from trolley.engine import ProcessConfig, filter_nodes, process_session, session_observability_ranks
 from trolley.landxml import parse_landxml
 from trolley.sensors import IMU_PRESETS
+from trolley.session import Fixes
 from trolley.truthsim import SimulationConfig, simulate_survey
 from trolley.validation import track_errors
 
 DEMO = Path(__file__).resolve().parents[1] / "projects" / "demo" / "alignment.xml"
+SHORT = dict(length_m=360.0, static_s=300.0, imu_rate_hz=100.0)
+NO_OBS = dict(with_observability=False)
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +24,7 @@ def design():
 
 @pytest.fixture(scope="module")
 def simulated(design):
-    cfg = SimulationConfig(length_m=360.0, static_s=300.0, imu=IMU_PRESETS["rlg"], imu_rate_hz=100.0, seed=7)
-    return simulate_survey(design, cfg)
+    return simulate_survey(design, SimulationConfig(**SHORT, imu=IMU_PRESETS["rlg"], seed=7))
 
 
 def _errors(result, truth):
@@ -30,30 +33,109 @@ def _errors(result, truth):
     return e.lateral_m, e.sigma_lateral_m, e.vertical_m, e.sigma_vertical_m
 
 
-def test_smoothed_track_is_within_its_sigmas(design, simulated):
-    result = process_session(simulated.session, design, ProcessConfig(smoother="rts"), with_observability=False)
-    lat, s_lat, dh, s_h = _errors(result, simulated.truth)
-    assert result.summary["fixes_rejected"] == 0
-    assert np.sqrt(np.mean(lat**2)) < 1.0e-3
-    assert np.sqrt(np.mean(dh**2)) < 1.0e-3
-    for e, s in ((lat, s_lat), (dh, s_h)):
-        ratio = np.sqrt(np.mean((e / s) ** 2))
-        assert 0.5 < ratio < 1.5, ratio
-        assert np.max(np.abs(e / s)) < 4.5
+def _pooled_normalised_errors(design, seeds, config=ProcessConfig(), **sim):
+    """error / sigma, lateral and vertical, pooled over several simulated sessions, and the RMS errors."""
+    lat_q, vert_q, lat_e, vert_e = [], [], [], []
+    for seed in seeds:
+        s = simulate_survey(design, SimulationConfig(**{**SHORT, **sim}, seed=seed))
+        r = process_session(s.session, design, config, **NO_OBS)
+        assert r.summary["fixes_rejected"] == 0, seed
+        lat, s_lat, dh, s_h = _errors(r, s.truth)
+        lat_q.append(lat / s_lat)
+        vert_q.append(dh / s_h)
+        lat_e.append(lat)
+        vert_e.append(dh)
+    return [np.concatenate(x) for x in (lat_q, vert_q, lat_e, vert_e)]
+
+
+def _assert_honest(q, max_outside_3_sigma):
+    rms = np.sqrt(np.mean(q**2))
+    assert 0.7 < rms < 1.3, rms
+    assert np.mean(np.abs(q) > 3.0) <= max_outside_3_sigma, np.mean(np.abs(q) > 3.0)
+
+
+def test_smoothed_track_is_within_its_sigmas(design):
+    # Along the track the errors are correlated over a fix interval (60 m), so one 360 m session
+    # holds only about six independent samples and its RMS(e/s) scatters from 0.4 to 1.6 between
+    # seeds; pooled over 12 sessions (about 70 intervals) the statistic is stable. At most 1 % of
+    # the samples outside 3 sigma: Gaussian errors give 0.27 %; 1 % leaves room for the
+    # correlation (a whole interval is in or out together), while a systematic misfit of the
+    # sigmas (e.g. the position states interpolated in time across a stop: 5.7 sigma, 2 %) fails.
+    lat_q, vert_q, lat, dh = _pooled_normalised_errors(design, range(12), imu=IMU_PRESETS["rlg"])
+    assert np.sqrt(np.mean(lat**2)) < 0.6e-3
+    assert np.sqrt(np.mean(dh**2)) < 0.6e-3
+    _assert_honest(lat_q, 0.01)
+    _assert_honest(vert_q, 0.01)
+
+
+def test_mems_with_heading_from_the_fixes(design):
+    # A MEMS unit cannot gyrocompass; without initial_heading_deg the heading comes from the
+    # first two fixes more than 10 m apart. Its sigma must hold the gyro drift until half-way
+    # along that chord, else the filter trusts a heading that is already wrong. The MEMS gyro
+    # (3 deg/h) is beyond the paper's linearisation: allow 2 % outside 3 sigma.
+    sim = simulate_survey(design, SimulationConfig(**SHORT, imu=IMU_PRESETS["mems"], initial_heading=False, seed=1))
+    r = process_session(sim.session, design, ProcessConfig(), **NO_OBS)
+    assert r.summary["heading_source"] == "fixes"
+    true_yaw = np.interp(r.alignment.t_end_s, sim.truth.t_s, np.unwrap(sim.truth.yaw_rad))
+    err = np.angle(np.exp(1j * (r.alignment.heading_rad - true_yaw)))
+    assert abs(err) < 3.0 * np.deg2rad(r.summary["heading_sigma_deg"])
+    lat_q, vert_q, _, _ = _pooled_normalised_errors(design, range(12), imu=IMU_PRESETS["mems"],
+                                                    initial_heading=False)
+    _assert_honest(lat_q, 0.02)
+    _assert_honest(vert_q, 0.02)
+
+
+def test_fog_with_a_given_initial_heading(design):
+    sim = simulate_survey(design, SimulationConfig(**SHORT, imu=IMU_PRESETS["fog"], initial_heading=True, seed=2))
+    given = sim.session.meta.initial_heading_rad
+    assert np.isfinite(given)
+    r = process_session(sim.session, design, ProcessConfig(), **NO_OBS)
+    assert r.summary["heading_source"] == "given"
+    # the given heading is the trolley's heading at the start, to rounding
+    assert abs(np.angle(np.exp(1j * (r.alignment.heading_rad - given)))) < 1e-12
+    lat_q, vert_q, _, _ = _pooled_normalised_errors(design, range(12), imu=IMU_PRESETS["fog"], initial_heading=True)
+    _assert_honest(lat_q, 0.01)
+    _assert_honest(vert_q, 0.01)
+
+
+def test_session_without_a_design_uses_distance_from_the_first_fix(design, simulated):
+    with_design = process_session(simulated.session, design, ProcessConfig(), **NO_OBS)
+    r = process_session(simulated.session, None, ProcessConfig(step_m=0.625), **NO_OBS)
+    st = r.stations
+    assert st.chainage_m[0] == 0.0
+    assert np.allclose(np.diff(st.chainage_m), 0.625, atol=1e-9)
+    assert np.all(np.isnan(st.lateral_dev_m)) and np.all(np.isnan(st.vertical_dev_m))
+    # the same trajectory as with the design (the design only places the stations)
+    assert np.array_equal(r.trajectory.enh_m, with_design.trajectory.enh_m)
+    # chainage is the 3-D path length from the first fix: against the truth's own path length
+    # at the point of the true path (IMU-rate samples, 1 cm apart) nearest to each station
+    from scipy.spatial import cKDTree
+    tr = simulated.truth
+    p = np.column_stack([tr.E_m, tr.N_m, tr.H_m])[tr.t_s >= r.alignment.t_end_s]
+    p = p[np.concatenate([[True], np.linalg.norm(np.diff(p, axis=0), axis=1) > 0])]  # not the stops' repeats
+    seg = np.diff(p, axis=0)
+    true_length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
+    xyz = np.column_stack([st.E_m, st.N_m, st.H_m])
+    j = np.minimum(cKDTree(p).query(xyz)[1], len(seg) - 1)
+    tangent = seg[j] / np.linalg.norm(seg[j], axis=1)[:, None]
+    true_at_station = true_length[j] + np.einsum("ij,ij->i", xyz - p[j], tangent)
+    assert np.max(np.abs(st.chainage_m - true_at_station)) < 2e-3
+    # and each station is the trajectory point at its time
+    for i in range(3):
+        pos = [st.E_m, st.N_m, st.H_m][i]
+        assert np.max(np.abs(pos - np.interp(st.t_s, r.trajectory.t_s, r.trajectory.enh_m[:, i]))) < 1e-6
 
 
 def test_rts_and_two_filter_give_the_same_track(design, simulated):
-    cfg = dict(with_observability=False)
-    rts = process_session(simulated.session, design, ProcessConfig(smoother="rts"), **cfg)
-    tfs = process_session(simulated.session, design, ProcessConfig(smoother="tfs"), **cfg)
+    rts = process_session(simulated.session, design, ProcessConfig(smoother="rts"), **NO_OBS)
+    tfs = process_session(simulated.session, design, ProcessConfig(smoother="tfs"), **NO_OBS)
     assert np.max(np.abs(rts.trajectory.enh_m - tfs.trajectory.enh_m)) < 1e-9
-    assert np.allclose(rts.trajectory.sigma_enh_m, tfs.trajectory.sigma_enh_m, rtol=1e-7, atol=0)
+    assert np.allclose(rts.trajectory.sigma_enh_m, tfs.trajectory.sigma_enh_m, rtol=1e-9, atol=0)
 
 
 def test_smoothing_beats_filtering(design, simulated):
-    cfg = dict(with_observability=False)
-    sm = process_session(simulated.session, design, ProcessConfig(smoother="rts"), **cfg)
-    fl = process_session(simulated.session, design, ProcessConfig(smoother="none"), **cfg)
+    sm = process_session(simulated.session, design, ProcessConfig(smoother="rts"), **NO_OBS)
+    fl = process_session(simulated.session, design, ProcessConfig(smoother="none"), **NO_OBS)
     lat_s = _errors(sm, simulated.truth)[0]
     lat_f = _errors(fl, simulated.truth)[0]
     assert np.sqrt(np.mean(lat_s**2)) < 0.5 * np.sqrt(np.mean(lat_f**2))
@@ -63,21 +145,24 @@ def test_blunder_fix_is_rejected_and_kept(design, simulated):
     import copy
     session = copy.deepcopy(simulated.session)
     session.fixes.enh_m[3, 0] += 0.02  # 20 mm blunder in E on the fourth fix
-    result = process_session(session, design, ProcessConfig(), with_observability=False)
+    result = process_session(session, design, ProcessConfig(), **NO_OBS)
     f = result.fixes
     assert len(f.t_s) == len(simulated.session.fixes)
     bad = np.flatnonzero(~f.accepted)
     assert list(bad) == [3]
     assert "chi-square" in f.reason[3]
-    forced = process_session(session, design, ProcessConfig(force_accept=(str(f.point[3]),)),
-                             with_observability=False)
+    forced = process_session(session, design, ProcessConfig(force_accept=(str(f.point[3]),)), **NO_OBS)
     assert forced.fixes.accepted[3]
 
 
 def test_stations_follow_formats_and_design(design, simulated):
-    result = process_session(simulated.session, design, ProcessConfig(step_m=0.625), with_observability=False)
+    result = process_session(simulated.session, design, ProcessConfig(step_m=0.625), **NO_OBS)
     st = result.stations
     assert np.allclose(np.diff(st.chainage_m), 0.625, atol=1e-6)
+    # the run goes from chainage 0 to 360: the stations at both ends are there, although the
+    # projected ends of the trajectory lie a fraction of a millimetre inside
+    assert st.chainage_m[0] == 0.0 and st.chainage_m[-1] == pytest.approx(360.0, abs=1e-9)
+    assert len(st.chainage_m) == 577
     # deviations from the design equal the simulated irregularities to within the track sigma
     truth = simulated.truth
     assert np.nanmax(np.abs(st.lateral_dev_m)) < 0.01
@@ -88,10 +173,48 @@ def test_stations_follow_formats_and_design(design, simulated):
     assert np.all(np.isfinite(st.gauge_m[5:-5]))
 
 
-def test_vectorised_and_filterpy_loops_give_the_same_track(design, simulated):
-    cfg = dict(with_observability=False)
-    fast = process_session(simulated.session, design, ProcessConfig(vectorised=True), **cfg)
-    loop = process_session(simulated.session, design, ProcessConfig(vectorised=False), **cfg)
-    assert np.max(np.abs(fast.trajectory.enh_m - loop.trajectory.enh_m)) < 1e-9
-    assert np.allclose(fast.trajectory.sigma_enh_m, loop.trajectory.sigma_enh_m, rtol=1e-7, atol=0)
-    assert np.allclose(fast.fixes.nis, loop.fixes.nis, rtol=1e-9)
+def test_nodes_at_every_start_and_stop(simulated):
+    r = process_session(simulated.session, None, ProcessConfig(), **NO_OBS)
+    dr = r.dead_reckoning
+    nodes = filter_nodes(dr, np.array([], dtype=int), 1.0, 10.0)
+    moving = np.diff(dr.distance_m) > 0
+    # no node interval mixes standing and moving blocks
+    for a, b in zip(nodes[:-1], nodes[1:]):
+        assert moving[a:b].all() or not moving[a:b].any()
+
+
+def test_observability_from_the_session(design, simulated):
+    r = process_session(simulated.session, design, ProcessConfig())
+    assert r.observability_ranks == (3, 5)
+    assert r.summary["observability_ranks"] == [3, 5]
+    # the same session cut before the trolley first moves, with the static alignment shortened to
+    # its first 100 s: the trolley never moves, the fixes see the position only (vertical 1 of 3,
+    # level 2 of 5)
+    s = simulated.session
+    t_end = s.imu_t_s[0] + SHORT["static_s"] - 1.0
+    assert np.ptp(s.odo_distance_m[s.odo_t_s <= t_end]) == 0.0
+    f = s.fixes.t_s <= t_end
+    i = s.imu_t_s <= t_end
+    o = s.odo_t_s <= t_end
+    standing = dataclasses.replace(
+        s, meta=dataclasses.replace(s.meta, static_s=100.0), imu_t_s=s.imu_t_s[i], imu_w_rad_s=s.imu_w_rad_s[i], imu_f_m_s2=s.imu_f_m_s2[i],
+        odo_t_s=s.odo_t_s[o], odo_distance_m=s.odo_distance_m[o],
+        fixes=Fixes(s.fixes.t_s[f], s.fixes.point[f], s.fixes.enh_m[f], s.fixes.sigma_m[f]),
+        gauge_t_s=None, gauge_m=None)
+    rs = process_session(standing, design, ProcessConfig())
+    assert rs.observability_ranks == (1, 2)
+    # and the helper on the moving session's own dead reckoning, fixes at its stops
+    fix_blocks = np.searchsorted(r.dead_reckoning.t_s, s.fixes.t_s)
+    assert session_observability_ranks(r.dead_reckoning, fix_blocks, 1.0) == (3, 5)
+    assert session_observability_ranks(r.dead_reckoning, fix_blocks[:1], 1.0) == (3, 5)  # one stop: whole run
+
+
+def test_progress_reports_sub_steps_in_order(design, simulated):
+    seen = []
+    process_session(simulated.session, design, ProcessConfig(), progress=lambda step, f: seen.append((step, f)),
+                    **NO_OBS)
+    fractions = [f for _, f in seen]
+    steps = [s for s, _ in seen]
+    assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] == 1.0
+    for name in ("dead reckoning", "forward filter, pass 1", "rts smoother, pass 1", "stations"):
+        assert any(s.startswith(name) for s in steps), name

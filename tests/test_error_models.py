@@ -53,6 +53,18 @@ def test_van_loan_is_batched():
 def test_observability_ranks_eq26():
     assert em.observability_ranks(1.0, 0.3) == (3, 5)
     assert em.observability_ranks(0.7, 0.0) == (3, 5)
+    # standing still: the position alone is observed (Eq. 26 with v = 0: [H; H A] = [H; 0])
+    assert em.observability_ranks(0.0, 0.3) == (1, 2)
+
+
+def test_interval_observability_is_the_worst_interval():
+    # by hand: vertical [H; HA; HA^2] = [[1, 0, 0], [0, v, 0], [0, 0, -v]]: rank 1 + 2 [v != 0];
+    # level H A = [[0, 0, vn, ve, 0], [0, 0, ve, -vn, 0]] (a 2x2 block of determinant
+    # -(vn^2 + ve^2)) and H A^2 = [[0, 0, 0, 0, -ve], [0, 0, 0, 0, vn]]: rank 2 + 3 [v != 0]
+    assert em.interval_observability_ranks([1.0, 0.8], [0.6, 0.0], [0.8, -0.8]) == (3, 5)
+    assert em.interval_observability_ranks([1.0, 0.0, 1.2], [1.0, 0.0, 0.0], [0.0, 0.0, 1.2]) == (1, 2)
+    with pytest.raises(ValueError):
+        em.interval_observability_ranks([], [], [])
 
 
 def test_heading_error_and_equivalent_bias_hand_values():

@@ -107,24 +107,3 @@ def test_both_smoothers_match_40_digit_arithmetic():
     nrm = np.sqrt(np.einsum("kii,kjj->kij", ref, ref))
     assert np.max(np.abs(rts.P - ref) / nrm) < 1e-9
     assert np.max(np.abs(tfs.P - ref) / nrm) < 1e-9
-
-
-@given(seed=st.integers(0, 10_000))
-@settings(max_examples=25, deadline=None)
-def test_vectorised_filter_and_smoother_equal_filterpy(seed):
-    from trolley.smoothers import fast_forward_filter, fast_rts_smooth
-    F, Q, P0, meas = _level_problem(seed, n_nodes=130, fix_every=17)
-    meas.z[2] += np.array([0.03, 0.0])  # one blunder so that the gate acts in both
-    scale = np.sqrt(np.diag(P0))
-    ref = forward_filter(F, Q, np.zeros(5), P0, meas)
-    fast = fast_forward_filter(F, Q, np.zeros(5), P0, meas)
-    assert (ref.accepted == fast.accepted).all()
-    assert np.allclose(ref.nis, fast.nis, rtol=1e-9)
-    sx = np.sqrt(np.diagonal(ref.P_post, axis1=1, axis2=2))
-    assert np.max(np.abs(ref.x_post - fast.x_post) / sx) < 1e-9
-    rts = rts_smooth(F, Q, ref, scale=scale)
-    frts = fast_rts_smooth(F, Q, fast, scale=scale)
-    s = np.sqrt(np.diagonal(rts.P, axis1=1, axis2=2))
-    assert np.max(np.abs(rts.x - frts.x) / s) < 1e-9
-    rel = np.abs(rts.P - frts.P) / np.sqrt(np.einsum("kii,kjj->kij", rts.P, rts.P))
-    assert np.max(rel) < 1e-9

@@ -20,6 +20,7 @@ the block's angle (about 1e-5 rad per block at walking speed, so ~1e-15 rad; che
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -134,7 +135,6 @@ def static_alignment(t_s: np.ndarray, w_rad_s: np.ndarray, f_m_s2: np.ndarray, s
         # the levelled Earth rate is R_z(psi)^T [W cos L, 0, .]: x = W cos L cos psi, y = -W cos L sin psi
         psi_imu = float(np.arctan2(-w_level[1], w_level[0]))
         heading_sigma = heading_error_from_gyrocompassing(gyro_bias_rad_s, latitude_rad)
-        # ARW contribution of the averaging window, in quadrature
     else:
         source = "fixes"
         heading_sigma = np.pi
@@ -224,7 +224,8 @@ def prefix_compose(rot: Rotation, reverse: bool = False, chunk: int = 64) -> Rot
 
 def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_distance_m: np.ndarray,
                 alignment: StaticAlignment, latitude_rad: float, height_m: float,
-                imu_misalignment_rad, block_size: int = 10) -> DeadReckoning:
+                imu_misalignment_rad, block_size: int = 10,
+                progress: Callable[[float], None] | None = None) -> DeadReckoning:
     """Attitude by gyros and position by odometer from the end of the static alignment onwards.
 
     Parameters
@@ -235,6 +236,7 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
     latitude_rad, height_m : site, for Earth rate and transport rate.
     imu_misalignment_rad : nominal mounting angles.
     block_size : IMU samples per attitude step (attitude and position are output per block).
+    progress : optional callable, given the fraction done (0..1) after each vectorised step.
 
     Returns
     -------
@@ -254,7 +256,11 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
     dtb = np.diff(tb)
     dist = np.interp(tb, odo_t_s, odo_distance_m)
     ddist = np.diff(dist)
+    if progress is not None:
+        progress(0.2)
     body_prefix = prefix_compose(Rotation.from_rotvec(alpha))
+    if progress is not None:
+        progress(0.5)
     b_to_bt = mounting_rotation(imu_misalignment_rad)
     w_ie = earth.earth_rate_n(latitude_rad)
     v_n = np.zeros((nb, 3))
@@ -275,6 +281,8 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
         dr = mid * ddist[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             v_n = np.where(dtb[:, None] > 0, dr / dtb[:, None], 0.0)
+        if progress is not None:
+            progress(0.75 + 0.25 * npass)
     pos = np.zeros((nb + 1, 3))
     np.cumsum(dr, axis=0, out=pos[1:])
     return DeadReckoning(t_s=tb, distance_m=dist, trolley_to_nav=trolley, position_ned_m=pos)

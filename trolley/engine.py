@@ -4,7 +4,8 @@ Jiang 2017 Sec. 2-4 end to end:
 
 1. static alignment and dead reckoning (``trolley.deadreckoning``, Eq. 7);
 2. a node grid along the trajectory (every ``node_spacing_m`` of travel, every ``max_node_dt_s``
-   when standing, and at every fix): the error filters need not run at the IMU rate;
+   when standing, at every fix, and where the trolley starts or stops): the error filters need
+   not run at the IMU rate;
 3. the vertical (3-state) and level (5-state) error models (``trolley.error_models``, Eq. 17-25),
    discretised exactly per node interval (Van Loan) with that interval's odometer speed and
    heading, run as one block-diagonal 8-state filter so that a fix is gated once on its 3-D
@@ -18,6 +19,7 @@ Jiang 2017 Sec. 2-4 end to end:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.linalg import block_diag
@@ -26,9 +28,11 @@ from trolley import error_models as em
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation, quat_multiply,
                                    static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
-from trolley.smoothers import (Measurements, fast_forward_filter, fast_rts_smooth, forward_filter, rts_smooth,
-                               two_filter_smooth)
+from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
 from trolley.trackgeometry import TrackInput
+
+#: Grid stations this far beyond the first or last projected chainage are still output.
+STATION_END_TOLERANCE_M = 0.005
 
 _STATION_FIELDS = ("chainage_m", "E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m", "lateral_dev_m",
                    "vertical_dev_m", "gauge_m", "cant_m", "twist_m", "t_s")
@@ -59,8 +63,6 @@ class ProcessConfig:
     prior_position_m : 1-sigma of the position before the first fix.
     twist_base_m : base of the twist column.
     force_accept : point labels whose fixes skip the gate (the crew accepted them).
-    vectorised : forward filter and RTS as prefix scans (``fast_forward_filter``,
-        ``fast_rts_smooth``); False runs filterpy's step-by-step loops (same numbers, slower).
     level_at_stops : re-level the roll from the accelerometers at every stop
         (:func:`trolley.deadreckoning.stop_levels`).
     relinearisations : extra filter passes on the dead reckoning corrected with the previous
@@ -85,7 +87,6 @@ class ProcessConfig:
     relinearisations: int = 1
     relinearise_above_rad: float = 3e-3
     level_at_stops: bool = True
-    vectorised: bool = True
 
 
 @dataclass
@@ -201,11 +202,50 @@ def fix_covariances(sigma_enh_m: np.ndarray) -> np.ndarray:
 
 def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: float,
                  max_node_dt_s: float) -> np.ndarray:
-    """Indices of the DR blocks used as filter nodes (sorted, unique)."""
+    """Indices of the DR blocks used as filter nodes (sorted, unique).
+
+    Besides the distance and time grids and the fixes, a node sits wherever the trolley starts or
+    stops: an interval that mixes standing and moving would get one mean speed in the model, and
+    the states interpolated linearly in time across it would spread the motion's position error
+    change over the standing part (a heading error of 3 mrad makes that 3 mm per metre).
+    """
     K = dr.t_s.shape[0]
     by_dist = np.flatnonzero(np.diff(np.floor(dr.distance_m / node_spacing_m)) != 0) + 1
     by_time = np.flatnonzero(np.diff(np.floor(dr.t_s / max_node_dt_s)) != 0) + 1
-    return np.unique(np.concatenate([[0, K - 1], by_dist, by_time, fix_blocks]))
+    moving = np.diff(dr.distance_m) > 0  # block k -> k+1
+    starts_stops = np.flatnonzero(np.diff(moving.astype(np.int8)) != 0) + 1
+    return np.unique(np.concatenate([[0, K - 1], by_dist, by_time, starts_stops, fix_blocks]))
+
+
+def interval_motion(dr: DeadReckoning, idx: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Duration, mean odometer speed and mean north and east velocity between consecutive DR blocks ``idx``.
+
+    The means are the interval's odometer distance and dead-reckoned displacement divided by its
+    duration (zero for an interval of zero duration).
+    """
+    dt = np.diff(dr.t_s[idx])
+    safe = np.where(dt > 0, dt, 1.0)
+    speed = np.where(dt > 0, np.diff(dr.distance_m[idx]) / safe, 0.0)
+    dpos = np.diff(dr.position_ned_m[idx], axis=0)
+    vn = np.where(dt > 0, dpos[:, 0] / safe, 0.0)
+    ve = np.where(dt > 0, dpos[:, 1] / safe, 0.0)
+    return dt, speed, vn, ve
+
+
+def discrete_model(speed: np.ndarray, vn: np.ndarray, ve: np.ndarray, noise: em.ChannelNoise, dt
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 8, 8) F and Q of the combined model (level then vertical channel, Eq. 19, 24) over steps dt (Van Loan)."""
+    Al, Gl = em.level_matrices(vn, ve)
+    Av, Gv = em.vertical_matrices(speed)
+    Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(noise), dt)
+    Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(noise), dt)
+    n = Fl.shape[0]
+    F = np.zeros((n, 8, 8))
+    Q = np.zeros((n, 8, 8))
+    F[:, :5, :5], F[:, 5:, 5:] = Fl, Fv
+    Q[:, :5, :5], Q[:, 5:, 5:] = Ql, Qv
+    return F, Q
 
 
 def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise
@@ -213,25 +253,10 @@ def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise
     """Exact discretisation of the 8-state error model between consecutive nodes.
 
     The interval's speed and heading enter through its mean odometer speed and mean north and
-    east velocity (the DR displacement over the interval divided by its duration).
+    east velocity (:func:`interval_motion`).
     """
-    t = dr.t_s[nodes]
-    dt = np.diff(t)
-    safe = np.where(dt > 0, dt, 1.0)
-    speed = np.where(dt > 0, np.diff(dr.distance_m[nodes]) / safe, 0.0)
-    dpos = np.diff(dr.position_ned_m[nodes], axis=0)
-    vn = np.where(dt > 0, dpos[:, 0] / safe, 0.0)
-    ve = np.where(dt > 0, dpos[:, 1] / safe, 0.0)
-    Al, Gl = em.level_matrices(vn, ve)
-    Av, Gv = em.vertical_matrices(speed)
-    Fl, Ql = em.van_loan(Al, Gl, em.level_noise_psd(noise), dt)
-    Fv, Qv = em.van_loan(Av, Gv, em.vertical_noise_psd(noise), dt)
-    n = len(dt)
-    F = np.zeros((n, 8, 8))
-    Q = np.zeros((n, 8, 8))
-    F[:, :5, :5], F[:, 5:, 5:] = Fl, Fv
-    Q[:, :5, :5], Q[:, 5:, 5:] = Ql, Qv
-    return F, Q
+    dt, speed, vn, ve = interval_motion(dr, nodes)
+    return discrete_model(speed, vn, ve, noise, dt)
 
 
 def _interp_rows(x_new: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -243,8 +268,30 @@ def _interp_rows(x_new: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out.reshape((x_new.shape[0],) + y.shape[1:])
 
 
+def _interp_nodes(dr: DeadReckoning, nodes: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Node values (K_nodes, ...) at every DR block, linear in the odometer distance between nodes.
+
+    The position errors grow with the distance travelled (Jiang 2017 Eq. 18, 23: their rate is
+    v times an angle), so between two nodes they are interpolated in distance; in time they would
+    be wrong by heading error x (distance - distance linear in time), about 1 mm while the trolley
+    decelerates over a metre with a 3 mrad heading error. Where the trolley stands between two
+    nodes the fraction is taken in time. ``nodes`` must hold the first and last block.
+    """
+    k = np.arange(dr.t_s.shape[0])
+    j = np.clip(np.searchsorted(nodes, k, side="right") - 1, 0, len(nodes) - 2)
+    a, b = nodes[j], nodes[j + 1]
+    dd = dr.distance_m[b] - dr.distance_m[a]
+    dt = dr.t_s[b] - dr.t_s[a]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(dd > 0, (dr.distance_m - dr.distance_m[a]) / np.where(dd > 0, dd, 1.0),
+                        np.where(dt > 0, (dr.t_s - dr.t_s[a]) / np.where(dt > 0, dt, 1.0), 0.0))
+    frac = np.clip(frac, 0.0, 1.0).reshape((-1,) + (1,) * (y.ndim - 1))
+    return y[j] + frac * (y[j + 1] - y[j])
+
+
 def process_session(session: RawSession, design=None, config: ProcessConfig = ProcessConfig(),
-                    with_observability: bool = True) -> ProcessResult:
+                    with_observability: bool = True,
+                    progress: Callable[[str, float], None] | None = None) -> ProcessResult:
     """Filter and smooth one raw session into a track.
 
     Parameters
@@ -252,7 +299,11 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     session : the raw session.
     design : a ``trolley.alignment.Alignment`` or None.
     config : processing settings.
-    with_observability : also report the observability ranks (python-control; about 2 s to import).
+    with_observability : also report the observability ranks of the session's own interval
+        models (python-control; about 2 s to import), see :func:`session_observability_ranks`.
+    progress : optional callable ``progress(step, fraction)``: the step under way (e.g.
+        "forward filter, pass 1 of 2") and the fraction of the whole run done, 0..1, called at
+        every sub-step and every few hundred filter nodes.
 
     Returns
     -------
@@ -263,6 +314,16 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     ValueError when the session cannot be processed (no fixes, no IMU data in the static period,
     no moving data); the message says why.
     """
+    def report(step: str, fraction: float) -> None:
+        if progress is not None:
+            progress(step, float(min(max(fraction, 0.0), 1.0)))
+
+    def within(step: str, start: float, end: float) -> Callable[[float], None] | None:
+        # a sub-step's own fraction mapped onto [start, end] of the whole run
+        if progress is None:
+            return None
+        return lambda f: report(step, start + (end - start) * f)
+
     meta = session.meta
     imu = meta.imu
     if imu is None:
@@ -271,13 +332,16 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         raise ValueError("fixes.csv holds no fix: at least the fix of the first stop is needed")
     lever = np.asarray(meta.trolley.prism_lever_arm_m, dtype=float)
     misalign = meta.trolley.imu_misalignment_rad
+    report("static alignment", 0.0)
     align = static_alignment(
         session.imu_t_s, session.imu_w_rad_s, session.imu_f_m_s2, meta.static_s, meta.latitude_rad,
         misalign, initial_heading_rad=meta.initial_heading_rad,
         gyro_bias_rad_s=imu.gyro_bias_instability_rad_s, accel_bias_m_s2=imu.accel_bias_m_s2,
         gyrocompassing=imu.gyrocompassing, given_heading_sigma_rad=config.given_heading_sigma_rad)
+    report("dead reckoning", 0.02)
     dr = dead_reckon(session.imu_t_s, session.imu_w_rad_s, session.odo_t_s, session.odo_distance_m,
-                     align, meta.latitude_rad, meta.height_m, misalign, config.block_size)
+                     align, meta.latitude_rad, meta.height_m, misalign, config.block_size,
+                     progress=within("dead reckoning", 0.02, 0.2))
 
     order = np.argsort(session.fixes.t_s, kind="stable")
     fix_t = session.fixes.t_s[order]
@@ -289,8 +353,10 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     fix_blocks = np.clip(np.searchsorted(dr.t_s, fix_t), 0, dr.t_s.shape[0] - 1)
 
     if align.heading_source == "fixes":
+        report("dead reckoning with the heading from the fixes", 0.2)
         align, dr = _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign, config)
     if config.level_at_stops:
+        report("levelling at the stops", 0.22)
         stop_roll, _ = stop_levels(session.imu_t_s, session.imu_f_m_s2, session.odo_t_s,
                                    session.odo_distance_m, fix_t, misalign)
         dr = with_roll_levelled(dr, fix_t, stop_roll)
@@ -316,33 +382,37 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     dr_cur = dr
     # the linearisation point must follow the error dynamics: only a smoothed estimate does
     passes = 1 if config.smoother == "none" else config.relinearisations + 1
+    share = 0.6 / passes  # of the run, for each pass: error model, filter and smoother
     for it in range(passes):
+        base = 0.25 + it * share
+        label = f"pass {it + 1} of {passes}"
+        report(f"error model, {label}", base)
         lever_ned = dr_cur.trolley_to_nav[fix_blocks].apply(lever)
         p0 = fix_ned[0] - lever_ned[0] - dr_cur.position_ned_m[fix_blocks[0]]
         offset = correction[:, _POS] - correction[fix_blocks[0], _POS]
         z = p0 + dr_cur.position_ned_m[fix_blocks] + lever_ned - fix_ned + offset[fix_blocks]
         meas = Measurements(fix_nodes, z, H, R)
         F, Q = error_model(dr_cur, nodes, noise)
-        forward = fast_forward_filter if config.vectorised else forward_filter
+        fwd_progress = within(f"forward filter, {label}", base + 0.1 * share, base + 0.55 * share)
         if it == 0:
-            fwd = forward(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
-                          force_accept=forced)
+            fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
+                                 force_accept=forced, progress=fwd_progress)
             gated = fwd  # the gate decides once; later passes keep its verdicts
         else:
             kept = meas.subset(gated.accepted)
-            fwd = forward(F, Q, np.zeros(8), P0, kept, gate_probability=None)
+            fwd = forward_filter(F, Q, np.zeros(8), P0, kept, gate_probability=None, progress=fwd_progress)
             meas = kept
             fwd.accepted = np.ones(len(kept), dtype=bool)
+        sm_progress = within(f"{config.smoother} smoother, {label}", base + 0.55 * share, base + share)
         if config.smoother == "rts":
-            sm = (fast_rts_smooth if config.vectorised else rts_smooth)(F, Q, fwd, scale=scale)
+            sm = rts_smooth(F, Q, fwd, scale=scale, progress=sm_progress)
             xs, Ps = sm.x, sm.P
         elif config.smoother == "tfs":
-            sm = two_filter_smooth(F, Q, meas.subset(fwd.accepted), fwd, scale=scale)
+            sm = two_filter_smooth(F, Q, meas.subset(fwd.accepted), fwd, scale=scale, progress=sm_progress)
             xs, Ps = sm.x, sm.P
         else:
             xs, Ps = fwd.x_post, fwd.P_post
-        t_nodes = dr.t_s[nodes]
-        x_blocks = _interp_rows(dr.t_s, t_nodes, xs)
+        x_blocks = _interp_nodes(dr, nodes, xs)
         ned = p0 + dr_cur.position_ned_m - (x_blocks[:, _POS] - offset)
         dr_used = dr_cur
         correction = x_blocks
@@ -354,7 +424,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
 
     # smoothed errors at every DR block, subtracted from the dead-reckoned trajectory
     Pdiag = np.diagonal(Ps, axis1=1, axis2=2)[:, _POS]
-    var_blocks = _interp_rows(dr.t_s, t_nodes, Pdiag)
+    var_blocks = _interp_nodes(dr, nodes, Pdiag)
     enh = _enh(ned, origin)
     sig = np.sqrt(np.maximum(var_blocks, 0.0))
     sigma_enh = np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]])
@@ -379,8 +449,12 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
                            f"p={config.gate_probability})")
     fixes = FixReport(fix_t, fix_pt, fix_enh, innov_enh, fwd.nis, fwd.accepted, reasons)
 
+    report("stations", 0.85)
     stations = make_stations(traj, session, design, config)
-    ranks = em.observability_ranks(1.0, 0.3) if with_observability else None
+    ranks = None
+    if with_observability:
+        report("observability", 0.95)
+        ranks = session_observability_ranks(dr, fix_blocks[fwd.accepted], config.node_spacing_m)
     acc = fwd.accepted
     summary = {
         "fixes_used": int(acc.sum()),
@@ -392,8 +466,45 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         "initial_heading_deg": float(np.rad2deg(align.heading_rad)),
         "heading_sigma_deg": float(np.rad2deg(heading_sigma)),
         "nodes": int(len(nodes)),
+        "observability_ranks": list(ranks) if ranks is not None else None,
     }
+    report("done", 1.0)
     return ProcessResult(stations, traj, fixes, align, dr, ranks, config, int(len(nodes)), summary)
+
+
+def session_observability_ranks(dr: DeadReckoning, fix_blocks: np.ndarray, min_travel_m: float
+                                ) -> tuple[int, int]:
+    """Observability ranks of the session's own error models between its fixes (Jiang 2017 Eq. 26).
+
+    The fixes are grouped into stops (fixes less than ``min_travel_m`` of odometer travel apart
+    were taken at one stop); between consecutive stops the models of Eq. 19 and 24 are formed at
+    that interval's mean odometer speed and mean north and east velocity of the dead reckoning,
+    and :func:`trolley.error_models.interval_observability_ranks` returns the smallest ranks.
+    With fixes at a single stop, the whole session is one interval. A trolley that moves less
+    than ``min_travel_m`` in an interval counts as standing (v = 0): the dead reckoning of a
+    standing trolley jitters by micrometres, which would make any rank full numerically.
+
+    Parameters
+    ----------
+    dr : the dead reckoning.
+    fix_blocks : DR block index of every accepted fix.
+    min_travel_m : shortest travel that counts as motion (the node spacing).
+
+    Returns
+    -------
+    (vertical rank, level rank): 3 and 5 when every interval observes all states.
+    """
+    b = np.sort(np.asarray(fix_blocks, dtype=int))
+    if b.size == 0:
+        b = np.array([0])
+    d = dr.distance_m[b]
+    stops = b[np.concatenate([[True], np.diff(d) > min_travel_m])]
+    if stops.size < 2:
+        stops = np.array([0, dr.t_s.shape[0] - 1])
+    dt, speed, vn, ve = interval_motion(dr, stops)
+    moving = (np.diff(dr.distance_m[stops]) > min_travel_m) & (dt > 0)
+    return em.interval_observability_ranks(np.where(moving, speed, 0.0), np.where(moving, vn, 0.0),
+                                           np.where(moving, ve, 0.0))
 
 
 def corrected_dead_reckoning(dr: DeadReckoning, error_states: np.ndarray) -> DeadReckoning:
@@ -440,7 +551,16 @@ def _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign
     dpsi = np.arctan2(meas_d[j, 1], meas_d[j, 0]) - np.arctan2(dr_d[j, 1], dr_d[j, 0])
     C = Rotation.from_euler("z", dpsi) * align.imu_to_nav
     dist = float(np.hypot(meas_d[j, 0], meas_d[j, 1]))
-    sig = float(np.sqrt(2.0) * max(session.meta.fix_sigma_m, 1e-4) / dist)
+    # The chord fixes the dead reckoning's heading averaged along the leg, not the heading at
+    # the start of the dead reckoning: the gyro bias and angle random walk turn it by
+    # bias x dt and arw x sqrt(dt) in the time dt from there to half-way along the chord. The
+    # filter's P0 takes heading and bias as independent, so that drift belongs in the sigma
+    # (without it a MEMS unit gave 2.4 x its sigmas laterally, and rejected good fixes).
+    half = np.searchsorted(dr.distance_m, 0.5 * (dr.distance_m[fix_blocks[0]] + dr.distance_m[fix_blocks[j]]))
+    dt = max(float(dr.t_s[min(half, dr.t_s.shape[0] - 1)] - dr.t_s[0]), 0.0)
+    imu = session.meta.imu
+    sig = float(np.sqrt((np.sqrt(2.0) * max(session.meta.fix_sigma_m, 1e-4) / dist) ** 2
+                        + (imu.gyro_bias_instability_rad_s * dt) ** 2 + imu.gyro_arw_rad_sqrt_s ** 2 * dt))
     ypr = (C * mounting_rotation(misalign).inv()).as_euler("ZYX")
     new = StaticAlignment(C, float(ypr[2]), float(ypr[1]), float(ypr[0]), align.level_sigma_rad,
                           max(sig, np.deg2rad(0.01)), "fixes", align.t_end_s)
@@ -472,11 +592,20 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
         empty = np.array([])
         return Stations(**{k: empty for k in _STATION_FIELDS})
     step = config.step_m
-    s = np.arange(np.ceil(c[0] / step) * step, c[-1] + 1e-9, step)
-    s = s[(s >= c[0]) & (s <= c[-1])]
+    # a grid station a few mm beyond either end is kept: the projected start of a run that
+    # begins at chainage 0 lands at 0.0004 m and would otherwise drop the station at 0
+    tol = STATION_END_TOLERANCE_M
+    s = np.arange(np.ceil((c[0] - tol) / step) * step, c[-1] + tol + 1e-12, step)
+    s = s[(s >= c[0] - tol) & (s <= c[-1] + tol)] + 0.0  # + 0.0: no "-0.000" station
 
     def at(y):
-        return np.interp(s, c, y[keep])
+        # linear within the trajectory, extended along the end segments for those few mm
+        yk = y[keep]
+        out = np.interp(s, c, yk)
+        lo, hi = s < c[0], s > c[-1]
+        out[lo] = yk[0] + (s[lo] - c[0]) * (yk[1] - yk[0]) / (c[1] - c[0])
+        out[hi] = yk[-1] + (s[hi] - c[-1]) * (yk[-1] - yk[-2]) / (c[-1] - c[-2])
+        return out
 
     E, N, Hh = at(enh[:, 0]), at(enh[:, 1]), at(enh[:, 2])
     sE, sN, sH = (at(traj.sigma_enh_m[:, i]) for i in range(3))

@@ -255,10 +255,33 @@ def observability_ranks(speed_m_s: float = 1.0, heading_rad: float = 0.3) -> tup
     Computed with python-control's ``obsv`` for uniform straight motion; 3 and 5 mean both
     channels are completely observable from position fixes.
     """
+    return interval_observability_ranks([speed_m_s], [speed_m_s * np.cos(heading_rad)],
+                                        [speed_m_s * np.sin(heading_rad)])
+
+
+def interval_observability_ranks(speed_m_s, velocity_north_m_s, velocity_east_m_s) -> tuple[int, int]:
+    """Smallest ranks of the observability matrices (Jiang 2017 Eq. 26) over a session's intervals.
+
+    Each interval between two fixes has its own model (Eq. 19, 24) at that interval's mean
+    odometer speed and mean north and east velocity; python-control's ``obsv`` gives the rank of
+    each. 3 and 5 mean that every interval leaves both channels completely observable; a trolley
+    that stands still (v = 0) observes the position only: ranks 1 and 2.
+
+    Parameters
+    ----------
+    speed_m_s, velocity_north_m_s, velocity_east_m_s : (n,) interval means (n >= 1).
+
+    Returns
+    -------
+    (vertical rank, level rank), the minimum over the intervals.
+    """
     import control  # slow import (about 1.7 s): only when asked
 
-    Av, _ = vertical_matrices(speed_m_s)
-    Al, _ = level_matrices(speed_m_s * np.cos(heading_rad), speed_m_s * np.sin(heading_rad))
-    rank_v = int(np.linalg.matrix_rank(control.obsv(Av, VERTICAL_H)))
-    rank_l = int(np.linalg.matrix_rank(control.obsv(Al, LEVEL_H)))
+    Av, _ = vertical_matrices(np.atleast_1d(np.asarray(speed_m_s, dtype=float)))
+    Al, _ = level_matrices(np.atleast_1d(np.asarray(velocity_north_m_s, dtype=float)),
+                           np.atleast_1d(np.asarray(velocity_east_m_s, dtype=float)))
+    if Av.shape[0] == 0 or Av.shape[0] != Al.shape[0]:
+        raise ValueError("give one speed and one north/east velocity per interval, at least one interval")
+    rank_v = min(int(np.linalg.matrix_rank(control.obsv(A, VERTICAL_H))) for A in Av)
+    rank_l = min(int(np.linalg.matrix_rank(control.obsv(A, LEVEL_H))) for A in Al)
     return rank_v, rank_l

@@ -14,6 +14,7 @@ is kept in the result with its NIS, never silently dropped.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import scipy.stats
@@ -87,6 +88,10 @@ class SmoothedResult:
     P: np.ndarray
 
 
+#: Nodes between two calls of a progress callback (a few ms of filtering).
+PROGRESS_EVERY = 500
+
+
 def gate_threshold(probability: float, dof: int) -> float:
     """Chi-square gate: NIS above this is rejected with false-alarm rate 1 - probability."""
     return float(scipy.stats.chi2.ppf(probability, dof))
@@ -94,7 +99,8 @@ def gate_threshold(probability: float, dof: int) -> float:
 
 def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                    meas: Measurements, gate_probability: float | None = 0.9999,
-                   force_accept: np.ndarray | None = None) -> ForwardResult:
+                   force_accept: np.ndarray | None = None,
+                   progress: Callable[[float], None] | None = None) -> ForwardResult:
     """Kalman filter over the node grid with filterpy's ``KalmanFilter``.
 
     Parameters
@@ -105,6 +111,8 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     gate_probability : chi-square gate probability (None: accept everything).
     force_accept : optional (M,) bool; True skips the gate for that measurement (the crew chose
         to accept a suspicious fix).
+    progress : optional callable, given the fraction of nodes done (0..1) every
+        ``PROGRESS_EVERY`` nodes.
 
     Returns
     -------
@@ -129,6 +137,8 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     # index of the first measurement at or after each node (measurements are sorted by node)
     starts = np.searchsorted(meas.node, np.arange(K + 1)) if M else np.zeros(K + 1, dtype=int)
     for k in range(K):
+        if progress is not None and k % PROGRESS_EVERY == 0:
+            progress(k / K)
         if k > 0:
             # F and Q change every step: pass them to predict (filterpy keeps them otherwise)
             kf.predict(F=F[k - 1], Q=Q[k - 1])
@@ -150,11 +160,14 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
             kf.update(z, R=R, H=H)
         x_post[k] = kf.x[:, 0]
         P_post[k] = kf.P
+    if progress is not None:
+        progress(1.0)
     return ForwardResult(x_prior, P_prior, x_post, P_post, innov, S_all, nis, accepted)
 
 
 def rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult,
-               scale: np.ndarray | None = None) -> SmoothedResult:
+               scale: np.ndarray | None = None,
+               progress: Callable[[float], None] | None = None) -> SmoothedResult:
     """Rauch-Tung-Striebel smoother (Jiang 2017 Eq. 28) with filterpy's ``rts_smoother``.
 
     filterpy's procedural ``rts_smoother(Xs, Ps, Fs, Qs)`` uses ``Fs[k]`` as the transition from
@@ -168,6 +181,7 @@ def rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult,
         predicted covariance; with states from 1e-3 m to 1e-7 rad/s unscaled, that inverse loses
         up to six digits of the smoothed covariance (checked against 40-digit arithmetic in
         ``tests/test_smoothers.py``); scaled, it keeps eleven.
+    progress : optional callable, given the fraction done (filterpy's pass counts as half).
     """
     from filterpy.kalman import rts_smoother
 
@@ -178,22 +192,30 @@ def rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult,
     Qs = np.concatenate([Q * Dinv[None, :, None] * Dinv[None, None, :], np.zeros((1, n, n))], axis=0)
     Pf = fwd.P_post * Dinv[None, :, None] * Dinv[None, None, :]
     x, _, C, _ = rts_smoother(fwd.x_post * Dinv[None, :], Pf, Fs, Qs)
+    if progress is not None:
+        progress(0.5)
     # filterpy updates the covariance as P_f + C (P_s' - P_pred) C^T: a difference of nearly
     # equal matrices when a fix shrinks the covariance by orders of magnitude (it lost up to six
     # digits against 40-digit arithmetic). With filterpy's gains C, the algebraically equal
     # Joseph-type form (I - C F) P_f (I - C F)^T + C (Q + P_s') C^T adds only positive terms.
+    # The terms that do not depend on P_s[k+1] are batched; the recursion itself is sequential.
+    C = C[:-1]
+    IKF = np.eye(n) - C @ Fs[:-1]
+    Ct = np.swapaxes(C, -1, -2)
+    A = IKF @ Pf[:-1] @ np.swapaxes(IKF, -1, -2) + C @ Qs[:-1] @ Ct
     P = np.empty_like(Pf)
     P[-1] = Pf[-1]
-    eye = np.eye(n)
     for k in range(K - 2, -1, -1):
-        IKF = eye - C[k] @ Fs[k]
-        P[k] = IKF @ Pf[k] @ IKF.T + C[k] @ (Qs[k] + P[k + 1]) @ C[k].T
+        if progress is not None and k % PROGRESS_EVERY == 0:
+            progress(1.0 - 0.5 * k / K)
+        P[k] = A[k] + C[k] @ P[k + 1] @ Ct[k]
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
     return SmoothedResult(x * d[None, :], P * d[None, :, None] * d[None, None, :])
 
 
 def two_filter_smooth(F: np.ndarray, Q: np.ndarray, meas: Measurements,
-                      fwd: ForwardResult, scale: np.ndarray | None = None) -> SmoothedResult:
+                      fwd: ForwardResult, scale: np.ndarray | None = None,
+                      progress: Callable[[float], None] | None = None) -> SmoothedResult:
     """Two-filter smoother (Jiang 2017 Eq. 27): forward posterior fused with a backward filter.
 
     The backward filter runs in information form (Y, y) from the last node, where it starts with
@@ -209,6 +231,7 @@ def two_filter_smooth(F: np.ndarray, Q: np.ndarray, meas: Measurements,
     scale : optional (n,) state scaling (e.g. the square root of diag P0). The algebra is done on
         ``x / scale`` so that states of very different sizes (mm and 1e-7 rad/s) do not ruin the
         conditioning of the information matrices; the result is scaled back.
+    progress : optional callable, given the fraction of nodes done (0..1).
 
     Returns
     -------
@@ -236,6 +259,8 @@ def two_filter_smooth(F: np.ndarray, Q: np.ndarray, meas: Measurements,
     y = node_y[K - 1].copy()
     eye = np.eye(n)
     for k in range(K - 2, -1, -1):
+        if progress is not None and k % PROGRESS_EVERY == 0:
+            progress(1.0 - k / K)
         B = np.linalg.solve(eye + Y @ Qs[k], np.column_stack([Y, y]))  # (I + Y Q)^-1 [Y, y]
         M_ = B[:, :n]
         Yb[k] = Fs[k].T @ M_ @ Fs[k]
@@ -250,153 +275,4 @@ def two_filter_smooth(F: np.ndarray, Q: np.ndarray, meas: Measurements,
     Ps = np.linalg.inv(info)
     Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
     xs = (Ps @ ((Pf_inv @ xf[:, :, None])[:, :, 0] + yb)[:, :, None])[:, :, 0]
-    return SmoothedResult(xs * d[None, :], Ps * d[None, :, None] * d[None, None, :])
-
-
-# --------------------------------------------------------------------------------------------
-# Vectorised forms of the same filter and smoother.
-#
-# Between two fixes the forward filter only predicts, and the RTS recursion is affine in the
-# smoothed state and covariance at the next node. Affine maps compose associatively, so both
-# become prefix scans of batched 8x8 products: O(log n) numpy calls instead of n filterpy steps.
-# On a 10 km survey (12,000 nodes) the filterpy loops were the largest part of the processing
-# time; these give the same numbers (tests/test_smoothers.py checks them against filterpy's).
-# The covariance recursions below add positive terms only (no difference of nearly equal
-# matrices), like the Joseph-type form used in rts_smooth.
-# --------------------------------------------------------------------------------------------
-
-
-def _compose_forward(F: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Prefix compositions of M -> F M F^T + Q: (Phi_k, S_k) with P_k = Phi_k P_0 Phi_k^T + S_k.
-
-    Returns arrays for k = 1..n (the maps from node 0 to node k).
-    """
-    Phi = F.copy()
-    S = Q.copy()
-    n = F.shape[0]
-    d = 1
-    while d < n:
-        # (Phi_b, S_b) after (Phi_a, S_a): Phi_b Phi_a, Phi_b S_a Phi_b^T + S_b
-        Pa, Sa = Phi[:-d], S[:-d]
-        Pb, Sb = Phi[d:], S[d:]
-        S = np.concatenate([S[:d], Pb @ Sa @ np.swapaxes(Pb, -1, -2) + Sb])
-        Phi = np.concatenate([Phi[:d], Pb @ Pa])
-        d *= 2
-    return Phi, S
-
-
-def fast_forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
-                        meas: Measurements, gate_probability: float | None = 0.9999,
-                        force_accept: np.ndarray | None = None) -> ForwardResult:
-    """:func:`forward_filter` with the predictions between measurements done by prefix scans.
-
-    Same parameters and result; the measurement updates (Joseph form) and the gate are applied
-    in a loop over the measurement nodes only.
-    """
-    K = F.shape[0] + 1
-    n = x0.shape[0]
-    M = len(meas)
-    m = meas.z.shape[1] if M else 1
-    x_prior = np.empty((K, n))
-    P_prior = np.empty((K, n, n))
-    x_post = np.empty((K, n))
-    P_post = np.empty((K, n, n))
-    innov = np.zeros((M, m))
-    S_all = np.zeros((M, m, m))
-    nis = np.zeros(M)
-    accepted = np.ones(M, dtype=bool)
-    eye = np.eye(n)
-    seg_starts = np.unique(np.concatenate([[0], meas.node])) if M else np.array([0])
-    x = np.asarray(x0, dtype=float).copy()
-    P = np.asarray(P0, dtype=float).copy()
-    starts = np.searchsorted(meas.node, np.arange(K + 1)) if M else np.zeros(K + 1, dtype=int)
-    bounds = np.concatenate([seg_starts, [K]])
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        # node a: prior (x, P), then its measurements
-        x_prior[a], P_prior[a] = x, P
-        for j in range(starts[a], starts[a + 1]):
-            H, R = meas.H[j], meas.R[j]
-            y = meas.z[j] - H @ x
-            S = H @ P @ H.T + R
-            innov[j], S_all[j] = y, S
-            nis[j] = float(y @ np.linalg.solve(S, y))
-            forced = force_accept is not None and bool(force_accept[j])
-            if gate_probability is not None and not forced and nis[j] > gate_threshold(gate_probability, len(y)):
-                accepted[j] = False
-                continue
-            Kg = np.linalg.solve(S, H @ P).T
-            x = x + Kg @ y
-            IKH = eye - Kg @ H
-            P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
-        x_post[a], P_post[a] = x, P
-        if b - a > 1 or b < K:
-            # pure prediction over nodes a+1 .. b (b is the next measurement node, or K-1 at the end)
-            last = min(b, K - 1)
-            if last > a:
-                Phi, Sc = _compose_forward(F[a:last], Q[a:last])
-                xs = (Phi @ x)
-                Ps = Phi @ P @ np.swapaxes(Phi, -1, -2) + Sc
-                x_prior[a + 1:last + 1] = xs
-                P_prior[a + 1:last + 1] = Ps
-                x_post[a + 1:last + 1] = xs
-                P_post[a + 1:last + 1] = Ps
-                x, P = xs[-1].copy(), Ps[-1].copy()
-    return ForwardResult(x_prior, P_prior, x_post, P_post, innov, S_all, nis, accepted)
-
-
-def fast_rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult, scale: np.ndarray | None = None
-                    ) -> SmoothedResult:
-    """:func:`rts_smooth` as suffix scans of the affine backward recursions (Jiang 2017 Eq. 28).
-
-    x_s[k] = x_f[k] + C_k (x_s[k+1] - F_k x_f[k]) and
-    P_s[k] = (I - C_k F_k) P_f[k] (I - C_k F_k)^T + C_k (Q_k + P_s[k+1]) C_k^T with
-    C_k = P_f[k] F_k^T P_p[k+1]^-1, all gains at once, then both recursions composed.
-    """
-    K, n = fwd.x_post.shape
-    d = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
-    Dinv = 1.0 / d
-    Fs = F * Dinv[None, :, None] * d[None, None, :]
-    Qs = Q * Dinv[None, :, None] * Dinv[None, None, :]
-    Pf = fwd.P_post * Dinv[None, :, None] * Dinv[None, None, :]
-    xf = fwd.x_post * Dinv[None, :]
-    FT = np.swapaxes(Fs, -1, -2)
-    Pp = Fs @ Pf[:-1] @ FT + Qs
-    C = np.swapaxes(np.linalg.solve(Pp, Fs @ Pf[:-1]), -1, -2)  # P_f F^T P_p^-1 (P_p symmetric)
-    IKF = np.eye(n) - C @ Fs
-    A = IKF @ Pf[:-1] @ np.swapaxes(IKF, -1, -2) + C @ Qs @ np.swapaxes(C, -1, -2)
-    b = xf[:-1] - (C @ (Fs @ xf[:-1, :, None]))[:, :, 0]
-    # Suffix compositions of the maps h_k(M) = A_k + C_k M C_k^T and g_k(v) = b_k + C_k v, node k
-    # to the last node, in two levels: backwards inside chunks of L nodes (all chunks at once),
-    # then chunk by chunk from the end, then joined: O(n) small products.
-    m = K - 1
-    L = 64
-    nc = -(-m // L)
-    pad = nc * L - m
-    eye = np.eye(n)
-    Gc = np.concatenate([C, np.broadcast_to(eye, (pad, n, n))]).reshape(nc, L, n, n).copy()
-    Ac = np.concatenate([A, np.zeros((pad, n, n))]).reshape(nc, L, n, n).copy()
-    bc = np.concatenate([b, np.zeros((pad, n))]).reshape(nc, L, n).copy()
-    for i in range(L - 2, -1, -1):
-        Ci = Gc[:, i].copy()
-        Ac[:, i] = Ac[:, i] + Ci @ Ac[:, i + 1] @ np.swapaxes(Ci, -1, -2)
-        bc[:, i] = bc[:, i] + (Ci @ bc[:, i + 1, :, None])[:, :, 0]
-        Gc[:, i] = Ci @ Gc[:, i + 1]
-    # smoothed values at the first node of every chunk, from the end backwards
-    P_next = np.empty((nc + 1, n, n))
-    x_next = np.empty((nc + 1, n))
-    P_next[nc], x_next[nc] = Pf[-1], xf[-1]
-    for j in range(nc - 1, -1, -1):
-        G0 = Gc[j, 0]
-        P_next[j] = Ac[j, 0] + G0 @ P_next[j + 1] @ G0.T
-        x_next[j] = bc[j, 0] + G0 @ x_next[j + 1]
-    Pt = P_next[1:, None]
-    xt = x_next[1:, None, :, None]
-    Ps_body = Ac + Gc @ Pt @ np.swapaxes(Gc, -1, -2)
-    xs_body = bc + (Gc @ xt)[..., 0]
-    Ps = np.empty_like(Pf)
-    xs = np.empty_like(xf)
-    Ps[:-1] = Ps_body.reshape(-1, n, n)[:m]
-    xs[:-1] = xs_body.reshape(-1, n)[:m]
-    Ps[-1], xs[-1] = Pf[-1], xf[-1]
-    Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
     return SmoothedResult(xs * d[None, :], Ps * d[None, :, None] * d[None, None, :])

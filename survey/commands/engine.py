@@ -31,13 +31,22 @@ def process(
     print_summary(result, written)
 
 
+#: Share of the progress bar for reading the session before processing, and for writing after.
+_READ_SHARE, _WRITE_SHARE = 0.15, 0.05
+
+
 def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float = 0.625,
                 force_accept: tuple[str, ...] = ()):
-    """Read, process and write one session; exits with a clear message on bad input."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    """Read, process and write one session; exits with a clear message on bad input.
+
+    The progress bar follows the engine's own sub-steps (dead reckoning, each filter and
+    smoother pass node by node, stations) through the ``progress`` callback of
+    :func:`trolley.engine.process_session`.
+    """
+    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
 
     from survey.sessionio import SessionFormatError, read_design, read_session
-    from survey.trackio import write_outputs
+    from survey.trackio import OutputFolderError, write_outputs
     from trolley.engine import ProcessConfig, process_session
 
     if smoother not in ("rts", "tfs", "none"):
@@ -46,9 +55,14 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         fail(f"--step must be positive, not {step}")
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+    with Progress(TextColumn("{task.description:<48}"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
                   console=err, transient=True) as prog:
-        task = prog.add_task("reading the session", total=4)
+        task = prog.add_task("reading the session", total=1.0)
+
+        def engine_progress(step_name: str, fraction: float) -> None:
+            done = _READ_SHARE + (1.0 - _READ_SHARE - _WRITE_SHARE) * fraction
+            prog.update(task, completed=done, description=step_name)
+
         try:
             session = read_session(session_dir)
             design = read_design(session_dir, session.meta)
@@ -56,15 +70,21 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
             fail(str(exc))
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
             fail(f"{session_dir}: {exc}")
-        prog.update(task, advance=1, description="dead reckoning, filtering, smoothing")
+        prog.update(task, completed=_READ_SHARE)
         try:
             result = process_session(session, design, ProcessConfig(smoother=smoother, step_m=step,
-                                                                   force_accept=force_accept))
+                                                                   force_accept=force_accept),
+                                     progress=engine_progress)
         except ValueError as exc:
             fail(f"{session_dir}: {exc}")
-        prog.update(task, advance=2, description="writing")
-        written = write_outputs(out, result, session, session_dir)
-        prog.update(task, advance=1)
+        prog.update(task, completed=1.0 - _WRITE_SHARE, description="writing the outputs")
+        try:
+            written = write_outputs(out, result, session, session_dir)
+        except OutputFolderError as exc:
+            fail(str(exc))
+        except OSError as exc:
+            fail(f"{out}: cannot write the outputs: {exc}")
+        prog.update(task, completed=1.0)
     return result, session, written
 
 
