@@ -3,12 +3,14 @@
 Prints
 1. Jiang 2017 Eq. 46 (T = 60 s, v = 1 m/s): mid-interval sigma, closed form versus forward filter
    + RTS and two-filter smoother on a 0.25 s grid, for the three directions.
-2. The paper's sizing conclusions (RLG, FOG, odometer limit).
+2. The paper's sizing conclusions (RLG, FOG, odometer limit) and the bias-instability limits.
 3. Speed of a 200 x 200 sizing grid and of a 10,000-interval Monte Carlo, as ratios against a
-   floor measured in the same run (one vectorised numpy operation of the same size).
+   floor measured in the same run (one vectorised numpy operation of the same size), and the
+   Monte Carlo agreement. ``--accuracy-only`` stops after 2 (no timing).
 """
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
@@ -88,7 +90,7 @@ def preset_case(name, heading_deg=None, latitude_deg=30.0):
         latitude_rad=units.deg_to_rad(latitude_deg)))
 
 
-def main() -> None:
+def main(accuracy_only: bool = False) -> None:
     print("1. Jiang 2017 Eq. 46, mid-interval 1-sigma (mm): closed form vs numerical smoothers (dt 0.25 s)")
     case = eq46_case()
     num = numeric_mid(case)
@@ -120,6 +122,13 @@ def main() -> None:
               f"equivalent bias {units.rad_s_to_deg_h(r.equivalent_gyro_bias_rad_s):.4f} deg/h, lateral worst "
               f"{lat:.4f} mm ({'PASS' if lat <= 0.67 else 'FAIL'}), vertical worst {ver:.4f} mm, "
               f"lateral bias limit {lim:.4f} deg/h")
+    for name, heading in (("rlg", None), ("rlg", 0.18), ("fog", 0.6), ("fog", None)):
+        imu = IMU_PRESETS[name]
+        figs = B.SensorFigures(imu.gyro_arw_rad_sqrt_s, gyro_bias_instability_rad_s=imu.gyro_bias_instability_rad_s,
+                               heading_error_rad=None if heading is None else units.deg_to_rad(heading))
+        lim = {d: units.rad_s_to_deg_h(B.max_gyro_bias_instability(figs, d, 0.67e-3)) for d in ("lateral", "vertical")}
+        print(f"   {name} heading {'gyrocompassing' if heading is None else f'{heading} deg'}: largest bias "
+              f"instability lateral {lim['lateral']:.4f} deg/h, vertical {lim['vertical']:.4f} deg/h")
     q = B.max_allowed(preset_case("rlg").case, "odo_scale_noise_per_sqrt_s", "longitudinal", 0.67e-3)
     print(f"   longitudinal odometer scale-noise limit (scale error 0): {q:.4e} /sqrt(s)")
     q1 = B.max_allowed(B.resolve_case(B.SensorFigures(IMU_PRESETS['rlg'].gyro_arw_rad_sqrt_s,
@@ -128,6 +137,8 @@ def main() -> None:
                        "odo_scale_noise_per_sqrt_s", "longitudinal", 0.67e-3)
     print(f"   longitudinal odometer scale-noise limit (scale error 1e-4): {q1:.4e} /sqrt(s)")
 
+    if accuracy_only:
+        return
     print("3. Speed")
     base = preset_case("fog", 0.6).case
     arw = units.deg_sqrt_h_to_rad_sqrt_s(np.linspace(0.0, 0.02, 200))[:, None]
@@ -182,4 +193,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--accuracy-only", action="store_true", help="sections 1 and 2 only (no timing)")
+    main(parser.parse_args().accuracy_only)

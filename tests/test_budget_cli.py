@@ -84,6 +84,7 @@ def test_table_output_has_verdicts_and_limits():
     (["--latitude-deg", "90"], "--latitude-deg"),
     (["--monte-carlo", "-3"], "--monte-carlo"),
     (["--odo-scale-noise", "nan"], "--odo-scale-noise must be"),
+    (["--monte-carlo", "10", "--seed", "-1"], "--seed must be"),
 ])
 def test_bad_input_exits_2_with_one_line_and_no_output(args, message):
     res = _run(*args, "--json")
@@ -143,3 +144,82 @@ def test_mems_limits_are_null_with_a_reason():
     spacing = out["limits"]["max_fix_spacing_m"]
     res2, out2 = _json("--imu", "mems", "--heading-error-deg", "0.5", "--fix-spacing-m", f"{spacing * 0.999:.6f}")
     assert res2.exit_code == 0 and out2["pass"] is True
+
+
+@pytest.mark.parametrize("route", [[], ["--heading-error-deg", "0.3"]], ids=["gyrocompassing", "given-heading"])
+@pytest.mark.parametrize("imu", ["rlg", "fog"])
+def test_bias_instability_limit_fed_back_gives_the_target(route, imu):
+    res, out = _json("--imu", imu, *route)
+    lim = out["limits"]["max_gyro_bias_instability_deg_h"]
+    for d in ("lateral", "vertical"):
+        res2, out2 = _json("--imu", imu, *route, "--gyro-bias-instability-deg-h", repr(lim[d]))
+        assert out2[d]["max_mm"] == pytest.approx(0.67, rel=1e-6), (d, out2[d]["max_mm"])
+        assert out2["inputs"]["gyro_bias_route"] == "derived"
+    eq = out["limits"]["max_gyro_bias_deg_h"]
+    if route:
+        # heading held: the equivalent bias is BI + omega_ie cos(L) |H|, so the old subtraction holds
+        term = units.rad_s_to_deg_h(units.EARTH_RATE_RAD_S * np.cos(np.deg2rad(30.0)) * np.deg2rad(0.3))
+        for d in ("lateral", "vertical"):
+            assert lim[d] == pytest.approx(eq[d] - term, rel=1e-8)
+    else:
+        # gyrocompassing: equivalent bias = 2 BI; the vertical channel does not see the heading, so
+        # its limit is exactly half the equivalent-bias limit; the lateral one, whose heading error
+        # grows with it too, is no higher
+        assert lim["vertical"] == pytest.approx(eq["vertical"] / 2, rel=1e-8)
+        assert lim["lateral"] <= eq["lateral"] / 2 * (1 + 1e-9)
+
+
+def test_rlg_bias_instability_limit_is_the_re_derived_one():
+    # the audit's example: equivalent-bias limit minus the Earth-rate term at the current heading
+    # (0.2035 deg/h) gives 0.989 mm lateral; the re-derived limit is about 0.117 deg/h
+    res, out = _json()
+    bi = out["limits"]["max_gyro_bias_instability_deg_h"]["lateral"]
+    assert bi == pytest.approx(0.1167, abs=5e-4)
+    wrong = out["limits"]["max_gyro_bias_deg_h"]["lateral"] - out["inputs"]["earth_rate_heading_term_deg_h"]
+    res2, out2 = _json("--gyro-bias-instability-deg-h", repr(wrong))
+    assert out2["lateral"]["max_mm"] > 0.9 and res2.exit_code == 1
+
+
+def test_table_shows_contributions_at_mid_interval_and_at_the_worst_point():
+    res, out = _json()
+    assert out["lateral"]["worst_at_m"] == pytest.approx(60.0)  # a good IMU: worst point at the fix
+    table = _run().stdout
+    mid = table[table.index("Contributions at MID-INTERVAL"):table.index("Contributions at the WORST POINT")]
+    worst = table[table.index("Contributions at the WORST POINT"):table.index("Sizing limits")]
+    row = lambda block, label: block[block.index(label):].splitlines()[0]  # noqa: E731
+    # at mid-interval the gyro terms show (0.129, 0.131 mm); at the fix they vanish (0.007, 0.000)
+    for d, col in (("vertical", 1), ("lateral", 2)):
+        for block, key in ((mid, "sources_mid_mm"), (worst, "sources_max_mm")):
+            cells = [c.strip() for c in row(block, "equivalent gyro bias").split("│") if c.strip()]
+            assert cells[col] == f"{out[d][key]['gyro_bias']:.3f}"
+    assert out["lateral"]["sources_mid_mm"]["gyro_bias"] > 0.1
+    assert f"{out['lateral']['sources_max_mm']['gyro_bias']:.3f}" == "0.000"
+
+
+def test_odometer_defaults_come_from_one_place():
+    from trolley.sensors import OdometerFigures
+
+    res, out = _json()
+    assert out["inputs"]["odo_scale_noise_per_sqrt_s"] == OdometerFigures().scale_noise_per_sqrt_s
+    assert out["inputs"]["odo_scale_error"] == B.BUDGET_ODO_SCALE_ERROR
+    # given explicitly, they are used
+    res, out = _json("--odo-scale-error", "1e-4", "--odo-scale-noise", "9e-6")
+    assert out["inputs"]["odo_scale_error"] == 1e-4 and out["inputs"]["odo_scale_noise_per_sqrt_s"] == 9e-6
+    assert out["limits"]["max_odo_scale_noise_per_sqrt_s"] < 0.8e-5  # a residual scale error lowers the limit
+
+
+def test_seed_must_be_non_negative():
+    res = _run("--monte-carlo", "10", "--seed", "-1", "--json")
+    assert res.exit_code == 2 and res.stdout == ""
+    assert "--seed must be an integer >= 0" in res.stderr
+
+
+def test_out_of_memory_is_a_clear_exit_2(monkeypatch):
+    def no_memory(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(B, "monte_carlo", no_memory)
+    res = _run("--monte-carlo", "20000", "--fix-spacing-m", "1000", "--json")
+    assert res.exit_code == 2 and res.stdout == ""
+    assert "not enough memory" in res.stderr and "--monte-carlo" in res.stderr
+    assert "Traceback" not in res.output

@@ -1,14 +1,18 @@
 """Closed forms of the budget (Jiang 2017 Eq. 40, 44, 45) against forward filter + RTS and TFS.
 
 The numerical side uses only trolley.error_models (exact Van Loan discretisation) and
-trolley.smoothers; the analytic side only trolley.budget. They must agree to 1e-6 relative.
-The printed Eq. 40 and 45 fail that check (typo in the last term); Eq. 44 passes as printed.
+trolley.smoothers; the analytic side only trolley.budget. They must agree to 1e-6 relative: the
+two-filter smoother everywhere, the RTS where the predicted covariance it inverts is conditioned
+well enough for float64 (up to 1e10), and, where the covariance is singular at every node (no
+ARW, no initial angle), the conditioning of the joint Gaussian on the fixes
+(docs/budget_derivation.md, Section 8). The printed Eq. 40 and 45 fail that check (typo in the
+last term); Eq. 44 passes as printed.
 """
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import assume, given, settings, strategies as st
 
 from trolley import budget as B
 from trolley import error_models as em
@@ -16,89 +20,259 @@ from trolley import units
 from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
 
 
-def _numeric_sigmas(ini_prior, noise, fix_sigma, v, T, psi, n_steps, fix_at_zero=True):
-    """Smoothed variances at the nodes, (vertical, longitudinal, lateral), RTS and TFS."""
+def _reachable_coordinates(F1, Q1, P0, n_steps):
+    """Scaled coordinates of the states that are not identically zero: ``x = M z``.
+
+    A state with no initial variance that neither noise nor the other states ever reach (a bias
+    set to 0: no random walk) is dropped, the reduced model being exact; the others are scaled by
+    their initial sigma, or, without one, by their largest sigma along the interval (no fixes).
+    """
+    P = P0.copy()
+    largest = np.diag(P0).copy()
+    for _ in range(n_steps):
+        P = F1 @ P @ F1.T + Q1
+        largest = np.maximum(largest, np.diag(P))
+    keep = np.flatnonzero(largest > 0)
+    d = np.where(np.diag(P0) > 0, np.sqrt(np.diag(P0)), np.sqrt(largest))[keep]
+    M = np.zeros((P0.shape[0], keep.size))
+    M[keep, np.arange(keep.size)] = d
+    M_pinv = np.zeros((keep.size, P0.shape[0]))
+    M_pinv[np.arange(keep.size), keep] = 1.0 / d
+    return M, M_pinv
+
+
+def _channel_model(channel, ini_prior, noise, v, psi, dt):
+    """F, Q (one step), P0 and H of one channel of trolley.error_models.
+
+    The level channel is modelled in north/east (Eq. 22-25) and its states then rotated to
+    longitudinal/lateral (Eq. 43) by an exact similarity, before any filtering: the smoothers then
+    carry the two directions as separate states, and the small longitudinal variance is not
+    formed from north/east variances dominated by the heading drift (which would cancel digits).
+    Any error of the north/east model or of the rotation would couple the directions and show.
+    """
+    if channel == "vertical":
+        A, G = em.vertical_matrices(v)
+        Qc, P0, H = em.vertical_noise_psd(noise), em.vertical_initial_covariance(ini_prior), em.VERTICAL_H
+        F1, Q1 = em.van_loan(A, G, Qc, dt)
+        return F1, Q1, P0, H
+    A, G = em.level_matrices(v * np.cos(psi), v * np.sin(psi))
+    Qc, P0, H = em.level_noise_psd(noise), em.level_initial_covariance(ini_prior), em.LEVEL_H
+    F1, Q1 = em.van_loan(A, G, Qc, dt)
+    c, s = np.cos(psi), np.sin(psi)
+    Rot = np.eye(5)
+    Rot[:2, :2] = [[c, s], [-s, c]]  # [north, east] -> [longitudinal, lateral]
+    return Rot @ F1 @ Rot.T, Rot @ Q1 @ Rot.T, Rot @ P0 @ Rot.T, H @ Rot.T
+
+
+def _directions(channel, P):
+    """Position variances of the directions of one channel from its state covariances (K, n, n)."""
+    if channel == "vertical":
+        return {"vertical": P[:, 0, 0]}
+    return {"longitudinal": P[:, 0, 0], "lateral": P[:, 1, 1]}
+
+
+def _numeric_sigmas(ini_prior, noise, fix_sigma, v, T, psi, n_steps, fix_at_zero=True, conditioning=None):
+    """Smoothed variances at the nodes, (vertical, longitudinal, lateral), RTS and TFS.
+
+    The models are those of trolley.error_models, discretised exactly (Van Loan), in the
+    coordinates of :func:`_reachable_coordinates`. ``conditioning`` (a dict), if given, receives
+    per channel the largest condition number of the predicted covariance, which the RTS gain
+    inverts. The two-filter smoother inverts the filtered covariance; where that is singular at
+    t = 0 (a zero initial angle: it is reached only later, through the noise or the bias), it runs
+    from the first step on, with the forward prediction there as its prior, and gives nan at 0.
+    """
     dt = T / n_steps
     out = {}
     for channel in ("vertical", "level"):
-        if channel == "vertical":
-            A, G = em.vertical_matrices(v)
-            Qc, P0, H = em.vertical_noise_psd(noise), em.vertical_initial_covariance(ini_prior), em.VERTICAL_H
-        else:
-            A, G = em.level_matrices(v * np.cos(psi), v * np.sin(psi))
-            Qc, P0, H = em.level_noise_psd(noise), em.level_initial_covariance(ini_prior), em.LEVEL_H
-        F1, Q1 = em.van_loan(A, G, Qc, dt)
-        F = np.repeat(F1[None], n_steps, 0)
-        Q = np.repeat(Q1[None], n_steps, 0)
-        m = H.shape[0]
+        F1, Q1, P0, H = _channel_model(channel, ini_prior, noise, v, psi, dt)
+        M, Mp = _reachable_coordinates(F1, Q1, P0, n_steps)
+        Fz, Qz, P0z, Hz = Mp @ F1 @ M, Mp @ Q1 @ Mp.T, Mp @ P0 @ Mp.T, H @ M
+        F = np.repeat(Fz[None], n_steps, 0)
+        Q = np.repeat(Qz[None], n_steps, 0)
+        m, nz = H.shape[0], P0z.shape[0]
+        R = np.eye(m) * fix_sigma**2
         nodes = [0, n_steps] if fix_at_zero else [n_steps]
-        meas = Measurements(np.array(nodes), np.zeros((len(nodes), m)), H, np.eye(m) * fix_sigma**2)
-        fwd = forward_filter(F, Q, np.zeros(P0.shape[0]), P0, meas, gate_probability=None)
-        d = np.sqrt(np.diag(P0))
-        d = np.where(d > 0, d, 1.0)
-        rts = rts_smooth(F, Q, fwd, scale=d)
-        tfs = two_filter_smooth(F, Q, meas, fwd, scale=d)
-        for name, sm in (("rts", rts), ("tfs", tfs)):
-            if channel == "vertical":
-                out[(name, "vertical")] = sm.P[:, 0, 0]
-            else:
-                c, s = np.cos(psi), np.sin(psi)
-                Rot = np.array([[c, s], [-s, c]])  # Eq. 43: north/east -> longitudinal/lateral
-                PLR = Rot @ sm.P[:, :2, :2] @ Rot.T
-                out[(name, "longitudinal")] = PLR[:, 0, 0]
-                out[(name, "lateral")] = PLR[:, 1, 1]
+        meas = Measurements(np.array(nodes), np.zeros((len(nodes), m)), Hz, R)
+        fwd = forward_filter(F, Q, np.zeros(nz), P0z, meas, gate_probability=None)
+        if conditioning is not None:
+            conditioning[channel] = float(np.max(np.linalg.cond(fwd.P_prior[1:])))
+        P_rts = rts_smooth(F, Q, fwd).P
+        if np.all(np.diag(P0z) > 0):
+            P_tfs = two_filter_smooth(F, Q, meas, fwd).P
+        else:
+            late = Measurements(np.array([n_steps - 1]), np.zeros((1, m)), Hz, R)
+            fwd1 = forward_filter(F[1:], Q[1:], np.zeros(nz), fwd.P_prior[1], late, gate_probability=None)
+            P_tfs = np.concatenate([np.full((1, nz, nz), np.nan), two_filter_smooth(F[1:], Q[1:], late, fwd1).P])
+        for name, Pz in (("rts", P_rts), ("tfs", P_tfs)):
+            for d, var in _directions(channel, M @ Pz @ M.T).items():
+                out[(name, d)] = var
     return out
 
 
-def _check_against_numerics(pos_prior_mm, fix_mm, pitch_deg, heading_deg, bias_deg_h, arw, scale_err,
-                            scale_noise, v, spacing, psi, tol_rts, tol_tfs):
-    fix = fix_mm * 1e-3
+def _batch_sigmas(ini_prior, noise, fix_sigma, v, T, psi, n_steps):
+    """Smoothed variances by conditioning the joint Gaussian of the states on the two fixes.
+
+    ``P_k - S_kz S_zz^-1 S_kz^T`` with the cross-covariances of the discretised model
+    (``Cov(x_k, x_j) = F^(k-j) P_j``): no state covariance is inverted, so it holds where the
+    covariance is singular at every node (no ARW and no initial angle: the angle is then a
+    deterministic multiple of the bias), which neither smoother can handle.
+    """
+    dt = T / n_steps
+    out = {}
+    for channel in ("vertical", "level"):
+        F1, Q1, P0, H = _channel_model(channel, ini_prior, noise, v, psi, dt)
+        n = P0.shape[0]
+        Fpow = [np.eye(n)]
+        Ps = [P0]
+        for _ in range(n_steps):
+            Fpow.append(F1 @ Fpow[-1])
+            Ps.append(F1 @ Ps[-1] @ F1.T + Q1)
+        Fpow, Ps = np.array(Fpow), np.array(Ps)
+        Pn = Ps[-1]
+        m = H.shape[0]
+        S_kz = np.concatenate([Fpow @ P0 @ H.T,                                  # Cov(x_k, z_0)
+                               Ps @ np.swapaxes(Fpow[::-1], -1, -2) @ H.T], -1)  # Cov(x_k, z_T)
+        cross = H @ Fpow[-1] @ P0 @ H.T
+        S_zz = np.block([[H @ P0 @ H.T, cross.T], [cross, H @ Pn @ H.T]]) + np.eye(2 * m) * fix_sigma**2
+        P = Ps - S_kz @ np.linalg.solve(S_zz, np.swapaxes(S_kz, -1, -2))
+        out.update(_directions(channel, P))
+    return out
+
+
+def _figures(pos_prior_mm, fix_mm, pitch_deg, heading_deg, bias_deg_h, arw, scale_err, scale_noise):
     prior = em.InitialUncertainty(pos_prior_mm * 1e-3, units.deg_to_rad(pitch_deg),
                                   units.deg_to_rad(heading_deg), units.deg_h_to_rad_s(bias_deg_h),
                                   units.deg_h_to_rad_s(bias_deg_h), scale_err)
-    noise = em.ChannelNoise(units.deg_sqrt_h_to_rad_sqrt_s(arw), scale_noise)
-    T = spacing / v
-    n_steps = int(np.ceil(T))  # 1 s or finer
-    num = _numeric_sigmas(prior, noise, fix, v, T, psi, n_steps)
+    return prior, em.ChannelNoise(units.deg_sqrt_h_to_rad_sqrt_s(arw), scale_noise), fix_mm * 1e-3
+
+
+def _analytic(prior, noise, fix, v, spacing, t):
+    """Closed-form variances at t, P(0) after the fix at 0 (p_r = p_prior s^2 / (p_prior + s^2))."""
     # the fix at t=0 leaves p_r = p_prior sigma^2 / (p_prior + sigma^2); P(0) of the closed
     # forms is the covariance after that fix (module docstring of trolley.budget)
     p_prior = prior.position_m**2
     p_r = np.sqrt(p_prior * fix**2 / (p_prior + fix**2))
     case = B.BudgetCase(replace(prior, position_m=p_r), noise, fix, v, spacing)
-    t = np.linspace(0, T, n_steps + 1)
+    T = spacing / v
+    return {d: B.smoothed_variance(t, T, v, B.channel_parameters(case, d)) for d in B.DIRECTIONS}
+
+
+def _check_against_numerics(pos_prior_mm, fix_mm, pitch_deg, heading_deg, bias_deg_h, arw, scale_err,
+                            scale_noise, v, spacing, psi, tol_rts, tol_tfs, rts_conditioning_max=np.inf):
+    """Closed form against RTS and TFS at every node (1 s or finer), relative.
+
+    RTS is held to ``tol_rts`` where the predicted covariance it inverts has a condition number up
+    to ``rts_conditioning_max``. Returns the largest relative differences.
+    """
+    prior, noise, fix = _figures(pos_prior_mm, fix_mm, pitch_deg, heading_deg, bias_deg_h, arw, scale_err,
+                                 scale_noise)
+    T = spacing / v
+    n_steps = int(np.ceil(T))  # 1 s or finer
+    cond = {}
+    num = _numeric_sigmas(prior, noise, fix, v, T, psi, n_steps, conditioning=cond)
+    ana = _analytic(prior, noise, fix, v, spacing, np.linspace(0, T, n_steps + 1))
+    worst = {}
     for d in B.DIRECTIONS:
-        ana = B.smoothed_variance(t, T, v, B.channel_parameters(case, d))
+        channel = "vertical" if d == "vertical" else "level"
         for name, tol in (("rts", tol_rts), ("tfs", tol_tfs)):
-            rel = np.max(np.abs(num[(name, d)] - ana) / ana)
-            assert rel < tol, (d, name, rel)
+            rel = np.abs(num[(name, d)] - ana[d]) / ana[d]
+            assert np.isfinite(rel[1:]).all()
+            worst[(name, d)] = float(np.nanmax(rel))
+            if name == "rts" and cond[channel] > rts_conditioning_max:
+                continue
+            assert worst[(name, d)] < tol, (d, name, worst[(name, d)], cond[channel])
+    return worst
+
+
+#: condition number of the predicted covariance up to which the float64 RTS is held to 1e-6
+RTS_CONDITIONING_MAX = 1e10
+
+
+def _deterministic_angle(arw, bias_deg_h, pitch_deg, heading_deg):
+    """No ARW, a bias and no initial angle: the angle is -b t, the covariance singular throughout."""
+    return arw == 0 and bias_deg_h > 0 and (pitch_deg == 0 or heading_deg == 0)
+
+
+def _or_zero(strategy):
+    return st.one_of(st.just(0.0), strategy)
 
 
 @given(
     pos_prior_mm=st.floats(0.3, 3.0), fix_mm=st.floats(0.3, 2.0),
-    pitch_deg=st.floats(1e-3, 0.05), heading_deg=st.floats(1e-2, 0.6),
-    bias_deg_h=st.floats(1e-3, 0.5), arw=st.floats(1e-3, 0.05),
-    scale_err=st.floats(1e-6, 3e-4), scale_noise=st.floats(1e-6, 3e-5),
+    pitch_deg=_or_zero(st.floats(1e-3, 0.05)), heading_deg=_or_zero(st.floats(1e-2, 0.6)),
+    bias_deg_h=_or_zero(st.floats(1e-3, 0.5)), arw=_or_zero(st.floats(1e-3, 0.05)),
+    scale_err=_or_zero(st.floats(1e-6, 3e-4)), scale_noise=_or_zero(st.floats(1e-6, 3e-5)),
     v=st.floats(0.5, 1.5), spacing=st.floats(20.0, 120.0), psi=st.floats(-np.pi, np.pi),
 )
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=60, deadline=None)
 def test_closed_forms_equal_rts_and_tfs(**kw):
-    # survey ranges (up to the paper's FOG): both smoothers within 1e-6 relative
-    _check_against_numerics(**kw, tol_rts=1e-6, tol_tfs=1e-6)
+    # survey ranges (up to the paper's FOG), each source possibly exactly zero. The TFS holds
+    # 1e-6 everywhere (1.9e-8 the worst measured, corners included). The RTS gain inverts the
+    # predicted covariance; where its condition number is up to 1e10 (91 % of random cases) the
+    # RTS holds 1e-6 too (9.1e-10 the worst); beyond, in the corner of no or tiny ARW, 0.6 deg
+    # heading, 120 m at 0.5 m/s and a 0.3 mm fix (condition 3e12), float64 leaves it at 1.4e-6
+    # (docs/budget_derivation.md, Section 8)
+    assume(not _deterministic_angle(kw["arw"], kw["bias_deg_h"], kw["pitch_deg"], kw["heading_deg"]))
+    _check_against_numerics(**kw, tol_rts=1e-6, tol_tfs=1e-6, rts_conditioning_max=RTS_CONDITIONING_MAX)
 
 
 @given(
     pos_prior_mm=st.floats(0.1, 5.0), fix_mm=st.floats(0.1, 3.0),
-    pitch_deg=st.floats(1e-3, 0.5), heading_deg=st.floats(1e-3, 1.0),
-    bias_deg_h=st.floats(1e-3, 1.0), arw=st.floats(1e-3, 0.1),
-    scale_err=st.floats(1e-6, 1e-3), scale_noise=st.floats(1e-6, 1e-4),
+    pitch_deg=_or_zero(st.floats(1e-3, 0.5)), heading_deg=_or_zero(st.floats(1e-3, 1.0)),
+    bias_deg_h=_or_zero(st.floats(1e-3, 1.0)), arw=_or_zero(st.floats(1e-3, 0.1)),
+    scale_err=_or_zero(st.floats(1e-6, 1e-3)), scale_noise=_or_zero(st.floats(1e-6, 1e-4)),
     v=st.floats(0.3, 2.0), spacing=st.floats(10.0, 150.0), psi=st.floats(-np.pi, np.pi),
 )
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=40, deadline=None)
 def test_closed_forms_equal_numerics_over_wide_ranges(**kw):
-    # drift/fix variance ratios up to ~1e8: the TFS still agrees to 1e-7 (1e-11 typically, 1.0e-8
-    # the worst of 400 examples); the filterpy-gain RTS loses digits there (1.1e-6 found at
-    # 1 deg heading, 0.25 mm fix, 87 m)
-    _check_against_numerics(**kw, tol_rts=1e-5, tol_tfs=1e-7)
+    # drift/fix variance ratios up to ~1e9: the TFS still holds 1e-6 (4.5e-7 the worst measured,
+    # corners included); the RTS holds it where the conditioning allows (up to 1e10: 86 % of
+    # random cases, 6.0e-9 the worst); beyond, float64 leaves it at up to 5.5e-4 (no ARW, 1 deg
+    # heading, 150 m at 0.3 m/s, 0.1 mm fix: condition 1e14)
+    assume(not _deterministic_angle(kw["arw"], kw["bias_deg_h"], kw["pitch_deg"], kw["heading_deg"]))
+    _check_against_numerics(**kw, tol_rts=1e-6, tol_tfs=1e-6, rts_conditioning_max=RTS_CONDITIONING_MAX)
+
+
+def test_zero_sources_at_the_paper_fog_hold_both_smoothers():
+    # zero ARW, zero bias, zero initial angles, zero odometer terms at the paper's FOG: RTS and TFS
+    # to 1e-6 with no conditioning gate
+    base = dict(pos_prior_mm=1.0, fix_mm=0.6, pitch_deg=0.005, heading_deg=0.6, bias_deg_h=0.236, arw=0.007,
+                scale_err=1e-4, scale_noise=8e-6, v=1.0, spacing=60.0, psi=0.8)
+    for zeros in (("arw",), ("bias_deg_h",), ("pitch_deg", "heading_deg"), ("scale_err",), ("scale_noise",),
+                  ("arw", "bias_deg_h", "pitch_deg", "heading_deg")):
+        _check_against_numerics(**dict(base, **{z: 0.0 for z in zeros}), tol_rts=1e-6, tol_tfs=1e-6)
+
+
+@given(
+    pos_prior_mm=st.floats(0.3, 3.0), fix_mm=st.floats(0.3, 2.0),
+    pitch_deg=_or_zero(st.floats(1e-3, 0.05)), heading_deg=_or_zero(st.floats(1e-2, 0.6)),
+    bias_deg_h=st.floats(1e-3, 0.5), scale_err=_or_zero(st.floats(1e-6, 3e-4)),
+    scale_noise=_or_zero(st.floats(1e-6, 3e-5)),
+    v=st.floats(0.5, 1.5), spacing=st.floats(20.0, 120.0), psi=st.floats(-np.pi, np.pi),
+)
+@settings(max_examples=25, deadline=None)
+def test_closed_forms_without_arw_equal_the_batch_solution(**kw):
+    # no ARW: with a zero initial angle the covariance is singular at every node and neither
+    # smoother applies; conditioning the joint Gaussian on the fixes does not invert it
+    prior, noise, fix = _figures(kw["pos_prior_mm"], kw["fix_mm"], kw["pitch_deg"], kw["heading_deg"],
+                                 kw["bias_deg_h"], 0.0, kw["scale_err"], kw["scale_noise"])
+    T = kw["spacing"] / kw["v"]
+    n_steps = int(np.ceil(T))
+    num = _batch_sigmas(prior, noise, fix, kw["v"], T, kw["psi"], n_steps)
+    ana = _analytic(prior, noise, fix, kw["v"], kw["spacing"], np.linspace(0, T, n_steps + 1))
+    for d in B.DIRECTIONS:
+        assert np.max(np.abs(num[d] - ana[d]) / ana[d]) < 1e-6, d
+
+
+def test_batch_solution_equals_the_smoothers_where_they_apply():
+    # the batch reference is itself checked against RTS and TFS on a regular case
+    args = dict(pos_prior_mm=1.5, fix_mm=0.6, pitch_deg=0.01, heading_deg=0.3, bias_deg_h=0.2, arw=0.007,
+                scale_err=1e-4, scale_noise=8e-6)
+    prior, noise, fix = _figures(**args)
+    num = _numeric_sigmas(prior, noise, fix, 1.0, 60.0, 0.4, 60)
+    batch = _batch_sigmas(prior, noise, fix, 1.0, 60.0, 0.4, 60)
+    for d in B.DIRECTIONS:
+        assert np.max(np.abs(batch[d] / num[("tfs", d)] - 1)) < 1e-9
 
 
 def _eq46_case():

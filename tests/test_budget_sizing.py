@@ -150,3 +150,40 @@ def test_monte_carlo_with_the_first_fix_simulated_confirms_the_reading_of_p0():
     # the other reading (the prior itself as P(0)) is far off at the first fix
     wrong = B.sigma_along(replace(case, initial=replace(case.initial, position_m=prior)), np.array([0.0]))
     assert abs(mc.rms_m["lateral"][0] / wrong["lateral"][0] - 1) > 10 * tol
+
+
+def test_monte_carlo_of_a_long_interval_stays_within_its_memory_cap():
+    import tracemalloc
+
+    # 1000 m at 1 m/s: 1001 nodes; 2000 runs in one block would hold about 670 MB of arrays
+    r = _preset("fog", heading_error_rad=units.deg_to_rad(0.6), fix_spacing_m=1000.0)
+    cap = 32 * 2**20
+    B.monte_carlo(r.case, 2, seed=0)  # imports (filterpy) outside the measurement
+    tracemalloc.start()
+    try:
+        mc = B.monte_carlo(r.case, 2000, seed=5, memory_bytes=cap)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert mc.block_runs == B.monte_carlo_block_runs(1001, cap) < 2000
+    assert peak < 1.2 * cap
+    tol = 4.5 * mc.relative_sampling_error()
+    for d in B.DIRECTIONS:
+        for k in (mc.mid_index, mc.worst_index[d]):
+            assert abs(mc.rms_m[d][k] / mc.sigma_m[d][k] - 1) < tol, (d, k)
+
+
+def test_bias_instability_sizing_follows_the_gyrocompassing_heading():
+    imu = IMU_PRESETS["rlg"]
+    figs = B.SensorFigures(imu.gyro_arw_rad_sqrt_s, gyro_bias_instability_rad_s=imu.gyro_bias_instability_rad_s)
+    bi = B.max_gyro_bias_instability(figs, "lateral", TARGET)
+    case = B.with_gyro_bias_instability(figs, bi)
+    # the re-resolved case: heading from gyrocompassing with the new BI, equivalent bias 2 BI
+    assert case.initial.heading_rad == pytest.approx(em.heading_error_from_gyrocompassing(bi, figs.latitude_rad))
+    assert case.initial.gyro_bias_z_rad_s == pytest.approx(2 * bi, rel=1e-12)
+    assert B.worst_sigma(case, "lateral") == pytest.approx(TARGET, rel=1e-9)
+    with pytest.raises(B.TargetNotReachableError, match="no gyro bias instability meets the lateral target"):
+        B.max_gyro_bias_instability(figs, "lateral", 0.3e-3)
+    with pytest.raises(ValueError, match="derived route"):
+        B.max_gyro_bias_instability(replace(figs, gyro_bias_instability_rad_s=None, equivalent_gyro_bias_rad_s=1e-7),
+                                    "lateral", TARGET)

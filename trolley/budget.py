@@ -46,12 +46,14 @@ import numpy as np
 import scipy.optimize
 
 from trolley import error_models as em
+from trolley.sensors import OdometerFigures
 
 DIRECTIONS = ("vertical", "lateral", "longitudinal")
 SOURCES = ("initial_position", "initial_angle", "gyro_bias", "random_walk", "fix_noise")
 #: what the sizable parameters are called in messages
 PARAMETER_LABELS = {
     "gyro_bias_rad_s": "equivalent gyro bias",
+    "gyro_bias_instability_rad_s": "gyro bias instability",
     "gyro_arw_rad_sqrt_s": "angle random walk",
     "odo_scale_noise_per_sqrt_s": "odometer scale noise",
     "fix_spacing_m": "fix spacing",
@@ -403,17 +405,30 @@ def max_allowed(case: BudgetCase, parameter: str, direction: str, target_m: floa
     ValueError
         For a non-positive target or an unknown parameter.
     """
-    if not np.isfinite(target_m) or target_m <= 0:
-        raise ValueError(f"target must be a positive number of metres, got {target_m!r}")
     if parameter not in SIZABLE:
         raise ValueError(f"unknown parameter {parameter!r}; expected one of {sorted(SIZABLE)}")
     setter, x1, cap = SIZABLE[parameter]
-
-    def f(x: float) -> float:
-        return worst_sigma(setter(case, x), direction) - target_m
-
     # the fix spacing cannot be zero (T = 0 has no interval); start from a tiny spacing
     x0 = 1e-9 if parameter == "fix_spacing_m" else 0.0
+    return _largest_within(lambda x: worst_sigma(setter(case, x), direction), target_m, x0, x1, cap,
+                           parameter, direction, xtol_rel, max_expansions)
+
+
+def _largest_within(worst: Callable[[float], float], target_m: float, x0: float, x1: float, cap: float,
+                    parameter: str, direction: str, xtol_rel: float = 1e-12,
+                    max_expansions: int = 200) -> float:
+    """Root of ``worst(x) = target`` for a worst sigma increasing in x: bracket, then brentq.
+
+    The bracket ``[x0, hi]`` grows by doubling ``hi`` from ``x1`` until the worst sigma exceeds the
+    target; ``inf`` if it does not by ``cap``. Raises :class:`TargetNotReachableError` if
+    ``worst(x0)`` already reaches the target.
+    """
+    if not np.isfinite(target_m) or target_m <= 0:
+        raise ValueError(f"target must be a positive number of metres, got {target_m!r}")
+
+    def f(x: float) -> float:
+        return worst(x) - target_m
+
     f0 = f(x0)
     if f0 >= 0:
         raise TargetNotReachableError(parameter, direction, f0 + target_m, target_m)
@@ -545,6 +560,7 @@ class MonteCarloResult:
     rms_m : direction -> (K,) RMS of the smoothed error over the runs.
     sigma_m : direction -> (K,) analytic 1-sigma at the nodes.
     mid_index, worst_index : direction -> node index of mid-interval and of the analytic worst point.
+    block_runs : runs simulated at once (memory cap, :func:`monte_carlo_block_runs`).
     """
 
     runs: int
@@ -553,6 +569,7 @@ class MonteCarloResult:
     sigma_m: dict[str, np.ndarray]
     mid_index: int
     worst_index: dict[str, int] = field(default_factory=dict)
+    block_runs: int = 0
 
     def relative_sampling_error(self) -> float:
         """1-sigma relative error of an RMS over ``runs`` Gaussian samples, ~1/sqrt(2N)."""
@@ -593,8 +610,26 @@ def _gains(F, Q, P0, H, R, fix_nodes, scale):
     return Kg, C
 
 
+#: memory for the simulated runs of one Monte Carlo block (the arrays of nodes x states x runs)
+MONTE_CARLO_MEMORY_BYTES = 256 * 2**20
+#: float64 arrays of nodes x runs alive at once per simulated run: in :meth:`_Channel.errors` the
+#: truth, its process noise (and the draw it is made from), the predicted, filtered and smoothed
+#: states and their difference (7 x 5 level states, the 3 vertical errors kept meanwhile), plus
+#: the three rotated direction errors and one square
+_MC_ARRAYS_PER_NODE_RUN = 7 * len(em.LEVEL_STATES) + len(em.VERTICAL_STATES) + 4
+
+
+def monte_carlo_block_runs(nodes: int, memory_bytes: int = MONTE_CARLO_MEMORY_BYTES) -> int:
+    """Runs per Monte Carlo block so that its arrays of ``nodes`` x states x runs fit the memory.
+
+    At least 1 (a single run of a very long interval may exceed ``memory_bytes``).
+    """
+    per_run = 8 * int(nodes) * _MC_ARRAYS_PER_NODE_RUN
+    return max(1, int(memory_bytes) // per_run)
+
+
 def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: float = 0.3,
-                seed: int | None = None, chunk: int = 20_000,
+                seed: int | None = None, memory_bytes: int = MONTE_CARLO_MEMORY_BYTES,
                 prior_position_m: float | None = None) -> MonteCarloResult:
     """Monte Carlo of the budget: simulate ``runs`` intervals of the linear error models.
 
@@ -603,7 +638,10 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     the truth starts from ``P(0)`` of the case (after the first fix), the fix at T is simulated
     with the fix sigma, and a Kalman filter plus RTS smoother with gains shared by all runs
     estimates the errors. The level errors are rotated to longitudinal and lateral (Eq. 43).
-    Runs are processed in blocks of ``chunk`` to bound memory.
+    Runs are processed in blocks sized so that the block's arrays (nodes x states x runs,
+    :func:`monte_carlo_block_runs`) stay within ``memory_bytes``: a long interval with many runs
+    takes more blocks, not more memory. The random draws depend on the block size, so a seed
+    reproduces a result for the same ``memory_bytes``.
 
     With ``prior_position_m`` the first fix is simulated too: the true position starts with that
     sigma and a fix arrives at t = 0 as well; the case's ``initial.position_m`` must then be the
@@ -638,9 +676,10 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     level = _Channel(Fl, Ql, P0l, em.LEVEL_H, np.eye(2) * fix_var, K, fix_nodes)
     c, s = np.cos(heading_rad), np.sin(heading_rad)
     sumsq = {d: np.zeros(K) for d in DIRECTIONS}
+    block = monte_carlo_block_runs(K, memory_bytes)
     done = 0
     while done < runs:
-        n = min(chunk, runs - done)
+        n = min(block, runs - done)
         ev = vert.errors(rng, n)
         el = level.errors(rng, n)
         err = {"vertical": ev[..., 0],
@@ -654,7 +693,7 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     rms = {d: np.sqrt(sumsq[d] / runs) for d in DIRECTIONS}
     mid = int(np.argmin(np.abs(times - T / 2)))
     worst = {d: int(np.argmax(sig[d])) for d in DIRECTIONS}
-    return MonteCarloResult(runs, times, rms, sig, mid, worst)
+    return MonteCarloResult(runs, times, rms, sig, mid, worst, block)
 
 
 class _Channel:
@@ -724,6 +763,15 @@ SOURCE_NAMES: dict[str, dict[str, str]] = {
 }
 
 
+#: Odometer scale-factor error at the start of an interval, the budget's default: 0. Deliberately
+#: not ``trolley.sensors.OdometerFigures.scale_error`` (1e-4, the engine's prior before any fix):
+#: in a survey the fixes of the preceding intervals estimate the constant scale error (the level
+#: channel is observable, Jiang 2017 Eq. 26), and the paper's Sec. 5 analysis treats it so: its
+#: Fig. 6f odometer limit of about 1.1e-5/sqrt(s) is reproduced with 0 (1.110e-5), not with
+#: Eq. 46's 0.002 deg (9.30e-6) or 1e-4 (7.98e-6). ``--odo-scale-error`` sets a residual.
+BUDGET_ODO_SCALE_ERROR = 0.0
+
+
 @dataclass(frozen=True)
 class SensorFigures:
     """What an engineer knows before buying, all SI (the edges convert with trolley.units).
@@ -739,8 +787,10 @@ class SensorFigures:
     gyro_bias_instability_rad_s : datasheet bias instability.
     heading_error_rad : initial heading error; None: from a gyrocompassing alignment.
     level_error_rad : initial equivalent level (pitch) error, Jiang 2017 Sec. 5: 0.005 deg.
-    odo_scale_noise_per_sqrt_s : odometer scale-factor noise (PSD root).
-    odo_scale_error : odometer scale-factor error left after calibration (constant over the interval).
+    odo_scale_noise_per_sqrt_s : odometer scale-factor noise (PSD root); default the odometer of
+        :class:`trolley.sensors.OdometerFigures` (8e-6, Jiang 2017 Eq. 46).
+    odo_scale_error : odometer scale-factor error left after calibration (constant over the
+        interval); default :data:`BUDGET_ODO_SCALE_ERROR`.
     fix_spacing_m, speed_m_s, fix_sigma_m : the interval.
     latitude_rad : site latitude (Earth-rate projection, gyrocompassing).
     gyrocompassing : whether the IMU can find north by itself (False: heading_error_rad required).
@@ -751,8 +801,8 @@ class SensorFigures:
     gyro_bias_instability_rad_s: float | None = None
     heading_error_rad: float | None = None
     level_error_rad: float = 0.005 * np.pi / 180.0
-    odo_scale_noise_per_sqrt_s: float = 8e-6
-    odo_scale_error: float = 0.0
+    odo_scale_noise_per_sqrt_s: float = OdometerFigures.scale_noise_per_sqrt_s
+    odo_scale_error: float = BUDGET_ODO_SCALE_ERROR
     fix_spacing_m: float = 60.0
     speed_m_s: float = 1.0
     fix_sigma_m: float = 0.6e-3
@@ -845,6 +895,45 @@ def resolve_case(fig: SensorFigures) -> ResolvedCase:
     noise = em.ChannelNoise(fig.gyro_arw_rad_sqrt_s, fig.odo_scale_noise_per_sqrt_s)
     case = BudgetCase(ini, noise, fig.fix_sigma_m, fig.speed_m_s, fig.fix_spacing_m)
     return ResolvedCase(case, bias, heading, "given" if given else "derived", heading_route, how)
+
+
+def with_gyro_bias_instability(fig: SensorFigures, bias_instability_rad_s: float) -> BudgetCase:
+    """The case of ``fig`` with another datasheet bias instability, re-resolved.
+
+    :func:`resolve_case` runs again, so everything that follows the bias instability follows it:
+    the equivalent bias (Jiang 2017 Eq. 6) and, without a given heading error, the
+    gyrocompassing heading error ``BI / (omega_ie cos L)``. A given heading error stays.
+    """
+    return resolve_case(replace(fig, equivalent_gyro_bias_rad_s=None,
+                                gyro_bias_instability_rad_s=bias_instability_rad_s)).case
+
+
+def max_gyro_bias_instability(fig: SensorFigures, direction: str, target_m: float) -> float:
+    """Largest datasheet bias instability keeping the worst point of a direction within target.
+
+    Not the equivalent-bias limit of :func:`max_allowed` minus the Earth-rate term at the current
+    heading error: with a gyrocompassing heading the heading error grows with the bias
+    instability, so the equivalent bias is ``2 BI`` and the lateral heading error term grows too.
+    The case is re-resolved at each trial value (:func:`with_gyro_bias_instability`) and the root
+    found by the bracketing search of :func:`max_allowed`.
+
+    Returns
+    -------
+    The limit in rad/s; ``inf`` if none up to the cap of the equivalent bias (200 deg/h) exceeds
+    the target.
+
+    Raises
+    ------
+    TargetNotReachableError
+        If even a perfect gyro (zero bias instability) misses the target.
+    ValueError
+        If ``fig`` gives the equivalent bias (no bias instability to size) or a bad target.
+    """
+    if fig.gyro_bias_instability_rad_s is None:
+        raise ValueError("the bias instability is sized on the derived route only (figures give the equivalent bias)")
+    _, x1, cap = SIZABLE["gyro_bias_rad_s"]
+    return _largest_within(lambda x: worst_sigma(with_gyro_bias_instability(fig, x), direction), target_m,
+                           0.0, x1, cap, "gyro_bias_instability_rad_s", direction)
 
 
 def perfect_imu_floor(resolved: ResolvedCase) -> dict[str, float]:

@@ -107,13 +107,15 @@ def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_d
     eq = None if gyro_bias_deg_h is None else units.deg_h_to_rad_s(gyro_bias_deg_h)
     if eq is not None:
         bi = None
+    # the odometer figures not given keep SensorFigures' defaults (one place: trolley.budget)
+    odometer = {k: x for k, x in (("odo_scale_noise_per_sqrt_s", odo_scale_noise),
+                                  ("odo_scale_error", odo_scale_error)) if x is not None}
     figs = SensorFigures(
         gyro_arw_rad_sqrt_s=arw, equivalent_gyro_bias_rad_s=eq, gyro_bias_instability_rad_s=bi,
         heading_error_rad=None if heading_error_deg is None else units.deg_to_rad(heading_error_deg),
-        level_error_rad=units.deg_to_rad(level_error_deg), odo_scale_noise_per_sqrt_s=odo_scale_noise,
-        odo_scale_error=odo_scale_error, fix_spacing_m=fix_spacing_m, speed_m_s=speed_m_s,
+        level_error_rad=units.deg_to_rad(level_error_deg), fix_spacing_m=fix_spacing_m, speed_m_s=speed_m_s,
         fix_sigma_m=units.mm_to_m(fix_sigma_mm), latitude_rad=units.deg_to_rad(latitude_deg),
-        gyrocompassing=gyrocompassing)
+        gyrocompassing=gyrocompassing, **odometer)
     return imu, figs
 
 
@@ -183,7 +185,7 @@ def compute_report(imu: str, figs, target_mm: float, monte_carlo_runs: int, seed
     if monte_carlo_runs:
         mc = B.monte_carlo(case, monte_carlo_runs, seed=seed)
         out["monte_carlo"] = {
-            "runs": mc.runs, "seed": seed, "dt_s": float(mc.times_s[1] - mc.times_s[0]),
+            "runs": mc.runs, "seed": seed, "dt_s": float(mc.times_s[1] - mc.times_s[0]), "block_runs": mc.block_runs,
             "relative_sampling_error": mc.relative_sampling_error(),
             **{d: {"mid_rms_mm": units.m_to_mm(mc.rms_m[d][mc.mid_index]),
                    "mid_sigma_mm": units.m_to_mm(mc.sigma_m[d][mc.mid_index]),
@@ -202,9 +204,9 @@ def _limits(case, resolved, figs, target):
 
     notes: dict[str, str] = {}
 
-    def one(parameter, direction, convert, key):
+    def one(size, parameter, direction, convert, key):
         try:
-            x = B.max_allowed(case, parameter, direction, target)
+            x = size()
         except B.TargetNotReachableError as exc:
             notes[key] = str(exc)
             return None
@@ -214,12 +216,15 @@ def _limits(case, resolved, figs, target):
             return None
         return convert(x)
 
-    bias = {d: one("gyro_bias_rad_s", d, units.rad_s_to_deg_h, f"max_gyro_bias_deg_h.{d}")
+    def held(parameter, direction, convert, key):
+        return one(lambda: B.max_allowed(case, parameter, direction, target), parameter, direction, convert, key)
+
+    bias = {d: held("gyro_bias_rad_s", d, units.rad_s_to_deg_h, f"max_gyro_bias_deg_h.{d}")
             for d in ("lateral", "vertical")}
-    arw = {d: one("gyro_arw_rad_sqrt_s", d, units.rad_sqrt_s_to_deg_sqrt_h, f"max_gyro_arw_deg_sqrt_h.{d}")
+    arw = {d: held("gyro_arw_rad_sqrt_s", d, units.rad_sqrt_s_to_deg_sqrt_h, f"max_gyro_arw_deg_sqrt_h.{d}")
            for d in ("lateral", "vertical")}
-    odo = one("odo_scale_noise_per_sqrt_s", "longitudinal", float, "max_odo_scale_noise_per_sqrt_s")
-    spacing = {d: one("fix_spacing_m", d, float, f"max_fix_spacing_m.{d}") for d in B.DIRECTIONS}
+    odo = held("odo_scale_noise_per_sqrt_s", "longitudinal", float, "max_odo_scale_noise_per_sqrt_s")
+    spacing = {d: held("fix_spacing_m", d, float, f"max_fix_spacing_m.{d}") for d in B.DIRECTIONS}
     finite = [x for x in spacing.values() if x is not None]
     limits = {
         "max_gyro_bias_deg_h": bias,
@@ -229,11 +234,12 @@ def _limits(case, resolved, figs, target):
         "max_fix_spacing_m_by_direction": spacing,
     }
     if resolved.bias_route == "derived":
-        # the datasheet bias instability that keeps the equivalent bias within the limit
-        term = units.rad_s_to_deg_h(units.EARTH_RATE_RAD_S * math.cos(figs.latitude_rad)
-                                    * abs(resolved.heading_error_rad))
+        # sized on the bias instability itself, the case re-resolved at each trial value: a
+        # gyrocompassing heading error (and with it the Earth-rate term) follows it
         limits["max_gyro_bias_instability_deg_h"] = {
-            d: (None if b is None else b - term) for d, b in bias.items()}
+            d: one(lambda d=d: B.max_gyro_bias_instability(figs, d, target), "gyro_bias_instability_rad_s", d,
+                   units.rad_s_to_deg_h, f"max_gyro_bias_instability_deg_h.{d}")
+            for d in ("lateral", "vertical")}
     return limits, notes
 
 
@@ -264,11 +270,6 @@ def _print_table(rep: dict) -> None:
         t.add_row(d, f"{r['mid_mm']:.3f}", f"{r['max_mm']:.3f}", f"{r['worst_at_m']:.1f}", verdict,
                   f"{r['margin_mm']:+.3f}")
     con.print(t)
-    s = Table(title="Contributions at the worst point (mm; they add in quadrature)")
-    s.add_column("source")
-    for d in ("vertical", "lateral", "longitudinal"):
-        s.add_column(d, justify="right")
-    src = {d: rep[d]["sources_max_mm"] for d in ("vertical", "lateral", "longitudinal")}
     rows = (
         ("initial position (first fix)", "initial_position", "initial_position", "initial_position"),
         ("level / heading / odo scale error", "level_error", "heading_error", "odo_scale_error"),
@@ -276,11 +277,22 @@ def _print_table(rep: dict) -> None:
         ("ARW / odo scale noise", "angle_random_walk", "angle_random_walk", "odo_scale_noise"),
         ("fix noise (second fix)", "fix_noise", "fix_noise", "fix_noise"),
     )
-    for label, *keys in rows:
-        s.add_row(label, *("-" if k is None else f"{src[d][k]:.3f}"
-                           for d, k in zip(("vertical", "lateral", "longitudinal"), keys)))
-    s.add_row("total", *(f"{rep[d]['max_mm']:.3f}" for d in ("vertical", "lateral", "longitudinal")))
-    con.print(s)
+    # both points: with a good IMU the worst point is at a fix, where the gyro terms vanish
+    for where, src_key, total_key in (("MID-INTERVAL", "sources_mid_mm", "mid_mm"),
+                                      ("the WORST POINT", "sources_max_mm", "max_mm")):
+        s = Table(title=f"Contributions at {where} (mm; they add in quadrature)")
+        s.add_column("source")
+        for d in ("vertical", "lateral", "longitudinal"):
+            s.add_column(d, justify="right")
+        src = {d: rep[d][src_key] for d in ("vertical", "lateral", "longitudinal")}
+        if total_key == "max_mm":
+            s.add_row("[dim]at (m from the first fix)[/dim]",
+                      *(f"[dim]{rep[d]['worst_at_m']:.1f}[/dim]" for d in ("vertical", "lateral", "longitudinal")))
+        for label, *keys in rows:
+            s.add_row(label, *("-" if k is None else f"{src[d][k]:.3f}"
+                               for d, k in zip(("vertical", "lateral", "longitudinal"), keys)))
+        s.add_row("total", *(f"{rep[d][total_key]:.3f}" for d in ("vertical", "lateral", "longitudinal")))
+        con.print(s)
     lim = rep["limits"]
     L = Table(title=f"Sizing limits for the {inp['target_mm']:g} mm target (other inputs held)")
     L.add_column("quantity")
@@ -291,7 +303,9 @@ def _print_table(rep: dict) -> None:
     L.add_row("equivalent gyro bias (deg/h)", fmt(lim["max_gyro_bias_deg_h"]["lateral"]),
               fmt(lim["max_gyro_bias_deg_h"]["vertical"]), "-")
     if "max_gyro_bias_instability_deg_h" in lim:
-        L.add_row("gyro bias instability (deg/h)", fmt(lim["max_gyro_bias_instability_deg_h"]["lateral"]),
+        follows = inp["heading_error_source"] == "gyrocompassing"
+        L.add_row("gyro bias instability (deg/h)" + (" *" if follows else ""),
+                  fmt(lim["max_gyro_bias_instability_deg_h"]["lateral"]),
                   fmt(lim["max_gyro_bias_instability_deg_h"]["vertical"]), "-")
     L.add_row("angle random walk (deg/sqrt(h))", fmt(lim["max_gyro_arw_deg_sqrt_h"]["lateral"]),
               fmt(lim["max_gyro_arw_deg_sqrt_h"]["vertical"]), "-")
@@ -300,6 +314,9 @@ def _print_table(rep: dict) -> None:
     L.add_row("fix spacing (m)", fmt(sp["lateral"], "{:.1f}"), fmt(sp["vertical"], "{:.1f}"),
               fmt(sp["longitudinal"], "{:.1f}"))
     con.print(L)
+    if "max_gyro_bias_instability_deg_h" in lim and inp["heading_error_source"] == "gyrocompassing":
+        con.print("[dim]* with the gyrocompassing heading error and the equivalent bias following the bias "
+                  "instability (equivalent bias = 2 x bias instability)[/dim]", highlight=False)
     for k, msg in rep["limit_notes"].items():
         con.print(f"[dim]{k}: {msg}[/dim]", highlight=False)
     if "monte_carlo" in rep:
@@ -427,9 +444,12 @@ def budget_command(
     heading_error_deg: Annotated[Optional[float], typer.Option(
         "--heading-error-deg", help="initial heading error (default: gyrocompassing with the bias)")] = None,
     level_error_deg: Annotated[float, typer.Option("--level-error-deg", help="initial equivalent level error")] = 0.005,
-    odo_scale_noise: Annotated[float, typer.Option("--odo-scale-noise", help="odometer scale-factor noise, 1/sqrt(s)")] = 8e-6,
-    odo_scale_error: Annotated[float, typer.Option("--odo-scale-error", help="odometer scale-factor error left after "
-                                                                             "calibration (constant)")] = 0.0,
+    odo_scale_noise: Annotated[Optional[float], typer.Option(
+        "--odo-scale-noise", help="odometer scale-factor noise, 1/sqrt(s) (default: the odometer of "
+                                  "trolley.sensors.OdometerFigures, Jiang 2017 Eq. 46)")] = None,
+    odo_scale_error: Annotated[Optional[float], typer.Option(
+        "--odo-scale-error", help="odometer scale-factor error left after calibration, constant over the "
+                                  "interval (default: trolley.budget.BUDGET_ODO_SCALE_ERROR, 0; docs/budget.md)")] = None,
     fix_spacing_m: Annotated[float, typer.Option("--fix-spacing-m", help="distance between fixes")] = 60.0,
     speed_m_s: Annotated[float, typer.Option("--speed-m-s", help="trolley speed")] = 1.0,
     fix_sigma_mm: Annotated[float, typer.Option("--fix-sigma-mm", help="1-sigma of a total-station fix")] = 0.6,
@@ -452,6 +472,8 @@ def budget_command(
             raise BudgetInputError(f"--monte-carlo must be >= 0, got {monte_carlo}")
         if monte_carlo == 1:
             raise BudgetInputError("--monte-carlo needs at least 2 runs")
+        if seed < 0:
+            raise BudgetInputError(f"--seed must be an integer >= 0, got {seed}")
         _check_positive(target_mm=target_mm)
         imu_name, figs = sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,
                                         heading_error_deg, level_error_deg, odo_scale_noise, odo_scale_error,
@@ -459,6 +481,10 @@ def budget_command(
         rep = compute_report(imu_name, figs, target_mm, monte_carlo, seed)
     except (BudgetInputError, TargetNotReachableError, ValueError) as exc:
         _fail(str(exc))
+        return
+    except MemoryError:
+        _fail(f"not enough memory for this budget (--monte-carlo {monte_carlo} over {fix_spacing_m:g} m at "
+              f"{speed_m_s:g} m/s): use fewer --monte-carlo runs or a shorter --fix-spacing-m")
         return
     if plot is not None:
         if plot.exists() and not plot.is_dir():
