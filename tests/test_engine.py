@@ -218,3 +218,41 @@ def test_progress_reports_sub_steps_in_order(design, simulated):
     assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] == 1.0
     for name in ("dead reckoning", "forward filter, pass 1", "rts smoother, pass 1", "stations"):
         assert any(s.startswith(name) for s in steps), name
+
+
+# ------------------------------------------------------------------------------------------
+# the crew turns the trolley around at a stop (issue 7: lever arm and signs follow)
+# ------------------------------------------------------------------------------------------
+TURNED = dict(turn_at_stops=(2, 4), trolley=dataclasses.replace(
+    SimulationConfig().trolley, prism_lever_arm_m=np.array([0.05, 0.35, -0.60])))
+
+
+def test_turned_trolley_errors_stay_inside_their_sigmas(design):
+    # Turned at two stops, with the prism 0.35 m to the side: the dead reckoning runs backwards
+    # in the trolley frame, the pitch error changes sign at the turn, the lever arm turns with
+    # the trolley. Pooled as the unturned test, with the same limits.
+    for grade, outside in (("rlg", 0.01), ("mems", 0.02)):
+        lat_q, vert_q, lat, dh = _pooled_normalised_errors(design, range(6), imu=IMU_PRESETS[grade], **TURNED)
+        if grade == "rlg":
+            assert np.sqrt(np.mean(lat**2)) < 0.6e-3
+            assert np.sqrt(np.mean(dh**2)) < 0.6e-3
+        _assert_honest(lat_q, outside)
+        _assert_honest(vert_q, outside)
+
+
+@pytest.mark.parametrize("with_design", [True, False])
+def test_cant_keeps_its_sign_when_the_trolley_is_turned(design, with_design):
+    sim = simulate_survey(design, SimulationConfig(**SHORT, imu=IMU_PRESETS["rlg"], seed=3, **TURNED))
+    assert np.diff(sim.session.odo_distance_m).min() < 0  # the odometer counted down after the first turn
+    r = process_session(sim.session, design if with_design else None, ProcessConfig(), **NO_OBS)
+    st = r.stations
+    assert r.summary["fixes_rejected"] == 0
+    # the stations' true cant, at the true chainage of each station's time
+    true_s = np.interp(st.t_s, sim.truth.t_s, sim.truth.chainage_m)
+    true_cant = sim.truth.at_chainage(true_s).cant_m
+    assert np.ptp(true_cant) > 0.05  # the stretch runs through the canted curve
+    turned = sim.truth.motion.facing(st.t_s) < 0
+    assert 0.3 < turned.mean() < 0.7  # both ways round are in the survey
+    # a roll of the turned trolley taken as the cant would be off by twice the cant
+    assert np.max(np.abs(st.cant_m - true_cant)) < 1e-3
+    assert np.all(np.diff(st.chainage_m) > 0)

@@ -5,6 +5,8 @@ Rotation, a series normal-gravity formula, chord sums), never with the simulator
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 from dataclasses import replace
 
 import numpy as np
@@ -13,8 +15,9 @@ from scipy.spatial.transform import Rotation
 
 from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line,
                                VerticalProfile)
+from trolley.landxml import parse_landxml
 from trolley.session import TrolleyGeometry
-from trolley.truthsim import SimulationConfig, simulate_survey
+from trolley.truthsim import SimulationConfig, motion_profile, simulate_survey
 
 W_EARTH = 7.292115e-5
 R_EARTH = 6378137.0
@@ -262,3 +265,37 @@ def test_accelerometer_bias_and_noise_sizes(noisy, clean):
     # the residual mounting (3e-3 deg) tilts gravity by < 5e-4 m/s^2 on x, y
     assert np.all(np.abs(mean) < 5 * cfg.imu.accel_bias_m_s2 + 5e-4)
     assert np.any(np.abs(mean) > 0.05 * cfg.imu.accel_bias_m_s2)
+
+
+def test_a_turned_trolley_runs_backwards_in_its_own_frame():
+    design = parse_landxml((Path(__file__).resolve().parents[1] / "projects/demo/alignment.xml").read_text())
+    cfg = SimulationConfig(length_m=180.0, static_s=60.0, stop_s=30.0, turn_at_stops=(1,), turn_s=10.0,
+                              errors=False, seed=4)
+    sim = simulate_survey(design, cfg)
+    m, s = sim.truth.motion, sim.session
+    t0 = m.turn_start_s[0]
+    assert m.stop_start_s[1] < t0 and t0 + cfg.turn_s < m.stop_end_s[1]
+    # the gyros see the half turn about the trolley's z axis: pi, less the Earth rate's share
+    k = (s.imu_t_s > t0) & (s.imu_t_s <= t0 + cfg.turn_s)
+    assert abs(np.sum(s.imu_w_rad_s[k, 2]) / cfg.imu_rate_hz - np.pi) < 1e-3
+    # afterwards the odometer counts down by the path length of the rest of the survey
+    after = s.odo_t_s > m.stop_end_s[1]
+    assert np.all(np.diff(s.odo_distance_m[after]) <= 0)
+    travelled = float(sim.truth.geometry.arclength(m.stop_chainage_m[-1]) - sim.truth.geometry.arclength(m.stop_chainage_m[1]))
+    assert abs((s.odo_distance_m[-1] - s.odo_distance_m[after][0]) + travelled) < 2e-4
+    # the turned trolley's yaw is the track's plus pi; its roll is minus the track's
+    late = sim.truth.t_s > m.stop_end_s[1] + 5.0
+    track = sim.truth.at_chainage(sim.truth.chainage_m[late])
+    assert np.allclose(np.angle(np.exp(1j * (sim.truth.yaw_rad[late] - track.yaw_rad - np.pi))), 0.0, atol=1e-9)
+    assert np.allclose(sim.truth.roll_rad[late], -track.roll_rad, atol=1e-9)
+    # two fixes at the turn stop, before and after; equal without a lateral lever arm
+    at_stop = (s.fixes.t_s > m.stop_start_s[1]) & (s.fixes.t_s < m.stop_end_s[1])
+    assert at_stop.sum() == 2
+    assert s.fixes.t_s[at_stop][0] < t0 < t0 + cfg.turn_s < s.fixes.t_s[at_stop][1]
+
+
+def test_a_turn_needs_a_long_enough_stop():
+    with pytest.raises(ValueError, match="needs stops of at least"):
+        motion_profile(0.0, 120.0, 60.0, 10.0, 12.0, 1.0, 4.0, turn_at_stops=(1,), turn_s=10.0)
+    with pytest.raises(ValueError, match="static alignment"):
+        motion_profile(0.0, 120.0, 60.0, 10.0, 30.0, 1.0, 4.0, turn_at_stops=(0,))

@@ -75,6 +75,48 @@ class DeadReckoning:
         """(K, 3) roll, pitch, yaw of the trolley (FRD w.r.t. NED, ZYX convention)."""
         return self.trolley_to_nav.as_euler("ZYX")[:, ::-1]
 
+    @property
+    def travel_m(self) -> np.ndarray:
+        """(K,) distance travelled, never decreasing: the odometer counts down while the trolley
+        runs backwards in its own frame (turned around), the travel still grows."""
+        d = np.asarray(self.distance_m, dtype=float)
+        out = np.empty_like(d)
+        if d.size:
+            out[0] = d[0]
+            np.cumsum(np.abs(np.diff(d)), out=out[1:])
+            out[1:] += d[0]
+        return out
+
+
+#: Heading change while standing that counts as the crew turning the trolley around, rad.
+TURN_DETECTION_RAD = 0.5 * np.pi
+
+
+def turn_blocks(dr: DeadReckoning) -> np.ndarray:
+    """DR blocks at which the trolley has been turned around (sorted).
+
+    A turn is a change of the trolley's heading by more than 90 deg while the odometer stands
+    still (the crew lifts the trolley and puts it back the other way round); the block returned is
+    the first at which the heading is more than 90 deg from where it was when the trolley stopped.
+    Standing stretches are few (one per stop): the loop runs over stops, not samples.
+    """
+    d = np.asarray(dr.distance_m, dtype=float)
+    if d.size < 2:
+        return np.zeros(0, dtype=int)
+    standing = np.diff(d) == 0.0  # step k -> k+1
+    edges = np.diff(np.concatenate([[0], standing.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # run of steps [a, b)
+    if starts.size == 0:
+        return np.zeros(0, dtype=int)
+    yaw = np.unwrap(dr.euler_rad()[:, 2])
+    out = []
+    for a, b in zip(starts, ends):  # blocks a..b stand
+        dy = np.abs(yaw[a:b + 1] - yaw[a])
+        over = np.flatnonzero(dy > TURN_DETECTION_RAD)
+        if over.size and dy[-1] > TURN_DETECTION_RAD:
+            out.append(a + int(over[0]))
+    return np.asarray(out, dtype=int)
+
 
 def mounting_rotation(imu_misalignment_rad) -> Rotation:
     """C_b^bt, the rotation taking IMU-frame vectors into the trolley frame.
@@ -290,7 +332,8 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
 
 def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, odo_distance_m: np.ndarray,
                 stop_times_s: np.ndarray, imu_misalignment_rad, window_s: float = 10.0,
-                min_samples: int = 20) -> tuple[np.ndarray, np.ndarray]:
+                min_samples: int = 20, w_rad_s: np.ndarray | None = None,
+                max_rotation_rad: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """Roll and pitch of the trolley from the accelerometers at each stop.
 
     While the trolley stands, the specific force is gravity alone, so the accelerometers level
@@ -307,6 +350,9 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     imu_misalignment_rad : nominal mounting angles.
     window_s : half-width of the window around each stop time.
     min_samples : fewer standing samples than this gives NaN for that stop.
+    w_rad_s : IMU angular rates; when given, only samples whose attitude is within
+        ``max_rotation_rad`` (accumulated |w| dt) of the attitude at the stop time count, so a
+        window never mixes the levels before and after the crew turned the trolley around.
 
     Returns
     -------
@@ -321,8 +367,16 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     moving_before = np.abs(np.interp(t - 0.05, odo_t_s, odo_distance_m) - d) > 1e-6
     moving_after = np.abs(np.interp(t + 0.05, odo_t_s, odo_distance_m) - d) > 1e-6
     standing = ~(moving_before | moving_after)
-    f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2[idx])  # trolley frame
     seg = np.repeat(np.arange(len(lo)), hi - lo)
+    if w_rad_s is not None and idx.size:
+        # rotation accumulated inside each window, measured from the stop time
+        rot = np.linalg.norm(w_rad_s[idx], axis=1) * np.diff(t, prepend=t[0])
+        cum = np.cumsum(rot)
+        first = np.concatenate([[0], np.cumsum(hi - lo)[:-1]])
+        at_stop = np.clip(np.searchsorted(imu_t_s, stop_times_s) - lo, 0, np.maximum(hi - lo - 1, 0))
+        ref = cum[np.minimum(first + at_stop, cum.size - 1)]
+        standing &= np.abs(cum - ref[seg]) < max_rotation_rad
+    f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2[idx])  # trolley frame
     count = np.bincount(seg, weights=standing, minlength=len(lo))
     mean = np.column_stack([np.bincount(seg, weights=f_t[:, i] * standing, minlength=len(lo)) for i in range(3)])
     mean /= np.maximum(count, 1)[:, None]

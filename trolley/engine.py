@@ -26,7 +26,7 @@ from scipy.linalg import block_diag
 
 from trolley import error_models as em
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation, quat_multiply,
-                                   static_alignment, stop_levels, with_roll_levelled)
+                                   static_alignment, stop_levels, turn_blocks, with_roll_levelled)
 from trolley.session import RawSession
 from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
 from trolley.trackgeometry import TrackInput
@@ -40,6 +40,7 @@ _STATION_FIELDS = ("chainage_m", "E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", 
 #: Order of the combined 8-state error vector: level channel then vertical channel.
 STATE_NAMES = em.LEVEL_STATES + em.VERTICAL_STATES
 _IDX_N, _IDX_E, _IDX_D = 0, 1, 5
+_IDX_HEADING, _IDX_PITCH = 3, 6  # the equivalent heading and pitch errors
 _POS = [_IDX_N, _IDX_E, _IDX_D]
 
 
@@ -119,7 +120,11 @@ class Stations(TrackInput):
 
 @dataclass
 class Trajectory:
-    """The corrected trajectory of the track reference point at dead-reckoning resolution."""
+    """The corrected trajectory of the track reference point at dead-reckoning resolution.
+
+    ``distance_m`` is the distance travelled (never decreasing); ``odometer_m`` the signed
+    odometer, which counts down while the trolley runs turned around (None: never turned).
+    """
 
     t_s: np.ndarray
     distance_m: np.ndarray
@@ -127,6 +132,7 @@ class Trajectory:
     sigma_enh_m: np.ndarray
     roll_rad: np.ndarray
     error_states: np.ndarray  # (K, 8) smoothed (or filtered) error estimate
+    odometer_m: np.ndarray | None = None
 
 
 @dataclass
@@ -156,6 +162,35 @@ def _enh(ned: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
 #: The fixes observe the position errors N, E, D of the 8-state vector.
 FIX_H = np.zeros((3, 8))
 FIX_H[0, _IDX_N] = FIX_H[1, _IDX_E] = FIX_H[2, _IDX_D] = 1.0
+
+
+def fix_matrices(lever_ned_m: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
+    """(M, 3, 8) measurement matrices of prism fixes with the lever arm's attitude error.
+
+    The prism is the reference point plus the lever arm L = C_bt^n l, put into the navigation
+    frame with the dead-reckoned attitude; with ``C_est = (I - [phi x]) C_true`` (Jiang 2017
+    Eq. 8) its error is ``L x phi``, and the equivalent pitch and heading errors of the states
+    make ``phi = [-sin(psi) phi_pitch, cos(psi) phi_pitch, phi_D]`` (Eq. 4; roll is levelled at
+    the stops). With the prism right above the reference point this is the pitch error times the
+    mast height; with the prism off to one side, the heading error moves it sideways, and by the
+    opposite amount once the crew has turned the trolley around.
+    """
+    L = np.atleast_2d(lever_ned_m)
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    H = np.broadcast_to(FIX_H, (L.shape[0], 3, 8)).copy()
+    H[:, 0, _IDX_HEADING] = L[:, 1]
+    H[:, 1, _IDX_HEADING] = -L[:, 0]
+    H[:, 0, _IDX_PITCH] = -L[:, 2] * c
+    H[:, 1, _IDX_PITCH] = -L[:, 2] * s
+    H[:, 2, _IDX_PITCH] = L[:, 0] * c + L[:, 1] * s
+    return H
+
+
+def turn_sigmas(meta, config: ProcessConfig) -> tuple[float, float]:
+    """1-sigma of the jumps of the equivalent pitch and heading errors when the crew turns the
+    trolley around (:func:`turned_around`): twice the residual mounting error, and pi times the
+    gyro scale-factor error."""
+    return 2.0 * config.residual_level_rad, float(np.pi * meta.imu.gyro_scale_factor)
 
 
 def filter_noise(meta, config: ProcessConfig) -> em.ChannelNoise:
@@ -210,9 +245,10 @@ def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: floa
     change over the standing part (a heading error of 3 mrad makes that 3 mm per metre).
     """
     K = dr.t_s.shape[0]
-    by_dist = np.flatnonzero(np.diff(np.floor(dr.distance_m / node_spacing_m)) != 0) + 1
+    travel = dr.travel_m
+    by_dist = np.flatnonzero(np.diff(np.floor(travel / node_spacing_m)) != 0) + 1
     by_time = np.flatnonzero(np.diff(np.floor(dr.t_s / max_node_dt_s)) != 0) + 1
-    moving = np.diff(dr.distance_m) > 0  # block k -> k+1
+    moving = np.diff(travel) > 0  # block k -> k+1
     starts_stops = np.flatnonzero(np.diff(moving.astype(np.int8)) != 0) + 1
     return np.unique(np.concatenate([[0, K - 1], by_dist, by_time, starts_stops, fix_blocks]))
 
@@ -248,7 +284,8 @@ def discrete_model(speed: np.ndarray, vn: np.ndarray, ve: np.ndarray, noise: em.
     return F, Q
 
 
-def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise
+def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise,
+                turn_pitch_sigma_rad: float = 0.0, turn_heading_sigma_rad: float = 0.0
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact discretisation of the 8-state error model between consecutive nodes.
 
@@ -256,7 +293,49 @@ def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise
     east velocity (:func:`interval_motion`).
     """
     dt, speed, vn, ve = interval_motion(dr, nodes)
-    return discrete_model(speed, vn, ve, noise, dt)
+    F, Q = discrete_model(speed, vn, ve, noise, dt)
+    return turned_around(F, Q, dr, nodes, turn_pitch_sigma_rad, turn_heading_sigma_rad)
+
+
+_HEADING, _PITCH = _IDX_HEADING, _IDX_PITCH
+
+
+def turned_around(F: np.ndarray, Q: np.ndarray, dr: DeadReckoning, nodes: np.ndarray,
+                  pitch_sigma_rad: float = 0.0, heading_sigma_rad: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """F and Q with the crew's turns of the trolley (:func:`trolley.deadreckoning.turn_blocks`).
+
+    The error states are those of the trolley frame (Jiang 2017 Eq. 14-16). Turning the trolley
+    by 180 deg about its z axis keeps the navigation-frame attitude error but reverses the
+    trolley's y axis, so the equivalent pitch error changes sign, while the heading error (about
+    z), the gyro biases (fixed to the IMU), the odometer scale factor and the position errors are
+    unchanged; the odometer speed of Eq. 18 then changes sign too, so ``v * phi_pitch`` keeps
+    driving the height error the same way. The turn is applied at the end of the node interval
+    in which it happens (the trolley stands: nothing else moves then).
+
+    The equivalent pitch error holds the residual IMU-to-trolley mounting error eps too (Eq. 14),
+    which is fixed to the trolley and does not change sign: after the turn it is
+    ``-phi_pitch_eq + 2 eps``. The model has no state for eps, so ``2 eps`` enters as process
+    noise of sigma ``pitch_sigma_rad`` (twice the residual mounting sigma) at the turn: slightly
+    conservative, as it forgets that eps is partly known from the fixes before the turn.
+    Likewise the z gyro's scale-factor error sf turns the heading by ``pi sf`` during the turn;
+    ``heading_sigma_rad`` (pi times the scale-factor figure) enters the equivalent heading error.
+    """
+    turns = turn_blocks(dr)
+    if turns.size == 0:
+        return F, Q
+    interval = np.clip(np.searchsorted(nodes, turns, side="left") - 1, 0, F.shape[0] - 1)
+    flips = np.bincount(interval, minlength=F.shape[0]) % 2 == 1
+    if not flips.any():
+        return F, Q
+    T = np.ones(8)
+    T[_PITCH] = -1.0
+    F, Q = F.copy(), Q.copy()
+    F[flips] *= T[:, None]
+    Q[flips] *= T[:, None] * T[None, :]
+    Q[flips, _PITCH, _PITCH] += pitch_sigma_rad ** 2
+    Q[flips, _HEADING, _HEADING] += heading_sigma_rad ** 2
+    return F, Q
 
 
 def _interp_rows(x_new: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -280,10 +359,11 @@ def _interp_nodes(dr: DeadReckoning, nodes: np.ndarray, y: np.ndarray) -> np.nda
     k = np.arange(dr.t_s.shape[0])
     j = np.clip(np.searchsorted(nodes, k, side="right") - 1, 0, len(nodes) - 2)
     a, b = nodes[j], nodes[j + 1]
-    dd = dr.distance_m[b] - dr.distance_m[a]
+    travel = dr.travel_m
+    dd = travel[b] - travel[a]
     dt = dr.t_s[b] - dr.t_s[a]
     with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.where(dd > 0, (dr.distance_m - dr.distance_m[a]) / np.where(dd > 0, dd, 1.0),
+        frac = np.where(dd > 0, (travel - travel[a]) / np.where(dd > 0, dd, 1.0),
                         np.where(dt > 0, (dr.t_s - dr.t_s[a]) / np.where(dt > 0, dt, 1.0), 0.0))
     frac = np.clip(frac, 0.0, 1.0).reshape((-1,) + (1,) * (y.ndim - 1))
     return y[j] + frac * (y[j + 1] - y[j])
@@ -358,7 +438,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     if config.level_at_stops:
         report("levelling at the stops", 0.22)
         stop_roll, _ = stop_levels(session.imu_t_s, session.imu_f_m_s2, session.odo_t_s,
-                                   session.odo_distance_m, fix_t, misalign)
+                                   session.odo_distance_m, fix_t, misalign, w_rad_s=session.imu_w_rad_s)
         dr = with_roll_levelled(dr, fix_t, stop_roll)
 
     nodes = filter_nodes(dr, fix_blocks, config.node_spacing_m, config.max_node_dt_s)
@@ -366,7 +446,6 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     noise = filter_noise(session.meta, config)
     P0, heading_sigma = initial_covariance(session.meta, align, align.t_end_s - session.imu_t_s[0], config)
     scale = np.sqrt(np.diag(P0))
-    H = FIX_H
     R = fix_covariances(fix_sig)
     forced = np.array([p in set(config.force_accept) for p in fix_pt], dtype=bool)
     if config.smoother not in ("rts", "tfs", "none"):
@@ -390,9 +469,14 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         lever_ned = dr_cur.trolley_to_nav[fix_blocks].apply(lever)
         p0 = fix_ned[0] - lever_ned[0] - dr_cur.position_ned_m[fix_blocks[0]]
         offset = correction[:, _POS] - correction[fix_blocks[0], _POS]
-        z = p0 + dr_cur.position_ned_m[fix_blocks] + lever_ned - fix_ned + offset[fix_blocks]
+        H = fix_matrices(lever_ned, dr_cur.euler_rad()[fix_blocks, 2])
+        # the lever arm was put into the frame with the corrected attitude: its error in terms of
+        # the total attitude error adds back the correction's share
+        att = [_IDX_HEADING, _IDX_PITCH]
+        lever_offset = np.einsum("mik,mk->mi", H[:, :, att], correction[fix_blocks][:, att])
+        z = p0 + dr_cur.position_ned_m[fix_blocks] + lever_ned - fix_ned + offset[fix_blocks] + lever_offset
         meas = Measurements(fix_nodes, z, H, R)
-        F, Q = error_model(dr_cur, nodes, noise)
+        F, Q = error_model(dr_cur, nodes, noise, *turn_sigmas(meta, config))
         fwd_progress = within(f"forward filter, {label}", base + 0.1 * share, base + 0.55 * share)
         if it == 0:
             fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
@@ -429,7 +513,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     sig = np.sqrt(np.maximum(var_blocks, 0.0))
     sigma_enh = np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]])
     roll = dr_used.euler_rad()[:, 0]
-    traj = Trajectory(dr.t_s, dr.distance_m, enh, sigma_enh, roll, x_blocks)
+    traj = Trajectory(dr.t_s, dr.travel_m, enh, sigma_enh, roll, x_blocks, odometer_m=dr.distance_m)
 
     # innovation: the DR error the fix saw minus the error the filter predicted, in grid E, N, H
     # (of the first pass, the one that gated the fixes)
@@ -497,12 +581,13 @@ def session_observability_ranks(dr: DeadReckoning, fix_blocks: np.ndarray, min_t
     b = np.sort(np.asarray(fix_blocks, dtype=int))
     if b.size == 0:
         b = np.array([0])
-    d = dr.distance_m[b]
+    travel = dr.travel_m
+    d = travel[b]
     stops = b[np.concatenate([[True], np.diff(d) > min_travel_m])]
     if stops.size < 2:
         stops = np.array([0, dr.t_s.shape[0] - 1])
     dt, speed, vn, ve = interval_motion(dr, stops)
-    moving = (np.diff(dr.distance_m[stops]) > min_travel_m) & (dt > 0)
+    moving = (np.diff(travel[stops]) > min_travel_m) & (dt > 0)
     return em.interval_observability_ranks(np.where(moving, speed, 0.0), np.where(moving, vn, 0.0),
                                            np.where(moving, ve, 0.0))
 
@@ -556,7 +641,8 @@ def _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign
     # bias x dt and arw x sqrt(dt) in the time dt from there to half-way along the chord. The
     # filter's P0 takes heading and bias as independent, so that drift belongs in the sigma
     # (without it a MEMS unit gave 2.4 x its sigmas laterally, and rejected good fixes).
-    half = np.searchsorted(dr.distance_m, 0.5 * (dr.distance_m[fix_blocks[0]] + dr.distance_m[fix_blocks[j]]))
+    travel = dr.travel_m
+    half = np.searchsorted(travel, 0.5 * (travel[fix_blocks[0]] + travel[fix_blocks[j]]))
     dt = max(float(dr.t_s[min(half, dr.t_s.shape[0] - 1)] - dr.t_s[0]), 0.0)
     imu = session.meta.imu
     sig = float(np.sqrt((np.sqrt(2.0) * max(session.meta.fix_sigma_m, 1e-4) / dist) ** 2
@@ -567,6 +653,24 @@ def _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign
     m = session.meta
     return new, dead_reckon(session.imu_t_s, session.imu_w_rad_s, session.odo_t_s, session.odo_distance_m,
                             new, m.latitude_rad, m.height_m, misalign, config.block_size)
+
+
+def _facing(chainage_m: np.ndarray, odometer_m: np.ndarray) -> np.ndarray:
+    """+1 where the trolley's x axis points to increasing chainage, -1 where it is turned around.
+
+    Judged from the motion: the odometer counts up when the trolley moves along its own x axis,
+    so the signs of the chainage and odometer steps agree when it faces increasing chainage.
+    Standing samples take the facing of the last motion (of the first, before any).
+    """
+    step = np.sign(np.diff(chainage_m) * np.diff(odometer_m))
+    facing = np.concatenate([[0.0], step])
+    known = np.flatnonzero(facing != 0)
+    if known.size == 0:
+        return np.ones(chainage_m.shape[0])
+    last = np.maximum.accumulate(np.where(facing != 0, np.arange(facing.size), 0))
+    out = facing[last]
+    out[:known[0]] = facing[known[0]]
+    return out
 
 
 def make_stations(traj: Trajectory, session: RawSession, design, config: ProcessConfig) -> Stations:
@@ -610,9 +714,13 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
     E, N, Hh = at(enh[:, 0]), at(enh[:, 1]), at(enh[:, 2])
     sE, sN, sH = (at(traj.sigma_enh_m[:, i]) for i in range(3))
     t = at(traj.t_s)
-    roll = at(traj.roll_rad)
+    # cant from the roll of a trolley that faces increasing chainage; turned around, its roll is
+    # the opposite of the track's (FORMATS.md 2: cant > 0 when the left rail is higher)
+    facing = np.ones(enh.shape[0])
+    if traj.odometer_m is not None:
+        facing = _facing(ch, np.asarray(traj.odometer_m, dtype=float))
     rail = session.meta.trolley.rail_spacing_m
-    cant = rail * np.sin(roll)
+    cant = at(facing * rail * np.sin(traj.roll_rad))
     twist = cant - np.interp(s - config.twist_base_m, s, cant, left=np.nan)
     if session.gauge_t_s is not None and len(session.gauge_t_s) > 1:
         gauge = np.interp(t, session.gauge_t_s, session.gauge_m, left=np.nan, right=np.nan)

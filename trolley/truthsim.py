@@ -118,6 +118,13 @@ class SimulationConfig:
     imu_residual_misalignment_rad : 1-sigma per axis of the unknown mounting residual, rad.
     gyro_correlation_time_s : correlation time of the Gauss-Markov bias instability, s.
     fixes_per_stop : total-station measurements per stop (spread over the stop).
+    turn_at_stops : indices of the stops (1 = the first stop after the static alignment) at
+        which the crew turns the trolley around: it is lifted, turned by 180 deg about the track
+        normal through the reference point within ``turn_s`` at the middle of the stop, and put
+        back; from then on it runs backwards in its own frame (the odometer counts down) while
+        the chainage keeps increasing. Such a stop has ``fixes_per_stop`` fixes before the turn
+        and as many after it.
+    turn_s : duration of a turn, s (the stop must be at least ``turn_s + 4`` s long).
     errors : False switches every sensor error off (biases, noise, scale factors, residual
         misalignment, quantisation stays); the track irregularities are kept.
     initial_heading : write ``initial_heading_deg`` (the true trolley yaw at the start) to the
@@ -146,6 +153,8 @@ class SimulationConfig:
     imu_residual_misalignment_rad: float = float(units.deg_to_rad(0.003))
     gyro_correlation_time_s: float = 1000.0
     fixes_per_stop: int = 1
+    turn_at_stops: tuple[int, ...] = ()
+    turn_s: float = 10.0
     errors: bool = True
     initial_heading: bool | None = None
     seed: int = 0
@@ -168,6 +177,15 @@ def quat_from_euler(roll, pitch, yaw) -> np.ndarray:
                      sr * cp * cy - cr * sp * sy,
                      cr * sp * cy + sr * cp * sy,
                      cr * cp * sy - sr * sp * cy], axis=-1)
+
+
+def euler_from_quat(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ZYX Euler angles (roll, pitch, yaw in [0, 2 pi)) of [w, x, y, z] quaternions."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.mod(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)), 2.0 * np.pi)
+    return roll, pitch, yaw
 
 
 def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -342,6 +360,8 @@ class MotionProfile:
     leg_start_s, leg_duration_s, leg_speed_m_s : (m-1,) motion between stops.
     accel_time_s : raised-cosine acceleration time T_a.
     duration_s : end of the last stop.
+    turn_start_s : (k,) start of every turn of the trolley (at a stop), s.
+    turn_s : duration of a turn, s.
     """
 
     stop_chainage_m: np.ndarray
@@ -352,6 +372,27 @@ class MotionProfile:
     leg_speed_m_s: np.ndarray
     accel_time_s: float
     duration_s: float
+    turn_start_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    turn_s: float = 10.0
+
+    def turn_angle(self, t_s) -> np.ndarray:
+        """Rotation of the trolley about its z axis relative to the track frame, rad.
+
+        Each turn adds pi with the smooth step u - sin(2 pi u) / (2 pi), u = (t - t0) / turn_s,
+        so the turn rate starts and ends at zero (no jump in the synthesised gyro output).
+        """
+        t = np.asarray(t_s, dtype=float)
+        if self.turn_start_s.size == 0:
+            return np.zeros(t.shape)
+        u = np.clip((t[..., None] - self.turn_start_s) / self.turn_s, 0.0, 1.0)
+        return np.pi * np.sum(u - np.sin(2.0 * np.pi * u) / (2.0 * np.pi), axis=-1)
+
+    def facing(self, t_s) -> np.ndarray:
+        """+1 while the trolley faces increasing chainage, -1 while it is turned around
+        (judged at the middle of a turn; the trolley only moves between turns)."""
+        t = np.asarray(t_s, dtype=float)
+        done = np.sum(t[..., None] >= self.turn_start_s + 0.5 * self.turn_s, axis=-1)
+        return np.where(done % 2 == 0, 1.0, -1.0)
 
     def evaluate(self, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Chainage s, ds/dt and d2s/dt2 at times ``t_s`` (1-D array).
@@ -408,8 +449,9 @@ class MotionProfile:
 
 def motion_profile(start_chainage_m: float, length_m: float, fix_spacing_m: float,
                    static_s: float, stop_s: float, speed_m_s: float,
-                   accel_time_s: float) -> MotionProfile:
-    """Stops every ``fix_spacing_m`` (and at the end), raised-cosine legs between them.
+                   accel_time_s: float, turn_at_stops=(), turn_s: float = 10.0) -> MotionProfile:
+    """Stops every ``fix_spacing_m`` (and at the end), raised-cosine legs between them; the
+    trolley is turned around at the middle of the stops ``turn_at_stops``.
 
     Returns
     -------
@@ -440,9 +482,17 @@ def motion_profile(start_chainage_m: float, length_m: float, fix_spacing_m: floa
         stop_start[i + 1] = t
         t += stop_s
         stop_end[i + 1] = t
+    turns = np.unique(np.asarray(turn_at_stops, dtype=int))
+    if turns.size:
+        if turns[0] < 1 or turns[-1] > m - 1:
+            raise ValueError(f"turn_at_stops must name stops 1..{m - 1} (stop 0 is the static alignment)")
+        if not turn_s > 0 or stop_s < turn_s + 4.0:
+            raise ValueError(f"a turn of {turn_s:g} s needs stops of at least {turn_s + 4.0:g} s (stop_s = {stop_s:g})")
+    middle = 0.5 * (stop_start[turns] + stop_end[turns])
     return MotionProfile(stop_chainage_m=stops, stop_start_s=stop_start, stop_end_s=stop_end,
                          leg_start_s=leg_start, leg_duration_s=duration, leg_speed_m_s=speed,
-                         accel_time_s=float(accel_time_s), duration_s=float(t))
+                         accel_time_s=float(accel_time_s), duration_s=float(t),
+                         turn_start_s=middle - 0.5 * turn_s, turn_s=float(turn_s))
 
 
 # ------------------------------------------------------------------------------------------
@@ -565,6 +615,12 @@ def _kinematics(geo: TruthGeometry, motion: MotionProfile, t: np.ndarray, latitu
     h = p[:, 2]
     lat = latitude0 + p[:, 1] / (EARTH_RADIUS_M + h)
     q = quat_from_euler(roll, pitch, yaw)
+    if motion.turn_start_s.size:
+        # a turned trolley: the track frame rotated about its own z axis (the track normal)
+        half = 0.5 * motion.turn_angle(t)
+        qz = np.stack([np.cos(half), np.zeros_like(half), np.zeros_like(half), np.sin(half)], axis=-1)
+        q = _quat_mul(q, qz)
+        roll, pitch, yaw = euler_from_quat(q)
     return dict(s=s, p=p, q=q, roll=roll, pitch=pitch, yaw=yaw, v_n=v_n, a_n=a_n, lat=lat, h=h)
 
 
@@ -599,7 +655,7 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     geo = truth_geometry(alignment, s0, cfg.length_m, cfg.irregularity_rms_m,
                          cfg.trolley.rail_spacing_m, cfg.trolley.nominal_gauge_m, rng)
     motion = motion_profile(s0, cfg.length_m, cfg.fix_spacing_m, cfg.static_s, cfg.stop_s,
-                            cfg.speed_m_s, cfg.accel_time_s)
+                            cfg.speed_m_s, cfg.accel_time_s, cfg.turn_at_stops, cfg.turn_s)
 
     # --- IMU mounting: nominal (written to session.toml) + unknown residual
     nominal = np.asarray(cfg.trolley.imu_misalignment_rad, dtype=float)
@@ -669,7 +725,8 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     n_odo = int(np.floor(motion.duration_s * cfg.odometer_rate_hz + 1e-9))
     t_odo = np.arange(0, n_odo + 1) / cfg.odometer_rate_hz
     path = geo.arclength(motion.evaluate(t_odo)[0])
-    dpath = np.diff(path)
+    # a turned trolley rolls backwards in its own frame: the wheel counts down
+    dpath = np.diff(path) * motion.facing(0.5 * (t_odo[1:] + t_odo[:-1]))
     if cfg.errors:
         dk = odo.scale_error * rng.standard_normal() + np.cumsum(
             rng.standard_normal(n_odo) * (odo.scale_noise_per_sqrt_s
@@ -684,13 +741,24 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     # --- total-station fixes of the prism at the middle of each stop
     m = max(int(cfg.fixes_per_stop), 1)
     frac = (np.arange(m) + 1.0) / (m + 1.0)
-    t_fix = (motion.stop_start_s[:, None]
-             + frac[None, :] * (motion.stop_end_s - motion.stop_start_s)[:, None]).ravel()
-    stop_idx = np.repeat(np.arange(motion.stop_chainage_m.size), m)
+    # a stop with a turn is two standstills, before and after it, with m fixes each
+    n_stop = motion.stop_chainage_m.size
+    turn_stop = np.searchsorted(motion.stop_start_s, motion.turn_start_s, side="right") - 1
+    win_start = np.concatenate([motion.stop_start_s, motion.turn_start_s + motion.turn_s])
+    win_end = np.concatenate([motion.stop_end_s, motion.stop_end_s[turn_stop]])
+    win_end[turn_stop] = motion.turn_start_s
+    win_stop = np.concatenate([np.arange(n_stop), turn_stop])
+    order = np.argsort(win_start, kind="stable")
+    t_fix = (win_start[order][:, None]
+             + frac[None, :] * (win_end - win_start)[order][:, None]).ravel()
+    stop_idx = np.repeat(win_stop[order], m)
     s_fix = motion.evaluate(t_fix)[0]
     p_fix = geo.position(s_fix)
     r, pch, y = geo.attitude(s_fix)
-    lever_n = _quat_rotate(quat_from_euler(r, pch, y),
+    half = 0.5 * motion.turn_angle(t_fix)
+    q_fix = _quat_mul(quat_from_euler(r, pch, y),
+                      np.stack([np.cos(half), 0.0 * half, 0.0 * half, np.sin(half)], axis=-1))
+    lever_n = _quat_rotate(q_fix,
                            np.broadcast_to(np.asarray(cfg.trolley.prism_lever_arm_m, float),
                                            (s_fix.size, 3)))
     enh = np.column_stack([p_fix[:, 0] + geo.origin_E_m + lever_n[:, 1],
