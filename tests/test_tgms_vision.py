@@ -45,6 +45,24 @@ def test_camera_whose_laser_plane_is_behind_it_is_rejected():
         check_camera(bad)
 
 
+def test_laser_plane_seen_only_near_a_corner_is_accepted():
+    """The centre ray meets the plane behind the camera, the top-left corner's ray in front: the
+    plane does meet the view, so check_camera accepts it (it tests the corners, not only the centre)."""
+    cam = CAMS["right"]
+    cam0 = Camera(cam.K, cam.R_tgms_cam, cam.t_tgms_cam_m, np.zeros(4), np.array([1.0, 0.0, 0.0, 0.0]), name="right")
+    K_inv = np.linalg.inv(np.asarray(cam.K, float))
+    R = np.asarray(cam.R_tgms_cam, float)
+    ray = lambda u, v: (R @ K_inv @ np.array([u, v, 1.0])) / np.linalg.norm(R @ K_inv @ np.array([u, v, 1.0]))
+    w, h = cam.image_size_px
+    d_c, d_k = ray(w / 2.0, h / 2.0), ray(0.0, 0.0)
+    n = d_k - 1.0 * d_c                     # d_c . d_k < 1 < 1 / (d_c . d_k): n.d_c < 0 < n.d_k
+    p0 = np.asarray(cam.t_tgms_cam_m, float) + d_k
+    good = Camera(cam0.K, cam0.R_tgms_cam, cam0.t_tgms_cam_m, cam0.distortion, np.append(n, -n @ p0), name="right")
+    assert np.isnan(pixels_to_tgms(good, np.array([w / 2.0]), np.array([h / 2.0]))).all()
+    assert pixels_to_tgms(good, np.array([0.0]), np.array([0.0]))[0] == pytest.approx(p0, abs=1e-9)
+    check_camera(good)
+
+
 @pytest.mark.parametrize("name,width", [("60E1", 0.072), ("54E1", 0.070)])
 def test_head_geometry(name, width):
     p = rail_profile(name, 0.0)        # upright: the head width is measured horizontally
@@ -110,3 +128,18 @@ def test_frames_without_gauge_face_or_points_are_flagged_not_guessed():
     fit = fit_rail(prof, fr[keep], y[keep], z[keep], 4, "right")
     assert fit.ok.tolist() == [True, False, True, False]
     assert np.isnan(fit.y_m[1]) and np.isnan(fit.y_m[3])
+
+
+def test_frame_of_outliers_only_is_flagged():
+    """A frame whose points are all reflections (uniform over the view, no rail outline) is flagged,
+    while a normal frame next to it is not."""
+    prof = rail_profile("60E1", 40.0)
+    rng = np.random.default_rng(7)
+    fr, y, z = _clouds(prof, [(0.7175, 0.45, 0.0)], rng, outliers=0.0)
+    n_out = 200
+    y_o = rng.uniform(0.66, 0.78, n_out)
+    z_o = rng.uniform(0.43, 0.50, n_out)
+    fit = fit_rail(prof, np.concatenate([fr, np.ones(n_out, int)]), np.concatenate([y, y_o]),
+                   np.concatenate([z, z_o]), 2, "right")
+    assert fit.ok.tolist() == [True, False]
+    assert np.isnan(fit.y_m[1]) and np.isnan(fit.z_m[1])

@@ -28,8 +28,9 @@ def _fail(msg: str) -> None:
 
 
 def parse_band(text: str, step_m: float):
-    """``--band``: D1, D2, D3, none, SHORT-LONG (e.g. 3-25) or LONG (a cut-off: keeps wavelengths
-    from 2 steps up to LONG). Returns (short_m, long_m) or None."""
+    """``--band``: D1, D2, D3, none, SHORT-LONG (e.g. 3-25) or LONG (a user cut-off: keeps the
+    wavelengths from 2.5 steps up to LONG, i.e. removes the longer ones). Returns (short_m, long_m)
+    or None."""
     from trolley.bands import BANDS
     t = text.strip()
     if t.lower() == "none":
@@ -46,6 +47,28 @@ def parse_band(text: str, step_m: float):
     if not (0 < a < b):
         raise ValueError(f"--band {text!r}: need 0 < short < long")
     return (a, b)
+
+
+def band_edge_flags(values, step_m: float, short_m: float, long_m: float):
+    """1 where a band-passed cell lies within ``long_m`` of the end of its record (the zero-phase
+    filter's edge transient, about one long wavelength), else 0. Records end at the array's ends
+    and at NaN gaps longer than ``short_m`` (shorter gaps are bridged by ``trolley.bands``)."""
+    import numpy as np
+    v = np.asarray(values, float)
+    n = len(v)
+    bad = ~np.isfinite(v)
+    # NaN runs longer than short_m split the record; shorter ones do not
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
+    starts, ends = edges[::2], edges[1::2]
+    split = np.zeros(n, bool)
+    for a, b in zip(starts, ends):        # loop over gaps, not samples
+        if (b - a) * step_m > short_m:
+            split[a:b] = True
+    idx = np.arange(n)
+    last = np.maximum.accumulate(np.where(split, idx, -1))
+    nxt = np.minimum.accumulate(np.where(split, idx, n)[::-1])[::-1]
+    dist = np.minimum(idx - (last + 1), (nxt - 1) - idx) * step_m     # 0 at a record's first/last cell
+    return ((dist < long_m) & ~split).astype(int)
 
 
 def read_params(path: Path):
@@ -143,9 +166,14 @@ def process_cmd(
     folder: Annotated[Path, typer.Argument(help="TGMS recording folder (FORMATS.md section 3)")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
     step: Annotated[float, typer.Option("--step", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
-    band: Annotated[str, typer.Option("--band", help="D1, D2, D3, none, SHORT-LONG or LONG (m)")] = "none",
+    band: Annotated[str, typer.Option("--band", help="D1, D2, D3 (EN 13848 bands), none, SHORT-LONG in m (e.g. 3-25) "
+                                                    "or a single number LONG in m (e.g. 3: keeps wavelengths from "
+                                                    "2.5 steps up to LONG, i.e. removes the longer ones)")] = "none",
     params_file: Annotated[Optional[Path], typer.Option("--params", help="parameter file from 'tgms tune'")] = None,
-    orientation: Annotated[Optional[str], typer.Option(help="kf or madgwick (overrides --params)")] = None,
+    orientation: Annotated[Optional[str], typer.Option(help="kf or madgwick (overrides --params; ignored with "
+                                                            "--trajectory ekf, which estimates the attitude itself). "
+                                                            "madgwick gives no roll covariance and misses the "
+                                                            "alignment target (1.25 mm against 0.7, docs/tgms.md)")] = None,
     trajectory: Annotated[Optional[str], typer.Option(help="ltv or ekf (overrides --params)")] = None,
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots")] = True,
@@ -180,6 +208,9 @@ def process_cmd(
             params = TgmsParams.from_dict(d)
     except ValueError as exc:
         _fail(str(exc))
+    if params.trajectory == "ekf" and orientation is not None:
+        console.print(f"[yellow]warning:[/yellow] --orientation {orientation} is ignored: the 12-state smoother "
+                      "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
     try:
         rec = tgms_io.read_recording(folder)
     except tgms_io.TgmsFormatError as exc:
@@ -198,6 +229,8 @@ def process_cmd(
         cols[f"{name}_mm"] = v * 1e3
     for name in g.NAMES:
         cols[f"sigma_{name}_mm"] = getattr(g, f"sigma_{name}_m") * 1e3
+    if bounds is not None:
+        cols["band_edge"] = np.max([band_edge_flags(cols[f"{n}_mm"], step, *bounds) for n in g.NAMES], axis=0)
     truth_path = folder / "truth.csv"
     truth = truth_on_grid = None
     if truth_path.exists():
@@ -241,19 +274,33 @@ def tune_cmd(
     out: Annotated[Path, typer.Option("--out", help="parameter file to write (TOML)")],
     evaluations: Annotated[int, typer.Option(min=10, max=2000, help="likelihood evaluations")] = 60,
     seed: Annotated[int, typer.Option(help="seed of the global optimiser")] = 0,
-    model: Annotated[str, typer.Option(help="kf (attitude filter) or ekf (12-state smoother)")] = "kf",
+    model: Annotated[str, typer.Option(help="kf (attitude filter), ltv (attitude filter, then the Eq. 46 "
+                                             "trajectory under Eq. 19) or ekf (12-state smoother)")] = "kf",
+    box: Annotated[str, typer.Option(help="search box: relative (4 decades around the defaults) or absolute "
+                                          "(1e-4..1e4 in the paper's variances, Eq. 17; excludes a MEMS gyro's "
+                                          "true noise at 100 Hz)")] = "relative",
 ) -> None:
-    """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2)."""
+    """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2).
+    --evaluations is a hard limit on the filter runs."""
+    import numpy as np
+
     from survey import tgms_io
     from trolley.tgms.tuning import tune_cml
-    if model not in ("kf", "ekf"):
-        _fail(f"--model must be kf or ekf, got {model!r}")
+    if model not in ("kf", "ltv", "ekf"):
+        _fail(f"--model must be kf, ltv or ekf, got {model!r}")
+    if box not in ("relative", "absolute"):
+        _fail(f"--box must be relative or absolute, got {box!r}")
     try:
         rec = tgms_io.read_recording(folder)
     except tgms_io.TgmsFormatError as exc:
         _fail(str(exc))
-    with console.status("tuning (maximum likelihood)"):
-        params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model)
+    try:
+        with console.status("tuning (maximum likelihood)"):
+            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box)
+    except ValueError as exc:
+        _fail(f"{folder}: {exc}")
+    if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
+        _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
     try:
         tgms_io.write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
     except OSError as exc:

@@ -122,7 +122,8 @@ def pixels_to_tgms(cam: Camera, u_px: np.ndarray, v_px: np.ndarray) -> np.ndarra
 
 def check_camera(cam: Camera) -> None:
     """Raise ValueError naming the camera if its calibration is unusable: K or R not valid, or the
-    laser plane does not meet the camera's view (the ray through the image centre misses it)."""
+    laser plane does not meet the camera's view (the rays through the image centre, its corners
+    and edge midpoints all miss it)."""
     K = np.asarray(cam.K, float)
     if K.shape != (3, 3) or K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9:
         raise ValueError(f"camera {cam.name}: K must be [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0")
@@ -132,10 +133,15 @@ def check_camera(cam: Camera) -> None:
     if np.linalg.norm(cam.laser_plane[:3]) < 1e-12:
         raise ValueError(f"camera {cam.name}: laser_plane normal [A, B, C] is zero")
     w, h = cam.image_size_px
-    p = pixels_to_tgms(cam, np.array([w / 2.0]), np.array([h / 2.0]))
-    if not np.all(np.isfinite(p)):
+    # the centre, the four corners and the edge midpoints: a plane seen only near an edge of the
+    # image (a camera looking past the rail) still meets the view
+    u = np.array([w / 2.0, 0.0, w, 0.0, w, w / 2.0, w / 2.0, 0.0, w])
+    v = np.array([h / 2.0, 0.0, 0.0, h, h, 0.0, h, h / 2.0, h / 2.0])
+    p = pixels_to_tgms(cam, u, v)
+    if not np.any(np.all(np.isfinite(p), axis=1)):
         raise ValueError(f"camera {cam.name}: the laser plane does not meet the camera's view "
-                         "(the ray through the image centre is parallel to it or meets it behind the camera)")
+                         "(the rays through the image centre, corners and edge midpoints are parallel to "
+                         "it or meet it behind the camera)")
 
 
 def look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:

@@ -57,6 +57,19 @@ def measurement(X: np.ndarray, Ct: np.ndarray, fd: np.ndarray, w_t: np.ndarray, 
     return np.column_stack([gx, gy, gz, f, ry, rz])
 
 
+#: Central-difference steps of the Jacobian, per state (rad, rad/s; m, m/s, m/s^2).
+JACOBIAN_STEPS = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5, 1e-5, 1e-4, 1e-5, 1e-5, 1e-4])
+
+
+def measurement_jacobian(x: np.ndarray, Ct: np.ndarray, fd: np.ndarray, w_t: np.ndarray, al_t: np.ndarray,
+                         eps: np.ndarray = JACOBIAN_STEPS):
+    """h(x) and its Jacobian J = dh/dx (8, 12) by central differences (one batched call of
+    :func:`measurement`), the J of Gonzalez-Carbajal 2023 Appendix 1 without its typesetting slips."""
+    E = np.diag(eps)
+    hx = measurement(np.vstack([x[None, :], x + E, x - E]), Ct, fd, w_t, al_t)
+    return hx[0], ((hx[1:13] - hx[13:25]) / (2 * eps[:, None])).T
+
+
 def _process(dt: float, p: TgmsParams, q):
     F1 = np.array([[1.0, dt], [0.0, 1.0]])
     F2 = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
@@ -112,19 +125,15 @@ def trajectory_ekf(kin: TrackKinematics, w: np.ndarray, f: np.ndarray, att0: Rel
     P = np.diag([1e-4, 1e-6, 1e-4, 1e-6, 1e-4, 1e-6, 1e-4, 1e-4, 1e-2, 1e-4, 1e-4, 1e-2])
     xf = np.empty((n, 12))
     Pf = np.empty((n, 12, 12))
-    eps = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5, 1e-5, 1e-4, 1e-5, 1e-5, 1e-4])
-    E = np.diag(eps)
     I = np.eye(12)
     ll = 0.0
     for i in range(n):
         if i > 0:
             x = F @ x
             P = F @ P @ F.T + Q
-        X = np.vstack([x[None, :], x + E, x - E])
-        hx = measurement(X, Ct[i], kin.f_design[i], kin.omega_t[i], kin.alpha_t[i])
-        H = ((hx[1:13] - hx[13:25]) / (2 * eps[:, None])).T
+        h0, H = measurement_jacobian(x, Ct[i], kin.f_design[i], kin.omega_t[i], kin.alpha_t[i])
         R = np.diag([u_w, u_w, u_w, u_a, u_a, u_a, u_pos[i], u_pos[i]])
-        y = z[i] - hx[0]
+        y = z[i] - h0
         PHt = P @ H.T
         S = H @ PHt + R
         Si = np.linalg.inv(S)

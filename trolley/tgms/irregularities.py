@@ -50,7 +50,8 @@ def irregularities(s_m, y_l, z_l, y_r, z_r, roll, r_y, r_z, half_rail_spacing_m:
     roll : relative roll of the TGMS (FRD), rad.
     r_y, r_z : TGMS position relative to the design TF (FRD, r_z < 0 above the rails), m.
     half_rail_spacing_m : L_r.
-    sig_* : 1-sigma of the inputs (uncorrelated), for the first-order output sigmas.
+    sig_* : 1-sigma of the inputs (uncorrelated), for the first-order output sigmas; a NaN
+        sig_roll (no covariance) leaves the gauge sigma from the vision alone, the others NaN.
 
     Returns
     -------
@@ -62,7 +63,10 @@ def irregularities(s_m, y_l, z_l, y_r, z_r, roll, r_y, r_z, half_rail_spacing_m:
     cl = roll * dy + dz
     al = Y - roll * Z + r_y
     vp = -(Z + roll * Y + r_z)
-    s_gv = np.sqrt(sig_yl ** 2 + sig_yr ** 2 + (dz * sig_roll) ** 2)
+    # without a roll covariance (gradient-descent attitude: NaN) the gauge sigma keeps its vision
+    # part: its roll term dz sigma_roll is second order (dz ~ mm); the three others depend on the
+    # roll to first order (lever arms dy, Z, Y) and stay NaN rather than understated
+    s_gv = np.sqrt(sig_yl ** 2 + sig_yr ** 2 + (dz * np.nan_to_num(sig_roll, nan=0.0)) ** 2)
     s_cl = np.sqrt(sig_zl ** 2 + sig_zr ** 2 + (dy * sig_roll) ** 2)
     s_al = np.sqrt(0.25 * (sig_yl ** 2 + sig_yr ** 2) + (Z * sig_roll) ** 2 + sig_ry ** 2)
     s_vp = np.sqrt(0.25 * (sig_zl ** 2 + sig_zr ** 2) + (Y * sig_roll) ** 2 + sig_rz ** 2)

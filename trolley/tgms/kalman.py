@@ -2,7 +2,10 @@
 
 The forward pass is a plain loop over the (decimated) processing samples that also accumulates
 the Gaussian log-likelihood of the innovations (what the constrained maximum-likelihood tuning of
-Gonzalez-Carbajal 2023 Sec. 4.2 maximises); the backward pass is ``filterpy.kalman.rts_smoother``.
+Gonzalez-Carbajal 2023 Sec. 4.2 maximises); the backward pass is our own Rauch-Tung-Striebel
+smoother (:func:`rts`), not ``filterpy.kalman.rts_smoother``: filterpy's predicts with F x only,
+without the known input term B u that every model here has (gyro and accelerometer inputs), and
+takes one constant Q, while ours are time-varying.
 """
 from __future__ import annotations
 

@@ -29,6 +29,9 @@ class TgmsParams:
         scales with (10 m/s / V)^4 so that they act at a fixed wavelength.
     orientation : "kf" (Escalona Eq. 39) or "madgwick" (Briales Sec. 5.2).
     trajectory : "ltv" (Escalona Eq. 46) or "ekf" (Gonzalez-Carbajal 2023 Appendix 1).
+    odometry_windows : curvature-matching windows, "curve" (whole curves, anchored at their exit,
+        Eq. 41 as printed) or "entry_exit" (every curve entry and exit), see
+        ``trolley.tgms.odometry.match_curves``.
     """
 
     process_rate_hz: float = 100.0
@@ -45,6 +48,7 @@ class TgmsParams:
     ekf_u_pos_m2: float = 1e-2
     orientation: str = "kf"
     trajectory: str = "ltv"
+    odometry_windows: str = "curve"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -58,7 +62,7 @@ class TgmsParams:
             raise ValueError(f"unknown parameter {unknown[0]!r}")
         kw = {}
         for k, v in d.items():
-            if k in ("orientation", "trajectory"):
+            if k in ("orientation", "trajectory", "odometry_windows"):
                 kw[k] = str(v)
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
@@ -69,4 +73,6 @@ class TgmsParams:
             raise ValueError(f"orientation must be 'kf' or 'madgwick', got {p.orientation!r}")
         if p.trajectory not in ("ltv", "ekf"):
             raise ValueError(f"trajectory must be 'ltv' or 'ekf', got {p.trajectory!r}")
+        if p.odometry_windows not in ("curve", "entry_exit"):
+            raise ValueError(f"odometry_windows must be 'curve' or 'entry_exit', got {p.odometry_windows!r}")
         return p
