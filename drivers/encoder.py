@@ -12,6 +12,14 @@ but a digit changed into another digit in the low places cannot be detected (doc
 
 Distance: ``d_count = pi * D / (PPR * k)``, ``s = SF * sum(delta counts) * d_count`` with
 ``delta = ((c1 - c0 + 2^(n-1)) mod 2^n) - 2^(n-1)`` (signed modular difference, rollover safe).
+
+Speed gate and anchoring: a reading is accepted when it is within ``max_speed_m_s`` of the last
+accepted one (the anchor). At the start and after every reconnect there is no anchor: readings
+are withheld until ``confirm`` consecutive ones agree with each other, so a corrupt first reply
+cannot become the anchor. With an anchor, ``confirm`` consecutive readings that agree with each
+other but not with the anchor (the counter was reset, or the anchor was wrong) re-anchor the
+gate instead of locking the odometer out. A new anchor that does not continue the old one
+starts a new *segment*: the count difference across segments is not distance travelled.
 """
 from __future__ import annotations
 
@@ -22,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.lineparser import LineParser
+from drivers.lineparser import LineParser, Unconfirmed
 from drivers.stats import Stats
 
 ADDRESS = 0
@@ -50,6 +58,7 @@ class OdometerConfig:
     channel : which counter channel the odometer is on (1 or 2).
     rate_hz : polling rate.
     max_speed_m_s : readings implying a faster speed are rejected as corrupt.
+    confirm : consecutive mutually consistent readings needed to (re-)anchor the speed gate.
     """
 
     ppr: int = 1024
@@ -60,6 +69,7 @@ class OdometerConfig:
     channel: int = 1
     rate_hz: float = 100.0
     max_speed_m_s: float = 10.0
+    confirm: int = 3
 
     def __post_init__(self) -> None:
         if self.decode not in (1, 2, 4):
@@ -68,6 +78,8 @@ class OdometerConfig:
             raise ValueError(f"counter width must be one of {sorted(FIELD_WIDTH)} bits, not {self.bits}")
         if self.ppr <= 0 or self.wheel_diameter_m <= 0 or self.rate_hz <= 0:
             raise ValueError("odometer ppr, wheel diameter and rate must be positive")
+        if self.confirm < 2:
+            raise ValueError(f"odometer confirm must be at least 2 readings, not {self.confirm}")
 
     @property
     def metres_per_count(self) -> float:
@@ -77,11 +89,14 @@ class OdometerConfig:
 
 @dataclass(frozen=True)
 class EncoderRecord:
-    """One counter read: host time of the reply and both channels' raw counts."""
+    """One counter read: host time of the reply, both channels' raw counts, and the segment
+    (incremented when the gate re-anchored on readings that do not continue the previous ones,
+    e.g. after a counter reset)."""
 
     t_host_s: float
     count1: int
     count2: int
+    segment: int = 0
 
 
 def format_read_reply(count1: int, count2: int, bits: int = 32) -> bytes:
@@ -98,24 +113,34 @@ def signed_delta(c1, c0, bits: int):
     return ((np.asarray(c1, np.int64) - np.asarray(c0, np.int64) + h) % m) - h
 
 
-def unwrap_counts(counts, bits: int) -> np.ndarray:
-    """Cumulative signed counts from raw wrapped readings (first reading = 0)."""
+def unwrap_counts(counts, bits: int, segment=None) -> np.ndarray:
+    """Cumulative signed counts from raw wrapped readings (first reading = 0).
+
+    ``segment`` (per reading, :attr:`EncoderRecord.segment`): the step into a new segment is
+    not counted (the distance carries on from the last reading of the previous segment).
+    """
     c = np.asarray(counts, np.int64)
     if c.size == 0:
         return c
-    return np.concatenate([[0], np.cumsum(signed_delta(c[1:], c[:-1], bits))])
+    d = signed_delta(c[1:], c[:-1], bits)
+    if segment is not None:
+        d = np.where(np.diff(np.asarray(segment)) != 0, 0, d)
+    return np.concatenate([[0], np.cumsum(d)])
 
 
-def distance_m(counts, cfg: OdometerConfig) -> np.ndarray:
-    """Cumulative distance (m) from raw wrapped counter readings."""
-    return unwrap_counts(counts, cfg.bits) * cfg.metres_per_count
+def distance_m(counts, cfg: OdometerConfig, segment=None) -> np.ndarray:
+    """Cumulative distance (m) from raw wrapped counter readings (see :func:`unwrap_counts`)."""
+    return unwrap_counts(counts, cfg.bits, segment) * cfg.metres_per_count
 
 
 class EncoderParser(LineParser):
     """Streaming parser for counter replies, with format, range and speed checks.
 
-    Implausible readings (a jump faster than ``max_speed_m_s``) are rejected and counted in
-    ``stats.extra['implausible']`` (and in ``bad_format``); NACKs in ``extra['nack']``.
+    Implausible readings (a jump faster than ``max_speed_m_s`` from the anchor) are rejected and
+    counted in ``stats.extra['implausible']`` (and in ``bad_format``); readings withheld while
+    there is no anchor in ``extra['unconfirmed']`` (their bytes are discarded); re-anchorings in
+    ``extra['reanchors']``, new segments after a reconnect in ``extra['counter_resets']``; NACKs
+    in ``extra['nack']``. The parser notices a reconnect from ``stats.reconnects``.
     """
 
     def __init__(self, stats: Stats, cfg: OdometerConfig = OdometerConfig()) -> None:
@@ -123,9 +148,29 @@ class EncoderParser(LineParser):
         self.cfg = cfg
         w = FIELD_WIDTH[cfg.bits]
         self._re = re.compile(rf"^\*0R0(\d{{{w}}}),(\d{{{w}}})$")
-        self._last: tuple[float, int] | None = None
-        for k in ("implausible", "nack", "ack"):
+        self._anchor: tuple[float, int] | None = None
+        self._before: tuple[float, int] | None = None  # last anchor before a reconnect
+        self._chain: list[tuple[float, int]] = []  # consecutive readings agreeing with each other
+        self._reconnects = stats.reconnects
+        self.segment = 0
+        for k in ("implausible", "nack", "ack", "unconfirmed", "reanchors", "counter_resets"):
             stats.extra.setdefault(k, 0)
+
+    def _consistent(self, a: tuple[float, int], b: tuple[float, int]) -> bool:
+        """Whether reading b can follow reading a without exceeding ``max_speed_m_s``."""
+        (t0, c0), (t1, c1) = a, b
+        dt = max(t1 - t0, 0.0) if t1 == t1 and t0 == t0 else 0.0
+        # allow one missed poll of slack on top of the elapsed time
+        limit = self.cfg.max_speed_m_s * (dt + 2.0 / self.cfg.rate_hz) / self.cfg.metres_per_count
+        return abs(int(signed_delta(c1, c0, self.cfg.bits))) <= limit
+
+    def _extend_chain(self, r: tuple[float, int]) -> bool:
+        """Add r to the chain of agreeing readings (or start a new one); True when confirmed."""
+        if self._chain and self._consistent(self._chain[-1], r):
+            self._chain.append(r)
+        else:
+            self._chain = [r]
+        return len(self._chain) >= self.cfg.confirm
 
     def _decode(self, text: str, t_host: float):
         if text == ACK:
@@ -140,17 +185,33 @@ class EncoderParser(LineParser):
         c1, c2 = int(m.group(1)), int(m.group(2))
         if c1 >= 2**self.cfg.bits or c2 >= 2**self.cfg.bits:
             raise ValueError(f"count out of range in {text!r}")
-        c = c1 if self.cfg.channel == 1 else c2
-        if self._last is not None:
-            t0, c0 = self._last
-            dt = max(t_host - t0, 0.0) if t_host == t_host and t0 == t0 else 0.0
-            # allow one missed poll of slack on top of the elapsed time
-            limit = self.cfg.max_speed_m_s * (dt + 2.0 / self.cfg.rate_hz) / self.cfg.metres_per_count
-            if abs(int(signed_delta(c, c0, self.cfg.bits))) > limit:
-                self.stats.extra["implausible"] += 1
+        r = (t_host, c1 if self.cfg.channel == 1 else c2)
+        ex = self.stats.extra
+        if self.stats.reconnects != self._reconnects:  # the module may have been power-cycled
+            self._reconnects = self.stats.reconnects
+            if self._anchor is not None:
+                self._before = self._anchor
+            self._anchor, self._chain = None, []
+        if self._anchor is not None:
+            if self._consistent(self._anchor, r):
+                self._chain = []
+            elif self._extend_chain(r):
+                ex["reanchors"] += 1
+                self.segment += 1
+                self._chain = []
+            else:
+                ex["implausible"] += 1
                 raise ValueError(f"implausible counter jump in {text!r}")
-        self._last = (t_host, c)
-        return EncoderRecord(t_host, c1, c2)
+        else:
+            if not self._extend_chain(r):
+                raise Unconfirmed(text)
+            first = self._chain[0]
+            if self._before is not None and not self._consistent(self._before, first):
+                ex["counter_resets"] += 1
+                self.segment += 1
+            self._before, self._chain = None, []
+        self._anchor = r
+        return EncoderRecord(t_host, c1, c2, self.segment)
 
 
 class OdometerPoller:
@@ -177,8 +238,8 @@ class OdometerPoller:
         return self
 
     def _lines(self) -> int:
-        st = self.link.stats
-        return st.frames_ok + st.bad_checksum + st.bad_format
+        st = self.link.stats  # every complete reply line, withheld ones included
+        return st.frames_ok + st.bad_checksum + st.bad_format + int(st.extra.get("unconfirmed", 0))
 
     def _run(self) -> None:
         period = 1.0 / self.cfg.rate_hz

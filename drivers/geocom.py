@@ -11,8 +11,10 @@ and without the terminator. Values are SI (m, rad); strings in double quotes; by
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
+from decimal import Decimal
 
 TERMINATOR = b"\r\n"
 CLEAR_BUFFER = b"\n"
@@ -311,13 +313,18 @@ def crc16(data: bytes | str) -> int:
 
 # ------------------------------------------------------------------ parameters
 def format_param(v: object) -> str:
-    """One parameter in GeoCOM ASCII: bool -> 0/1, int, float (repr), str -> "quoted"."""
+    """One parameter in GeoCOM ASCII: bool -> 0/1, int, float (positional decimal with the
+    shortest digits that read back exactly), str -> "quoted"."""
     if isinstance(v, bool):
         return "1" if v else "0"
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        return repr(v)
+        if not math.isfinite(v):
+            raise ValueError(f"cannot encode GeoCOM parameter {v!r}: not a finite number")
+        # shortest round-trip digits, never in exponent form (1e-05 -> 0.00001)
+        s = format(Decimal(repr(v)), "f")
+        return s if "." in s else s + ".0"  # always readable as a double, never as an integer
     if isinstance(v, str):
         return '"' + v.replace('"', "") + '"'
     if isinstance(v, (bytes, bytearray)) and len(v) == 1:
@@ -374,7 +381,8 @@ class Reply:
     Attributes
     ----------
     com_rc : communication-layer return code (0 = OK).
-    trid : transaction id echoed by the instrument (0 when the request had none).
+    trid : transaction id echoed by the instrument (0 when the request had none); None when
+        the reply has no transaction-id field (the manual's framing makes it optional).
     rc : return code of the RPC.
     params : decoded parameters after RC.
     crc_present : whether the reply carried a CRC field (already verified when present).
@@ -383,7 +391,7 @@ class Reply:
     """
 
     com_rc: int
-    trid: int
+    trid: int | None
     rc: int
     params: tuple
     crc_present: bool = False
@@ -407,10 +415,14 @@ def encode_request(rpc: int, params: tuple | list = (), trid: int | None = None,
     return msg.encode("ascii") + TERMINATOR
 
 
-def encode_reply(rc: int, params: tuple | list = (), trid: int = 0, com_rc: int = 0,
+def encode_reply(rc: int, params: tuple | list = (), trid: int | None = 0, com_rc: int = 0,
                  with_crc: bool = False) -> bytes:
-    """``%R1P,<com_rc>,<trid>[,<crc>]:<rc>[,<params>]\\r\\n``."""
+    """``%R1P,<com_rc>,<trid>[,<crc>]:<rc>[,<params>]\\r\\n`` (``trid=None`` without CRC: the
+    short form ``%R1P,<com_rc>:<rc>...`` with no transaction id)."""
     body = ",".join([str(int(rc))] + [format_param(p) for p in params])
+    if trid is None and not with_crc:
+        return f"%R1P,{com_rc}:{body}".encode("ascii") + TERMINATOR
+    trid = 0 if trid is None else trid
     if with_crc:
         crc = crc16(f"%R1P,{com_rc},{trid}:{body}")
         msg = f"%R1P,{com_rc},{trid},{crc}:{body}"
@@ -420,7 +432,7 @@ def encode_reply(rc: int, params: tuple | list = (), trid: int = 0, com_rc: int 
 
 
 _REQ_RE = re.compile(r"^%R1Q,(\d+)(?:,(-?\d+))?(?:,(\d+))?:(.*)$")
-_REP_RE = re.compile(r"^%R1P,(\d+),(-?\d+)(?:,(\d+))?:(\d+)?(?:,(.*))?$")
+_REP_RE = re.compile(r"^%R1P,(\d+)(?:,(-?\d+)(?:,(\d+))?)?:(\d+)?(?:,(.*))?$")
 REPLY_START = "%R1P,"
 REQUEST_START = "%R1Q,"
 
@@ -452,7 +464,8 @@ def decode_reply(line: str, t_host: float = float("nan")) -> Reply:
     m = _REP_RE.match(line)
     if not m:
         raise GeoComProtocolError(3094, detail=f"not a GeoCOM reply: {line[:60]!r}")
-    com_rc, trid = int(m.group(1)), int(m.group(2))
+    com_rc = int(m.group(1))
+    trid = int(m.group(2)) if m.group(2) is not None else None
     rest = line[line.index(":") + 1:]
     if m.group(3) is not None:
         if crc16(f"%R1P,{m.group(1)},{m.group(2)}:{rest}") != int(m.group(3)):

@@ -16,6 +16,11 @@ class ChecksumError(ValueError):
     """A line whose checksum does not match."""
 
 
+class Unconfirmed(ValueError):
+    """A well-formed line withheld until later lines confirm it (not a bad line): its bytes are
+    discarded and counted in ``stats.extra["unconfirmed"]``."""
+
+
 class LineParser:
     """Split a byte stream into lines and decode them.
 
@@ -23,7 +28,8 @@ class LineParser:
     ----------
     stats : counters to update.
     decode : ``decode(line_str, t_host) -> record``; raises :class:`ChecksumError` for a bad
-        checksum and ``ValueError`` for a malformed or implausible line.
+        checksum, :class:`Unconfirmed` for a line withheld and ``ValueError`` for a malformed
+        or implausible line.
     start : frame-start marker (e.g. ``b"%R1P,"``).
     terminator : the byte that ends a line (``b"\\n"`` or ``b"\\r"``); other CR/LF are stripped.
     max_line : longest line accepted (bytes); longer runs without a terminator are garbage.
@@ -88,6 +94,10 @@ class LineParser:
         text = line.decode("latin-1").strip("\r\n")
         try:
             rec = self.decode(text, t_host)
+        except Unconfirmed:
+            st.bytes_discarded += len(line)
+            st.bump("unconfirmed")
+            return
         except ChecksumError:
             st.bad_checksum += 1
             st.bytes_discarded += len(line)

@@ -458,6 +458,23 @@ def _tail_keep(b: np.ndarray, n: int) -> int:
     return n
 
 
+def rate_from_times(t_s) -> float:
+    """Data rate (Hz) from time stamps: 1 / median of the positive steps (robust to gaps and
+    repeats), snapped to whole hertz when within 1e-6 relative (IMU rates are whole hertz;
+    the float seconds-of-week add ~1e-11 s noise to each step).
+
+    Raises
+    ------
+    ValueError : fewer than two distinct time stamps.
+    """
+    d = np.diff(np.asarray(t_s, float))
+    d = d[d > 0]
+    if d.size == 0:
+        raise ValueError("need at least two distinct time stamps to infer a data rate")
+    r = 1.0 / float(np.median(d))
+    return float(round(r)) if abs(r - round(r)) <= 1e-6 * r else r
+
+
 class RawImuParser:
     """Streaming RAWIMUSXB parser: feed it reads, get decoded frames; keeps counters.
 
@@ -469,17 +486,26 @@ class RawImuParser:
     Parameters
     ----------
     stats : counters to update (a :class:`drivers.stats.Stats`).
-    rate_hz : nominal data rate for the gap check (None: no gap check).
+    rate_hz : nominal data rate. None: inferred (:func:`rate_from_times`) from the first
+        ``infer_frames + 1`` frames, whose gaps are then counted too; until then :attr:`rate`
+        is None. The rate in use is reported as ``stats.extra["rate_hz"]``.
+    infer_frames : time steps used to infer the rate.
     """
 
-    def __init__(self, stats, rate_hz: float | None = None) -> None:
+    def __init__(self, stats, rate_hz: float | None = None, infer_frames: int = 20) -> None:
         self.stats = stats
         self.rate_hz = rate_hz
+        self.infer_frames = infer_frames
+        self.rate: float | None = float(rate_hz) if rate_hz else None
+        self._head: list[np.ndarray] = []  # time stamps waiting for the rate inference
         self._buf = bytearray()
         self._discarding = False
         self._last_t: float | None = None
+        self._ref: tuple[int, float] | None = None
         for k in ("time_gaps", "frames_missing", "imu_error_frames", "other_msgs"):
             stats.extra.setdefault(k, 0)
+        if self.rate is not None:
+            stats.extra["rate_hz"] = self.rate
 
     def feed(self, data: bytes, t_host: float) -> ImuFrames:
         """Parse ``data`` (one read, received at host time ``t_host``)."""
@@ -491,6 +517,29 @@ class RawImuParser:
     def flush(self, t_host: float = float("nan")) -> ImuFrames:
         """No more data: discard what is left (counted) and return any last frames."""
         return self._parse(t_host, final=True)
+
+    def _gaps(self, t: np.ndarray, final: bool) -> None:
+        """Count time-stamp gaps of ``t`` (continuing the previous frames)."""
+        if self.rate is None:
+            self._head.append(t)
+            head = np.concatenate(self._head)
+            if head.size < self.infer_frames + 1 and not (final and head.size >= 3):
+                return
+            try:
+                self.rate = rate_from_times(head)
+            except ValueError:
+                return
+            self.stats.extra["rate_hz"] = self.rate
+            self._head = []
+            t = head
+        st = self.stats
+        prev = np.concatenate([[self._last_t if self._last_t is not None else t[0]], t[:-1]])
+        dt = t - prev
+        period = 1.0 / self.rate
+        gap = dt > 1.5 * period
+        st.extra["time_gaps"] += int(gap.sum())
+        st.extra["frames_missing"] += int(np.rint(dt[gap] / period).sum() - gap.sum())
+        self._last_t = float(t[-1])
 
     def _parse(self, t_host: float, final: bool) -> ImuFrames:
         st = self.stats
@@ -516,15 +565,12 @@ class RawImuParser:
         frames = _frames_from_rows(res.rows, np.full(len(res.rows), t_host))
         if len(frames):
             st.extra["imu_error_frames"] += int((frames.imu_info & IMU_INFO_ERROR_BIT).astype(bool).sum())
-            if self.rate_hz:
-                t = frames.gps_time_s()
-                prev = np.concatenate([[self._last_t], t[:-1]]) if self._last_t is not None else np.concatenate([[t[0]], t[:-1]])
-                dt = t - prev
-                period = 1.0 / self.rate_hz
-                gap = dt > 1.5 * period
-                st.extra["time_gaps"] += int(gap.sum())
-                st.extra["frames_missing"] += int(np.rint(dt[gap] / period).sum() - gap.sum())
-                self._last_t = float(t[-1])
+            if self._ref is None:
+                self._ref = (int(frames.week[0]), float(frames.sow_s[0]))
+            # relative to the first frame: absolute GPS seconds (~1.4e9) keep only ~2e-7 s
+            self._gaps(frames.seconds_since(*self._ref), final)
+        elif final and self._head:
+            self._gaps(np.zeros(0), final)
         return frames
 
 

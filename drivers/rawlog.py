@@ -1,9 +1,10 @@
 """Raw byte log of a serial session: every chunk read or written, with its host time.
 
 File layout: the magic line ``TROLLEY-RAWLOG/1\\n``, then records of
-``direction (1 byte: '<' read from the device, '>' written to it) | t_host_s (float64 LE) |
-length (uint32 LE) | bytes``. Feeding the '<' chunks back through the same parser with their
-times reproduces the records exactly (:func:`drivers.replay.replay`).
+``direction (1 byte: '<' read from the device, '>' written to it, '!' the port was re-opened
+after it had disappeared, no bytes) | t_host_s (float64 LE) | length (uint32 LE) | bytes``.
+Feeding the '<' chunks (and the '!' marks) back through the same parser with their times
+reproduces the records exactly (:func:`drivers.replay.replay`).
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from typing import Iterator
 
 MAGIC = b"TROLLEY-RAWLOG/1\n"
 _HDR = struct.Struct("<cdI")
-IN, OUT = b"<", b">"
+IN, OUT, RECONNECT = b"<", b">", b"!"
 
 
 class RawLog:

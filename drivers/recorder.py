@@ -31,7 +31,8 @@ class RecordConfig:
     raw_dir : folder for the raw byte logs (None: no raw logs).
     imu_axes : IMU-to-FRD axis map (``novatel.axis_matrix``).
     imu_type : IMU type for the scale table (None: taken from the frames).
-    imu_rate_hz : data rate for the increment scaling (None: the IMU type's rate).
+    imu_rate_hz : data rate for the increment scaling and the gap count (None: inferred from
+        the frames' time steps, ``novatel.rate_from_times``; the IMU type's rate if too few).
     odometer : odometer settings.
     imu_baud, odometer_baud, gauge_baud : line speeds.
     idle_timeout_s : a silence of a streaming device longer than this counts as a timeout.
@@ -74,12 +75,17 @@ def align_device_time(t_dev: np.ndarray, t_host: np.ndarray) -> np.ndarray:
     return t_dev + np.min(t_host - t_dev)
 
 
-def imu_si(frames: novatel.ImuFrames, cfg: RecordConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, int | None]:
-    """(t_host-aligned device time, w, f, imu type) of IMU frames."""
+def imu_si(frames: novatel.ImuFrames, cfg: RecordConfig,
+           rate_hz: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int | None]:
+    """(t_host-aligned device time, w, f, imu type) of IMU frames.
+
+    ``rate_hz`` (e.g. inferred by the parser) scales the increments when ``cfg.imu_rate_hz``
+    is not given; with neither, the IMU type's nominal rate is used.
+    """
     if len(frames) == 0:
         return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), cfg.imu_type
     imu_type = cfg.imu_type if cfg.imu_type is not None else int(frames.imu_type[0])
-    scale = novatel.imu_scale(imu_type, cfg.imu_rate_hz)
+    scale = novatel.imu_scale(imu_type, cfg.imu_rate_hz or rate_hz)
     w, f = frames.to_si(scale, novatel.axis_matrix(cfg.imu_axes))
     g = frames.seconds_since(frames.week[0], frames.sow_s[0])
     t = align_device_time(g, frames.t_host_s)
@@ -96,9 +102,8 @@ def record(cfg: RecordConfig, stop: threading.Event | None = None) -> Recording:
     novatel.axis_matrix(cfg.imu_axes)  # fail early on a bad map
     raw = Path(cfg.raw_dir) if cfg.raw_dir else None
     links: dict[str, SerialLink] = {}
-    rate = cfg.imu_rate_hz or (novatel.IMU_SCALES[cfg.imu_type].rate_hz if cfg.imu_type in novatel.IMU_SCALES else None)
-    imu_stats = Stats()
-    links["imu"] = SerialLink(cfg.imu_port, novatel.RawImuParser(imu_stats, rate), "imu", cfg.imu_baud,
+    imu_parser = novatel.RawImuParser(Stats(), cfg.imu_rate_hz)
+    links["imu"] = SerialLink(cfg.imu_port, imu_parser, "imu", cfg.imu_baud,
                               raw / "imu.rawlog" if raw else None, idle_timeout_s=cfg.idle_timeout_s)
     if cfg.odometer_port:
         links["odometer"] = SerialLink(cfg.odometer_port, encoder.EncoderParser(Stats(), cfg.odometer),
@@ -124,13 +129,13 @@ def record(cfg: RecordConfig, stop: threading.Event | None = None) -> Recording:
         for link in links.values():
             link.stop()
     frames = novatel.ImuFrames.concat(links["imu"].drain())
-    t, w, f, imu_type = imu_si(frames, cfg)
+    t, w, f, imu_type = imu_si(frames, cfg, imu_parser.rate)
     odo_t = odo_d = g_t = g_m = None
     if "odometer" in links:
         recs = links["odometer"].drain()
         c = np.array([r.count1 if cfg.odometer.channel == 1 else r.count2 for r in recs], np.int64)
         odo_t = np.array([r.t_host_s for r in recs], float) - t0
-        odo_d = encoder.distance_m(c, cfg.odometer)
+        odo_d = encoder.distance_m(c, cfg.odometer, [r.segment for r in recs])
         # replies that arrived in one read share a host time: keep the latest count of each time
         keep = np.append(np.diff(odo_t) > 0, True) if odo_t.size else np.zeros(0, bool)
         odo_t, odo_d = odo_t[keep], odo_d[keep]

@@ -2,8 +2,9 @@
 
 Because the raw log keeps every chunk read with its host time, feeding the chunks back through
 a fresh parser gives records identical to the live session (same frames, same host times) and
-the same counters (except ``bytes_out``, ``reconnects`` and ``timeouts``, which belong to the
-port, not the parser).
+the same counters (except ``bytes_out`` and ``timeouts``, which belong to the port, not the
+parser). Reconnect marks are replayed as ``stats.reconnects`` increments, which the odometer
+parser watches.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from drivers import encoder, gauge, novatel
-from drivers.rawlog import IN, read_rawlog
+from drivers.rawlog import IN, RECONNECT, read_rawlog
 from drivers.stats import Stats
 
 
@@ -28,6 +29,9 @@ def replay(path: str | Path, make_parser: Callable[[Stats], object]) -> tuple[li
     parser = make_parser(stats)
     out: list = []
     for d, t, data in read_rawlog(path):
+        if d == RECONNECT:
+            stats.reconnects += 1
+            continue
         if d != IN:
             continue
         recs = parser.feed(data, t)

@@ -16,7 +16,7 @@ from typing import Callable
 
 import serial
 
-from drivers.rawlog import IN, OUT, RawLog
+from drivers.rawlog import IN, OUT, RECONNECT, RawLog
 from drivers.stats import Stats
 
 #: the one host clock of a session
@@ -88,6 +88,8 @@ class SerialLink:
         if self._was_open:
             with self.lock:
                 self.stats.reconnects += 1
+            if self.rawlog:  # parsers that restart at a reconnect (odometer gate) replay the same
+                self.rawlog.write(RECONNECT, self.clock(), b"")
         self._was_open = True
         self.connected.set()
 

@@ -26,7 +26,8 @@ class Stats:
     bytes_discarded : bytes thrown away (garbage, bad frames, skipped while resynchronising).
     bytes_pending : bytes held by the parser waiting for the rest of a frame.
     queue_dropped : records dropped because the bounded queue was full (oldest dropped first).
-    extra : protocol-specific counters (IMU time gaps and error bits, GeoCOM retries, ...).
+    extra : protocol-specific counters (IMU time gaps and error bits, GeoCOM retries, ...) and
+        the IMU data rate in use (``rate_hz``, a float).
     """
 
     frames_ok: int = 0
@@ -41,7 +42,7 @@ class Stats:
     bytes_discarded: int = 0
     bytes_pending: int = 0
     queue_dropped: int = 0
-    extra: dict[str, int] = field(default_factory=dict)
+    extra: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """All counters as a plain dict (for ``stats.json``)."""

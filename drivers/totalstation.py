@@ -40,7 +40,9 @@ class RetryPolicy:
 
 @dataclass(frozen=True)
 class Measurement:
-    """One prism measurement: angles, slope distance, grid coordinates, return code, host time."""
+    """One prism measurement: angles, slope distance, grid coordinates, return code, host time,
+    and the instrument's own time stamp of the coordinates (TMC_GetCoordinate ``CoordTime``,
+    ms on the instrument's clock, whose epoch the manuals do not state; protocols.md 1.3)."""
 
     hz_rad: float
     v_rad: float
@@ -50,6 +52,7 @@ class Measurement:
     H_m: float
     rc: int
     t_host_s: float
+    coord_time_ms: int | None = None
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,23 @@ class TotalStation:
         self.null_proc()
         return self
 
+    def detect_crc(self, attempts: int = 2) -> bool:
+        """Switch the CRC-16 field on if the instrument answers a CRC-checked COM_NullProc with
+        a valid CRC (GeoCOM makes the field optional; whether every model supports it is not
+        documented, protocols.md 1.2); otherwise leave it off. Returns whether it is on."""
+        self.use_crc = True
+        for _ in range(attempts):
+            try:
+                self.call_once(gc.COM_NULLPROC)
+                return True
+            except gc.GeoComError:
+                try:
+                    self.link.write(gc.CLEAR_BUFFER)
+                except DeviceError:
+                    break
+        self.use_crc = False
+        return False
+
     def close(self) -> None:
         """Close the port and the raw log."""
         self.link.stop()
@@ -168,7 +188,8 @@ class TotalStation:
                 raise gc.error_for(code, rpc, "reply rejected")
             if self.use_crc and not rep.crc_present:
                 raise gc.error_for(3110, rpc, "reply without the CRC field that was asked for")
-            if rep.trid != trid:
+            # a reply without the transaction-id field cannot be matched: taken as this one's
+            if rep.trid is not None and rep.trid != trid:
                 with self.link.lock:
                     self.stats.extra["stale_replies"] += 1
                 continue
@@ -227,8 +248,14 @@ class TotalStation:
 
     def coordinate(self, wait_ms: int = 3000, mode: int = gc.TMC_AUTO_INC) -> tuple[float, float, float, int]:
         """TMC_GetCoordinate: (E, N, H, rc) of the static measurement."""
+        return self._coordinate(wait_ms, mode)[:4]
+
+    def _coordinate(self, wait_ms: int, mode: int) -> tuple[float, float, float, int, int | None]:
+        """TMC_GetCoordinate: (E, N, H, rc, CoordTime ms or None when not in the reply)."""
         r = self.call(gc.TMC_GETCOORDINATE, (int(wait_ms), int(mode)), ok=gc.TMC_RESULT_USABLE)
-        return float(r.params[0]), float(r.params[1]), float(r.params[2]), r.rc
+        p = r.params
+        t_ms = int(p[3]) if len(p) > 3 and isinstance(p[3], int) else None
+        return float(p[0]), float(p[1]), float(p[2]), r.rc, t_ms
 
     def angle(self, mode: int = gc.TMC_AUTO_INC) -> tuple[float, float]:
         """TMC_GetAngle (GetAngle1): (Hz, V)."""
@@ -263,5 +290,5 @@ class TotalStation:
         """One static prism measurement: DoMeasure(single), GetSimpleMea, GetCoordinate."""
         self.do_measure(gc.TMC_DEF_DIST)
         hz, v, sd, rc1 = self.simple_mea(wait_ms)
-        e, n, h, rc2 = self.coordinate(wait_ms)
-        return Measurement(hz, v, sd, e, n, h, max(rc1, rc2), time.monotonic())
+        e, n, h, rc2, t_ms = self._coordinate(wait_ms, gc.TMC_AUTO_INC)
+        return Measurement(hz, v, sd, e, n, h, max(rc1, rc2), time.monotonic(), t_ms)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import termios
 
 import numpy as np
 import pytest
@@ -83,13 +84,39 @@ def test_record_writes_session_files_raw_logs_and_stats(tmp_path):
     assert len(frames) == imu_csv.size
 
 
+def test_record_missing_frames_counted_with_the_rate_inferred(tmp_path):
+    # 400 Hz from an IMU type whose nominal rate is 200 Hz: gaps and scaling need the real rate
+    rate = 400.0
+    t = np.arange(500) / rate
+    keep = np.setdiff1d(np.arange(500), np.r_[100, 200:203, 300:305])  # 3 gaps, 9 frames missing
+    w, f = np.array([0.01, -0.02, 0.03]), np.array([0.1, 0.2, -9.8])
+    imu = ImuTwin(t[keep], np.tile(w, (keep.size, 1)), np.tile(f, (keep.size, 1)), imu_type=26, rate_hz=rate,
+                  realtime=False).start(wait_client_s=30)
+    out = tmp_path / "rec"
+    try:
+        r = runner.invoke(app, ["devices", "record", "--imu", imu.port, "--seconds", "1.5", "--out", str(out),
+                                "--imu-baud", "230400"])
+        speed = termios.tcgetattr(imu.slave)[5]  # the line settings the driver left on the port
+    finally:
+        imu.stop()
+    assert r.exit_code == 0, r.output
+    assert speed == termios.B230400
+    st = json.loads((out / "stats.json").read_text())["imu"]
+    assert st["frames_ok"] == keep.size
+    assert st["extra"]["rate_hz"] == rate
+    assert st["extra"]["time_gaps"] == 3 and st["extra"]["frames_missing"] == 9
+    csv = np.genfromtxt(out / "imu.csv", delimiter=",", names=True)
+    sc = novatel.imu_scale(26, rate)
+    assert np.allclose(csv["wy_rad_s"], w[1], atol=sc.gyro * rate) and np.allclose(csv["fz_m_s2"], f[2], atol=sc.accel * rate)
+
+
 def test_record_bad_axis_map_is_a_clear_error(tmp_path):
     r = runner.invoke(app, ["devices", "record", "--imu", "/dev/null", "--seconds", "1", "--out", str(tmp_path),
                             "--imu-axes", "x,x,z"])
     assert r.exit_code == 2 and "axis x used twice" in r.stderr and "Traceback" not in r.output
 
 
-def test_simulate_command_prints_a_port_that_speaks_the_protocol():
+def test_simulate_one_device_prints_its_port_and_stops_after_seconds():
     import subprocess
     import sys
     import time
@@ -99,9 +126,11 @@ def test_simulate_command_prints_a_port_that_speaks_the_protocol():
     from drivers.stats import Stats
 
     p = subprocess.Popen([sys.executable, "-m", "survey.cli", "devices", "simulate", "--device", "gauge",
-                          "--seconds", "6", "--rate-hz", "50"], stdout=subprocess.PIPE, text=True)
+                          "--seconds", "6", "--gauge-rate-hz", "50"], stdout=subprocess.PIPE, text=True)
     try:
-        port = p.stdout.readline().strip()
+        ports = json.loads(p.stdout.readline())
+        assert set(ports) == {"gauge"}
+        port = ports["gauge"]
         assert port.startswith("/dev/")
         stats = Stats()
         link = SerialLink(port, gauge.GaugeParser(stats), "gauge")
@@ -113,9 +142,10 @@ def test_simulate_command_prints_a_port_that_speaks_the_protocol():
             if r is not None:
                 recs.append(r)
         link.stop()
+        assert p.wait(15) == 0  # --seconds 6: ends by itself
     finally:
-        p.terminate()
-        p.wait(10)
+        if p.poll() is None:
+            p.kill()
     assert len(recs) >= 10 and stats.bad_checksum == 0
     assert all(abs(r.gauge_m - 1.435) <= 0.00201 for r in recs)
 

@@ -75,3 +75,29 @@ def test_every_return_code_has_name_sentence_and_type():
     assert gc.error_for(8710).retryable and gc.error_for(1293).retryable
     assert not gc.error_for(2).retryable and not gc.error_for(1285).retryable
     assert gc.code_name(12345) == "GRC_UNKNOWN_12345"
+
+
+@given(st.floats(allow_nan=False, allow_infinity=False))
+@settings(max_examples=200, deadline=None)
+def test_float_parameters_positional_and_exact(v):
+    s = gc.format_param(v)
+    assert "e" not in s.lower() and float(s) == v  # no exponent form; reads back bit for bit
+    assert gc.parse_param(s) == v
+
+
+def test_float_parameter_hand_cases():
+    assert gc.format_param(1e-05) == "0.00001" and gc.format_param(-2.5e-7) == "-0.00000025"
+    assert gc.format_param(0.0873) == "0.0873" and gc.format_param(1e16) == "10000000000000000.0"
+    assert gc.encode_request(9037, (1e-6, 0.0873, 0), trid=2) == b"%R1Q,9037,2:0.000001,0.0873,0\r\n"
+    with pytest.raises(ValueError, match="finite"):
+        gc.format_param(float("nan"))
+
+
+def test_reply_without_transaction_id():
+    r = gc.decode_reply("%R1P,0:0")
+    assert (r.com_rc, r.trid, r.rc, r.params, r.crc_present) == (0, None, 0, (), False)
+    r = gc.decode_reply("%R1P,0:0,1.25,2")
+    assert (r.trid, r.params) == (None, (1.25, 2))
+    assert gc.encode_reply(0, (1.25, 2), None) == b"%R1P,0:0,1.25,2\r\n"
+    with pytest.raises(gc.GeoComProtocolError):
+        gc.decode_reply("%R1P,0,:0")

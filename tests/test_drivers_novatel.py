@@ -158,6 +158,31 @@ def test_error_bits_and_time_gaps_counted():
     assert stats.extra["time_gaps"] == 1 and stats.extra["frames_missing"] == 3
 
 
+@given(st.sampled_from([100.0, 125.0, 200.0, 400.0, 1000.0]), st.integers(1, 19), st.integers(1, 6),
+       st.integers(1, 97), st.integers(0, 603000))
+@settings(max_examples=30, deadline=None)
+def test_rate_inferred_from_time_steps_counts_gaps_without_a_given_rate(rate, at, missing, read, sow0):
+    # frames at..at+missing-1 are missing, inside the frames the rate is inferred from
+    n = 60
+    sow = sow0 + np.arange(n) / rate
+    keep = np.r_[0:at, at + missing:n]
+    buf = nv.encode_rawimusxb(2300, sow[keep], np.ones((keep.size, 3)), np.ones((keep.size, 3)))
+    stats, given_rate = Stats(), Stats()
+    p = nv.RawImuParser(stats)
+    out = [p.feed(buf[k: k + read], 0.0) for k in range(0, len(buf), read)]
+    nv.RawImuParser(given_rate, rate).feed(buf, 0.0)
+    assert len(nv.ImuFrames.concat(out)) == keep.size
+    assert p.rate == rate and stats.extra["rate_hz"] == rate  # snapped to whole hertz exactly
+    assert stats.extra["time_gaps"] == 1 and stats.extra["frames_missing"] == missing
+    assert stats.extra == given_rate.extra
+
+
+def test_rate_inference_needs_distinct_times():
+    with pytest.raises(ValueError, match="two distinct"):
+        nv.rate_from_times([5.0, 5.0])
+    assert nv.rate_from_times([0.0, 0.008, 0.016, 0.04]) == 125.0  # median step, not the mean
+
+
 def test_ascii_log_parse_matches_binary_and_rejects_bad_lines():
     buf, g, a, sow = _stream(30, 5)
     lines = [nv.format_rawimusxa(2300, s, gi, ai) for s, gi, ai in zip(sow, g, a)]

@@ -62,9 +62,11 @@ def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
     twin.stop()
     recs = link.drain()
     counts = np.array([r.count1 for r in recs])
-    assert len(recs) >= n and np.array_equal(counts, twin.sent_counts[: len(recs)])
+    skip = cfg.confirm - 1  # withheld until that many readings agree (the gate's first anchor)
+    assert stats.extra["unconfirmed"] == skip
+    assert len(recs) >= n - skip and np.array_equal(counts, twin.sent_counts[skip: skip + len(recs)])
     d = encoder.distance_m(counts, cfg)
-    assert d[n - 1] == pytest.approx(dist[n - 1], abs=cfg.metres_per_count)
+    assert d[n - 1 - skip] == pytest.approx(dist[n - 1] - dist[skip], abs=cfg.metres_per_count)
     assert np.all(np.diff(d) >= 0) and stats.balanced() and stats.timeouts == 0
     rep, rst = replay_encoder(tmp_path / "odo.rawlog", cfg)
     assert rep == recs and rst.frames_ok == stats.frames_ok
@@ -169,3 +171,167 @@ def test_odometer_unplug_replug_keeps_counts_and_distance_continuous(tmp_path):
     d = encoder.distance_m(counts, cfg)
     assert np.all(np.diff(d) >= 0)
     assert d[-1] == pytest.approx((pos[-1] - pos[0]) * 0.5 / cfg.rate_hz, abs=cfg.metres_per_count)
+
+
+# ------------------------------------------------------------------ speed gate anchoring
+def _feed(parser, counts, rate_hz, bits=32):
+    out = []
+    for k, c in enumerate(counts):
+        out += parser.feed(encoder.format_read_reply(int(c), 0, bits), k / rate_hz)
+    return out
+
+
+def test_counter_reset_without_reconnect_reanchors_and_distance_carries_on():
+    cfg = encoder.OdometerConfig(rate_hz=100.0)
+    stats = Stats()
+    counts = [0, 10, 20, 30, 5_000_000, 5_000_010, 5_000_020, 5_000_030]
+    recs = _feed(encoder.EncoderParser(stats, cfg), counts, cfg.rate_hz)
+    # 0 and 10 wait for confirmation; 5000000 and 5000010 are rejected until three agree
+    assert [r.count1 for r in recs] == [20, 30, 5_000_020, 5_000_030]
+    assert [r.segment for r in recs] == [0, 0, 1, 1]
+    ex = stats.extra
+    assert (ex["unconfirmed"], ex["implausible"], ex["reanchors"]) == (2, 2, 1) and stats.balanced()
+    d = encoder.distance_m([r.count1 for r in recs], cfg, [r.segment for r in recs])
+    assert np.allclose(d / cfg.metres_per_count, [0, 10, 10, 20])
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 30), st.sets(st.integers(0, 59), max_size=12),
+       st.integers(10**5, 2**31))
+@settings(max_examples=60, deadline=None)
+def test_no_corrupt_reading_is_accepted_and_no_good_one_lost_once_anchored(c0, v, corrupt, jump):
+    cfg = encoder.OdometerConfig(rate_hz=100.0)
+    bad = {k for k in corrupt if k - 1 not in corrupt}  # isolated corruptions (no two in a row)
+    true = (c0 + v * np.arange(60)) % 2**32
+    sent = true.copy()
+    for k in bad:
+        sent[k] = (true[k] + jump) % 2**32  # a high digit changed: far beyond the speed gate
+    stats = Stats()
+    recs = _feed(encoder.EncoderParser(stats, cfg), sent, cfg.rate_hz)
+    # the first reading accepted is the third of the first three good readings in a row
+    first = next(k for k in range(2, 60) if not {k - 2, k - 1, k} & bad)
+    expect = [int(true[k]) for k in range(first, 60) if k not in bad]
+    assert [r.count1 for r in recs] == expect
+    assert stats.extra["implausible"] == len([k for k in bad if k > first]) and stats.extra["reanchors"] == 0
+
+
+def test_corrupt_first_reply_through_pty_does_not_lock_the_odometer_out():
+    cfg = encoder.OdometerConfig(bits=32, rate_hz=200.0)
+    n = 300
+    t = np.arange(n) / cfg.rate_hz
+    dist = 0.8 * t
+    dist[0] = 4000.0  # first reply corrupt: a high digit changed (the protocol has no checksum)
+    twin = OdometerTwin(t, dist, cfg, offset_counts=123_456, mode="index")
+    link, stats = _odo_link(twin, cfg)
+    poller = encoder.OdometerPoller(link, cfg, reply_timeout_s=2.0).start()
+    deadline = time.monotonic() + 20.0
+    while twin.polls < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    poller.stop()
+    time.sleep(0.1)
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    counts = [r.count1 for r in recs]
+    # polls 0 (corrupt), 1 and 2 are withheld; from poll 3 on every reading is accepted
+    assert counts == twin.sent_counts[3: 3 + len(counts)] and len(counts) >= n - 3
+    assert stats.extra["unconfirmed"] == 3 and stats.extra["implausible"] == 0 and stats.balanced()
+    d = encoder.distance_m(counts, cfg)
+    assert d[n - 4] == pytest.approx(dist[n - 1] - dist[3], abs=cfg.metres_per_count)  # poll n-1
+
+
+def test_power_cycled_unplug_resets_the_counter_new_segment_distance_continues(tmp_path):
+    cfg = encoder.OdometerConfig(bits=32, rate_hz=100.0)
+    n = 4000
+    t = np.arange(n) / cfg.rate_hz
+    twin = OdometerTwin(t, 0.5 * t, cfg, offset_counts=3_000_000, mode="index", link_path=tmp_path / "odo-by-id")
+    link, stats = _odo_link(twin, cfg, tmp_path / "odo.rawlog")
+    poller = encoder.OdometerPoller(link, cfg).start()
+    time.sleep(0.4)
+    twin.disappear(0.3, power_cycle=True)
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and len(twin.sent_counts) < (twin.resets or [10**9])[0] + 40:
+        time.sleep(0.02)
+    poller.stop()
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    assert stats.reconnects == 1 and len(twin.resets) == 1
+    r = twin.resets[0]
+    sent = np.array(twin.sent_counts)
+    assert sent[r] == 0  # the module restarted its count
+    before = [x for x in recs if x.segment == 0]
+    after = [x for x in recs if x.segment == 1]
+    assert stats.extra["counter_resets"] == 1 and stats.extra["reanchors"] == 0
+    assert len(before) > 10 and len(after) >= 30
+    # replies to polls answered before the port was re-opened are lost (as on a real unplug);
+    # of those that arrive, the first two are withheld, then every reading is accepted
+    a0 = r + int(np.flatnonzero(sent[r:] == after[0].count1)[0])
+    assert a0 >= r + 2 and stats.extra["unconfirmed"] == 4  # 2 at the start, 2 after the reset
+    assert [x.count1 for x in after] == sent[a0: a0 + len(after)].tolist()
+    c = [x.count1 for x in recs]
+    d = encoder.distance_m(c, cfg, [x.segment for x in recs]) / cfg.metres_per_count
+    k = len(before)
+    assert np.all(np.diff(d) >= 0) and d[k] == d[k - 1]  # the reset is not a distance jump
+    assert d[-1] - d[k] == after[-1].count1 - after[0].count1
+    assert stats.balanced()
+    rep, rst = replay_encoder(tmp_path / "odo.rawlog", cfg)  # the reconnect mark is in the log
+    assert rep == recs and rst.reconnects == 1 and rst.extra == stats.extra
+
+
+def test_odometer_late_and_missing_replies_in_order_and_counted():
+    cfg = encoder.OdometerConfig(bits=32, rate_hz=100.0)
+    n = 150
+    t = np.arange(n) / cfg.rate_hz
+    twin = OdometerTwin(t, 0.5 * t, cfg, offset_counts=777, mode="index",
+                        faults=Faults(delay_rate=0.05, delay_s=0.15, missing_rate=0.03, seed=8))
+    link, stats = _odo_link(twin, cfg)
+    poller = encoder.OdometerPoller(link, cfg, reply_timeout_s=0.08).start()
+    deadline = time.monotonic() + 30.0
+    while twin.polls < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    poller.stop()
+    time.sleep(0.3)  # the last late reply
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    answered = [c for k, c in enumerate(twin.sent_counts) if k not in set(twin.missing)]
+    assert len(twin.delayed) >= 3 and len(twin.missing) >= 2
+    # late replies come in order: every answered poll arrives, none twice, none out of order
+    assert [r.count1 for r in recs] == answered[2:]  # the first two wait for the gate's anchor
+    # a poll left unanswered, or answered 0.15 s late, times out (0.08 s)
+    assert stats.timeouts >= len(twin.missing) + len(twin.delayed)
+    assert stats.extra["implausible"] == 0 and stats.balanced()
+    # the late replies arrive late: their host times show a gap of about delay_s
+    dt = np.diff([r.t_host_s for r in recs])
+    assert np.sum(dt > 0.12) >= len(twin.delayed) - 1
+
+
+def test_gauge_unplug_replug_keeps_lines_and_counts_the_gap(tmp_path):
+    n = 600
+    t = np.arange(n) / 100.0
+    g = 1.435 + 0.001 * np.sin(t)
+    twin = GaugeTwin(t, g, link_path=tmp_path / "gauge-by-id")
+    stats = Stats()
+    link = SerialLink(twin.port, gauge.GaugeParser(stats), "gauge", raw_log=tmp_path / "g.rawlog")
+    link.open()
+    link.start()
+    twin.start()
+    time.sleep(1.0)
+    twin.disappear(0.5)
+    deadline = time.monotonic() + 20.0
+    while twin.lines_sent < n and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.2)
+    link.stop()
+    twin.stop()
+    recs = link.drain()
+    seq = [r.seq for r in recs]
+    assert stats.reconnects == 1 and len(seq) > 300
+    # lines before and after the unplug are all kept, in order; the lines written while the
+    # port was gone are lost and show as one gap in the line counter
+    assert np.all(np.diff(seq) > 0) and seq[-1] == n - 1
+    assert stats.extra["seq_gaps"] == 1 and stats.extra["lines_missing"] == n - len(seq) - seq[0]
+    assert np.allclose([r.gauge_m for r in recs], np.round(g[seq] * 1e5) / 1e5, atol=1e-9)
+    assert stats.bad_checksum == 0 and stats.balanced()
+    rep, _ = replay_gauge(tmp_path / "g.rawlog")
+    assert rep == recs

@@ -249,3 +249,109 @@ def test_free_station_on_cpiii_then_trolley_prism_coordinates():
     finally:
         ts.close()
         twin.stop()
+
+
+def test_random_late_and_missing_replies_every_call_accounted_for():
+    faults = Faults(delay_rate=0.2, delay_s=0.8, missing_rate=0.15, seed=21)
+    twin, ts = _pair(timeout_s=0.5, retry=RetryPolicy(attempts=3, base_delay_s=0.01, max_delay_s=0.02))
+    twin.faults = twin.injector.f = faults  # connect() above ran fault-free
+    k0 = len(twin.requests)
+    expect = _polar(STATION, TARGET)
+    calls = ok = timed_out = 0
+    try:
+        ts.fine_adjust()
+        ts.do_measure()
+        base = len(twin.requests)
+        retries0, timeouts0 = ts.stats.extra["retries"], ts.stats.timeouts
+        for _ in range(30):
+            calls += 1
+            try:
+                r = ts.simple_mea()
+            except gc.GeoComTimeout as e:  # every attempt went unanswered in time: typed, code 3077
+                assert e.code == 3077
+                timed_out += 1
+                continue
+            ok += 1
+            assert r[:3] == pytest.approx(expect, abs=1e-12)
+        retries = ts.stats.extra["retries"] - retries0
+        timeouts = ts.stats.timeouts - timeouts0
+        twin.faults.delay_rate = twin.faults.missing_rate = 0.0
+        time.sleep(1.0)  # the last late reply arrives
+        ts.null_proc()  # drains it (counted stale)
+    finally:
+        ts.close()
+        twin.stop()
+    assert ok + timed_out == calls and ok >= 25
+    # every request of the loop reached the twin: one per attempt
+    assert len(twin.requests) - base - 1 == calls + retries
+    faulted = [k for k in twin.missing + twin.delayed if k >= base]
+    # each missing or late reply costs exactly one timeout; every late one arrives as stale
+    assert timeouts == len(faulted) == retries + timed_out and len(faulted) > 5
+    assert ts.stats.extra["stale_replies"] == len([k for k in twin.delayed if k >= k0])
+    # every reply sent was received and parsed
+    assert ts.stats.frames_ok == len(twin.requests) - len(twin.missing) and ts.stats.balanced()
+
+
+def test_without_crc_a_corrupted_digit_can_pass():
+    # the same reply with one digit changed: only the CRC field tells them apart
+    good = gc.encode_reply(0, (1.2345678, 1.5707963, 31.622), 5).decode().strip()
+    bad = good.replace("31.622", "31.722")
+    assert gc.decode_reply(bad).params[2] == 31.722  # accepted, wrong by 0.1 m
+    good_crc = gc.encode_reply(0, (1.2345678, 1.5707963, 31.622), 5, with_crc=True).decode().strip()
+    with pytest.raises(gc.GeoComChecksumError):
+        gc.decode_reply(good_crc.replace("31.622", "31.722"))
+    # through the pty: byte faults without CRC; every wrong accepted value needs a corrupted
+    # byte that stayed a valid character of a number (digit->digit), which nothing can catch
+    faults = Faults(corrupt_rate=2e-3, seed=4)
+    twin, ts = _pair(timeout_s=0.5, retry=RetryPolicy(attempts=8, base_delay_s=0.01, max_delay_s=0.05))
+    twin.faults = twin.injector.f = faults
+    try:
+        ts.fine_adjust()
+        ts.do_measure()
+        expect = _polar(STATION, TARGET)
+        wrong = ok = 0
+        for _ in range(150):
+            try:
+                r = ts.simple_mea()
+            except gc.GeoComError:
+                continue
+            ok += 1
+            wrong += r[:3] != pytest.approx(expect, abs=1e-12)
+    finally:
+        ts.close()
+        twin.stop()
+    inj = twin.injector
+    digits = set(b"0123456789")
+    digit_swaps = sum(1 for a, b in zip(inj.corrupted_from, inj.corrupted_to) if a in digits and b in digits)
+    assert ok >= 140 and len(inj.corrupted) > 10 and wrong <= digit_swaps
+    print(f"\nGeoCOM without CRC: {ok} replies accepted, {len(inj.corrupted)} bytes corrupted, "
+          f"{digit_swaps} digit->digit, {wrong} wrong values accepted")
+
+
+def test_replies_without_transaction_id_and_coord_time_kept():
+    twin, ts = _pair(echo_trid=False)
+    try:
+        ts.fine_adjust()
+        before = int(time.monotonic() * 1000)
+        m = ts.measure()
+        after = int(time.monotonic() * 1000)
+    finally:
+        ts.close()
+        twin.stop()
+    assert (m.E_m, m.N_m, m.H_m) == pytest.approx(TARGET, abs=1e-9)
+    assert all(r.crc_present is False for r in twin.requests)
+    # the twin stamps CoordTime with its ms clock (the host's monotonic clock, mod 2^31)
+    assert m.coord_time_ms is not None and (m.coord_time_ms - before) % 2**31 <= after - before
+
+
+def test_probe_detects_crc_support():
+    twin, ts = _pair()
+    try:
+        assert ts.detect_crc() is True and ts.use_crc
+        ts.fine_adjust()
+        m = ts.measure()
+    finally:
+        ts.close()
+        twin.stop()
+    assert (m.E_m, m.N_m, m.H_m) == pytest.approx(TARGET, abs=1e-9)
+    assert all(r.crc_present and r.crc_ok for r in twin.requests[-4:])

@@ -105,6 +105,31 @@ def _slave_is_raw(fd: int) -> bool:
         return False
 
 
+class Epoch:
+    """A time origin shared by several twins: set by the first one that starts speaking.
+
+    Twins fed from one session (``trolley devices simulate --session``) share it so that the
+    IMU sample, odometer reading and gauge line of the same session time go out at the same
+    host time, whichever port the application opens first.
+    """
+
+    def __init__(self) -> None:
+        self._t0: float | None = None
+        self._lock = threading.Lock()
+
+    def get(self) -> float:
+        """The origin (host monotonic time); set now if nobody has set it yet."""
+        with self._lock:
+            if self._t0 is None:
+                self._t0 = time.monotonic()
+            return self._t0
+
+    @property
+    def value(self) -> float | None:
+        """The origin, or None while no twin has started speaking."""
+        return self._t0
+
+
 class PtyTwin:
     """A simulated device on a pty. Subclasses implement :meth:`serve` (the worker loop).
 
@@ -126,6 +151,8 @@ class PtyTwin:
         self._io_lock = threading.RLock()
         self.bytes_sent = 0
         self.bytes_received = 0
+        self.epoch: Epoch | None = None  # shared time origin (None: the twin's own start)
+        self.epoch_offset_s = 0.0  # data time 0 of this twin is this long after the shared epoch
         self._open_pty()
 
     # ------------------------------------------------------------------ pty
@@ -168,12 +195,17 @@ class PtyTwin:
             time.sleep(0.005)
         return False
 
-    def disappear(self, for_s: float) -> None:
-        """Simulate a USB unplug: the port vanishes for ``for_s`` seconds, then comes back."""
+    def disappear(self, for_s: float, power_cycle: bool = False) -> None:
+        """Simulate a USB unplug: the port vanishes for ``for_s`` seconds, then comes back.
+
+        ``power_cycle``: the device was bus-powered and restarts (:meth:`power_up`).
+        """
         with self._io_lock:
             self._close_pty()
         time.sleep(for_s)
         with self._io_lock:
+            if power_cycle:
+                self.power_up()
             self._open_pty()
         # let the application re-open before the device speaks again
         if self.wait_client(30.0):
@@ -240,6 +272,13 @@ class PtyTwin:
         self._thread = threading.Thread(target=run, name=type(self).__name__, daemon=True)
         self._thread.start()
         return self
+
+    def power_up(self) -> None:
+        """What the device does when it is powered again (default: nothing it keeps is lost)."""
+
+    def origin(self) -> float:
+        """Host time of data time 0: the shared epoch if any, else now (called at serve start)."""
+        return self.epoch.get() + self.epoch_offset_s if self.epoch is not None else time.monotonic()
 
     def serve(self) -> None:  # pragma: no cover - abstract
         raise NotImplementedError

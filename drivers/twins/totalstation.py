@@ -37,11 +37,23 @@ class TotalStationTwin(PtyTwin):
         measurement take before the reply (real instruments: about 1-5 s and 1-3 s).
     faults : byte faults on replies plus ``delay_rate``/``missing_rate`` per reply.
     seed : noise seed.
+    echo_trid : answer with the transaction id (``%R1P,0,<trid>:``); False: the short form
+        ``%R1P,0:`` the manual's framing also allows (requests without CRC only).
+
+    Attributes
+    ----------
+    requests : every decoded request, in order.
+    missing, delayed : indices into ``requests`` of the replies the random faults left out
+        or sent ``delay_s`` late.
     """
 
     def __init__(self, station=(0.0, 0.0, 0.0, 0.0), target=None, noise_angle_rad: float = 0.0,
                  noise_dist_m: float = 0.0, sw_version=(1, 50, 0), faults: Faults | None = None,
-                 link_path=None, seed: int = 0, atr_time_s: float = 0.0, edm_time_s: float = 0.0) -> None:
+                 link_path=None, seed: int = 0, atr_time_s: float = 0.0, edm_time_s: float = 0.0,
+                 echo_trid: bool = True) -> None:
+        self.echo_trid = echo_trid
+        self.missing: list[int] = []
+        self.delayed: list[int] = []
         self.atr_time_s = atr_time_s
         self.edm_time_s = edm_time_s
         self.station = tuple(float(x) for x in station)
@@ -256,10 +268,15 @@ class TotalStationTwin(PtyTwin):
                 return
             delay = self._delay_next.popleft() if self._delay_next else 0.0
         f = self.faults
+        k = len(self.requests) - 1
         if f.missing_rate and self.injector.rng.random() < f.missing_rate:
+            self.missing.append(k)
             return
         if f.delay_rate and self.injector.rng.random() < f.delay_rate:
+            self.delayed.append(k)
             delay = max(delay, f.delay_s)
+        if not self.echo_trid and not req.crc_present:
+            trid = None
         if rc == -1:
             reply = gc.encode_reply(3081, (), trid, com_rc=3081, with_crc=req.crc_present)
         else:

@@ -1,8 +1,8 @@
 """``trolley devices``: check and record real or simulated serial instruments.
 
 ``probe`` talks GeoCOM to a total station, ``record`` records IMU / odometer / gauge into the raw
-session files of FORMATS.md section 1 (plus raw byte logs and counters), ``simulate`` starts a
-device twin on a pseudo-terminal and prints the port to use (docs/drivers.md).
+session files of FORMATS.md section 1 (plus raw byte logs and counters), ``simulate`` starts the
+device twins on pseudo-terminals and writes the devices file naming their ports (docs/drivers.md).
 """
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import math
 import os
 import tempfile
 import time
-from enum import Enum
 from pathlib import Path
 
 import typer
@@ -48,7 +47,8 @@ def _csv(header: list[str], cols: list) -> str:
 def probe(
     totalstation: str = typer.Option(..., "--totalstation", help="Serial port of the total station."),
     baud: int = typer.Option(19200, "--baud", help="Baud rate (9600 and 19200 are both common)."),
-    crc: bool = typer.Option(False, "--crc/--no-crc", help="Use the GeoCOM CRC-16 field."),
+    crc: bool | None = typer.Option(None, "--crc/--no-crc",
+                                    help="GeoCOM CRC-16 field on/off (default: on if the instrument answers with it)."),
     timeout_s: float = typer.Option(3.0, "--timeout-s", help="Reply timeout of quick calls."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout."),
 ) -> None:
@@ -57,16 +57,19 @@ def probe(
     from drivers.serialport import DeviceError
     from drivers.totalstation import TotalStation
 
-    ts = TotalStation(totalstation, baudrate=baud, use_crc=crc, timeout_s=timeout_s)
+    ts = TotalStation(totalstation, baudrate=baud, use_crc=bool(crc), timeout_s=timeout_s)
     out: dict
     try:
         ts.connect()
+        if crc is None:
+            ts.detect_crc()
         ver = ts.sw_version()
         ts.fine_adjust()
         m = ts.measure()
         out = {"ok": True, "E_m": m.E_m, "N_m": m.N_m, "H_m": m.H_m, "hz_rad": m.hz_rad,
                "v_rad": m.v_rad, "slope_m": m.slope_m, "rc": m.rc,
-               "geocom_version": ".".join(map(str, ver))}
+               "geocom_version": ".".join(map(str, ver)), "crc": ts.use_crc,
+               "coord_time_ms": m.coord_time_ms}
     except geocom.GeoComError as e:
         out = {"ok": False, "rc": e.code, "name": e.name, "error": str(e)}
     except DeviceError as e:
@@ -99,6 +102,9 @@ def record_cmd(
     odometer_scale: float = typer.Option(1.0, "--odometer-scale", help="Calibrated scale factor."),
     odometer_bits: int = typer.Option(32, "--odometer-bits", help="Counter width (8, 16, 24, 32)."),
     odometer_rate_hz: float = typer.Option(100.0, "--odometer-rate-hz", min=100.0, help="Polling rate."),
+    imu_baud: int = typer.Option(460800, "--imu-baud", min=1, help="IMU line speed."),
+    odometer_baud: int = typer.Option(115200, "--odometer-baud", min=1, help="Counter module line speed."),
+    gauge_baud: int = typer.Option(115200, "--gauge-baud", min=1, help="Gauge sensor line speed."),
 ) -> None:
     """Record imu.csv, odometer.csv, gauge.csv (FORMATS.md section 1), raw logs and stats.json."""
     from drivers import encoder, novatel
@@ -116,7 +122,8 @@ def record_cmd(
         raise typer.Exit(code=2)
     out.mkdir(parents=True, exist_ok=True)
     cfg = RecordConfig(imu_port=imu, seconds=seconds, odometer_port=odometer, gauge_port=gauge, raw_dir=out,
-                       imu_axes=imu_axes, imu_type=imu_type, imu_rate_hz=imu_rate_hz, odometer=odo)
+                       imu_axes=imu_axes, imu_type=imu_type, imu_rate_hz=imu_rate_hz, odometer=odo,
+                       imu_baud=imu_baud, odometer_baud=odometer_baud, gauge_baud=gauge_baud)
     try:
         rec = record(cfg)
     except DeviceError as e:
@@ -147,87 +154,120 @@ def record_cmd(
         + f" into {out}", highlight=False)
 
 
-class Device(str, Enum):
-    imu = "imu"
-    odometer = "odometer"
-    gauge = "gauge"
-    totalstation = "totalstation"
-
-
 def _floats(s: str, n: int, name: str) -> tuple[float, ...]:
     try:
         v = tuple(float(x) for x in s.split(","))
     except ValueError:
         v = ()
-    if len(v) != n:
+    if len(v) != n or not all(math.isfinite(x) for x in v):
         _err(f"{name}: need {n} comma-separated numbers, got {s!r}")
         raise typer.Exit(code=2)
     return v
 
 
-@devices_app.command("simulate")
-def simulate(
-    device: Device = typer.Option(..., "--device", help="Which twin to start."),
-    seconds: float = typer.Option(600.0, "--seconds", help="How long the twin runs."),
-    link: Path | None = typer.Option(None, "--link", help="Also make this stable symlink to the port."),
-    rate_hz: float = typer.Option(200.0, "--rate-hz", help="IMU / gauge data rate."),
-    imu_type: int = typer.Option(26, "--imu-type", help="IMU type of the IMU twin (scale table)."),
-    speed_m_s: float = typer.Option(1.0, "--speed-m-s", help="Trolley speed of the odometer twin."),
-    station: str = typer.Option("0,0,0,1.5", "--station", help="Total-station twin: E0,N0,H0,Hi."),
-    target: str = typer.Option("10,20,0.5", "--target", help="Total-station twin: prism E,N,H."),
-    noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad"),
-    noise_dist_m: float = typer.Option(0.0, "--noise-dist-m"),
-    corrupt_rate: float = typer.Option(0.0, "--corrupt-rate", help="Probability per byte of corruption."),
-    drop_rate: float = typer.Option(0.0, "--drop-rate", help="Probability per byte of being dropped."),
-    garbage_rate: float = typer.Option(0.0, "--garbage-rate", help="Probability per write of a garbage burst."),
-    seed: int = typer.Option(0, "--seed"),
-) -> None:
-    """Start a device twin on a pseudo-terminal; prints the port path, runs ``--seconds``."""
+def _session_feed(folder: Path, station: str | None):
+    """Twin feed from a raw session folder (FORMATS.md section 1)."""
     import numpy as np
 
-    from drivers import encoder
-    from drivers.twins.base import Faults
+    from drivers.twins.fleet import FleetFeed, station_beside
+    from survey.sessionio import SessionFormatError, read_session
 
-    faults = Faults(corrupt_rate=corrupt_rate, drop_rate=drop_rate, garbage_rate=garbage_rate, seed=seed)
-    n = max(int(seconds * rate_hz), 2)
-    t = np.arange(n) / rate_hz
-    if device is Device.imu:
-        from drivers.twins.imu import ImuTwin
-
-        from trolley import units
-
-        # level and facing north at 45 deg latitude: Earth rate (cos, 0, -sin) * Omega in FRD
-        lat = float(units.deg_to_rad(45.0))
-        w = np.tile([units.EARTH_RATE_RAD_S * math.cos(lat), 0.0, -units.EARTH_RATE_RAD_S * math.sin(lat)], (n, 1))
-        f = np.tile([0.0, 0.0, -units.STANDARD_GRAVITY_M_S2], (n, 1))
-        twin = ImuTwin(t, w, f, imu_type=imu_type, rate_hz=rate_hz, faults=faults, link_path=link)
-    elif device is Device.gauge:
-        from drivers.twins.gauge import GaugeTwin
-
-        twin = GaugeTwin(t, 1.435 + 0.002 * np.sin(2 * np.pi * t / 10.0), faults=faults, link_path=link)
-    elif device is Device.odometer:
-        from drivers.twins.odometer import OdometerTwin
-
-        to = np.arange(max(int(seconds * 1000), 2)) / 1000.0
-        twin = OdometerTwin(to, speed_m_s * to, encoder.OdometerConfig(), mode="time", faults=faults, link_path=link)
-    else:
-        from drivers.twins.totalstation import TotalStationTwin
-
-        twin = TotalStationTwin(_floats(station, 4, "--station"), _floats(target, 3, "--target"),
-                                noise_angle_rad, noise_dist_m, faults=faults, link_path=link, seed=seed)
-    typer.echo(twin.port)
-    import sys
-
-    sys.stdout.flush()
     try:
-        twin.start(wait_client_s=seconds)
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
+        s = read_session(folder)
+    except SessionFormatError as e:
+        _err(f"--session {folder}: {e}")
+        raise typer.Exit(code=2)
+    enh = np.asarray(s.fixes.enh_m, float)
+    st = _floats(station, 4, "--station") if station else station_beside(enh)
+    return FleetFeed(s.imu_t_s, s.imu_w_rad_s, s.imu_f_m_s2, s.odo_t_s, s.odo_distance_m,
+                     s.gauge_t_s, s.gauge_m, np.asarray(s.fixes.t_s, float), enh, st, repeat=False)
+
+
+@devices_app.command("simulate")
+def simulate(
+    out: Path | None = typer.Option(None, "--out", help="Write the devices file (PORTS.json) here."),
+    session: Path | None = typer.Option(None, "--session", help="Feed the twins from this raw session folder."),
+    device: list[str] = typer.Option(list(("imu", "odometer", "gauge", "totalstation")), "--device",
+                                     help="Twin to start (repeat the option; default: all four)."),
+    seconds: float | None = typer.Option(None, "--seconds", min=0.0,
+                                         help="Stop after this long (default: run until interrupted)."),
+    link_dir: Path | None = typer.Option(None, "--link-dir", help="Also make stable symlinks DIR/<device>."),
+    imu_rate_hz: float = typer.Option(200.0, "--imu-rate-hz", min=1.0, help="Synthetic IMU data rate."),
+    gauge_rate_hz: float = typer.Option(50.0, "--gauge-rate-hz", min=1.0, help="Synthetic gauge rate."),
+    imu_type: int = typer.Option(26, "--imu-type", help="IMU type of the IMU twin (scale table)."),
+    speed_m_s: float = typer.Option(1.0, "--speed-m-s", help="Synthetic trolley speed (odometer twin)."),
+    station: str | None = typer.Option(None, "--station", help="Total station E0,N0,H0,Hi "
+                                       "(default 0,0,0,1.5; with --session: beside the fixes)."),
+    target: str = typer.Option("10,20,0.5", "--target", help="Synthetic prism E,N,H."),
+    noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad", min=0.0),
+    noise_dist_m: float = typer.Option(0.0, "--noise-dist-m", min=0.0),
+    corrupt_rate: float = typer.Option(0.0, "--corrupt-rate", min=0.0, max=1.0, help="Per byte: corrupted."),
+    drop_rate: float = typer.Option(0.0, "--drop-rate", min=0.0, max=1.0, help="Per byte: dropped."),
+    garbage_rate: float = typer.Option(0.0, "--garbage-rate", min=0.0, max=1.0, help="Per write: garbage burst."),
+    delay_rate: float = typer.Option(0.0, "--delay-rate", min=0.0, max=1.0, help="Per reply: late (odometer, total station)."),
+    delay_s: float = typer.Option(0.5, "--delay-s", min=0.0, help="How late a delayed reply is."),
+    missing_rate: float = typer.Option(0.0, "--missing-rate", min=0.0, max=1.0, help="Per reply: never sent."),
+    fault_device: list[str] = typer.Option(list(("imu", "odometer", "gauge", "totalstation")), "--fault-device",
+                                           help="Devices the faults apply to (repeat; default: all)."),
+    seed: int = typer.Option(0, "--seed"),
+) -> None:
+    """Start the device twins on pseudo-terminals, write which port each listens on, run until
+    interrupted (SIGINT/SIGTERM: ptys closed, the devices file removed, exit code 0)."""
+    import signal
+    import threading
+
+    from drivers.twins.base import Faults
+    from drivers.twins.fleet import DEVICES, Fleet, FleetConfig, synthetic_feed
+
+    for name in list(device) + list(fault_device):
+        if name not in DEVICES:
+            _err(f"unknown device {name!r}; use {', '.join(DEVICES)}")
+            raise typer.Exit(code=2)
+    if out is not None and not out.parent.is_dir():
+        _err(f"--out {out}: folder {out.parent} does not exist")
+        raise typer.Exit(code=2)
+    if link_dir is not None and not link_dir.is_dir():
+        _err(f"--link-dir {link_dir}: not a folder")
+        raise typer.Exit(code=2)
+    if session is not None:
+        feed = _session_feed(session, station)
+    else:
+        feed = synthetic_feed(imu_rate_hz, gauge_rate_hz, speed_m_s,
+                              _floats(station or "0,0,0,1.5", 4, "--station"), _floats(target, 3, "--target"))
+    cfg = FleetConfig(imu_type=imu_type, noise_angle_rad=noise_angle_rad, noise_dist_m=noise_dist_m,
+                      faults=Faults(corrupt_rate=corrupt_rate, drop_rate=drop_rate, garbage_rate=garbage_rate,
+                                    delay_rate=delay_rate, delay_s=delay_s, missing_rate=missing_rate, seed=seed),
+                      fault_devices=tuple(fault_device), link_dir=str(link_dir) if link_dir else None)
+    try:
+        fleet = Fleet(feed, cfg, tuple(device))
+    except (ValueError, KeyError) as e:
+        _err(str(e).strip("'\""))
+        raise typer.Exit(code=2)
+    stop = threading.Event()
+
+    def on_signal(signum, frame) -> None:
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    wrote = False
+    try:
+        ports = fleet.ports_json()
+        if out is not None:
+            _write_atomic(out, json.dumps(ports, indent=2) + "\n")
+            wrote = True
+        typer.echo(json.dumps(ports))
+        import sys
+
+        sys.stdout.flush()
+        fleet.start()
+        end = time.monotonic() + seconds if seconds is not None else math.inf
+        while not stop.wait(0.05) and time.monotonic() < end:
+            fleet.tick(time.monotonic())
     finally:
-        twin.stop()
+        fleet.stop()
+        if wrote and out.exists():
+            out.unlink()  # the ports it names are gone: a stale file would mislead `survey start`
 
 
 def register(app: typer.Typer) -> None:
