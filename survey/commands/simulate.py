@@ -132,6 +132,9 @@ def register(app: typer.Typer) -> None:
                                                           help="initial static period, s")] = None,
         rate_hz: Annotated[Optional[float], typer.Option("--rate-hz", help="IMU rate, Hz")] = None,
         step_m: Annotated[float, typer.Option("--truth-step-m", help="truth.csv chainage step, m")] = 0.1,
+        turn_at_stop: Annotated[Optional[list[int]], typer.Option(
+            "--turn-at-stop", help="the crew turns the trolley around at this stop (1 = the first "
+                                   "after the static alignment); repeat for more")] = None,
         force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
     ) -> None:
         """Simulate a stop-and-go survey (full 3-D truth, strapdown IMU) into a raw session folder."""
@@ -174,7 +177,9 @@ def register(app: typer.Typer) -> None:
             alignment = parse_landxml(xml)
         except ValueError as exc:
             fail(f"{proj}: design: {exc}")
-        config = SimulationConfig(**kwargs)
+        if turn_at_stop:
+            kwargs["turn_at_stops"] = tuple(turn_at_stop)
+        config = SimulationConfig(**kwargs)  # the turn stops are checked with the motion below
         t0 = time.perf_counter()
         err.print(f"simulating {config.length_m:g} m with the {preset} IMU at "
                   f"{config.imu_rate_hz:g} Hz ...", highlight=False)
