@@ -256,3 +256,15 @@ def test_cant_keeps_its_sign_when_the_trolley_is_turned(design, with_design):
     # a roll of the turned trolley taken as the cant would be off by twice the cant
     assert np.max(np.abs(st.cant_m - true_cant)) < 1e-3
     assert np.all(np.diff(st.chainage_m) > 0)
+
+
+def test_gauge_is_never_bridged_across_a_sensor_gap(design, simulated):
+    s = simulated.session
+    keep = (s.gauge_t_s < 500.0) | (s.gauge_t_s > 560.0)  # the sensor silent for 60 s
+    cut = dataclasses.replace(s, gauge_t_s=s.gauge_t_s[keep], gauge_m=s.gauge_m[keep])
+    st = process_session(cut, design, ProcessConfig(), **NO_OBS).stations
+    inside = (st.t_s > 500.5) & (st.t_s < 559.5)
+    assert inside.sum() > 10
+    assert np.all(np.isnan(st.gauge_m[inside]))
+    outside = (st.t_s < 499.0) | (st.t_s > 561.0)
+    assert np.all(np.isfinite(st.gauge_m[outside & (st.t_s > s.gauge_t_s[0]) & (st.t_s < s.gauge_t_s[-1])]))

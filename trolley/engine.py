@@ -543,7 +543,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     summary = {
         "fixes_used": int(acc.sum()),
         "fixes_rejected": int((~acc).sum()),
-        "rms_innovation_m": float(np.sqrt(np.mean(innov_enh[acc] ** 2))) if acc.any() else float("nan"),
+        # the first fix anchors the dead reckoning (its innovation is zero by construction)
+        "rms_innovation_m": (float(np.sqrt(np.mean(innov_enh[1:][acc[1:]] ** 2))) if acc[1:].any()
+                             else float("nan")),
         "max_sigma_m": float(np.nanmax(np.column_stack([stations.sigma_E_m, stations.sigma_N_m,
                                                         stations.sigma_H_m]))) if len(stations.chainage_m) else float("nan"),
         "heading_source": align.heading_source,
@@ -723,7 +725,14 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
     cant = at(facing * rail * np.sin(traj.roll_rad))
     twist = cant - np.interp(s - config.twist_base_m, s, cant, left=np.nan)
     if session.gauge_t_s is not None and len(session.gauge_t_s) > 1:
-        gauge = np.interp(t, session.gauge_t_s, session.gauge_m, left=np.nan, right=np.nan)
+        gt = np.asarray(session.gauge_t_s, dtype=float)
+        gauge = np.interp(t, gt, session.gauge_m, left=np.nan, right=np.nan)
+        # a gauge is measured, never bridged: no value where the sensor was silent (a gap of more
+        # than five of its sample intervals, at least 1 s), e.g. unplugged for a while
+        dt = np.diff(gt)
+        gap = np.maximum(5.0 * float(np.median(dt)), 1.0)
+        j = np.clip(np.searchsorted(gt, t, side="right") - 1, 0, dt.size - 1)
+        gauge[dt[j] > gap] = np.nan
     else:
         gauge = np.full_like(s, np.nan)
     chain = sign * s
