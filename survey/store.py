@@ -25,7 +25,7 @@ import time
 import types
 import typing
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -1013,8 +1013,21 @@ class ProjectStore:
                                               *map(float, fx.sigma_m[i]), accepted=True, reason="imported"))
         return self.session(name)
 
+    def survey_start_s(self, session_id: int) -> float | None:
+        """Session time where the survey's data begin: the start of the static alignment that
+        succeeded (event ``aligned``; later than 0 when the alignment restarted), else None."""
+        start = None
+        for ev in self.events(session_id):
+            if ev.kind == "aligned":
+                start = float(json.loads(ev.detail)["static_start_s"])
+        return start
+
     def raw_session(self, name: str) -> tuple[RawSession, str | None]:
-        """A stored session as a raw session (accepted fixes only) and its design LandXML text (or None)."""
+        """A stored session as a raw session (accepted fixes only) and its design LandXML text (or None).
+
+        The data before the static alignment that succeeded are left out (:func:`crop_session`), so
+        that ``trolley process`` on the exported folder gives the session's final track.
+        """
         rec = self.session(name)
         sid = rec.session_id
         t, w, f = self.imu_arrays(sid)
@@ -1029,7 +1042,24 @@ class ProjectStore:
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)
         design = self.alignment(rec.alignment_id) if rec.alignment_id is not None else None
-        return raw, (design.landxml_text if design else None)
+        return crop_session(raw, self.survey_start_s(sid)), (design.landxml_text if design else None)
+
+
+def crop_session(raw: RawSession, t0_s: float | None) -> RawSession:
+    """The session without the samples and fixes before ``t0_s`` (a restarted static alignment:
+    the data before it belong to no alignment). None, or a time at or before the first IMU
+    sample: the session unchanged."""
+    if t0_s is None or not np.isfinite(t0_s) or raw.imu_t_s.size == 0 or t0_s <= raw.imu_t_s[0]:
+        return raw
+    i = raw.imu_t_s >= t0_s
+    o = raw.odo_t_s >= t0_s
+    g = None if raw.gauge_t_s is None else raw.gauge_t_s >= t0_s
+    f = raw.fixes.t_s >= t0_s
+    fx = replace(raw.fixes, t_s=raw.fixes.t_s[f], point=raw.fixes.point[f], enh_m=raw.fixes.enh_m[f],
+                 sigma_m=raw.fixes.sigma_m[f])
+    return replace(raw, imu_t_s=raw.imu_t_s[i], imu_w_rad_s=raw.imu_w_rad_s[i], imu_f_m_s2=raw.imu_f_m_s2[i],
+                   odo_t_s=raw.odo_t_s[o], odo_distance_m=raw.odo_distance_m[o], fixes=fx,
+                   gauge_t_s=None if g is None else raw.gauge_t_s[g], gauge_m=None if g is None else raw.gauge_m[g])
 
 
 def _insert_alignment(c: sqlite3.Connection, rec: AlignmentRecord) -> int:

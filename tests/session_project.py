@@ -12,7 +12,7 @@ DEMO = REPO / "projects" / "demo"
 SMALL_SIMULATION = {"length_m": "120.0", "static_s": "20.0", "stop_s": "8.0", "speed_m_s": "2.0"}
 
 
-def make_project(root: Path, name: str = "t1", **simulation: str) -> Path:
+def make_project(root: Path, name: str = "t1", tolerance_set: str = "default", **simulation: str) -> Path:
     """A project folder under ``root`` with the demo design and CPIII and a short simulated survey."""
     from survey.commands.project import new
 
@@ -24,5 +24,5 @@ def make_project(root: Path, name: str = "t1", **simulation: str) -> Path:
     (folder / "project.toml").write_text(toml, encoding="utf-8")
     for f in ("alignment.xml", "cpiii.csv"):
         shutil.copy(DEMO / f, folder / f)
-    new(name, root=root, imu=None, latitude_deg=None, height=None, tolerance_set="default", use_toml=True)
+    new(name, root=root, imu=None, latitude_deg=None, height=None, tolerance_set=tolerance_set, use_toml=True)
     return folder

@@ -103,3 +103,61 @@ def test_blunder_is_rejected_then_undo_restores(sim):
     assert len(lp.fixes) == 3
     again = lp.add_fix(f.t_s[3], f.point[3], f.enh_m[3])
     assert again.accepted and np.isclose(again.nis, good.nis)
+
+
+# --------------------------------------------------------------------- predicted sigma on the live screen
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+from trolley import error_models as em  # noqa: E402
+from trolley.budget import BudgetCase  # noqa: E402
+from trolley.live import dead_reckoning_sigma  # noqa: E402
+
+
+def _case(pos, pitch, heading, by, bz, arw):
+    return BudgetCase(em.InitialUncertainty(position_m=pos, pitch_rad=pitch, heading_rad=heading, gyro_bias_y_rad_s=by,
+                                            gyro_bias_z_rad_s=bz, odo_scale_error=1e-5),
+                      em.ChannelNoise(gyro_arw_rad_sqrt_s=arw, odo_scale_noise_per_sqrt_s=8e-6), fix_sigma_m=pos)
+
+
+def _by_hand(p_r, p_a, q, p_b, d, t):
+    """Dead-reckoning variance r0 + v * integral(a0 - b t + W) at constant speed v = d / t."""
+    return p_r + p_a * d**2 + q * d**2 * t / 3.0 + p_b * d**2 * t**2 / 4.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(pos=st.floats(1e-4, 5e-3), pitch=st.floats(0.0, 1e-3), heading=st.floats(0.0, 1e-2),
+       by=st.floats(0.0, 1e-6), bz=st.floats(0.0, 1e-6), arw=st.floats(0.0, 1e-5),
+       d=st.floats(0.0, 500.0), t=st.floats(0.1, 2000.0))
+def test_dead_reckoning_sigma_is_the_budget_models_filtered_variance(pos, pitch, heading, by, bz, arw, d, t):
+    s = dead_reckoning_sigma(_case(pos, pitch, heading, by, bz, arw), d, t)
+    lat = _by_hand(pos**2, heading**2, arw**2, bz**2, d, t)
+    ver = _by_hand(pos**2, pitch**2, arw**2, by**2, d, t)
+    assert s["lateral"] == pytest.approx(np.sqrt(lat), rel=1e-9)
+    assert s["vertical"] == pytest.approx(np.sqrt(ver), rel=1e-9)
+
+
+def test_live_screen_sigma_grows_past_the_planned_spacing():
+    """The audit's case: no fix for 60, 90, 150, 300 m at 1 m/s must not show one bounded figure."""
+    from survey.session.livefilter import budget_case, interval_sigma_mm, predicted_sigma_mm
+    from survey.store import ProjectSettings
+    from trolley.budget import channel_parameters, worst_sigma
+
+    meta = ProjectSettings().session_meta()
+    d = np.array([0.0, 30.0, 60.0, 90.0, 150.0, 300.0])
+    now = np.array([predicted_sigma_mm(meta, x, x / 1.0) for x in d])
+    assert np.all(np.diff(now) > 0)
+    case = budget_case(meta)
+    for x in (60.0, 300.0):  # equal to the budget's variances at known points, by hand
+        lat, ver = (channel_parameters(case, k) for k in ("lateral", "vertical"))
+        want = max(_by_hand(float(c.p_r), float(c.p_a), float(c.q), float(c.p_b), x, x) for c in (lat, ver))
+        assert predicted_sigma_mm(meta, x, x) == pytest.approx(1e3 * np.sqrt(want), rel=1e-9)
+    assert now[0] == pytest.approx(1e3 * meta.fix_sigma_m)  # at the fix: the fix's sigma
+    # if fixed here: the budget's worst smoothed sigma of an interval that long, growing past 60 m
+    here = np.array([interval_sigma_mm(meta, x, x / 1.0) for x in d[2:]])
+    assert np.all(np.diff(here) > 0)
+    from dataclasses import replace
+
+    c90 = replace(case, fix_spacing_m=90.0, speed_m_s=1.0)
+    assert here[1] == pytest.approx(1e3 * max(worst_sigma(c90, "lateral"), worst_sigma(c90, "vertical")), rel=1e-12)
+    # a slower trolley (more time for the gyro errors) is predicted worse at the same distance
+    assert predicted_sigma_mm(meta, 60.0, 240.0) > predicted_sigma_mm(meta, 60.0, 60.0)

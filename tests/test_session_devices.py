@@ -13,31 +13,41 @@ from rich.console import Console
 from session_project import make_project
 
 
-def test_session_on_devices_given_by_ports(tmp_path):
+def _setup_points(tmp_path, n=6):
+    """The CPIII points a first setup on real devices measures, in its order (nearest to the start
+    of the design), which the crew aims at."""
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.store import ProjectStore
+    from trolley.landxml import parse_landxml
+
+    with ProjectStore.open(tmp_path / "t1") as st:
+        fs = FieldSession(st, "probe", SessionConfig(setup_points=n))
+        fs._design = parse_landxml(st.alignment().landxml_text)
+        pts = fs._setup_points()
+        start = fs._design.evaluate(np.array([fs._design.start_chainage_m]))
+        # nearest to the start of the design, not the first points of the file
+        d = np.hypot([p.e_m - start.E_m[0] for p in st.cpiii_points()], [p.n_m - start.N_m[0] for p in st.cpiii_points()])
+        assert sorted(p.point_id for p in pts) == sorted(st.cpiii_points()[i].point_id for i in np.argsort(d)[:n])
+        return pts
+
+
+def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0):
+    """IMU, odometer, gauge and a crew-aimed total station, each started on its own like an instrument."""
     from drivers import geocom as gc
     from drivers.twins.gauge import GaugeTwin
     from drivers.twins.imu import ImuTwin
     from drivers.twins.odometer import OdometerTwin
     from drivers.twins.totalstation import TotalStationTwin
-    from survey.commands.survey import read_devices
-    from survey.session.fieldsession import FieldSession, SessionConfig
-    from survey.session.script import parse_script
-    from survey.store import ProjectStore
 
-    make_project(tmp_path, static_s="2.0")
-    with ProjectStore.open(tmp_path / "t1") as st:
-        pts = st.cpiii_points()[:6]
     rate = 200.0
-    t = np.arange(1, int(12 * rate) + 1) / rate
+    t = t0 + np.arange(1, int(seconds * rate) + 1) / rate
     w = np.tile([0.0, 0.0, -3e-5], (t.size, 1))
     f = np.tile([0.0, 0.0, -9.79], (t.size, 1))
-    imu = ImuTwin(t, w, f, imu_type=26, link_path=tmp_path / "imu")
-    to = np.arange(0, 1200) / 100.0
+    imu = ImuTwin(t, w, f, imu_type=26, sow0=100000.0 + t0, link_path=tmp_path / "imu")
+    to = np.arange(0, int(seconds * 100)) / 100.0
     odo = OdometerTwin(to, np.zeros_like(to), mode="time", link_path=tmp_path / "odo")
-    tg = np.arange(1, 121) / 10.0
+    tg = np.arange(1, int(seconds * 10) + 1) / 10.0
     gauge = GaugeTwin(tg, np.full(tg.size, 1.4352), link_path=tmp_path / "gauge")
-    station = np.array([pts[0].e_m + 10.0, pts[0].n_m + 5.0, pts[0].h_m + 1.5])
-    prism = station + np.array([3.0, 12.0, -0.9])
     targets = [(p.e_m, p.n_m, p.h_m) for p in pts]
 
     class CrewAimedStation(TotalStationTwin):
@@ -50,6 +60,21 @@ def test_session_on_devices_given_by_ports(tmp_path):
 
     ts = CrewAimedStation(station=(*station, 0.0), link_path=tmp_path / "ts", noise_angle_rad=2e-6,
                           noise_dist_m=3e-4, seed=3)
+    return imu, odo, gauge, ts
+
+
+def test_session_on_devices_given_by_ports(tmp_path):
+    from survey.commands.survey import read_devices
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore
+
+    make_project(tmp_path, static_s="2.0")
+    pts = _setup_points(tmp_path)
+    rate = 200.0
+    station = np.array([pts[0].e_m + 10.0, pts[0].n_m + 5.0, pts[0].h_m + 1.5])
+    prism = station + np.array([3.0, 12.0, -0.9])
+    imu, odo, gauge, ts = _twins(tmp_path, pts, station, prism)
     (tmp_path / "ports.json").write_text(json.dumps({"imu": str(tmp_path / "imu"), "odometer": str(tmp_path / "odo"),
                                                      "gauge": str(tmp_path / "gauge"),
                                                      "totalstation": str(tmp_path / "ts"), "imu_type": 26}))
@@ -84,5 +109,89 @@ def test_session_on_devices_given_by_ports(tmp_path):
     # gauge: its millisecond clock, 100 ms apart
     assert np.allclose(np.diff(gt), 0.1, atol=1e-9) and np.allclose(gm, 1.4352, atol=1e-5)
     # the free station from the crew's pointings, and the fix of the prism in grid coordinates
-    assert np.max(np.abs(setup.station_enh_m - station)) < 0.002
+    assert np.max(np.abs(setup.station_enh_m - station)) < 0.002 and setup.sigma0 < 3.0
     assert len(fixes) == 1 and np.max(np.abs(np.array([fixes[0].e_m, fixes[0].n_m, fixes[0].h_m]) - prism)) < 0.003
+
+
+def test_resume_after_a_host_restart_starts_a_new_time_segment(tmp_path):
+    """A power loss reboots the host: its monotonic clock starts again from a small value, so the
+    stored ``host_t0`` means nothing any more. The resumed session must go on after the last
+    stored sample (a new time segment, the gap recorded), and store every new odometer reply."""
+    from survey.commands.survey import read_devices
+    from survey.session.acquisition import TimeBase
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore, SessionEvent
+
+    make_project(tmp_path, static_s="2.0")
+    pts = _setup_points(tmp_path)
+    station = np.array([pts[0].e_m + 10.0, pts[0].n_m + 5.0, pts[0].h_m + 1.5])
+    prism = station + np.array([3.0, 12.0, -0.9])
+    (tmp_path / "ports.json").write_text(json.dumps({"imu": str(tmp_path / "imu"), "odometer": str(tmp_path / "odo"),
+                                                     "gauge": str(tmp_path / "gauge"),
+                                                     "totalstation": str(tmp_path / "ts"), "imu_type": 26}))
+    ports, options = read_devices(tmp_path / "ports.json")
+    console = Console(stderr=True, record=True, width=150)
+
+    def devices(**kw):
+        twins = _twins(tmp_path, pts, station, prism, **kw)
+        for twin in twins:
+            twin.start(wait_client_s=20.0)
+        return twins
+
+    twins = devices()
+    try:
+        with ProjectStore.open(tmp_path / "t1") as st:
+            fs = FieldSession(st, "r", SessionConfig(script=parse_script("wait 3\nfix\n"), out_dir=None,
+                                                     setup_points=6), ports=ports, device_options=options,
+                              console=console)
+            fs.open_session()
+            fs.start_devices()
+            fs.station_setup()
+            fs.loop()
+            fs._shutdown()  # the power goes: no end of session
+            sid = fs.rec.session_id
+            last = {k: float(a[0][-1]) for k, a in (("imu", st.imu_arrays(sid)), ("odo", st.odometer_arrays(sid)),
+                                                    ("gauge", st.gauge_arrays(sid)))}
+            n_odo = st.odometer_arrays(sid)[0].size
+            # the host restarts: its monotonic clock now reads 1e6 s less than in the first run
+            clock = [json.loads(e.detail) for e in st.events(sid) if e.kind == "clock"][-1]
+            assert clock["wall_t0"] is not None
+            st.add_event(sid, SessionEvent(0.0, "clock", json.dumps({**clock, "host_t0": clock["host_t0"] + 1e6})))
+    finally:
+        for twin in twins:
+            twin.stop()
+    t_down = time.monotonic()
+    twins = devices(t0=500.0)  # the devices restarted too: the IMU's GPS time and the gauge's clock moved on
+    try:
+        with ProjectStore.open(tmp_path / "t1") as st:
+            # the same script goes on: its step 3 ("stop") stands for the first run's end of script
+            fs = FieldSession(st, "r", SessionConfig(script=parse_script("wait 3\nfix\nstop\nwait 2\nfix\nend\n"),
+                                                     out_dir=None),
+                              ports=ports, device_options=options, console=console, resume=True)
+            fs.run()
+            events = st.events(sid)
+            it, _, _ = st.imu_arrays(sid)
+            ot, _ = st.odometer_arrays(sid)
+            gt, _ = st.gauge_arrays(sid)
+            fixes = st.fixes(sid)
+    finally:
+        for twin in twins:
+            twin.stop()
+    gaps = [json.loads(e.detail) for e in events if e.kind == "time_gap"]
+    assert len(gaps) == 1
+    gap = gaps[0]
+    assert gap["last_stored_s"] == max(last.values()) and gap["monotonic_s"] < -1e5
+    # the wall clock went on: the new segment starts where the wall clock says, after the old data
+    # the wall clock says less than the minimum gap since the last data (a quick restart): 1 s after it
+    assert gap["wall_s"] < gap["last_stored_s"] + 1.0 + (time.monotonic() - t_down)
+    assert gap["resumed_at_s"] == max(gap["last_stored_s"] + 1.0, gap["wall_s"])
+    for t, old, rate in ((it, last["imu"], 200), (ot, last["odo"], 100), (gt, last["gauge"], 10)):
+        assert np.all(np.diff(t) > 0)  # one time line, no sample before an older one
+        new = t[t > old]
+        assert new.size > 1.5 * rate and new[0] > gap["resumed_at_s"] - 0.5  # the 2 s waited, and more
+    assert ot.size - n_odo == fs.acq.samples["odometer"] and not fs.acq.dropped  # no reply dropped
+    assert len(fixes) == 2 and fixes[1].t_s > gap["resumed_at_s"]
+    assert TimeBase.from_json(json.loads([e for e in events if e.kind == "clock"][-1].detail)).host_t0 < \
+        clock["host_t0"] + 1e6 - 1e5  # the new base is stored
+    assert "the host restarted since the last data" in " ".join(console.export_text().split())

@@ -106,3 +106,28 @@ def test_a_session_runs_in_one_process_at_a_time(tmp_path):
         assert r.returncode == 2 and f"running in another process (pid {os.getpid()})" in r.stderr
     r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=30)
     assert r.returncode == 0 and "got it" in r.stdout  # released with the holder (or its crash)
+
+
+def test_a_tolerance_set_that_cannot_be_loaded_stops_the_start(tmp_path):
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    import trolley.tolerance_sets as sets
+
+    own = tmp_path / "line7.toml"
+    shutil.copy(os.path.join(os.path.dirname(sets.__file__), "en13848_5_alert.toml"), own)
+    make_project(tmp_path / "projects", tolerance_set=str(own))
+    own.unlink()  # the project names a file that is gone
+    (tmp_path / "crew.txt").write_text("fix\nend\n")
+    r = subprocess.run([sys.executable, "-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                        "--session", "s1", "--simulate", "--script", "crew.txt"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120, env={**os.environ, "COLUMNS": "200"})
+    err = " ".join(r.stderr.split())
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert f"project tolerance set: {own}" in err
+    from survey.store import ProjectStore
+
+    with ProjectStore.open(tmp_path / "projects" / "t1") as st:
+        assert st.sessions() == []  # nothing started

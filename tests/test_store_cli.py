@@ -197,3 +197,41 @@ def test_resection_table_shows_mm_and_arcsec():
     assert "standardized residual" in row_b
     assert "sigma0" in text and "dof" in text
     assert "suggests dropping or re-measuring B" in text
+
+
+def test_tolerance_set_is_checked_when_the_project_is_created(tmp_path):
+    root = str(tmp_path)
+    res = run("project", "new", "p", "--root", root, "--tolerance-set", "hsr_static_typo", code=2)
+    assert "--tolerance-set" in res.stderr and "hsr_static_typo" in res.stderr
+    assert "hsr_ballastless_static" in res.stderr  # the built-in names are listed
+    assert not (tmp_path / "p" / "project.sqlite").exists()  # nothing created
+    run("project", "new", "p", "--root", root, "--tolerance-set", "en13848_5_alert")
+    with ProjectStore.open_project(tmp_path, "p") as s:
+        assert s.settings().tolerance_set == "en13848_5_alert"
+
+
+def test_export_leaves_out_the_data_before_a_restarted_alignment(tmp_path):
+    """The same crop as the final processing (ProjectStore.raw_session): nothing before the static
+    alignment that succeeded, so `trolley process` on the export gives the session's final track."""
+    from survey.sessionio import read_session, write_session
+    from survey.store import SessionEvent
+
+    src = tmp_path / "src"
+    write_session(src, small_session(np.random.default_rng(6)))
+    full = read_session(src)  # as written (the CSV text rounds)
+    root = tmp_path / "projects"
+    run("project", "new", "p", "--root", str(root))
+    run("project", "import-session", str(src), "--project", "p", "--root", str(root), "--session", "s")
+    with ProjectStore.open_project(root, "p") as s:
+        sid = s.session("s").session_id
+        s.add_event(sid, SessionEvent(1.0, "alignment_restart", "2.0"))
+        s.add_event(sid, SessionEvent(5.0, "aligned", json.dumps({"static_start_s": 2.0, "static_s": 3.0})))
+        assert s.survey_start_s(sid) == 2.0
+    run("project", "export-session", "--project", "p", "--session", "s", "--out", str(tmp_path / "out"),
+        "--root", str(root))
+    back = read_session(tmp_path / "out")
+    keep = full.imu_t_s >= 2.0
+    assert np.array_equal(back.imu_t_s, full.imu_t_s[keep]) and np.array_equal(back.imu_w_rad_s, full.imu_w_rad_s[keep])
+    assert np.array_equal(back.odo_t_s, full.odo_t_s[full.odo_t_s >= 2.0])
+    assert np.array_equal(back.gauge_t_s, full.gauge_t_s[full.gauge_t_s >= 2.0])
+    assert list(back.fixes.point) == ["CP0201"]  # the fix at 0.5 s was before the alignment

@@ -22,9 +22,9 @@ from scipy.spatial.transform import Rotation
 
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation,
                                    static_alignment, stop_levels)
-from trolley.engine import (FIX_H, ProcessConfig, Stations, Trajectory, _enh, _interp_rows, _ned, _POS,
-                            error_model, filter_noise, filter_nodes, fix_covariances, initial_covariance,
-                            make_stations)
+from trolley.engine import (ProcessConfig, Stations, Trajectory, _enh, _interp_rows, _ned, _POS,
+                            error_model, filter_noise, filter_nodes, fix_covariances, fix_matrices,
+                            initial_covariance, make_stations, turn_sigmas)
 from trolley.session import Fixes, RawSession, SessionMeta
 from trolley.smoothers import ForwardResult, Measurements, forward_filter, gate_threshold, rts_smooth
 
@@ -178,11 +178,11 @@ class LiveProcessor:
         return self._dr
 
     def _roll_error_at(self, t_fix: float) -> float:
-        t, _, f = self._imu.arrays(3)
+        t, w, f = self._imu.arrays(3)
         odo_t, odo_d = self._odo.arrays(2)
         if odo_t.size == 0:
             odo_t, odo_d = np.array([t[0], t[-1]]), np.zeros(2)
-        roll, _ = stop_levels(t, f, odo_t, odo_d, np.array([t_fix]), self._misalign)
+        roll, _ = stop_levels(t, f, odo_t, odo_d, np.array([t_fix]), self._misalign, w_rad_s=w)
         if not np.isfinite(roll[0]) or not self.config.level_at_stops:
             return 0.0
         dr = self._dr
@@ -211,11 +211,12 @@ class LiveProcessor:
             sub = _slice(dr, b_prev, block + 1)
             nodes = filter_nodes(sub, np.array([0, block - b_prev]), self.config.node_spacing_m,
                                  self.config.max_node_dt_s)
-            F, Q = error_model(sub, nodes, self._noise)
+            F, Q = error_model(sub, nodes, self._noise, *turn_sigmas(self.meta, self.config))
         else:
             nodes, F, Q = np.array([0]), np.zeros((0, 8, 8)), np.zeros((0, 8, 8))
         prior_P = P_prev
-        meas = Measurements(np.array([len(nodes) - 1]), z[None], FIX_H, fix_covariances(sig[None]))
+        H = fix_matrices(lever_ned[None], np.array([att.as_euler("ZYX")[0]]))
+        meas = Measurements(np.array([len(nodes) - 1]), z[None], H, fix_covariances(sig[None]))
         if self._fixes and block == b_prev:
             prior_P = P_prev  # a repeated fix at the same stop: no motion in between
         fwd = forward_filter(F, Q, x_prev, prior_P, meas, gate_probability=self.config.gate_probability,
@@ -231,7 +232,7 @@ class LiveProcessor:
             state = _FixState(float(t_s), str(point), enh, sig, block, fwd.x_post[-1], fwd.P_post[-1],
                               roll_err, fwd if self._fixes else None, F, Q, nodes, b_prev)
             prev = self._fixes[-1] if self._fixes else None
-            if prev is not None and dr.distance_m[block] - dr.distance_m[prev.block] < 0.05:
+            if prev is not None and dr.travel_m[block] - dr.travel_m[prev.block] < 0.05:
                 # another fix at the same stop: the interval now ends here, its filter run extended
                 if prev.forward is not None:
                     off = prev.block - prev.block_start
@@ -282,8 +283,8 @@ class LiveProcessor:
         sig = np.sqrt(np.maximum(var, 0.0))
         roll_err = np.interp(sub.t_s, [sub.t_s[0], last.t_s], [prev.roll_error_rad, last.roll_error_rad])
         roll = sub.euler_rad()[:, 0] - roll_err
-        traj = Trajectory(sub.t_s, sub.distance_m, _enh(ned, self._origin),
-                          np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), roll, xb)
+        traj = Trajectory(sub.t_s, sub.travel_m, _enh(ned, self._origin),
+                          np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), roll, xb, odometer_m=sub.distance_m)
         gt, gm = self._gauge.arrays(2)
         session = RawSession(self.meta, np.empty(0), np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty(0),
                              self.fixes, gt if gt.size else None, gm if gm.size else None)
@@ -311,7 +312,7 @@ class LiveProcessor:
         b = dr.t_s.size - 1
         if b > last.block:
             sub = _slice(dr, last.block, b + 1)
-            F, Q = error_model(sub, np.array([0, b - last.block]), self._noise)
+            F, Q = error_model(sub, np.array([0, b - last.block]), self._noise, *turn_sigmas(self.meta, self.config))
             x = F[0] @ last.x
             P = F[0] @ last.P @ F[0].T + Q[0]
         else:
@@ -319,10 +320,51 @@ class LiveProcessor:
         ned = self._p0 + dr.position_ned_m[b] - x[_POS]
         E, N, H = _enh(ned[None], self._origin)[0]
         chain = float(self.design.project(np.array([E]), np.array([N]), np.array([H])).chainage_m[0]) \
-            if self.design is not None else float(dr.distance_m[b])
+            if self.design is not None else float(dr.travel_m[b])
         sigma_h = float(np.sqrt(0.5 * (P[0, 0] + P[1, 1])))
-        return chain, float(E), float(N), float(H), sigma_h, float(dr.distance_m[b] - dr.distance_m[last.block])
+        travel = dr.travel_m
+        return chain, float(E), float(N), float(H), sigma_h, float(travel[b] - travel[last.block])
 
 
 def _slice(dr: DeadReckoning, i: int, j: int) -> DeadReckoning:
     return DeadReckoning(dr.t_s[i:j], dr.distance_m[i:j], dr.trolley_to_nav[i:j], dr.position_ned_m[i:j])
+
+
+#: variance given to the closing fix of the budget interval to make it carry no information (m^2):
+#: its gain ``C / V`` is then below 1e-15, so the smoothed variance is the filtered one to 1e-15
+_NO_FIX_VAR_M2 = 1e12
+
+
+def dead_reckoning_sigma(case, distance_m: float, elapsed_s: float) -> dict[str, float]:
+    """Predicted 1-sigma of the position at the trolley, from the budget model (Jiang 2017 Sec. 5).
+
+    The filtered (not yet smoothed) error ``r(t) = r0 + v * integral a`` of the budget model
+    (``trolley.budget``, module docstring) after dead reckoning ``distance_m`` in ``elapsed_s``
+    since the last fix, at the constant speed ``v = distance_m / elapsed_s`` that covers the same
+    distance in the same time: ``A(t) = p_r + p_a d^2 + q d^2 t / 3 + p_b d^2 t^2 / 4`` with
+    ``d = v t``. It is the smoothed variance (Eq. 40/44/45, ``trolley.budget.smoothed_variance``)
+    at the end of an interval whose closing fix carries no information, so it grows without bound
+    past the planned fix spacing, while the smoothed sigma of a planned interval stays bounded.
+
+    Parameters
+    ----------
+    case : ``trolley.budget.BudgetCase`` (its spacing and speed are not used).
+    distance_m : odometer distance since the last fix, m (its absolute value is used).
+    elapsed_s : session time since the last fix, s.
+
+    Returns
+    -------
+    dict direction -> 1-sigma, m (``trolley.budget.DIRECTIONS``).
+    """
+    from dataclasses import replace
+
+    from trolley.budget import DIRECTIONS, channel_parameters, smoothed_variance
+
+    d = abs(float(distance_m))
+    t = max(float(elapsed_s), 0.0)
+    v = d / t if t > 0.0 else 0.0
+    out = {}
+    for direction in DIRECTIONS:
+        c = replace(channel_parameters(case, direction), fix_var=np.asarray(_NO_FIX_VAR_M2))
+        out[direction] = float(np.sqrt(smoothed_variance(t, t, v, c)))
+    return out

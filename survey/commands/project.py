@@ -51,7 +51,8 @@ def new(
     imu: Annotated[str | None, typer.Option(help="IMU preset: rlg, fog or mems [default: project.toml or rlg]")] = None,
     latitude_deg: Annotated[float | None, typer.Option(help="site latitude, degrees [default: project.toml or 28]")] = None,
     height: Annotated[float | None, typer.Option(help="site height, m [default: project.toml or 50]")] = None,
-    tolerance_set: Annotated[str, typer.Option(help="name of the tolerance set for defects")] = "default",
+    tolerance_set: Annotated[str, typer.Option(help="tolerance set for defects: default, a built-in set name "
+                                                    "or a TOML file")] = "default",
     use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
                                            "<root>/<name>/project.toml when it exists")] = True,
 ) -> None:
@@ -110,6 +111,13 @@ def new(
         settings = dataclasses.replace(settings, latitude_rad=units.deg_to_rad(latitude_deg))
     if height is not None:
         settings = dataclasses.replace(settings, height_m=height)
+    from survey.session.interval import tolerance_set as load_tolerance_set
+    from trolley.tolerances import ToleranceError
+
+    try:
+        load_tolerance_set(tolerance_set)
+    except ToleranceError as e:
+        fail(f"--tolerance-set: {e}")
     settings = dataclasses.replace(settings, tolerance_set=tolerance_set)
     try:
         store = ProjectStore.create(root, name, settings)

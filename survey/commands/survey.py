@@ -170,7 +170,15 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             if not sys.stdin.isatty():
                 fail("no keyboard (stdin is not a terminal) and no --script", "--script FILE")
             keys = KeyReader().start()
-        config = SessionConfig(script=actions, out_dir=out, live=live)
+        from survey.session.interval import tolerance_set, tolerance_set_name
+        from trolley.tolerances import ToleranceError
+
+        tolerances = tolerance_set_name(store.settings().tolerance_set)
+        try:
+            tolerance_set(tolerances)  # a bad set stops the start, not the end of the survey
+        except ToleranceError as exc:
+            fail(f"project tolerance set: {exc}", "the file must exist where the project names it")
+        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances)
         fs = FieldSession(store, session, config, world=world, ports=ports, console=err, keys=keys,
                           resume=resume, device_options=options)
         try:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -24,6 +24,11 @@ from survey.store import GaugeRecord, ImuRecord, OdometerRecord
 
 #: a device whose data stop for this long (wall clock) is reported as failing
 STALE_AFTER_S = 1.0
+#: on resume, monotonic and wall clock must agree this well for the host to count as not restarted
+#: (the wall clock may be stepped by NTP; a reboot restarts the monotonic clock by far more)
+CLOCK_AGREEMENT_S = 5.0
+#: a new time segment after a host restart begins at least this long after the last stored sample
+RESUME_GAP_S = 1.0
 
 
 class RawTap:
@@ -75,7 +80,10 @@ class TimeBase:
     imu_week, imu_sow0_s : GPS time of session time 0 (IMU: ``t = gps - that``).
     gauge_origin_s : session time of the gauge's millisecond clock zero.
     odo_count0 : counter reading at odometer distance 0.
-    host_t0 : monotonic host time of session time 0 (odometer replies in a real session).
+    host_t0 : monotonic host time of session time 0 (odometer replies in a real session). Only
+        meaningful while the host runs: a reboot restarts the monotonic clock (:meth:`resumed`).
+    wall_t0 : wall-clock time (``time.time()``, s since 1970) of session time 0; None in sessions
+        recorded before it was kept.
     odometer_time : in a simulated session, the session time of the k-th poll (None: host time).
     """
 
@@ -85,10 +93,49 @@ class TimeBase:
     odo_count0: int | None = None
     host_t0: float = field(default_factory=time.monotonic)
     odometer_time: object = None
+    wall_t0: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.wall_t0 is None and self.odometer_time is None:
+            # the same instant on both clocks, read together
+            self.wall_t0 = time.time() - (time.monotonic() - self.host_t0)
 
     def to_json(self) -> dict:
         return {"imu_week": self.imu_week, "imu_sow0_s": self.imu_sow0_s, "odo_count0": self.odo_count0,
-                "host_t0": self.host_t0}
+                "host_t0": self.host_t0, "wall_t0": self.wall_t0, "gauge_origin_s": self.gauge_origin_s}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "TimeBase":
+        """The time base a ``clock`` event stored (``wall_t0`` missing in older sessions: None)."""
+        tb = cls(imu_week=d["imu_week"], imu_sow0_s=d["imu_sow0_s"], odo_count0=d["odo_count0"],
+                 host_t0=d["host_t0"], gauge_origin_s=d.get("gauge_origin_s"), wall_t0=0.0)
+        tb.wall_t0 = d.get("wall_t0")
+        return tb
+
+    def resumed(self, last_t_s: float) -> tuple["TimeBase", dict | None]:
+        """The time base of a real-device session resumed now, after data up to ``last_t_s``.
+
+        Same host run (the monotonic clock still counts from the session's start, and agrees with
+        the wall clock within ``CLOCK_AGREEMENT_S``): the same base, re-anchored on the wall clock.
+        Otherwise the host restarted (power loss, reboot): session time goes on from the wall clock,
+        and never from before the last stored sample (``RESUME_GAP_S`` after it at least, should the
+        wall clock be wrong); the device clocks (IMU, gauge) are mapped again from their first data,
+        since the devices may have restarted too. Returns the base and, for a new time segment,
+        what to record about the gap (None otherwise).
+        """
+        mono, wall = time.monotonic(), time.time()
+        t_mono = mono - self.host_t0
+        t_wall = wall - self.wall_t0 if self.wall_t0 is not None else float("nan")
+        same_run = t_mono > last_t_s and not abs(t_mono - t_wall) > CLOCK_AGREEMENT_S  # NaN: no wall anchor
+        if same_run:
+            return replace(self, wall_t0=wall - t_mono), None
+        t_now = t_wall if t_wall > last_t_s + RESUME_GAP_S else last_t_s + RESUME_GAP_S
+        tb = replace(self, host_t0=mono - t_now, wall_t0=wall - t_now, imu_week=None, imu_sow0_s=None,
+                     gauge_origin_s=None)
+        gap = {"last_stored_s": last_t_s, "resumed_at_s": t_now, "monotonic_s": t_mono,
+               "wall_s": None if t_wall != t_wall else t_wall,
+               "why": "the host clock restarted (reboot or power loss): a new time segment"}
+        return tb, gap
 
 
 @dataclass
@@ -223,7 +270,9 @@ class Acquisition:
                                               baudrate=460800 if name == "imu" else 9600, sink=self._raw)
         self.last_data_host: dict[str, float] = {k: time.monotonic() for k in self.links}
         self.samples: dict[str, int] = {k: 0 for k in self.links}
+        self.dropped: dict[str, int] = {}
         self._odo_reply_index = 0
+        self._odo_skipped = 0
         self._gauge_unwrap: tuple[int, int] | None = None  # (last raw ms, accumulated)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -320,6 +369,14 @@ class Acquisition:
     def _odometer(self, recs) -> None:
         c = np.array([r.count1 if self.odo_cfg.channel == 1 else r.count2 for r in recs], np.int64)
         if self.world is not None:
+            # the k-th reply answers the k-th poll, whether the parser kept it or not: replies it
+            # withheld (no anchor yet: the first ``confirm - 1`` after (re)connecting) or rejected
+            # are counted too. They precede the records drained here (a confirmed record comes
+            # after the replies that confirmed it); the simulated counter sends no corrupt reply.
+            st = self.links["odometer"].stats
+            skipped = int(st.extra.get("unconfirmed", 0) + st.bad_format + st.bad_checksum)
+            self._odo_reply_index += skipped - self._odo_skipped
+            self._odo_skipped = skipped
             k = self._odo_reply_index + np.arange(c.size)
             t = np.array([self.world.odometer_time(int(i)) for i in k])
             self._odo_reply_index += c.size
@@ -331,7 +388,12 @@ class Acquisition:
         keep = np.append(np.diff(t) > 0, True)  # replies of one read share a host time
         rows = np.column_stack([t[keep], d[keep]])
         last = self.buffers.last_t("odo")
-        rows = rows[rows[:, 0] > last]
+        late = rows[:, 0] <= last
+        if np.any(late):  # never silently: a time base that went backwards shows on the screen
+            self.dropped["odometer"] = self.dropped.get("odometer", 0) + int(late.sum())
+            self.write_error = (f"odometer: {self.dropped['odometer']} replies timed before the stored data "
+                                "were not stored")
+        rows = rows[~late]
         self._store("odometer_sample", OdometerRecord, rows)
         self.buffers.add("odo", rows)
         self.samples["odometer"] += rows.shape[0]

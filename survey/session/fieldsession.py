@@ -25,7 +25,8 @@ import numpy as np
 
 from survey.session.acquisition import Acquisition, TimeBase
 from survey.session.errors import SessionAbort
-from survey.session.livefilter import DATA_SLACK_S, LiveFiltering, predicted_sigma_mm
+from survey.session.interval import tolerance_set_name
+from survey.session.livefilter import LiveFiltering, interval_sigma_mm, predicted_sigma_mm
 from survey.session.stationsetup import StationSetupSteps
 from survey.session.screen import KEYS_HELP, ScreenState, render
 from survey.session.script import Action
@@ -37,6 +38,8 @@ STAND_WINDOW_S = 1.0
 TICK_S = 0.05
 #: a scripted crew looks at the simulated world at least every this many simulated seconds
 SIM_STEP_S = 2.0
+#: reason stored with a fix that failed the innovation test, until the crew decides
+SUSPICIOUS = "innovation test failed"
 #: how long the device check retries opening a port (a USB adapter being plugged in)
 OPEN_TIMEOUT_S = 2.0
 
@@ -52,7 +55,8 @@ class SessionConfig:
     device_wait_s : wall-clock time a device has to deliver its first data at the device check.
     setup_points : number of CPIII points measured for the free station.
     live : process each interval as soon as its closing fix is accepted.
-    tolerances : tolerance set of the survey sheet.
+    tolerances : tolerance set of the live interval summaries and of the survey sheet (None: the
+        project's setting); resolved once by :func:`survey.session.interval.tolerance_set_name`.
     """
 
     script: list[Action] | None = None
@@ -108,6 +112,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self.resume = resume
         self.screen = ScreenState(session=name)
         self.settings = store.settings()
+        # one tolerance set for the live summaries and the final sheet
+        self.tolerance_name = tolerance_set_name(config.tolerances or self.settings.tolerance_set)
         self.rec = None
         self.acq: Acquisition | None = None
         self.ts = None
@@ -137,6 +143,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._tolerances = None
         self._world_held = False
         self.interval_seconds: list[float] = []
+        self._intervals_to_store: list[tuple] = []
 
     # ================================================================== time and motion
     def now(self) -> float:
@@ -236,11 +243,16 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
         stored = self._stored_state() if self.resume else {"events": [], "last": {}}
         tb = TimeBase()
+        clock_stored = False
         for ev in stored["events"]:
             if ev.kind == "clock":
-                d = json.loads(ev.detail)
-                tb = TimeBase(imu_week=d["imu_week"], imu_sow0_s=d["imu_sow0_s"], odo_count0=d["odo_count0"],
-                              host_t0=d["host_t0"], gauge_origin_s=d.get("gauge_origin_s"))
+                tb, clock_stored = TimeBase.from_json(json.loads(ev.detail)), True
+        gap = None
+        if self.world is None and clock_stored:
+            # real devices: the host may have rebooted since (the monotonic clock restarted)
+            last = max(stored["last"].values(), default=0.0)
+            tb, gap = tb.resumed(last)
+            clock_stored = False  # the re-anchored base is stored again below
         self.writer = RecordWriter(self.store.path, self.rec.session_id, flush_interval_s=0.5)
         if self.world is not None:
             from survey.session.simworld import IMU_SOW0, IMU_WEEK, SIM_IMU_TYPE, SIM_ODOMETER
@@ -286,8 +298,12 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self.world.run_twins()
         self.acq.start()
         self.check_devices()
-        if not any(ev.kind == "clock" for ev in stored["events"]):
-            self._event("clock", json.dumps({**tb.to_json(), "gauge_origin_s": tb.gauge_origin_s}), t_s=0.0)
+        if gap is not None:
+            self._event("time_gap", json.dumps(gap), t_s=gap["resumed_at_s"])
+            self.say(f"the host restarted since the last data (t = {gap['last_stored_s']:.1f} s): the session "
+                     f"continues at t = {gap['resumed_at_s']:.1f} s; take a fix before moving on")
+        if not clock_stored:  # at the start, and at every resume on real devices (the wall-clock anchor)
+            self._event("clock", json.dumps(tb.to_json()), t_s=0.0 if not self.resume else self.now())
 
     def _load_buffers(self) -> None:
         sid = self.rec.session_id
@@ -404,7 +420,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         fix = FixRecord(t, label, m.E_m, m.N_m, m.H_m, sigma, sigma, sigma, setup_id=self.setup_id)
         verdict = self._live_verdict(fix)
         accepted = verdict is None or bool(verdict.accepted)
-        reason = "accepted" if accepted else f"innovation test failed: {verdict.reason}"
+        reason = "accepted" if accepted else f"{SUSPICIOUS}: {verdict.reason}"
         fix_id = self.store.add_fix(self.rec.session_id, replace(fix, accepted=accepted, reason=reason))
         fix = replace(fix, fix_id=fix_id, accepted=accepted, reason=reason)
         if accepted:
@@ -418,13 +434,26 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                      f"(NIS {verdict.nis:.1f}): {verdict.reason}. r = measure again, a = accept anyway")
         return True
 
-    def _accepted(self, fix: FixRecord, distance_m: float) -> None:
-        self.accepted_fixes.append(fix)
+    def _set_last_fix(self, fix: FixRecord | None, distance_m: float | None = None) -> None:
+        """The fix the live chainage and the distance since the last fix count from (None: no fix):
+        its odometer distance (``distance_m``, else the odometer at the fix time) and its chainage
+        on the design."""
         self.last_fix = fix
+        if fix is None:
+            self.last_fix_distance_m, self.last_fix_chainage_m = 0.0, float("nan")
+            return
+        if distance_m is None:
+            od = self._odometer()
+            distance_m = float(np.interp(fix.t_s, od[:, 0], od[:, 1])) if od.shape[0] else 0.0
         self.last_fix_distance_m = distance_m
+        self.last_fix_chainage_m = float("nan")
         if self._design is not None:
             p = self._design.project(np.array([fix.e_m]), np.array([fix.n_m]))
             self.last_fix_chainage_m = float(np.asarray(p.chainage_m).ravel()[0])
+
+    def _accepted(self, fix: FixRecord, distance_m: float | None) -> None:
+        self.accepted_fixes.append(fix)
+        self._set_last_fix(fix, distance_m)
         self.screen.fixes_accepted = len(self.accepted_fixes)
         if len(self.accepted_fixes) > 1:
             self._process_interval_async()
@@ -436,13 +465,16 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         fix_id, fix, _ = self.pending
         self.pending = None
         self.store.decide_fix(fix_id, True, "accepted by the crew despite the innovation test")
-        if self._live is not None:
+        if self._live not in (None, False):
             try:
+                if self._live_thread is not None:
+                    self._live_thread.join()
+                self._feed_live(fix.t_s)  # after a resume the filter has not seen these data yet
                 self._live.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
-                                   np.array([fix.sigma_e_m] * 3), force_accept=True)
+                                   np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), force_accept=True)
             except Exception:  # the final processing decides again
                 pass
-        self._accepted(replace(fix, accepted=True), self.motion()[2])
+        self._accepted(replace(fix, accepted=True), None)  # the odometer at the fix, wherever the trolley is now
         self.say(f"fix {fix.point} accepted by the crew")
 
     def remeasure_pending(self) -> bool:
@@ -463,7 +495,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 self._live.undo_last_fix()
             except Exception:
                 pass
-        self.last_fix = self.accepted_fixes[-1] if self.accepted_fixes else None
+        # chainage and distance count from the previous accepted fix again
+        self._set_last_fix(self.accepted_fixes[-1] if self.accepted_fixes else None)
         self.screen.fixes_accepted = len(self.accepted_fixes)
         self.say(f"fix {fix.point} undone")
 
@@ -506,6 +539,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     def tick(self) -> None:
         """One refresh: store, health, alignment, motion, stops, screen."""
         self.acq.pump()
+        self._store_intervals()
         self._check_health()
         self._alignment_step()
         standing, speed, dist = self.motion()
@@ -523,7 +557,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         s.t_s, s.standing, s.speed_m_s = t, standing, speed
         s.distance_since_fix_m = abs(dist - self.last_fix_distance_m) if self.last_fix else dist
         s.chainage_m = self.chainage_now(dist)
-        s.sigma_mm = predicted_sigma_mm(self.rec.meta, s.distance_since_fix_m, speed)
+        t_ref = self.last_fix.t_s if self.last_fix else (self.static_start_s or 0.0)
+        s.sigma_mm = predicted_sigma_mm(self.rec.meta, s.distance_since_fix_m, t - t_ref)
+        s.sigma_fix_here_mm = interval_sigma_mm(self.rec.meta, s.distance_since_fix_m, t - t_ref)
         s.devices = self.acq.health()
         if self.world is not None and self.world.finished(self.data_time()) and self.config.script is None:
             s.message = "the simulated survey is over: e = end the session"
@@ -719,14 +755,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 self.script_index = int(ev.detail)
         fixes = self.store.fixes(sid, accepted_only=True)
         self.stop_count = len(self.store.stops(sid))
-        od = self._odometer()
-        for f in fixes:
-            d = float(np.interp(f.t_s, od[:, 0], od[:, 1])) if od.shape[0] else 0.0
-            self.accepted_fixes.append(f)
-            self.last_fix, self.last_fix_distance_m = f, d
-            if self._design is not None:
-                p = self._design.project(np.array([f.e_m]), np.array([f.n_m]))
-                self.last_fix_chainage_m = float(np.asarray(p.chainage_m).ravel()[0])
+        self.accepted_fixes.extend(fixes)
+        self._set_last_fix(fixes[-1] if fixes else None)
         # a fix stored after the last script step was that step: do not take it twice
         script_events = [e for e in self.store.events(sid) if e.kind == "script"]
         all_fixes = self.store.fixes(sid)
@@ -739,6 +769,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self.screen.fixes_accepted = len(self.accepted_fixes)
         if self.aligned and self.accepted_fixes and self.config.live:
             self._replay_live()
+        # a suspicious fix the crew had not decided on yet is offered again
+        if all_fixes and not all_fixes[-1].accepted and all_fixes[-1].reason.startswith(SUSPICIOUS):
+            f = all_fixes[-1]
+            self.pending = (f.fix_id, f, None)
+            self.say(f"suspicious fix {f.point} still to decide ({f.reason}): r = measure again, a = accept anyway")
         self._event("resumed", f"data up to t = {self.data_time():.3f} s")
         self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
                  f"data up to t = {self.data_time():.1f} s")
@@ -747,6 +782,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     def finish(self) -> SessionOutcome:
         """Stop the devices, re-process the whole session, write the sheet and the plots."""
         self._shutdown()
+        self._store_intervals()
         self._event("end")
         self.store.set_session_state(self.rec.session_id, "ended")
         return self._final_processing()
@@ -765,8 +801,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return out
         from survey.session.final import process_stored_session
 
-        return process_stored_session(self.store, self.name, self.config.out_dir, self.static_start_s,
-                                      out, self.console, self.config.tolerances)
+        return process_stored_session(self.store, self.name, self.config.out_dir, out, self.console,
+                                      self.tolerance_name)
 
     def _shutdown(self) -> None:
         if self._live_thread is not None:

@@ -25,12 +25,24 @@ class IntervalCheck:
     seconds: float
 
 
-def tolerance_set(name: str | None) -> ToleranceSet:
-    """A project's tolerance set ("default" is the survey sheet's default)."""
+def tolerance_set_name(name: str | None) -> str:
+    """The tolerance set a project setting names: "default" (or nothing) is the survey sheet's
+    default set; anything else is a built-in set name or a TOML file, used as given."""
     from survey.export import DEFAULT_TOLERANCES
+
+    return DEFAULT_TOLERANCES if name in (None, "", "default") else str(name)
+
+
+def tolerance_set(name: str | None) -> ToleranceSet:
+    """A project's tolerance set (:func:`tolerance_set_name`).
+
+    Raises
+    ------
+    trolley.tolerances.ToleranceError : unknown name, unreadable or invalid file.
+    """
     from survey.tolerance_files import load_tolerances
 
-    return load_tolerances(DEFAULT_TOLERANCES if name in (None, "", "default") else name)
+    return load_tolerances(tolerance_set_name(name))
 
 
 def interval_check(stations, design, tol: ToleranceSet, rail_spacing_m: float, nominal_gauge_m: float) -> IntervalCheck:

@@ -91,6 +91,7 @@ class LiveFiltering:
         lp = self._live if self._live not in (None, False) else None
         if lp is None:
             return
+        t_start, t_end = self.accepted_fixes[-2].t_s, self.accepted_fixes[-1].t_s
 
         def run() -> None:
             from survey.session.interval import defects_text, interval_check, tolerance_set
@@ -99,13 +100,15 @@ class LiveFiltering:
                 t0 = time.perf_counter()
                 r = lp.smooth_last_interval()
                 if self._tolerances is None:
-                    self._tolerances = tolerance_set(self.config.tolerances or self.settings.tolerance_set)
+                    self._tolerances = tolerance_set(self.tolerance_name)
                 tr = self.rec.meta.trolley
                 chk = interval_check(r.stations, self._design, self._tolerances, tr.rail_spacing_m, tr.nominal_gauge_m)
                 dt = time.perf_counter() - t0
                 self.interval_seconds.append(dt)
                 self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
                 self.console.print(self.screen.last_interval, highlight=False)
+                # stored by the session's thread (the store's connection belongs to it)
+                self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
             except Exception as exc:
                 self.screen.last_interval = f"interval processing failed: {exc}"
 
@@ -113,6 +116,22 @@ class LiveFiltering:
             self._live_thread.join()
         self._live_thread = threading.Thread(target=run, name="interval", daemon=True)
         self._live_thread.start()
+
+    def _store_intervals(self) -> None:
+        """Store the intervals processed since the last call: their track rows as an "interval"
+        processing run, and an ``interval`` event with the run id, the seconds taken, the
+        defects and the line the crew saw."""
+        import json
+
+        from survey.session.final import track_result
+        from survey.store import SessionEvent
+
+        while self._intervals_to_store:
+            t_start, t_end, r, chk, dt, text = self._intervals_to_store.pop(0)
+            run_id = self.store.add_track(self.rec.session_id, "interval", t_start, t_end, track_result(r.stations))
+            detail = {"run_id": run_id, "t_start_s": t_start, "t_end_s": t_end, "seconds": dt,
+                      "defects": len(chk.defects), "tolerances": self._tolerances.name, "summary": text}
+            self.store.add_event(self.rec.session_id, SessionEvent(t_end, "interval", json.dumps(detail)))
 
     def _replay_live(self) -> None:
         lp = self._live_processor()
@@ -128,37 +147,67 @@ class LiveFiltering:
             self._live = False
 
 def interval_summary_text(r, seconds: float) -> str:
-    """One line for the crew about the interval just smoothed."""
+    """One line for the crew about the interval just smoothed: deviations, sigma, gauge and cant
+    min..max (mm), seconds taken."""
     mm = 1e3
     return (f"interval {r.stations.chainage_m[0]:.1f}-{r.stations.chainage_m[-1]:.1f} m: max |lateral| "
             f"{mm * r.max_abs_lateral_dev_m:.2f} mm, max |vertical| {mm * r.max_abs_vertical_dev_m:.2f} mm, "
-            f"max 1-sigma {mm * r.max_sigma_m:.2f} mm, gauge range {mm * (r.gauge_range_m[1] - r.gauge_range_m[0]):.2f} mm, "
-            f"cant range {mm * (r.cant_range_m[1] - r.cant_range_m[0]):.2f} mm ({seconds:.2f} s)")
+            f"max 1-sigma {mm * r.max_sigma_m:.2f} mm, gauge {mm * r.gauge_range_m[0]:.2f}..{mm * r.gauge_range_m[1]:.2f} mm, "
+            f"cant {mm * r.cant_range_m[0]:.2f}..{mm * r.cant_range_m[1]:.2f} mm ({seconds:.2f} s)")
 
 
-def predicted_sigma_mm(meta, distance_since_fix_m: float, speed_m_s: float, spacing_m: float = 60.0) -> float:
-    """Predicted smoothed 1-sigma (lateral/vertical, the larger) at the trolley's position.
+def budget_case(meta):
+    """The budget case (``trolley.budget``) of a session's IMU, odometer and fix figures."""
+    from trolley.budget import SensorFigures, resolve_case
 
-    Budget model ``trolley.budget`` (Jiang 2017 Sec. 4) for an interval of ``spacing_m`` travelled at the
-    nominal 1 m/s; the position in the interval is the distance since the last fix.
+    key = id(meta)
+    hit = _BUDGET_CACHE.get(key)
+    if hit is not None and hit[0] is meta:
+        return hit[1]
+    imu = meta.imu
+    fig = SensorFigures(gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
+                        gyro_bias_instability_rad_s=imu.gyro_bias_instability_rad_s,
+                        heading_error_rad=None if imu.gyrocompassing else math.radians(0.5),
+                        fix_sigma_m=meta.fix_sigma_m, latitude_rad=meta.latitude_rad,
+                        gyrocompassing=imu.gyrocompassing)
+    case = resolve_case(fig).case
+    _BUDGET_CACHE[key] = (meta, case)
+    return case
+
+
+def predicted_sigma_mm(meta, distance_since_fix_m: float, seconds_since_fix: float) -> float:
+    """Predicted 1-sigma at the trolley's position (lateral or vertical, the larger), mm.
+
+    The dead-reckoning sigma of the budget model after ``distance_since_fix_m`` travelled in
+    ``seconds_since_fix`` (:func:`trolley.live.dead_reckoning_sigma`): what the position is known to
+    now, before the next fix. It grows with the distance, also past the planned fix spacing.
+    NaN when the figures do not give a budget (e.g. a custom IMU without its figures).
     """
-    try:
-        from trolley.budget import SensorFigures, resolve_case, sigma_along
+    from trolley.live import dead_reckoning_sigma
 
-        key = (id(meta), spacing_m)
-        case = _BUDGET_CACHE.get(key)
-        if case is None:
-            imu = meta.imu
-            fig = SensorFigures(gyro_arw_rad_sqrt_s=imu.gyro_arw_rad_sqrt_s,
-                                gyro_bias_instability_rad_s=imu.gyro_bias_instability_rad_s,
-                                heading_error_rad=None if imu.gyrocompassing else math.radians(0.5),
-                                fix_spacing_m=spacing_m, speed_m_s=1.0, fix_sigma_m=meta.fix_sigma_m,
-                                latitude_rad=meta.latitude_rad, gyrocompassing=imu.gyrocompassing)
-            case = _BUDGET_CACHE.setdefault(key, resolve_case(fig).case)
-        t = min(max(distance_since_fix_m, 0.0), spacing_m)
-        s = sigma_along(case, np.array([t]))
-        return 1e3 * float(max(s["lateral"][0], s["vertical"][0]))
-    except Exception:
+    try:
+        s = dead_reckoning_sigma(budget_case(meta), distance_since_fix_m, seconds_since_fix)
+    except (ValueError, TypeError):
+        return float("nan")
+    return 1e3 * max(s["lateral"], s["vertical"])
+
+
+def interval_sigma_mm(meta, distance_since_fix_m: float, seconds_since_fix: float) -> float:
+    """Worst smoothed 1-sigma (lateral or vertical, the larger) of the interval if the next fix is
+    taken here, mm: the budget (``trolley.budget.worst_sigma``, Jiang 2017 Eq. 40/45) of an
+    interval of ``distance_since_fix_m`` travelled at the mean speed since the last fix. NaN
+    before the trolley has moved, or when the figures do not give a budget."""
+    from dataclasses import replace
+
+    from trolley.budget import worst_sigma
+
+    d, t = abs(float(distance_since_fix_m)), float(seconds_since_fix)
+    if d < 0.1 or not t > 0:
+        return float("nan")
+    try:
+        case = replace(budget_case(meta), fix_spacing_m=d, speed_m_s=d / t)
+        return 1e3 * max(worst_sigma(case, "lateral"), worst_sigma(case, "vertical"))
+    except (ValueError, TypeError):
         return float("nan")
 
 

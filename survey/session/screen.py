@@ -3,7 +3,8 @@
 Keys (one key, no Enter): ``f`` fix, ``a`` accept a suspicious fix, ``r`` re-measure it, ``u`` undo
 the last fix, ``n`` note (type the text, Enter), ``p`` pause / resume (train), ``t`` trolley turned
 around, ``s`` station change, ``e`` end the session. During the station setup: ``a`` accept, ``d`` drop the suggested
-point, ``m`` measure again.
+point, ``m`` measure again; for a point the instrument could not measure, ``s`` skip it, ``m``
+measure it again.
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ class ScreenState:
     speed_m_s: float = 0.0
     distance_since_fix_m: float = 0.0
     sigma_mm: float = float("nan")
+    sigma_fix_here_mm: float = float("nan")
     standing: bool = True
     fixes_accepted: int = 0
     devices: list = field(default_factory=list)
@@ -49,7 +51,9 @@ def render(s: ScreenState):
     for _ in range(4):
         top.add_column()
     ch = "-" if s.chainage_m != s.chainage_m else f"{s.chainage_m:10.3f} m"
-    sig = "-" if s.sigma_mm != s.sigma_mm else f"{s.sigma_mm:.2f} mm"
+    sig = "-" if s.sigma_mm != s.sigma_mm else f"{s.sigma_mm:.2f} mm now"
+    if s.sigma_fix_here_mm == s.sigma_fix_here_mm:
+        sig += f", {s.sigma_fix_here_mm:.2f} mm if fixed here"
     top.add_row("chainage", ch, "speed", f"{s.speed_m_s:5.2f} m/s")
     top.add_row("since fix", f"{s.distance_since_fix_m:8.2f} m", "predicted 1-sigma", sig)
     top.add_row("time", f"{s.t_s:9.1f} s", "fixes", f"{s.fixes_accepted}")

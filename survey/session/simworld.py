@@ -51,6 +51,8 @@ class SimOptions:
         ahead of the first stop.
     orientation_rad : the instrument's unknown circle orientation.
     seed : noise seed of the total station (fix noise is seeded per stop and attempt).
+    fix_blunders_m : ``(stop, attempt, dE, dN, dH)`` rows: that attempt at a fix at that stop
+        (0-based, as seeded) is off by (dE, dN, dH) m, a blunder for the innovation test.
     """
 
     speedup: float = 1.0
@@ -60,6 +62,7 @@ class SimOptions:
     station_ahead_m: float = 40.0
     orientation_rad: float = 1.2345
     seed: int = 7
+    fix_blunders_m: tuple[tuple[int, int, float, float, float], ...] = ()
 
 
 class SimClock:
@@ -212,6 +215,10 @@ class SimWorld:
         # stored times carry the rounding of the time bases: 1 us tolerance (samples are >= 1 ms apart)
         i0 = int(np.searchsorted(raw.imu_t_s, after.get("imu", -np.inf) + 1e-6, side="right"))
         k0 = int(np.searchsorted(raw.odo_t_s, after.get("odometer", -np.inf) + 1e-6, side="right"))
+        if "odometer" in after:
+            # the driver withholds the first replies after connecting until they confirm each other
+            # (drivers.encoder, ``confirm``): let those be samples already stored, so none is lost
+            k0 = max(k0 - (getattr(SIM_ODOMETER, "confirm", 1) - 1), 0)
         g0 = int(np.searchsorted(raw.gauge_t_s, after.get("gauge", -np.inf) + 1e-6, side="right"))
         self.odo_first_index = k0
         # stable paths, like /dev/serial/by-id/...: a twin that is unplugged comes back at the same path
@@ -317,5 +324,7 @@ class SimWorld:
         attempt = self.fix_attempts.get(k, 0)
         self.fix_attempts[k] = attempt + 1
         rng = np.random.default_rng([self.options.seed, k + 1, attempt])
-        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + rng.standard_normal(3) * sigma_m))
+        blunder = sum((np.array(b[2:], float) for b in self.options.fix_blunders_m if (b[0], b[1]) == (k, attempt)),
+                      np.zeros(3))
+        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + rng.standard_normal(3) * sigma_m + blunder))
         return k

@@ -45,7 +45,8 @@ class StationSetupSteps:
         first = not self.store.station_setups(self.rec.session_id)
         drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"] if first else []
         exclude: list[str] = []
-        obs = self._measure_points(points)
+        candidates = points
+        points, obs = self._measure_points(candidates)
         while True:
             ids = [p.point_id for p in points]
             pts = np.array([[p.e_m, p.n_m, p.h_m] for p in points])
@@ -71,7 +72,7 @@ class StationSetupSteps:
                         exclude.append(worst)
                     continue
                 if choice == "m":
-                    obs = self._measure_points(points)
+                    points, obs = self._measure_points(candidates)
                     exclude = []
                     continue
             break
@@ -91,33 +92,53 @@ class StationSetupSteps:
             st = self.world.station_enh_m
         elif self.last_fix is not None:  # a station change: near the trolley
             st = np.array([self.last_fix.e_m, self.last_fix.n_m, self.last_fix.h_m])
-        else:  # the crew stands near the first points of the file
+        elif self._design is not None:  # the first setup: near the start of the design, where the trolley starts
+            d = self._design.evaluate(np.array([self._design.start_chainage_m]))
+            st = np.array([float(np.ravel(d.E_m)[0]), float(np.ravel(d.N_m)[0])])
+        else:
             st = np.array([pts[0].e_m, pts[0].n_m, pts[0].h_m])
         d = [math.hypot(p.e_m - st[0], p.n_m - st[1]) for p in pts]
         order = np.argsort(d)[: self.config.setup_points]
         return [pts[i] for i in order]
 
     def _measure_points(self, points):
+        """Measure each point; a point the instrument cannot measure (prism blocked, no target) is
+        skipped: by the crew's choice (``s``; ``m`` tries it again), or at once in a script. At
+        least 3 points must remain. Returns the points measured and their observations."""
         from drivers.geocom import GeoComError
+        from drivers.serialport import DeviceError
         from trolley.resection import PolarObservations
 
-        hz, v, sd = [], [], []
+        hz, v, sd, done = [], [], [], []
         for p in points:
-            if self.world is not None:
-                self.world.aim_at_point((p.e_m, p.n_m, p.h_m))
-            elif self.config.script is None:
-                self._ask_key(f"aim at {p.point_id} and press Enter", "\r\n")
-            try:
-                self.ts.fine_adjust()
-                m = self.ts.measure()
-            except GeoComError as exc:
-                raise SessionAbort(f"total station on {p.point_id}: {exc}", "check the prism and the line of sight") from None
+            while True:
+                if self.world is not None:
+                    self.world.aim_at_point((p.e_m, p.n_m, p.h_m))
+                elif self.config.script is None:
+                    self._ask_key(f"aim at {p.point_id} and press Enter", "\r\n")
+                try:
+                    self.ts.fine_adjust()
+                    m = self.ts.measure()
+                except (GeoComError, DeviceError) as exc:
+                    self.say(f"  {p.point_id} not measured: {exc}")
+                    if self.config.script is None and self._ask_key(
+                            f"s skip {p.point_id} | m measure it again", "sm") == "m":
+                        continue
+                    self._event("setup_point_skipped", f"{p.point_id}: {exc}")
+                    m = None
+                break
+            if m is None:
+                continue
             self.console.print(f"  {p.point_id}: Hz {m.hz_rad:.6f} rad, V {m.v_rad:.6f} rad, {m.slope_m:.4f} m",
                                highlight=False)
             hz.append(m.hz_rad)
             v.append(m.v_rad)
             sd.append(m.slope_m)
-        return PolarObservations(np.array(hz), np.array(v), np.array(sd))
+            done.append(p)
+        if len(done) < 3:
+            raise SessionAbort(f"station setup: only {len(done)} of {len(points)} CPIII points could be measured "
+                               "(3 are needed)", "check the prisms and the lines of sight, then resume")
+        return done, PolarObservations(np.array(hz), np.array(v), np.array(sd))
 
     def _give_station(self, station_enh_m, orientation_rad: float) -> None:
         """TMC_SetStation, then orient the circle so that it reads grid azimuths."""

@@ -1,0 +1,47 @@
+"""Station setup robustness: a CPIII prism the total station cannot find (blocked: no target) is
+skipped instead of ending the session, and the free station is computed from the others."""
+from __future__ import annotations
+
+import numpy as np
+from rich.console import Console
+
+from session_project import make_project
+
+
+def test_a_blocked_prism_is_skipped_and_the_station_uses_the_others(tmp_path):
+    from survey.commands.survey import simulated_world
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore
+
+    make_project(tmp_path)
+    console = Console(stderr=True, record=True, width=200)
+    with ProjectStore.open(tmp_path / "t1") as st:
+        world = simulated_world(st, 50.0)
+        aim = world.aim_at_point
+        seen = []
+
+        def aim_but_one_blocked(enh):
+            seen.append(tuple(enh))
+            if len(seen) == 3:  # the third prism is behind a mast: the ATR finds no target
+                world.twins["totalstation"].set_target(None)
+            else:
+                aim(enh)
+
+        world.aim_at_point = aim_but_one_blocked
+        fs = FieldSession(st, "blocked", SessionConfig(script=parse_script("fix\nend\n"), out_dir=None),
+                          world=world, console=console)
+        fs.run()
+        sid = fs.rec.session_id
+        setup = st.station_setups(sid)[0]
+        obs = st.setup_observations(setup.setup_id)
+        events = [e for e in st.events(sid) if e.kind == "setup_point_skipped"]
+        blocked = next(p for p in st.cpiii_points() if (p.e_m, p.n_m, p.h_m) == seen[2])
+        fixes = st.fixes(sid)
+    assert len(seen) == 8 and len(obs) == 7  # eight measured, one skipped
+    assert blocked.point_id not in {o.point_id for o in obs}
+    assert len(events) == 1 and events[0].detail.startswith(f"{blocked.point_id}: ")
+    # the station from the other seven is where the instrument stands (0.5", 0.6 mm noise)
+    assert np.max(np.abs(setup.station_enh_m - world.station_enh_m)) < 0.002 and setup.accepted
+    assert [f.accepted for f in fixes] == [True]
+    assert f"{blocked.point_id} not measured" in " ".join(console.export_text().split())
