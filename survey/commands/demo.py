@@ -142,12 +142,15 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     result, _, written = run_process(session_dir, out / "processed")
     print_summary(result, written)
     err.print("3/4 survey sheet and plots ...")
-    exported = export_outputs(out / "processed", out / "survey.xlsx", None, out / "plots")
+    exported = export_outputs(out / "processed", out / "survey.xlsx", None, out / "plots",
+                              project_name=project.resolve().name, session_name="simulated (direct)")
     err.print("4/4 comparing with the simulator's truth ...")
     _accuracy_line(con, result, sim.truth)
     con.print(f"\nraw session:  {session_dir}\ntrack:        {written.track_csv}\n"
-              f"survey sheet: {exported.xlsx}\nplots:        {out / 'plots'}\n"
-              f"done in {time.perf_counter() - t_start:.1f} s", highlight=False)
+              f"survey sheet: {exported.xlsx}", highlight=False)
+    for i, png in enumerate(exported.plots):
+        con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
+    con.print(f"done in {time.perf_counter() - t_start:.1f} s", highlight=False)
 
 
 def register(app: typer.Typer) -> None:

@@ -20,8 +20,9 @@ _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 _SIM_KEYS = ("length_m", "start_chainage_m", "fix_spacing_m", "stop_s", "static_s", "speed_m_s",
              "accel_time_s", "imu_rate_hz", "odometer_rate_hz", "gauge_rate_hz", "fix_sigma_m",
              "gauge_sigma_m", "irregularity_rms_m", "imu_residual_misalignment_rad",
-             "gyro_correlation_time_s")
+             "gyro_correlation_time_s", "turn_s")
 _SIM_INT_KEYS = ("seed", "fixes_per_stop")
+_SIM_INT_LIST_KEYS = ("turn_at_stops",)
 
 
 class ProjectFileError(ValueError):
@@ -82,6 +83,11 @@ def project_settings(project: Path):
             kwargs[key] = _number(sim, "simulation", key, fname)
         elif key in _SIM_INT_KEYS:
             kwargs[key] = _number(sim, "simulation", key, fname, integer=True)
+        elif key in _SIM_INT_LIST_KEYS:
+            v = sim[key]
+            if not (isinstance(v, list) and all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+                raise ProjectFileError(f"{fname}: key simulation.{key}: must be a list of integers, got {v!r}")
+            kwargs[key] = tuple(v)
         else:
             raise ProjectFileError(f"{fname}: key simulation.{key}: unknown setting")
     tr = data.get("trolley", {})

@@ -204,7 +204,9 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False)
     if outcome.xlsx is not None:
         con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
-                  f"survey sheet: {outcome.xlsx}\nplots:        {outcome.plots_dir}", highlight=False)
+                  f"survey sheet: {outcome.xlsx}", highlight=False)
+        for i, png in enumerate(outcome.plots):
+            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
     outcome.world = world
     return outcome
 

@@ -77,6 +77,7 @@ class SessionOutcome:
     track_csv: Path | None = None
     xlsx: Path | None = None
     plots_dir: Path | None = None
+    plots: list[Path] = field(default_factory=list)
     result: object = None
     notes: list[str] = field(default_factory=list)
 

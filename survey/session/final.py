@@ -45,10 +45,11 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     st = result.stations
     store.add_track(rec.session_id, "final", float(raw.imu_t_s[0]), float(raw.imu_t_s[-1]), track_result(st))
     exported = export_outputs(out_dir / "processed", out_dir / "survey.xlsx", None, out_dir / "plots",
-                              tolerances=tolerances)
+                              tolerances=tolerances, project_name=store.info().name, session_name=name)
     outcome.session_dir = session_dir
     outcome.track_csv = written.track_csv
     outcome.xlsx = exported.xlsx
     outcome.plots_dir = out_dir / "plots"
+    outcome.plots = list(exported.plots)
     outcome.result = result
     return outcome
