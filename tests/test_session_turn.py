@@ -10,9 +10,10 @@ from rich.console import Console
 from session_project import make_project
 
 #: in the 3000 m curve with 120 mm cant (chainage 400-520); stop 1 lasts 24 s; the world turns the
-#: trolley from 9 s to 15 s into it (turn_s = 6)
+#: trolley from 9 s to 15 s into it (turn_s = 6); the crew's fix comes about 1 s into the stop, the
+#: next 18 s later: well inside the standstill after the turn (15 s to 24 s)
 SIM = {"length_m": "120.0", "stop_s": "24.0", "prism_lever_arm_m": "[0.0, 0.3, -0.6]"}
-SCRIPT = "fix\nmove\nfix\nwait 14\nturn\nfix\nmove\nnote after the turn\nfix\nend\n"
+SCRIPT = "fix\nmove\nfix\nwait 18\nturn\nfix\nmove\nnote after the turn\nfix\nend\n"
 
 
 def test_turned_trolley_session(tmp_path):
