@@ -90,32 +90,52 @@ class DeadReckoning:
 
 #: Heading change while standing that counts as the crew turning the trolley around, rad.
 TURN_DETECTION_RAD = 0.5 * np.pi
+#: Attitude change while the odometer stands that counts as the crew handling the trolley (lifting
+#: it off the track for a train, turning it), rad: a trolley standing on the rails turns by the
+#: gyro drift only (micro-radians).
+HANDLING_DETECTION_RAD = 0.05
 
 
-def turn_blocks(dr: DeadReckoning) -> np.ndarray:
-    """DR blocks at which the trolley has been turned around (sorted).
+def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """DR blocks at which the crew handled the trolley while it stood, and whether it was turned.
 
-    A turn is a change of the trolley's heading by more than 90 deg while the odometer stands
-    still (the crew lifts the trolley and puts it back the other way round); the block returned is
-    the first at which the heading is more than 90 deg from where it was when the trolley stopped.
-    Standing stretches are few (one per stop): the loop runs over stops, not samples.
+    Handling is an attitude change of more than ``HANDLING_DETECTION_RAD`` while the odometer
+    stands still (the trolley lifted off the track and put back); it is a turn when, at the end
+    of that standstill, the heading is more than 90 deg from where it was when the trolley
+    stopped. The block returned is the first beyond the threshold. Standing stretches are few
+    (one per stop): the loop runs over stops, not samples.
+
+    Returns
+    -------
+    blocks : (k,) int, sorted.
+    turned : (k,) bool.
+    heading_rad : (k,) the trolley's heading when it stopped, before the crew handled it.
     """
     d = np.asarray(dr.distance_m, dtype=float)
+    none = np.zeros(0, dtype=int), np.zeros(0, dtype=bool), np.zeros(0)
     if d.size < 2:
-        return np.zeros(0, dtype=int)
+        return none
     standing = np.diff(d) == 0.0  # step k -> k+1
     edges = np.diff(np.concatenate([[0], standing.astype(np.int8), [0]]))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # run of steps [a, b)
     if starts.size == 0:
-        return np.zeros(0, dtype=int)
+        return none
     yaw = np.unwrap(dr.euler_rad()[:, 2])
-    out = []
+    blocks, turned, heading = [], [], []
     for a, b in zip(starts, ends):  # blocks a..b stand
-        dy = np.abs(yaw[a:b + 1] - yaw[a])
-        over = np.flatnonzero(dy > TURN_DETECTION_RAD)
-        if over.size and dy[-1] > TURN_DETECTION_RAD:
-            out.append(a + int(over[0]))
-    return np.asarray(out, dtype=int)
+        angle = (dr.trolley_to_nav[a].inv() * dr.trolley_to_nav[a:b + 1]).magnitude()
+        over = np.flatnonzero(angle > HANDLING_DETECTION_RAD)
+        if over.size:
+            blocks.append(a + int(over[0]))
+            turned.append(bool(abs(yaw[b] - yaw[a]) > TURN_DETECTION_RAD))
+            heading.append(float(yaw[a]))
+    return np.asarray(blocks, dtype=int), np.asarray(turned, dtype=bool), np.asarray(heading)
+
+
+def turn_blocks(dr: DeadReckoning) -> np.ndarray:
+    """DR blocks at which the trolley was turned around (:func:`handling_blocks`)."""
+    blocks, turned, _ = handling_blocks(dr)
+    return blocks[turned]
 
 
 def mounting_rotation(imu_misalignment_rad) -> Rotation:
@@ -333,7 +353,7 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
 def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, odo_distance_m: np.ndarray,
                 stop_times_s: np.ndarray, imu_misalignment_rad, window_s: float = 10.0,
                 min_samples: int = 20, w_rad_s: np.ndarray | None = None,
-                max_rotation_rad: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+                max_rotation_rad: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
     """Roll and pitch of the trolley from the accelerometers at each stop.
 
     While the trolley stands, the specific force is gravity alone, so the accelerometers level
@@ -351,8 +371,10 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     window_s : half-width of the window around each stop time.
     min_samples : fewer standing samples than this gives NaN for that stop.
     w_rad_s : IMU angular rates; when given, only samples whose attitude is within
-        ``max_rotation_rad`` (accumulated |w| dt) of the attitude at the stop time count, so a
-        window never mixes the levels before and after the crew turned the trolley around.
+        ``max_rotation_rad`` of the attitude at the stop time count (the rotation vector, the
+        integral of w dt from the stop time: the gyro noise and bias of 10 s, 1e-4 rad even for a
+        MEMS unit, stay far below it), so a window never takes in the tilt of a trolley the
+        crew lifts off the track, nor mixes the levels before and after it was turned around.
 
     Returns
     -------
@@ -369,13 +391,13 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     standing = ~(moving_before | moving_after)
     seg = np.repeat(np.arange(len(lo)), hi - lo)
     if w_rad_s is not None and idx.size:
-        # rotation accumulated inside each window, measured from the stop time
-        rot = np.linalg.norm(w_rad_s[idx], axis=1) * np.diff(t, prepend=t[0])
-        cum = np.cumsum(rot)
+        # rotation inside each window, measured from the stop time (small angles: the vector
+        # integral of the rates is the rotation vector)
+        cum = np.cumsum(w_rad_s[idx] * np.diff(t, prepend=t[0])[:, None], axis=0)
         first = np.concatenate([[0], np.cumsum(hi - lo)[:-1]])
         at_stop = np.clip(np.searchsorted(imu_t_s, stop_times_s) - lo, 0, np.maximum(hi - lo - 1, 0))
-        ref = cum[np.minimum(first + at_stop, cum.size - 1)]
-        standing &= np.abs(cum - ref[seg]) < max_rotation_rad
+        ref = cum[np.minimum(first + at_stop, cum.shape[0] - 1)]
+        standing &= np.linalg.norm(cum - ref[seg], axis=1) < max_rotation_rad
     f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2[idx])  # trolley frame
     count = np.bincount(seg, weights=standing, minlength=len(lo))
     mean = np.column_stack([np.bincount(seg, weights=f_t[:, i] * standing, minlength=len(lo)) for i in range(3)])

@@ -25,8 +25,8 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from trolley import error_models as em
-from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation, quat_multiply,
-                                   static_alignment, stop_levels, turn_blocks, with_roll_levelled)
+from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
+                                   quat_multiply, static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
 from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
 from trolley.trackgeometry import TrackInput
@@ -53,6 +53,8 @@ class ProcessConfig:
     smoother : "rts", "tfs" or "none" (filtered only).
     step_m : chainage step of the output stations.
     node_spacing_m : distance between filter nodes while moving.
+    placement_sigma_m : along-track 1-sigma of where a trolley the crew lifted off the track (or
+        turned) is put back (:func:`turned_around`).
     max_node_dt_s : longest time between filter nodes (standing still).
     gate_probability : chi-square gate of the fixes (None: accept all).
     block_size : IMU samples per dead-reckoning step.
@@ -78,6 +80,8 @@ class ProcessConfig:
     # 2 m: the position errors grow linearly with the distance between nodes (Eq. 18, 23), so the
     # track is the same as with 1 m (RMS errors of pooled test sessions equal to 1 um) at 60 % of the nodes
     node_spacing_m: float = 2.0
+    # where along the track a lifted trolley is put back, 1-sigma (a few centimetres in practice)
+    placement_sigma_m: float = 0.05
     max_node_dt_s: float = 10.0
     gate_probability: float | None = 0.9999
     block_size: int = 40
@@ -188,11 +192,11 @@ def fix_matrices(lever_ned_m: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
     return H
 
 
-def turn_sigmas(meta, config: ProcessConfig) -> tuple[float, float]:
+def turn_sigmas(meta, config: ProcessConfig) -> tuple[float, float, float]:
     """1-sigma of the jumps of the equivalent pitch and heading errors when the crew turns the
     trolley around (:func:`turned_around`): twice the residual mounting error, and pi times the
-    gyro scale-factor error."""
-    return 2.0 * config.residual_level_rad, float(np.pi * meta.imu.gyro_scale_factor)
+    gyro scale-factor error; and of the along-track placement of a handled trolley."""
+    return 2.0 * config.residual_level_rad, float(np.pi * meta.imu.gyro_scale_factor), config.placement_sigma_m
 
 
 def filter_noise(meta, config: ProcessConfig) -> em.ChannelNoise:
@@ -287,8 +291,8 @@ def discrete_model(speed: np.ndarray, vn: np.ndarray, ve: np.ndarray, noise: em.
 
 
 def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise,
-                turn_pitch_sigma_rad: float = 0.0, turn_heading_sigma_rad: float = 0.0
-                ) -> tuple[np.ndarray, np.ndarray]:
+                turn_pitch_sigma_rad: float = 0.0, turn_heading_sigma_rad: float = 0.0,
+                placement_sigma_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Exact discretisation of the 8-state error model between consecutive nodes.
 
     The interval's speed and heading enter through its mean odometer speed and mean north and
@@ -296,16 +300,21 @@ def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise,
     """
     dt, speed, vn, ve = interval_motion(dr, nodes)
     F, Q = discrete_model(speed, vn, ve, noise, dt)
-    return turned_around(F, Q, dr, nodes, turn_pitch_sigma_rad, turn_heading_sigma_rad)
+    return turned_around(F, Q, dr, nodes, turn_pitch_sigma_rad, turn_heading_sigma_rad, placement_sigma_m)
 
 
 _HEADING, _PITCH = _IDX_HEADING, _IDX_PITCH
 
 
 def turned_around(F: np.ndarray, Q: np.ndarray, dr: DeadReckoning, nodes: np.ndarray,
-                  pitch_sigma_rad: float = 0.0, heading_sigma_rad: float = 0.0
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """F and Q with the crew's turns of the trolley (:func:`trolley.deadreckoning.turn_blocks`).
+                  pitch_sigma_rad: float = 0.0, heading_sigma_rad: float = 0.0,
+                  placement_sigma_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """F and Q with the crew's handling of the trolley (:func:`trolley.deadreckoning.handling_blocks`):
+    lifted off the track (a train) or turned around, and put back.
+
+    Put back on the rails, the reference point is again on the track centre line, but the
+    odometer did not count where along the track: its position error gains ``placement_sigma_m``
+    along the track (the dead-reckoned heading there), and the next fix takes it.
 
     The error states are those of the trolley frame (Jiang 2017 Eq. 14-16). Turning the trolley
     by 180 deg about its z axis keeps the navigation-frame attitude error but reverses the
@@ -323,16 +332,20 @@ def turned_around(F: np.ndarray, Q: np.ndarray, dr: DeadReckoning, nodes: np.nda
     Likewise the z gyro's scale-factor error sf turns the heading by ``pi sf`` during the turn;
     ``heading_sigma_rad`` (pi times the scale-factor figure) enters the equivalent heading error.
     """
-    turns = turn_blocks(dr)
-    if turns.size == 0:
+    blocks, turned, psi = handling_blocks(dr)
+    if blocks.size == 0 or F.shape[0] == 0:
         return F, Q
-    interval = np.clip(np.searchsorted(nodes, turns, side="left") - 1, 0, F.shape[0] - 1)
-    flips = np.bincount(interval, minlength=F.shape[0]) % 2 == 1
+    interval = np.clip(np.searchsorted(nodes, blocks, side="left") - 1, 0, F.shape[0] - 1)
+    F, Q = F.copy(), Q.copy()
+    # along the track: the heading the trolley had when it stopped (not the turning one)
+    along = np.column_stack([np.cos(psi), np.sin(psi)])  # N, E
+    for i, a in zip(interval, along):  # one per handling, a few per session
+        Q[i][np.ix_([_IDX_N, _IDX_E], [_IDX_N, _IDX_E])] += placement_sigma_m ** 2 * np.outer(a, a)
+    flips = np.bincount(interval[turned], minlength=F.shape[0]) % 2 == 1
     if not flips.any():
         return F, Q
     T = np.ones(8)
     T[_PITCH] = -1.0
-    F, Q = F.copy(), Q.copy()
     F[flips] *= T[:, None]
     Q[flips] *= T[:, None] * T[None, :]
     Q[flips, _PITCH, _PITCH] += pitch_sigma_rad ** 2

@@ -125,6 +125,12 @@ class SimulationConfig:
         the chainage keeps increasing. Such a stop has ``fixes_per_stop`` fixes before the turn
         and as many after it.
     turn_s : duration of a turn, s (the stop must be at least ``turn_s + 4`` s long).
+    lift_at_stops : stops at which the crew lifts the trolley off the track (a train passes) and
+        puts it back, the same way round, within ``turn_s``: tilted by up to ``lift_tilt_rad``
+        about its x axis while carried. Fixes before and after, as for a turn.
+    lift_tilt_rad : largest tilt while the trolley is carried, rad.
+    placement_offset_m : a lifted or turned trolley is put back this far further along the track
+        (the odometer does not count it; the next leg is that much shorter).
     errors : False switches every sensor error off (biases, noise, scale factors, residual
         misalignment, quantisation stays); the track irregularities are kept.
     initial_heading : write ``initial_heading_deg`` (the true trolley yaw at the start) to the
@@ -155,6 +161,9 @@ class SimulationConfig:
     fixes_per_stop: int = 1
     turn_at_stops: tuple[int, ...] = ()
     turn_s: float = 10.0
+    lift_at_stops: tuple[int, ...] = ()
+    lift_tilt_rad: float = 0.15
+    placement_offset_m: float = 0.0
     errors: bool = True
     initial_heading: bool | None = None
     seed: int = 0
@@ -186,6 +195,17 @@ def euler_from_quat(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
     yaw = np.mod(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)), 2.0 * np.pi)
     return roll, pitch, yaw
+
+
+def _handling_quat(motion, t) -> np.ndarray:
+    """The trolley relative to the track frame while the crew handles it: turned about its z axis
+    (the track normal), then tilted about its x axis while carried."""
+    half = 0.5 * motion.turn_angle(t)
+    tilt = 0.5 * motion.tilt(t)
+    zero = np.zeros_like(half)
+    qz = np.stack([np.cos(half), zero, zero, np.sin(half)], axis=-1)
+    qx = np.stack([np.cos(tilt), np.sin(tilt), zero, zero], axis=-1)
+    return _quat_mul(qz, qx)
 
 
 def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -360,8 +380,13 @@ class MotionProfile:
     leg_start_s, leg_duration_s, leg_speed_m_s : (m-1,) motion between stops.
     accel_time_s : raised-cosine acceleration time T_a.
     duration_s : end of the last stop.
-    turn_start_s : (k,) start of every turn of the trolley (at a stop), s.
-    turn_s : duration of a turn, s.
+    handling_start_s : (k,) start of every handling of the trolley by the crew (a turn or a lift,
+        at the middle of a stop), s; ``turn_s`` long.
+    handling_angle_rad : (k,) rotation about the trolley's z axis of each (pi: a turn, 0: a lift).
+    handling_tilt_rad : (k,) largest tilt about the trolley's x axis while it is carried.
+    handling_offset_m : (k,) along-track placement offset when it is put back.
+    handling_stop : (k,) stop index of each.
+    turn_s : duration of a handling, s.
     """
 
     stop_chainage_m: np.ndarray
@@ -372,8 +397,21 @@ class MotionProfile:
     leg_speed_m_s: np.ndarray
     accel_time_s: float
     duration_s: float
-    turn_start_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    handling_start_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    handling_angle_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    handling_tilt_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    handling_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    handling_stop: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     turn_s: float = 10.0
+
+    @property
+    def turn_start_s(self) -> np.ndarray:
+        """Start of every turn (a handling that turns the trolley around), s."""
+        return self.handling_start_s[self.handling_angle_rad != 0.0]
+
+    def _u(self, t_s) -> np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        return np.clip((t[..., None] - self.handling_start_s) / self.turn_s, 0.0, 1.0)
 
     def turn_angle(self, t_s) -> np.ndarray:
         """Rotation of the trolley about its z axis relative to the track frame, rad.
@@ -381,18 +419,53 @@ class MotionProfile:
         Each turn adds pi with the smooth step u - sin(2 pi u) / (2 pi), u = (t - t0) / turn_s,
         so the turn rate starts and ends at zero (no jump in the synthesised gyro output).
         """
-        t = np.asarray(t_s, dtype=float)
-        if self.turn_start_s.size == 0:
-            return np.zeros(t.shape)
-        u = np.clip((t[..., None] - self.turn_start_s) / self.turn_s, 0.0, 1.0)
-        return np.pi * np.sum(u - np.sin(2.0 * np.pi * u) / (2.0 * np.pi), axis=-1)
+        u = self._u(t_s)
+        return np.sum(self.handling_angle_rad * (u - np.sin(2.0 * np.pi * u) / (2.0 * np.pi)), axis=-1)
+
+    def tilt(self, t_s) -> np.ndarray:
+        """Tilt of a carried trolley about its x axis, rad: ``tilt sin^2(pi u)`` during a lift."""
+        u = self._u(t_s)
+        return np.sum(self.handling_tilt_rad * np.sin(np.pi * u) ** 2, axis=-1)
+
+    def handled(self, t_s) -> np.ndarray:
+        """True while the crew holds the trolley off the track (its wheels do not turn)."""
+        u = self._u(t_s)
+        return np.any((u > 0.0) & (u < 1.0), axis=-1)
 
     def facing(self, t_s) -> np.ndarray:
         """+1 while the trolley faces increasing chainage, -1 while it is turned around
         (judged at the middle of a turn; the trolley only moves between turns)."""
         t = np.asarray(t_s, dtype=float)
-        done = np.sum(t[..., None] >= self.turn_start_s + 0.5 * self.turn_s, axis=-1)
+        turned = self.handling_angle_rad != 0.0
+        done = np.sum((t[..., None] >= self.handling_start_s + 0.5 * self.turn_s) & turned, axis=-1)
         return np.where(done % 2 == 0, 1.0, -1.0)
+
+    def _placement(self, t, s, v, a):
+        """The placement offsets: during a handling the trolley moves ``offset`` along the track
+        (smooth step); on the next leg the offset shrinks to zero in proportion to the distance,
+        so the trolley arrives at the planned stop."""
+        for j in range(self.handling_start_s.size):  # a handful of handlings, not samples
+            d = float(self.handling_offset_m[j])
+            if d == 0.0:
+                continue
+            k = int(self.handling_stop[j])
+            t0 = self.handling_start_s[j]
+            T = self.turn_s
+            during = (t > t0) & (t < t0 + T)
+            u = (t[during] - t0) / T
+            s[during] += d * (u - np.sin(2.0 * np.pi * u) / (2.0 * np.pi))
+            v[during] += d * (1.0 - np.cos(2.0 * np.pi * u)) / T
+            a[during] += d * 2.0 * np.pi * np.sin(2.0 * np.pi * u) / T ** 2
+            s0 = self.stop_chainage_m[k]
+            if k + 1 < self.stop_chainage_m.size:
+                L = self.stop_chainage_m[k + 1] - s0
+                after = (t >= t0 + T) & (t <= self.stop_start_s[k + 1])
+                s[after] = s0 + d + (s[after] - s0) * (1.0 - d / L)
+                v[after] *= 1.0 - d / L
+                a[after] *= 1.0 - d / L
+            else:
+                s[t >= t0 + T] += d
+        return s, v, a
 
     def evaluate(self, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Chainage s, ds/dt and d2s/dt2 at times ``t_s`` (1-D array).
@@ -411,12 +484,12 @@ class MotionProfile:
         s[:] = self.stop_chainage_m[stop]
         legc = np.clip(leg, 0, max(self.leg_start_s.size - 1, 0))
         if self.leg_start_s.size == 0:
-            return s, v, a
+            return self._placement(t, s, v, a)
         tau = t - self.leg_start_s[legc]
         T = self.leg_duration_s[legc]
         moving = (leg >= 0) & (tau < T)
         if not np.any(moving):
-            return s, v, a
+            return self._placement(t, s, v, a)
         tau, T = tau[moving], T[moving]
         vc = self.leg_speed_m_s[legc[moving]]
         s_from = self.stop_chainage_m[legc[moving]]
@@ -444,12 +517,13 @@ class MotionProfile:
         s[moving] = s_from + sm
         v[moving] = vm
         a[moving] = am
-        return s, v, a
+        return self._placement(t, s, v, a)
 
 
 def motion_profile(start_chainage_m: float, length_m: float, fix_spacing_m: float,
                    static_s: float, stop_s: float, speed_m_s: float,
-                   accel_time_s: float, turn_at_stops=(), turn_s: float = 10.0) -> MotionProfile:
+                   accel_time_s: float, turn_at_stops=(), turn_s: float = 10.0, lift_at_stops=(),
+                   lift_tilt_rad: float = 0.15, placement_offset_m: float = 0.0) -> MotionProfile:
     """Stops every ``fix_spacing_m`` (and at the end), raised-cosine legs between them; the
     trolley is turned around at the middle of the stops ``turn_at_stops``.
 
@@ -483,16 +557,26 @@ def motion_profile(start_chainage_m: float, length_m: float, fix_spacing_m: floa
         t += stop_s
         stop_end[i + 1] = t
     turns = np.unique(np.asarray(turn_at_stops, dtype=int))
-    if turns.size:
-        if turns[0] < 1 or turns[-1] > m - 1:
-            raise ValueError(f"turn_at_stops must name stops 1..{m - 1} (stop 0 is the static alignment)")
-        if not turn_s > 0 or stop_s < turn_s + 4.0:
-            raise ValueError(f"a turn of {turn_s:g} s needs stops of at least {turn_s + 4.0:g} s (stop_s = {stop_s:g})")
-    middle = 0.5 * (stop_start[turns] + stop_end[turns])
+    lifts = np.unique(np.asarray(lift_at_stops, dtype=int))
+    for name, ks in (("turn_at_stops", turns), ("lift_at_stops", lifts)):
+        if ks.size and (ks[0] < 1 or ks[-1] > m - 1):
+            raise ValueError(f"{name} must name stops 1..{m - 1} (stop 0 is the static alignment)")
+    if np.intersect1d(turns, lifts).size:
+        raise ValueError("a stop cannot have both a turn and a lift")
+    if (turns.size or lifts.size) and (not turn_s > 0 or stop_s < turn_s + 4.0):
+        raise ValueError(f"a turn of {turn_s:g} s needs stops of at least {turn_s + 4.0:g} s (stop_s = {stop_s:g})")
+    k = np.concatenate([turns, lifts]).astype(int)
+    order = np.argsort(k)
+    k = k[order]
+    angle = np.concatenate([np.full(turns.size, np.pi), np.zeros(lifts.size)])[order]
+    tilt = np.concatenate([np.zeros(turns.size), np.full(lifts.size, float(lift_tilt_rad))])[order]
+    middle = 0.5 * (stop_start[k] + stop_end[k])
     return MotionProfile(stop_chainage_m=stops, stop_start_s=stop_start, stop_end_s=stop_end,
                          leg_start_s=leg_start, leg_duration_s=duration, leg_speed_m_s=speed,
                          accel_time_s=float(accel_time_s), duration_s=float(t),
-                         turn_start_s=middle - 0.5 * turn_s, turn_s=float(turn_s))
+                         handling_start_s=middle - 0.5 * turn_s, handling_angle_rad=angle,
+                         handling_tilt_rad=tilt, handling_offset_m=np.full(k.size, float(placement_offset_m)),
+                         handling_stop=k, turn_s=float(turn_s))
 
 
 # ------------------------------------------------------------------------------------------
@@ -615,11 +699,8 @@ def _kinematics(geo: TruthGeometry, motion: MotionProfile, t: np.ndarray, latitu
     h = p[:, 2]
     lat = latitude0 + p[:, 1] / (EARTH_RADIUS_M + h)
     q = quat_from_euler(roll, pitch, yaw)
-    if motion.turn_start_s.size:
-        # a turned trolley: the track frame rotated about its own z axis (the track normal)
-        half = 0.5 * motion.turn_angle(t)
-        qz = np.stack([np.cos(half), np.zeros_like(half), np.zeros_like(half), np.sin(half)], axis=-1)
-        q = _quat_mul(q, qz)
+    if motion.handling_start_s.size:
+        q = _quat_mul(q, _handling_quat(motion, t))
         roll, pitch, yaw = euler_from_quat(q)
     return dict(s=s, p=p, q=q, roll=roll, pitch=pitch, yaw=yaw, v_n=v_n, a_n=a_n, lat=lat, h=h)
 
@@ -655,7 +736,8 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     geo = truth_geometry(alignment, s0, cfg.length_m, cfg.irregularity_rms_m,
                          cfg.trolley.rail_spacing_m, cfg.trolley.nominal_gauge_m, rng)
     motion = motion_profile(s0, cfg.length_m, cfg.fix_spacing_m, cfg.static_s, cfg.stop_s,
-                            cfg.speed_m_s, cfg.accel_time_s, cfg.turn_at_stops, cfg.turn_s)
+                            cfg.speed_m_s, cfg.accel_time_s, cfg.turn_at_stops, cfg.turn_s,
+                            cfg.lift_at_stops, cfg.lift_tilt_rad, cfg.placement_offset_m)
 
     # --- IMU mounting: nominal (written to session.toml) + unknown residual
     nominal = np.asarray(cfg.trolley.imu_misalignment_rad, dtype=float)
@@ -725,8 +807,10 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     n_odo = int(np.floor(motion.duration_s * cfg.odometer_rate_hz + 1e-9))
     t_odo = np.arange(0, n_odo + 1) / cfg.odometer_rate_hz
     path = geo.arclength(motion.evaluate(t_odo)[0])
-    # a turned trolley rolls backwards in its own frame: the wheel counts down
-    dpath = np.diff(path) * motion.facing(0.5 * (t_odo[1:] + t_odo[:-1]))
+    # a turned trolley rolls backwards in its own frame: the wheel counts down; a trolley the crew
+    # holds off the track does not turn its wheel
+    mid_odo = 0.5 * (t_odo[1:] + t_odo[:-1])
+    dpath = np.diff(path) * motion.facing(mid_odo) * ~motion.handled(mid_odo)
     if cfg.errors:
         dk = odo.scale_error * rng.standard_normal() + np.cumsum(
             rng.standard_normal(n_odo) * (odo.scale_noise_per_sqrt_s
@@ -743,10 +827,10 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     frac = (np.arange(m) + 1.0) / (m + 1.0)
     # a stop with a turn is two standstills, before and after it, with m fixes each
     n_stop = motion.stop_chainage_m.size
-    turn_stop = np.searchsorted(motion.stop_start_s, motion.turn_start_s, side="right") - 1
-    win_start = np.concatenate([motion.stop_start_s, motion.turn_start_s + motion.turn_s])
+    turn_stop = motion.handling_stop
+    win_start = np.concatenate([motion.stop_start_s, motion.handling_start_s + motion.turn_s])
     win_end = np.concatenate([motion.stop_end_s, motion.stop_end_s[turn_stop]])
-    win_end[turn_stop] = motion.turn_start_s
+    win_end[turn_stop] = motion.handling_start_s
     win_stop = np.concatenate([np.arange(n_stop), turn_stop])
     order = np.argsort(win_start, kind="stable")
     t_fix = (win_start[order][:, None]
@@ -755,9 +839,7 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     s_fix = motion.evaluate(t_fix)[0]
     p_fix = geo.position(s_fix)
     r, pch, y = geo.attitude(s_fix)
-    half = 0.5 * motion.turn_angle(t_fix)
-    q_fix = _quat_mul(quat_from_euler(r, pch, y),
-                      np.stack([np.cos(half), 0.0 * half, 0.0 * half, np.sin(half)], axis=-1))
+    q_fix = _quat_mul(quat_from_euler(r, pch, y), _handling_quat(motion, t_fix))
     lever_n = _quat_rotate(q_fix,
                            np.broadcast_to(np.asarray(cfg.trolley.prism_lever_arm_m, float),
                                            (s_fix.size, 3)))

@@ -20,9 +20,9 @@ _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 _SIM_KEYS = ("length_m", "start_chainage_m", "fix_spacing_m", "stop_s", "static_s", "speed_m_s",
              "accel_time_s", "imu_rate_hz", "odometer_rate_hz", "gauge_rate_hz", "fix_sigma_m",
              "gauge_sigma_m", "irregularity_rms_m", "imu_residual_misalignment_rad",
-             "gyro_correlation_time_s", "turn_s")
+             "gyro_correlation_time_s", "turn_s", "lift_tilt_rad", "placement_offset_m")
 _SIM_INT_KEYS = ("seed", "fixes_per_stop")
-_SIM_INT_LIST_KEYS = ("turn_at_stops",)
+_SIM_INT_LIST_KEYS = ("turn_at_stops", "lift_at_stops")
 
 
 class ProjectFileError(ValueError):
