@@ -680,13 +680,17 @@ def write_session(folder: Path, session: RawSession, design_xml: str | None = No
         _write_session_files(tmp, session, design_xml, exact)
         for name, writer in (extra_files or {}).items():
             writer(tmp / name)
-        _move_into_place(tmp, folder)
+        move_into_place(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
-def _move_into_place(tmp: Path, folder: Path) -> None:
+def move_into_place(tmp: Path, folder: Path) -> None:
+    """Put the complete folder ``tmp`` in the place of ``folder`` (absent, empty or not): the old
+    one is renamed aside just before and deleted just after; if the second rename fails the first
+    is undone (POSIX has no portable exchange of two folders), so ``folder`` is always either the
+    old one or the new one, never a mix."""
     if not folder.exists():
         os.rename(tmp, folder)
         return

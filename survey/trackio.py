@@ -7,7 +7,6 @@ complete, so a failure never leaves a partial output.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from trolley import units
 from trolley.engine import ProcessResult
 from trolley.session import RawSession
 
+from survey.sessionio import move_into_place
 from survey.track_reader import equipment_figures
 
 TRACK_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm",
@@ -141,23 +141,13 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
     parent.mkdir(parents=True, exist_ok=True)
     token = secrets.token_hex(4)
     tmp = parent / f".{out_dir.name}.partial-{token}"
-    old = parent / f".{out_dir.name}.old-{token}"
     tmp.mkdir()  # plain mkdir: the folder keeps the user's umask once it is renamed to out_dir
     try:
         track_frame(result).to_csv(tmp / "track.csv", index=False, float_format="%.6f", na_rep="")
         fixes_frame(result).to_csv(tmp / "fixes.csv", index=False, float_format="%.6f", na_rep="")
         (tmp / "summary.json").write_text(json.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
                                           encoding="utf-8")
-        if out_dir.exists():
-            os.rename(out_dir, old)
-            try:
-                os.rename(tmp, out_dir)
-            except BaseException:
-                os.rename(old, out_dir)
-                raise
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, out_dir)
+        move_into_place(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return WrittenOutputs(out_dir / "track.csv", out_dir / "fixes.csv", out_dir / "summary.json")
