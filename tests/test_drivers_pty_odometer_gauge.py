@@ -44,6 +44,20 @@ def _odo_link(twin, cfg, raw=None):
     twin.start()
     return link, stats
 
+def _poll_until(twin, link, cfg, done, timeout_s=20.0, settle_s=0.1, **poller_kw):
+    """Poll the twin through the driver until ``done()`` or the timeout; stop everything and
+    return the decoded records (``settle_s`` lets the last replies arrive)."""
+    poller = encoder.OdometerPoller(link, cfg, **poller_kw).start()
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    poller.stop()
+    time.sleep(settle_s)
+    link.stop()
+    twin.stop()
+    return link.drain()
+
+
 
 def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
     cfg = encoder.OdometerConfig(ppr=1024, decode=4, wheel_diameter_m=0.1, bits=16, rate_hz=300.0)
@@ -52,15 +66,7 @@ def test_odometer_polled_through_pty_with_rollover_and_replay(tmp_path):
     dist = 1.5 * t  # 1.5 m/s: ~19600 counts/s, the 16-bit counter wraps
     twin = OdometerTwin(t, dist, cfg, offset_counts=2**16 - 300, mode="index")
     link, stats = _odo_link(twin, cfg, tmp_path / "odo.rawlog")
-    poller = encoder.OdometerPoller(link, cfg, reply_timeout_s=2.0).start()  # no faults here
-    deadline = time.monotonic() + 20.0
-    while twin.polls < n + 5 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    poller.stop()
-    time.sleep(0.1)
-    link.stop()
-    twin.stop()
-    recs = link.drain()
+    recs = _poll_until(twin, link, cfg, lambda: twin.polls >= n + 5, reply_timeout_s=2.0)  # no faults here
     counts = np.array([r.count1 for r in recs])
     skip = cfg.confirm - 1  # withheld until that many readings agree (the gate's first anchor)
     assert stats.extra["unconfirmed"] == skip
@@ -79,15 +85,7 @@ def test_odometer_faults_only_undetectable_digit_swaps_can_pass():
     twin = OdometerTwin(t, 1.0 * t, cfg, offset_counts=2**32 - 1000, mode="index",
                         faults=Faults(corrupt_rate=3e-3, drop_rate=1e-3, garbage_rate=0.05, missing_rate=0.02, seed=5))
     link, stats = _odo_link(twin, cfg)
-    poller = encoder.OdometerPoller(link, cfg).start()
-    deadline = time.monotonic() + 20.0
-    while twin.polls < n and time.monotonic() < deadline:
-        time.sleep(0.01)
-    poller.stop()
-    time.sleep(0.1)
-    link.stop()
-    twin.stop()
-    recs = link.drain()
+    recs = _poll_until(twin, link, cfg, lambda: twin.polls >= n)
     sent = set(twin.sent_counts)
     wrong = [r for r in recs if r.count1 not in sent]
     inj = twin.injector
@@ -222,15 +220,7 @@ def test_corrupt_first_reply_through_pty_does_not_lock_the_odometer_out():
     dist[0] = 4000.0  # first reply corrupt: a high digit changed (the protocol has no checksum)
     twin = OdometerTwin(t, dist, cfg, offset_counts=123_456, mode="index")
     link, stats = _odo_link(twin, cfg)
-    poller = encoder.OdometerPoller(link, cfg, reply_timeout_s=2.0).start()
-    deadline = time.monotonic() + 20.0
-    while twin.polls < n and time.monotonic() < deadline:
-        time.sleep(0.01)
-    poller.stop()
-    time.sleep(0.1)
-    link.stop()
-    twin.stop()
-    recs = link.drain()
+    recs = _poll_until(twin, link, cfg, lambda: twin.polls >= n, reply_timeout_s=2.0)
     counts = [r.count1 for r in recs]
     # polls 0 (corrupt), 1 and 2 are withheld; from poll 3 on every reading is accepted
     assert counts == twin.sent_counts[3: 3 + len(counts)] and len(counts) >= n - 3
@@ -285,15 +275,7 @@ def test_odometer_late_and_missing_replies_in_order_and_counted():
     twin = OdometerTwin(t, 0.5 * t, cfg, offset_counts=777, mode="index",
                         faults=Faults(delay_rate=0.05, delay_s=0.15, missing_rate=0.03, seed=8))
     link, stats = _odo_link(twin, cfg)
-    poller = encoder.OdometerPoller(link, cfg, reply_timeout_s=0.08).start()
-    deadline = time.monotonic() + 30.0
-    while twin.polls < n and time.monotonic() < deadline:
-        time.sleep(0.01)
-    poller.stop()
-    time.sleep(0.3)  # the last late reply
-    link.stop()
-    twin.stop()
-    recs = link.drain()
+    recs = _poll_until(twin, link, cfg, lambda: twin.polls >= n, timeout_s=30.0, settle_s=0.3, reply_timeout_s=0.08)  # the last late reply
     answered = [c for k, c in enumerate(twin.sent_counts) if k not in set(twin.missing)]
     assert len(twin.delayed) >= 3 and len(twin.missing) >= 2
     # late replies come in order: every answered poll arrives, none twice, none out of order
