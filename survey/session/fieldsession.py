@@ -425,9 +425,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         fix_id = self.store.add_fix(self.rec.session_id, replace(fix, accepted=accepted, reason=reason))
         fix = replace(fix, fix_id=fix_id, accepted=accepted, reason=reason)
         if accepted:
-            self._accepted(fix, dist)
+            # said first: _accepted starts the interval's processing, whose summary follows on its own thread
             self.say(f"fix {label} accepted at t = {t:.1f} s"
                      + (f" (innovation {1e3 * np.linalg.norm(verdict.innovation_enh_m):.2f} mm)" if verdict else ""))
+            self._accepted(fix, dist)
         else:
             self.pending = (fix_id, fix, verdict)
             inn = 1e3 * np.asarray(verdict.innovation_enh_m)
@@ -475,8 +476,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                                    np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), force_accept=True)
             except Exception:  # the final processing decides again
                 pass
-        self._accepted(replace(fix, accepted=True), None)  # the odometer at the fix, wherever the trolley is now
+        # said first: _accepted starts the interval's processing, whose summary follows on its own thread
         self.say(f"fix {fix.point} accepted by the crew")
+        self._accepted(replace(fix, accepted=True), None)  # the odometer at the fix, wherever the trolley is now
 
     def remeasure_pending(self) -> bool:
         if self.pending:
