@@ -54,7 +54,7 @@ class ProcessConfig:
     step_m : chainage step of the output stations.
     node_spacing_m : distance between filter nodes while moving.
     placement_sigma_m : along-track 1-sigma of where a trolley the crew lifted off the track (or
-        turned) is put back (:func:`turned_around`).
+        turned) is put back (:func:`with_crew_handling`).
     max_node_dt_s : longest time between filter nodes (standing still).
     gate_probability : chi-square gate of the fixes (None: accept all).
     block_size : IMU samples per dead-reckoning step.
@@ -194,7 +194,7 @@ def fix_matrices(lever_ned_m: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
 
 def turn_sigmas(meta, config: ProcessConfig) -> tuple[float, float, float]:
     """1-sigma of the jumps of the equivalent pitch and heading errors when the crew turns the
-    trolley around (:func:`turned_around`): twice the residual mounting error, and pi times the
+    trolley around (:func:`with_crew_handling`): twice the residual mounting error, and pi times the
     gyro scale-factor error; and of the along-track placement of a handled trolley."""
     return 2.0 * config.residual_level_rad, float(np.pi * meta.imu.gyro_scale_factor), config.placement_sigma_m
 
@@ -300,13 +300,13 @@ def error_model(dr: DeadReckoning, nodes: np.ndarray, noise: em.ChannelNoise,
     """
     dt, speed, vn, ve = interval_motion(dr, nodes)
     F, Q = discrete_model(speed, vn, ve, noise, dt)
-    return turned_around(F, Q, dr, nodes, turn_pitch_sigma_rad, turn_heading_sigma_rad, placement_sigma_m)
+    return with_crew_handling(F, Q, dr, nodes, turn_pitch_sigma_rad, turn_heading_sigma_rad, placement_sigma_m)
 
 
 _HEADING, _PITCH = _IDX_HEADING, _IDX_PITCH
 
 
-def turned_around(F: np.ndarray, Q: np.ndarray, dr: DeadReckoning, nodes: np.ndarray,
+def with_crew_handling(F: np.ndarray, Q: np.ndarray, dr: DeadReckoning, nodes: np.ndarray,
                   pitch_sigma_rad: float = 0.0, heading_sigma_rad: float = 0.0,
                   placement_sigma_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """F and Q with the crew's handling of the trolley (:func:`trolley.deadreckoning.handling_blocks`):
