@@ -197,7 +197,7 @@ def euler_from_quat(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return roll, pitch, yaw
 
 
-def _handling_quat(motion, t) -> np.ndarray:
+def handling_quat(motion, t) -> np.ndarray:
     """The trolley relative to the track frame while the crew handles it: turned about its z axis
     (the track normal), then tilted about its x axis while carried."""
     half = 0.5 * motion.turn_angle(t)
@@ -700,7 +700,7 @@ def _kinematics(geo: TruthGeometry, motion: MotionProfile, t: np.ndarray, latitu
     lat = latitude0 + p[:, 1] / (EARTH_RADIUS_M + h)
     q = quat_from_euler(roll, pitch, yaw)
     if motion.handling_start_s.size:
-        q = _quat_mul(q, _handling_quat(motion, t))
+        q = _quat_mul(q, handling_quat(motion, t))
         roll, pitch, yaw = euler_from_quat(q)
     return dict(s=s, p=p, q=q, roll=roll, pitch=pitch, yaw=yaw, v_n=v_n, a_n=a_n, lat=lat, h=h)
 
@@ -839,7 +839,7 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     s_fix = motion.evaluate(t_fix)[0]
     p_fix = geo.position(s_fix)
     r, pch, y = geo.attitude(s_fix)
-    q_fix = _quat_mul(quat_from_euler(r, pch, y), _handling_quat(motion, t_fix))
+    q_fix = _quat_mul(quat_from_euler(r, pch, y), handling_quat(motion, t_fix))
     lever_n = _quat_rotate(q_fix,
                            np.broadcast_to(np.asarray(cfg.trolley.prism_lever_arm_m, float),
                                            (s_fix.size, 3)))

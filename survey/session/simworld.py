@@ -162,8 +162,11 @@ def prism_position_enh(sim, t_s: float) -> np.ndarray:
     s = motion.evaluate(np.array([float(t_s)]))[0]
     p = geo.position(s)[0]
     r, pch, y = (float(a[0]) for a in geo.attitude(s))
-    # a trolley the crew has turned around: the track frame turned about its z axis
-    turned = Rotation.from_euler("ZYX", [y, pch, r]) * Rotation.from_euler("z", float(motion.turn_angle(float(t_s))))
+    # a trolley the crew handles (turned around, lifted): the simulator's own rotation of it
+    from trolley.truthsim import handling_quat
+
+    w, x, yq, z = handling_quat(motion, np.array([float(t_s)]))[0]
+    turned = Rotation.from_euler("ZYX", [y, pch, r]) * Rotation.from_quat([x, yq, z, w])
     lever_n = turned.apply(np.asarray(sim.config.trolley.prism_lever_arm_m, float))
     return np.array([p[0] + geo.origin_E_m + lever_n[1], p[1] + geo.origin_N_m + lever_n[0], p[2] - lever_n[2]])
 
