@@ -397,8 +397,16 @@ def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> S
     return SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {what}")
 
 
-def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> dict[str, np.ndarray]:
-    """Read the required float columns of a CSV; strict checks per FORMATS.md."""
+def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.ndarray:
+    """Read the required float columns of a CSV; strict checks per FORMATS.md.
+
+    Returns
+    -------
+    (n, len(required)) float array, columns in the order of ``required``: a read-only view of
+    the parsed data. Not copied on purpose: the copy (and its page faults) cost more than the
+    parsing of a 3-million-row IMU file; read-only also means no step downstream can change the
+    raw recorded data by accident.
+    """
     import pandas as pd
 
     header = _header(path)
@@ -413,17 +421,15 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> dict
         if isinstance(exc, pd.errors.ParserError):
             raise _parser_error(path, exc) from None
         raise _locate_bad_cell(path, names, required) from None
-    out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
-    n = len(df)
-    if n < min_rows:
+    if len(df) < min_rows:
         raise SessionFormatError(f"{path.name}: row 2: no data rows")
-    bad = np.zeros(n, dtype=bool)
-    for c in required:
-        bad |= ~np.isfinite(out[c])
-    if np.any(bad):
+    # one float block: a view, its rows being the file's rows
+    m = df[[names[c] for c in required]].to_numpy(dtype=float)
+    m.flags.writeable = False
+    if not np.isfinite(m).all():
         raise _locate_bad_cell(path, names, required)
-    _check_time(path, out["t_s"])
-    return out
+    _check_time(path, m[:, required.index("t_s")])
+    return m
 
 
 def _check_time(path: Path, t: np.ndarray) -> None:
@@ -507,7 +513,8 @@ def read_session(folder: Path) -> RawSession:
     Returns
     -------
     RawSession
-        Arrays in SI units, writable (copied out of pandas).
+        Arrays in SI units; the sensor arrays are read-only views of the parsed files (raw
+        data is never changed downstream; copy before changing).
 
     Raises
     ------
@@ -524,13 +531,10 @@ def read_session(folder: Path) -> RawSession:
     gauge_t = gauge = None
     if (folder / "gauge.csv").exists():
         g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
-        gauge_t, gauge = g["t_s"], g["gauge_m"]
+        gauge_t, gauge = g[:, 0], g[:, 1]
     return RawSession(
-        meta=meta,
-        imu_t_s=imu["t_s"],
-        imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),
-        imu_f_m_s2=np.column_stack([imu["fx_m_s2"], imu["fy_m_s2"], imu["fz_m_s2"]]),
-        odo_t_s=odo["t_s"], odo_distance_m=odo["distance_m"], fixes=fixes,
+        meta=meta, imu_t_s=imu[:, 0], imu_w_rad_s=imu[:, 1:4], imu_f_m_s2=imu[:, 4:7],
+        odo_t_s=odo[:, 0], odo_distance_m=odo[:, 1], fixes=fixes,
         gauge_t_s=gauge_t, gauge_m=gauge,
     )
 

@@ -81,9 +81,10 @@ def test_round_trip(tmp_path, exact):
         np.testing.assert_allclose(r.imu_w_rad_s, s.imu_w_rad_s, rtol=1e-11, atol=0)
         np.testing.assert_allclose(r.imu_f_m_s2, s.imu_f_m_s2, rtol=1e-11, atol=0)
         assert not np.array_equal(r.imu_w_rad_s, s.imu_w_rad_s)   # the rounding is real
-    # arrays handed out are writable (pandas 3 gives read-only views)
-    r.imu_w_rad_s[0, 0] = 1.0
-    r.odo_distance_m[0] = 1.0
+    # raw data handed out cannot be changed by accident downstream
+    for a in (r.imu_t_s, r.imu_w_rad_s, r.imu_f_m_s2, r.odo_t_s, r.odo_distance_m, r.gauge_m):
+        with pytest.raises(ValueError, match="read-only"):
+            a[0] = 1.0
     # a second write of what was read gives the same files
     write_session(tmp_path / "s2", read_session(tmp_path / "s"), exact=exact)
     for name in ("session.toml", "imu.csv", "odometer.csv", "fixes.csv", "gauge.csv"):
