@@ -27,7 +27,7 @@ def test_block_rotation_vector_is_third_order_exact(seed):
     exact = Rotation.identity()
     for a in incr:
         exact = exact * Rotation.from_rotvec(a)
-    got = Rotation.from_rotvec(_block_rotvecs(incr, 10)[0])
+    got = Rotation.from_rotvec(_block_rotvecs(incr, np.ones(10), 10)[0])
     total = np.abs(incr).sum()
     # the neglected terms are third order in the block's angle (random, coning-like increments)
     assert (got * exact.inv()).magnitude() < max(1e-15, 0.1 * total**3)
@@ -110,3 +110,38 @@ def test_corrected_dead_reckoning_rotates_and_scales_exactly():
     fixed = corrected_dead_reckoning(dr, states)
     expected = Rotation.from_rotvec([0.0, 0.0, 0.01]).apply(dr.position_ned_m[-1]) / 1.001
     assert np.max(np.abs(fixed.position_ned_m[-1] - expected)) < 1e-9
+
+
+def test_block_rotation_vectors_do_not_depend_on_the_chunking():
+    # 1003 increments: 101 blocks of 10, the last one short; chunks of 7 blocks vs one chunk
+    rng = np.random.default_rng(3)
+    rate, dt = rng.normal(0, 1e-2, (1003, 3)), rng.uniform(0.004, 0.006, 1003)
+    one = _block_rotvecs(rate, dt, 10, chunk_blocks=1000)
+    np.testing.assert_array_equal(_block_rotvecs(np.asfortranarray(rate), dt, 10, chunk_blocks=7), one)
+    # the short last block is the rotation of its 3 increments alone
+    last = Rotation.identity()
+    for a in rate[1000:] * dt[1000:, None]:
+        last = last * Rotation.from_rotvec(a)
+    assert (Rotation.from_rotvec(one[-1]) * last.inv()).magnitude() < 1e-12
+    assert one.shape == (101, 3)
+
+
+def test_handling_blocks_finds_lifts_and_turns_of_a_standing_trolley():
+    from trolley.deadreckoning import DeadReckoning, handling_blocks
+    # 60 blocks: moving 0-9, standing 10-19 (lifted: tilted 0.3 rad at 14..16), moving 20-29,
+    # standing 30-39 (turned 180 deg from 33 on), moving 40-49, standing 50-59 (turned 360 deg)
+    n = 60
+    d = np.concatenate([np.arange(10.0), np.full(10, 10.0), 10 + np.arange(1.0, 11.0), np.full(10, 20.0),
+                        20 - np.arange(1.0, 11.0), np.full(10, 10.0)])
+    yaw = np.full(n, 0.2)
+    roll = np.zeros(n)
+    roll[14:17] = 0.3
+    yaw[33:] += np.pi
+    yaw[52:] += np.linspace(0.0, 2 * np.pi, 8)
+    R = Rotation.from_euler("ZYX", np.column_stack([yaw, np.zeros(n), roll]))
+    dr = DeadReckoning(t_s=np.arange(n, dtype=float), distance_m=d, trolley_to_nav=R,
+                       position_ned_m=np.zeros((n, 3)))
+    blocks, turned, heading = handling_blocks(dr)
+    np.testing.assert_array_equal(blocks, [14, 33, 53])
+    np.testing.assert_array_equal(turned, [False, True, False])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (heading - [0.2, 0.2, 0.2 + np.pi]))), 0.0, atol=1e-12)

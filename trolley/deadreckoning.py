@@ -120,16 +120,24 @@ def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarr
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # run of steps [a, b)
     if starts.size == 0:
         return none
-    yaw = np.unwrap(dr.euler_rad()[:, 2])
-    blocks, turned, heading = [], [], []
-    for a, b in zip(starts, ends):  # blocks a..b stand
-        angle = (dr.trolley_to_nav[a].inv() * dr.trolley_to_nav[a:b + 1]).magnitude()
-        over = np.flatnonzero(angle > HANDLING_DETECTION_RAD)
-        if over.size:
-            blocks.append(a + int(over[0]))
-            turned.append(bool(abs(yaw[b] - yaw[a]) > TURN_DETECTION_RAD))
-            heading.append(float(yaw[a]))
-    return np.asarray(blocks, dtype=int), np.asarray(turned, dtype=bool), np.asarray(heading)
+    # every standing block against the block where its standstill began, in one stack
+    length = ends - starts + 1  # blocks a..b
+    run = np.repeat(np.arange(starts.size), length)
+    at = np.arange(run.size) - np.repeat(np.cumsum(length) - length, length) + starts[run]
+    R = dr.trolley_to_nav
+    angle = (R[starts[run]].inv() * R[at]).magnitude()
+    over = angle > HANDLING_DETECTION_RAD
+    handled = np.flatnonzero(np.bincount(run[over], minlength=starts.size))
+    if handled.size == 0:
+        return none
+    first = np.searchsorted(run[over], handled)  # the first block beyond the threshold, per run
+    blocks = at[over][first]
+    a, b = starts[handled], ends[handled]
+    yaw_a = R[a].as_euler("ZYX")[:, 0]
+    yaw_b = R[b].as_euler("ZYX")[:, 0]
+    # which way it faces at the end of the standstill (a full 360 deg is not a turn)
+    turned = np.abs(np.angle(np.exp(1j * (yaw_b - yaw_a)))) > TURN_DETECTION_RAD
+    return blocks.astype(int), turned, yaw_a
 
 
 def turn_blocks(dr: DeadReckoning) -> np.ndarray:
@@ -216,17 +224,45 @@ def static_alignment(t_s: np.ndarray, w_rad_s: np.ndarray, f_m_s2: np.ndarray, s
         t_end_s=float(t_s[mask][-1]))
 
 
-def _block_rotvecs(incr: np.ndarray, block: int) -> np.ndarray:
-    """Rotation vectors of blocks of consecutive small rotations (Bortz first-order correction)."""
-    n = incr.shape[0]
+def _block_rotvecs(rate: np.ndarray, dt: np.ndarray, block: int, chunk_blocks: int = 4096) -> np.ndarray:
+    """Rotation vectors of blocks of consecutive small rotations (Bortz first-order correction).
+
+    Parameters
+    ----------
+    rate, dt : (n, 3) angular rates (any memory layout) and (n,) intervals: the increments are
+        ``rate * dt``.
+    block : increments per block; the last block may be short.
+    chunk_blocks : blocks handled per step. The work runs in two reused component-major
+        buffers of ``chunk_blocks * block`` samples: fresh arrays the size of a 10 km run cost
+        more in page faults than the arithmetic.
+
+    Returns
+    -------
+    (ceil(n / block), 3) rotation vectors.
+    """
+    n = rate.shape[0]
     nb = -(-n // block)
-    a = np.zeros((3, nb * block))
-    a[:, :n] = incr.T  # component-major: the products below run on contiguous memory
-    a = a.reshape(3, nb, block)
-    before = np.cumsum(a, axis=2) - a  # sum of the increments before each one in its block
-    cross = np.stack([before[1] * a[2] - before[2] * a[1], before[2] * a[0] - before[0] * a[2],
-                      before[0] * a[1] - before[1] * a[0]])
-    return (a.sum(axis=2) + 0.5 * cross.sum(axis=2)).T
+    out = np.empty((nb, 3))
+    size = min(chunk_blocks, nb) * block
+    a_buf, before_buf = np.empty((3, size)), np.empty((3, size))
+    for b0 in range(0, nb, chunk_blocks):
+        b1 = min(nb, b0 + chunk_blocks)
+        i0, i1 = b0 * block, min(n, b1 * block)
+        a = a_buf[:, :(b1 - b0) * block]
+        np.multiply(rate[i0:i1].T, dt[i0:i1], out=a[:, :i1 - i0])
+        a[:, i1 - i0:] = 0.0
+        a = a.reshape(3, b1 - b0, block)
+        before = before_buf[:, :(b1 - b0) * block].reshape(3, b1 - b0, block)
+        np.cumsum(a, axis=2, out=before)
+        before -= a  # the sum of the increments before each one in its block
+
+        def dot(u, v):  # per-block sum of u * v, without a temporary the size of the chunk
+            return np.einsum("bk,bk->b", u, v)
+        cross = np.stack([dot(before[1], a[2]) - dot(before[2], a[1]),
+                          dot(before[2], a[0]) - dot(before[0], a[2]),
+                          dot(before[0], a[1]) - dot(before[1], a[0])])
+        out[b0:b1] = (a.sum(axis=2) + 0.5 * cross).T
+    return out
 
 
 def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -310,8 +346,7 @@ def dead_reckon(t_s: np.ndarray, w_rad_s: np.ndarray, odo_t_s: np.ndarray, odo_d
     dt = np.diff(t)
     # each sample is the mean rate over the interval that ends at its time (what an IMU's delta
     # angles give, and what the simulator writes), so it integrates over (t[k-1], t[k]]
-    incr = w[1:] * dt[:, None]
-    alpha = _block_rotvecs(incr, block_size)
+    alpha = _block_rotvecs(w[1:], dt, block_size)
     nb = alpha.shape[0]
     idx = np.minimum(np.arange(nb + 1) * block_size, t.shape[0] - 1)
     tb = t[idx]
