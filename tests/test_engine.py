@@ -181,6 +181,17 @@ def test_nodes_at_every_start_and_stop(simulated):
     # no node interval mixes standing and moving blocks
     for a, b in zip(nodes[:-1], nodes[1:]):
         assert moving[a:b].all() or not moving[a:b].any()
+    # no gap longer than 10 s (plus one block), none wider than 1 m of travel
+    dt_block = np.max(np.diff(dr.t_s))
+    assert np.max(np.diff(dr.t_s[nodes])) <= 10.0 + dt_block
+    # a node at the first block past each metre: gaps up to a metre plus one block's travel
+    assert np.max(np.diff(dr.travel_m[nodes])) <= 1.0 + np.max(np.diff(dr.travel_m)) + 1e-9
+    # the time grid only fills gaps: while walking (~1 m/s, 10 s > 1 m) it adds no node, so the
+    # moving intervals are one per metre boundary crossed plus the starts and stops
+    walk = np.diff(dr.travel_m[nodes]) > 0
+    crossed = np.diff(np.floor(dr.travel_m[nodes]))
+    starts = np.count_nonzero(np.diff(moving.astype(np.int8)) == 1) + int(moving[0])
+    assert np.count_nonzero(walk) <= np.count_nonzero(crossed[walk]) + 2 * starts
 
 
 def test_observability_from_the_session(design, simulated):

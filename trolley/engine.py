@@ -55,7 +55,7 @@ class ProcessConfig:
     node_spacing_m : distance between filter nodes while moving.
     placement_sigma_m : along-track 1-sigma of where a trolley the crew lifted off the track (or
         turned) is put back (:func:`with_crew_handling`).
-    max_node_dt_s : longest time between filter nodes (standing still).
+    max_node_dt_s : longest time between filter nodes (standing still, or creeping).
     gate_probability : chi-square gate of the fixes (None: accept all).
     block_size : IMU samples per dead-reckoning step.
     bias_correlation_s : correlation time of the gyro bias instability; the equivalent bias is
@@ -254,10 +254,15 @@ def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: floa
     K = dr.t_s.shape[0]
     travel = dr.travel_m
     by_dist = np.flatnonzero(np.diff(np.floor(travel / node_spacing_m)) != 0) + 1
-    by_time = np.flatnonzero(np.diff(np.floor(dr.t_s / max_node_dt_s)) != 0) + 1
     moving = np.diff(travel) > 0  # block k -> k+1
     starts_stops = np.flatnonzero(np.diff(moving.astype(np.int8)) != 0) + 1
-    return np.unique(np.concatenate([[0, K - 1], by_dist, by_time, starts_stops, fix_blocks]))
+    base = np.unique(np.concatenate([[0, K - 1], by_dist, starts_stops, fix_blocks]))
+    # then a node every max_node_dt_s inside any longer gap (standing, or creeping slowly): a
+    # fixed time grid would add nodes between the distance nodes of a trolley that moves
+    gap = np.searchsorted(base, np.arange(K), side="right") - 1
+    phase = np.floor((dr.t_s - dr.t_s[base[gap]]) / max_node_dt_s)
+    by_time = np.flatnonzero((np.diff(phase) > 0) & (np.diff(gap) == 0)) + 1
+    return np.unique(np.concatenate([base, by_time]))
 
 
 def interval_motion(dr: DeadReckoning, idx: np.ndarray
