@@ -105,7 +105,7 @@ def main() -> None:
     ap.add_argument("--length-m", type=float, default=10000.0)
     ap.add_argument("--rate-hz", type=float, default=200.0)
     ap.add_argument("--static-s", type=float, default=900.0)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--slice", type=int, default=100_000,
                     help="IMU samples of the per-sample filterpy loop that are measured (then extrapolated)")
     args = ap.parse_args()
@@ -136,7 +136,7 @@ def main() -> None:
             t.append(time.perf_counter())
             return np.diff(t), result
 
-        # best of three for both, as timeit does: the first run of each pays page faults
+        # best of --repeat for both, as timeit does: the first run of each pays page faults
         floors, runs = [], []
         for _ in range(args.repeat):
             t0 = time.perf_counter()
@@ -161,6 +161,9 @@ def main() -> None:
     print(f"process (DR+filter+RTS+stations): {t_proc:7.2f} s  ({result.node_count} filter nodes)")
     print(f"write outputs:               {t_write:7.2f} s")
     print(f"end to end:                  {total:7.2f} s  = {total / floor:.2f} x the pandas read floor (goal <= 3)")
+    paired = sorted(r.sum() / f for r, f in zip(runs, floors))
+    print(f"each run against the floor read just before it: {', '.join(f'{x:.2f}' for x in paired)} "
+          f"(median {float(np.median(paired)):.2f})")
     print(f"per-sample filterpy loop (the session's 8-state model at every IMU sample, updates at the fixes, "
           f"RTS over every sample), measured on the first {loop_n:,} samples and extrapolated linearly to all "
           f"{n:,}: {per_sample:7.1f} s  -> ours is {per_sample / total:.1f} x faster")
