@@ -72,8 +72,17 @@ class DeadReckoning:
     position_ned_m: np.ndarray
 
     def euler_rad(self) -> np.ndarray:
-        """(K, 3) roll, pitch, yaw of the trolley (FRD w.r.t. NED, ZYX convention)."""
-        return self.trolley_to_nav.as_euler("ZYX")[:, ::-1]
+        """(K, 3) roll, pitch, yaw of the trolley (FRD w.r.t. NED, ZYX convention); read-only.
+
+        Computed once per attitude stack (the engine asks for it several times per pass).
+        """
+        cached = self.__dict__.get("_euler")
+        if cached is None or cached[0] is not self.trolley_to_nav:
+            e = self.trolley_to_nav.as_euler("ZYX")[:, ::-1]
+            e.flags.writeable = False
+            cached = (self.trolley_to_nav, e)
+            self.__dict__["_euler"] = cached
+        return cached[1]
 
     @property
     def travel_m(self) -> np.ndarray:
@@ -418,7 +427,8 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     lo = np.searchsorted(imu_t_s, stop_times_s - window_s)
     hi = np.searchsorted(imu_t_s, stop_times_s + window_s)
     # only the samples inside the windows: a few percent of a survey
-    idx = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)]) if len(lo) else np.array([], dtype=int)
+    n_in = hi - lo
+    idx = np.arange(int(n_in.sum())) - np.repeat(np.cumsum(n_in) - n_in - lo, n_in)
     t = imu_t_s[idx]
     d = np.interp(t, odo_t_s, odo_distance_m)
     moving_before = np.abs(np.interp(t - 0.05, odo_t_s, odo_distance_m) - d) > 1e-6

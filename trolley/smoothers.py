@@ -136,6 +136,7 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     accepted = np.ones(M, dtype=bool)
     # index of the first measurement at or after each node (measurements are sorted by node)
     starts = np.searchsorted(meas.node, np.arange(K + 1)) if M else np.zeros(K + 1, dtype=int)
+    threshold = gate_threshold(gate_probability, meas.z.shape[1]) if gate_probability is not None and M else np.inf
     for k in range(K):
         if progress is not None and k % PROGRESS_EVERY == 0:
             progress(k / K)
@@ -154,7 +155,7 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
             S_all[j] = S
             nis[j] = float(y[:, 0] @ np.linalg.solve(S, y[:, 0]))
             forced = force_accept is not None and bool(force_accept[j])
-            if gate_probability is not None and not forced and nis[j] > gate_threshold(gate_probability, len(z)):
+            if not forced and nis[j] > threshold:
                 accepted[j] = False
                 continue
             kf.update(z, R=R, H=H)
