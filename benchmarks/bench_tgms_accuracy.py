@@ -9,9 +9,13 @@ is the time to simulate the same kilometre (same run).
     python benchmarks/bench_tgms_accuracy.py [--seeds 1 2 3] [--speeds 5 15]
         [--length-m 300] [--km] [--cml] [--cml-ekf] [--cml-box absolute] [--laser-x-m 0.3]
 
-Variants: kf+ltv (default), madgwick+ltv, kf+ltv with curvature matching at every curve entry and
-exit (``odometry_windows="entry_exit"``), kf+ekf; with --cml the attitude filter tuned by CML per
-recording (60 evaluations), with --cml-ekf the 12-state smoother tuned by CML (150 evaluations).
+Variants: kf+ltv (default: odometry by the heading fit and the Eq. 41 anchors fused into one encoder
+scale, ``odometry_method="fused"``), kf+ltv with the published odometry (Eq. 41 anchors at the curve
+exits and the linear re-mapping of Fig. 11, ``odometry_method="anchors"``), madgwick+ltv, kf+ltv
+with the fused anchors at every curve entry and exit (``odometry_windows="entry_exit"``), kf+ekf;
+with --cml the attitude filter tuned by CML per recording (60 evaluations), with --cml-ekf the
+12-state smoother tuned by CML (150 evaluations). The last column is the odometry's encoder scale
+error k and its 1-sigma (the simulated wheel is 0.1 % large: k = +1e-3).
 Where the reported error comes from: "registered" removes the odometry's station error, so
 reported - registered (in quadrature) is the positioning part.
 """
@@ -33,7 +37,8 @@ SHORT = {"gauge_variation": "gv", "cross_level": "cl", "alignment": "al", "verti
 
 
 def variants():
-    out = {"kf+ltv": TgmsParams(), "madgwick+ltv": TgmsParams(orientation="madgwick"),
+    out = {"kf+ltv": TgmsParams(), "kf+ltv Eq.41 anch": TgmsParams(odometry_method="anchors"),
+           "madgwick+ltv": TgmsParams(orientation="madgwick"),
            "kf+ltv entry/exit": TgmsParams(odometry_windows="entry_exit")}
     try:
         import trolley.tgms.ekf  # noqa: F401
@@ -60,7 +65,8 @@ def main() -> None:
     if a.cml_ekf:
         vs["kf+ekf(CML)"] = "cml-ekf"
     rows = {k: [] for k in vs}
-    print(f"{'variant':17s} {'seed':>4s} {'V':>5s} | std as reported (mm): gv cl al vp | registered: gv cl al vp | 95% coverage gv cl al vp")
+    print(f"{'variant':17s} {'seed':>4s} {'V':>5s} | std as reported (mm): gv cl al vp | registered: gv cl al vp "
+          "| 95% coverage gv cl al vp | odometry")
     for speed in a.speeds:
         for seed in a.seeds:
             rec, tr = simulate(SimulationSettings(length_m=a.length_m, speed_m_s=speed, seed=seed,
@@ -78,7 +84,10 @@ def main() -> None:
                 rows[name].append(acc)
                 f = lambda d: " ".join(f"{d[n]:.3f}" for n in NAMES)
                 print(f"{name:17s} {seed:4d} {speed:5.1f} | {f(acc.std_mm)} | {f(acc.std_registered_mm)} | "
-                      + " ".join(f"{acc.coverage95[n]:.2f}" for n in NAMES))
+                      + " ".join(f"{acc.coverage95[n]:.2f}" for n in NAMES)
+                      + (f" | odometry k {res.odometry.scale_error * 1e3:+.2f}e-3 +- "
+                         f"{res.odometry.sigma_scale_error * 1e3:.2f}e-3" if np.isfinite(res.odometry.scale_error)
+                         else " | odometry: Eq. 41 anchors"))
     print("\nworst case over seeds and speeds (std, mm; limits gv 0.15, cl 0.15, al 0.7, vp 0.35):")
     for name, accs in rows.items():
         w = {n: max(x.std_mm[n] for x in accs) for n in NAMES}

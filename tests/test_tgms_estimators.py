@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from trolley.tgms.irregularities import irregularities, resample
-from trolley.tgms.odometry import correct_stations, match_curves, remap
+from trolley.tgms.odometry import (correct_stations, correlation_samples, design_z_angle, fused_scale_error,
+                                   heading_fit, match_curves, odometry, remap)
 from trolley.tgms.orientation import attitude_kf, attitude_madgwick
 from trolley.tgms.params import TgmsParams
 from trolley.tgms.simulate import design_alignment
@@ -81,6 +82,127 @@ def test_matching_windows_are_validated():
     al = design_alignment(200.0)
     with pytest.raises(ValueError, match="windows"):
         match_curves(np.arange(0.0, 200.0, 0.1), np.zeros(2000), al, windows="exits")
+
+
+def _heading_ride(k_true, bias, seed, noise_rad=1.5e-4, length_m=200.0):
+    """A hand-built ride over the first curve of ``design_alignment``: the gyro z angle is the
+    design z angle at the true stations plus a smooth random angle (the alignment irregularities
+    and the vehicle's yaw: 1.5e-4 rad rms, ~3 m correlation) plus a rate offset; the encoder reads
+    s_app = s0 + (s - s0) / (1 + k_true)."""
+    from scipy.ndimage import gaussian_filter1d
+    al = design_alignment(length_m)
+    dt = 0.01
+    t = np.arange(0.0, 40.0, dt)
+    s0 = 5.0
+    v = 6.0 * (1 + 0.1 * np.sin(2 * np.pi * t / 17.0)) * np.clip(t / 2.0, 0.0, 1.0)
+    s = s0 + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)])
+    keep = s < s0 + length_m
+    t, s, v = t[keep], s[keep], v[keep]
+    sg, psi_d, _ = design_z_angle(al, s0 - 1.0, s.max() + 1.0)
+    rng = np.random.default_rng(seed)
+    # smooth in time: a Gaussian of 50 samples (0.5 s, ~3 m at 6 m/s)
+    n = gaussian_filter1d(rng.normal(0.0, 1.0, len(t)), 50.0)
+    n *= noise_rad / n.std()
+    psi = np.interp(s, sg, psi_d) + n + bias * t
+    omega_z = np.gradient(psi, dt)
+    s_app = s0 + (s - s0) / (1 + k_true)
+    return al, t, s, v, omega_z, s_app, s0
+
+
+@pytest.mark.parametrize("k_true, bias, seed", [(1e-3, 2e-5, 0), (-2e-3, -5e-5, 1), (0.0, 1e-4, 2), (3e-3, 0.0, 3)])
+def test_heading_fit_recovers_a_known_encoder_scale(k_true, bias, seed):
+    """The encoder scale error and the gyro offset are recovered within 3 of the fit's own sigmas,
+    and the sigma is small enough to matter (a wrong model, e.g. the offset not fitted or the
+    design angle taken at the wrong stations, misses by many sigmas)."""
+    al, t, s, v, omega_z, s_app, s0 = _heading_ride(k_true, bias, seed)
+    hf = heading_fit(t, omega_z, s_app, al, s0)
+    assert 0 < hf.sigma_scale_error < 5e-4
+    assert abs(hf.scale_error - k_true) < 3 * hf.sigma_scale_error
+    assert hf.gyro_offset_rad_s == pytest.approx(bias, abs=2e-5)
+    assert hf.correlation_samples > 10            # the smooth angle noise is seen as correlated
+
+
+def test_heading_fit_is_exact_on_clean_data():
+    al, t, s, v, omega_z, s_app, s0 = _heading_ride(1.5e-3, 3e-5, 0, noise_rad=0.0)
+    hf = heading_fit(t, omega_z, s_app, al, s0)
+    assert hf.scale_error == pytest.approx(1.5e-3, abs=2e-5)
+
+
+def test_heading_fit_sigma_is_honest_over_many_rides():
+    """The normalised errors (k - k_true) / sigma over 30 noisy rides have an rms near 1 (neither
+    over- nor under-confident by more than a factor 1.6)."""
+    z = []
+    for seed in range(30):
+        al, t, s, v, omega_z, s_app, s0 = _heading_ride(1e-3, 2e-5, 100 + seed)
+        hf = heading_fit(t, omega_z, s_app, al, s0)
+        z.append((hf.scale_error - 1e-3) / hf.sigma_scale_error)
+    assert 1 / 1.6 < np.sqrt(np.mean(np.square(z))) < 1.6
+
+
+def test_odometry_methods_give_the_true_stations():
+    """The whole odometry on the hand-built ride: the fused and heading methods put the stations
+    within 3 sigma of the scale error times the distance, and closer than the raw encoder."""
+    k_true = 2e-3
+    al, t, s, v, omega_z, s_app, s0 = _heading_ride(k_true, 2e-5, 7)
+    counts = np.floor((s - s0) / 0.001).astype(np.int64)
+    for method in ("fused", "heading"):
+        o = odometry(t, t, counts, 0.001 / (1 + k_true), s0, omega_z, al, method=method)
+        moving = v > 1.0
+        err = np.abs(o.s_m - s)[moving]
+        assert err.max() < 3 * o.sigma_scale_error * (s.max() - s0) + 0.01
+        assert err.max() < 0.5 * np.abs(o.s_app_m - s)[moving].max()
+    with pytest.raises(ValueError, match="method"):
+        odometry(t, t, counts, 0.001, s0, omega_z, al, method="exits")
+
+
+def test_heading_fit_on_a_straight_says_nothing():
+    """A ride on the first straight only: no scale information, and the odometry keeps the encoder."""
+    al, t, s, v, omega_z, s_app, s0 = _heading_ride(1e-3, 2e-5, 0, length_m=20.0)
+    assert s.max() < 26.0
+    hf = heading_fit(t, omega_z, s_app, al, s0)
+    assert hf.scale_error == 0.0 and hf.sigma_scale_error == float("inf")
+    counts = np.floor((s - s0) / 0.001).astype(np.int64)
+    o = odometry(t, t, counts, 0.001, s0, omega_z, al)
+    assert o.scale_error == 0.0
+    assert o.s_m == pytest.approx(o.s_app_m)
+
+
+def test_fused_scale_error_is_the_inverse_variance_mean():
+    from trolley.tgms.odometry import HeadingFit
+    hf = HeadingFit(scale_error=1e-3, sigma_scale_error=2e-4, gyro_offset_rad_s=0.0, residual_rms_rad=0.0,
+                    correlation_samples=1.0)
+    # an anchor 100 m from the start matched 0.3 m long: k = 3e-3 with 0.1 m / 100 m = 1e-3;
+    # an anchor 5 m from the start carries no scale and is skipped
+    k, sk = fused_scale_error(hf, np.array([5.0 + 100.0 / 1.003, 10.0]), np.array([105.0, 10.1]),
+                              np.array([0.1, 0.1]), 5.0)
+    w1, w2 = 1 / 2e-4 ** 2, (100.0 / 1.003 / 0.1) ** 2
+    assert k == pytest.approx((w1 * 1e-3 + w2 * 3e-3) / (w1 + w2), rel=1e-6)
+    assert sk == pytest.approx(1 / np.sqrt(w1 + w2), rel=1e-6)
+    assert fused_scale_error(None, np.array([]), np.array([]), np.array([]), 5.0) == (0.0, float("inf"))
+
+
+def test_correlation_samples():
+    rng = np.random.default_rng(0)
+    assert correlation_samples(rng.normal(size=20000)) == pytest.approx(1.0, abs=0.2)
+    # a 10-sample moving average of white noise: integral correlation time 10 samples (summing the
+    # sample autocorrelation to its first negative lag adds some of its noise: a little high)
+    x = np.convolve(rng.normal(size=40000), np.ones(10) / 10, mode="valid")
+    assert 9.0 < correlation_samples(x) < 13.0
+
+
+def test_curvature_anchor_sigma_matches_its_scatter():
+    """The Eq. 41 anchors' sigmas (with_sigma) agree with their scatter over noisy rides."""
+    al = design_alignment(200.0)
+    s_true = np.arange(5.0, 215.0, 0.02)
+    g = al.evaluate(s_true)
+    errs, sigs = [], []
+    for seed in range(20):
+        rho = g.rho_h_1_m * np.cos(g.cant_rad) + np.random.default_rng(seed).normal(0, 5e-4, len(s_true))
+        app, des, ne2, sig = match_curves(s_true + 0.2, rho, al, with_sigma=True, max_ne2=1.0)
+        errs.append(app[0] - des[0] - 0.2)
+        sigs.append(sig[0])
+    ratio = np.sqrt(np.mean(np.square(errs))) / np.median(sigs)
+    assert 0.5 < ratio < 2.0
 
 
 def _straight_kinematics(n, dt, v=10.0, delta=-0.45):
@@ -173,3 +295,10 @@ def test_resample_leaves_gaps_empty():
     gap = (grid > 3.9) & (grid < 6.0)
     assert np.isnan(out[gap]).all()
     assert np.allclose(out[~gap & (grid < 9.9)], grid[~gap & (grid < 9.9)])
+
+
+def test_odometry_method_parameter_is_validated():
+    assert TgmsParams().odometry_method == "fused"
+    assert TgmsParams.from_dict({"odometry_method": "anchors"}).odometry_method == "anchors"
+    with pytest.raises(ValueError, match="odometry_method"):
+        TgmsParams.from_dict({"odometry_method": "exits"})

@@ -32,6 +32,9 @@ class TgmsParams:
     odometry_windows : curvature-matching windows, "curve" (whole curves, anchored at their exit,
         Eq. 41 as printed) or "entry_exit" (every curve entry and exit), see
         ``trolley.tgms.odometry.match_curves``.
+    odometry_method : "fused" (heading fit and Eq. 41 anchors combined into one encoder scale
+        error by their variances), "heading" or "anchors" (Eq. 41 anchors and the linear re-mapping
+        of Escalona Fig. 11), see ``trolley.tgms.odometry.odometry``.
     """
 
     process_rate_hz: float = 100.0
@@ -49,6 +52,7 @@ class TgmsParams:
     orientation: str = "kf"
     trajectory: str = "ltv"
     odometry_windows: str = "curve"
+    odometry_method: str = "fused"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -62,7 +66,7 @@ class TgmsParams:
             raise ValueError(f"unknown parameter {unknown[0]!r}")
         kw = {}
         for k, v in d.items():
-            if k in ("orientation", "trajectory", "odometry_windows"):
+            if k in ("orientation", "trajectory", "odometry_windows", "odometry_method"):
                 kw[k] = str(v)
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
@@ -75,4 +79,6 @@ class TgmsParams:
             raise ValueError(f"trajectory must be 'ltv' or 'ekf', got {p.trajectory!r}")
         if p.odometry_windows not in ("curve", "entry_exit"):
             raise ValueError(f"odometry_windows must be 'curve' or 'entry_exit', got {p.odometry_windows!r}")
+        if p.odometry_method not in ("fused", "heading", "anchors"):
+            raise ValueError(f"odometry_method must be 'fused', 'heading' or 'anchors', got {p.odometry_method!r}")
         return p

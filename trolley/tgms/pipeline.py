@@ -134,7 +134,8 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     f = average_to_grid(rec.imu_t_s, rec.imu_f_m_s2, t_grid)
     s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else rec.alignment.start_chainage_m
     odo = odometry(t_grid, rec.enc_t_s, rec.enc_count, cfg.encoder.metres_per_count, s0, w[:, 2],
-                   rec.alignment, match=match_curves, windows=params.odometry_windows)
+                   rec.alignment, match=match_curves, windows=params.odometry_windows,
+                   method=params.odometry_method)
     tim["odometry"] = time.perf_counter() - t1
     # nominal offset of the TGMS above the rails (Gonzalez-Carbajal 2023 Eq. 14's delta), from the vision
     Zv = 0.5 * (vis.left.z_m + vis.right.z_m)

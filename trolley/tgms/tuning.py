@@ -190,7 +190,7 @@ def tune_cml(rec: Recording, base: TgmsParams = TgmsParams(), max_evaluations: i
     f = average_to_grid(rec.imu_t_s, rec.imu_f_m_s2, t)
     s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else rec.alignment.start_chainage_m
     odo = odometry(t, rec.enc_t_s, rec.enc_count, cfg.encoder.metres_per_count, s0, w[:, 2], rec.alignment,
-                   windows=base.odometry_windows)
+                   windows=base.odometry_windows, method=base.odometry_method)
     vis = run_vision(rec)
     if not vis.ok.any():
         raise ValueError("no camera frame could be used (every frame flagged by the profile fit), "
