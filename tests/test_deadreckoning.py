@@ -1,5 +1,6 @@
 """Dead reckoning: prefix scans against sequential products; exact straight-line and turning runs."""
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -145,3 +146,36 @@ def test_handling_blocks_finds_lifts_and_turns_of_a_standing_trolley():
     np.testing.assert_array_equal(blocks, [14, 33, 53])
     np.testing.assert_array_equal(turned, [False, True, False])
     np.testing.assert_allclose(np.angle(np.exp(1j * (heading - [0.2, 0.2, 0.2 + np.pi]))), 0.0, atol=1e-12)
+
+
+def test_stop_levels_equal_a_direct_per_stop_mean():
+    # stops at 20-40 s and 60-80 s; two fix times 4 s apart in the first stop (overlapping windows),
+    # a crew lift (0.3 rad/s for 1 s) at 70 s in the second, a misaligned IMU, noisy accelerometers
+    from trolley.deadreckoning import mounting_rotation, stop_levels
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 100.0, 0.01)
+    v = np.where((t > 20) & (t < 40) | (t > 60) & (t < 80), 0.0, 1.0)
+    d = np.concatenate([[0.0], np.cumsum(v[1:] * 0.01)])
+    f = rng.normal(0.0, 0.01, (t.size, 3)) + [0.05, -0.3, -9.8]
+    w = rng.normal(0.0, 1e-5, (t.size, 3))
+    lift = (t >= 70.0) & (t < 71.0)
+    w[lift, 0] += 0.3
+    f[t >= 70.0] += [0.0, 2.9, 0.4]  # tilted after the lift
+    mis = np.array([0.01, -0.02, 0.03])
+    stops = np.array([28.0, 32.0, 65.0])
+    roll, pitch = stop_levels(t, np.asfortranarray(f), t, d, stops, mis, w_rad_s=np.asfortranarray(w))
+    R = mounting_rotation(mis)
+    for k, ts in enumerate(stops):
+        lo = np.searchsorted(t, ts - 10.0)
+        win = (np.arange(t.size) >= lo) & (np.arange(t.size) < np.searchsorted(t, ts + 10.0))
+        # standing: odometer equal 0.05 s either side; attitude within 2 mrad of the stop time's
+        still = np.array([np.interp(x - 0.05, t, d) == np.interp(x, t, d) == np.interp(x + 0.05, t, d) for x in t])
+        rot = np.cumsum(w * np.diff(t, prepend=t[0])[:, None], axis=0)
+        near = np.linalg.norm(rot - rot[np.searchsorted(t, ts)], axis=1) < 0.002
+        use = win & still & near
+        m = R.apply(f[use]).mean(axis=0)
+        assert roll[k] == pytest.approx(np.arctan2(-m[1], -m[2]), abs=1e-12)
+        assert pitch[k] == pytest.approx(np.arctan2(m[0], np.hypot(m[1], m[2])), abs=1e-12)
+    # the tilt after the lift (70 s, inside the window 55-75 s) is not in the level: the roll is
+    # the IMU's atan2(0.3, 9.8) less the 0.01 rad mounting roll, not the lifted -0.27 rad
+    assert roll[2] == pytest.approx(np.arctan2(0.3, 9.8) - 0.01, abs=2e-3)

@@ -430,23 +430,32 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     n_in = hi - lo
     idx = np.arange(int(n_in.sum())) - np.repeat(np.cumsum(n_in) - n_in - lo, n_in)
     t = imu_t_s[idx]
-    d = np.interp(t, odo_t_s, odo_distance_m)
-    moving_before = np.abs(np.interp(t - 0.05, odo_t_s, odo_distance_m) - d) > 1e-6
-    moving_after = np.abs(np.interp(t + 0.05, odo_t_s, odo_distance_m) - d) > 1e-6
-    standing = ~(moving_before | moving_after)
-    seg = np.repeat(np.arange(len(lo)), hi - lo)
+    # standing: the odometer reads the same 0.05 s before and after, i.e. [t - 0.05, t + 0.05]
+    # lies inside a run of equal odometer samples (found on the odometer's own samples)
+    d = np.asarray(odo_distance_m, dtype=float)
+    to = np.asarray(odo_t_s, dtype=float)
+    edges = np.diff(np.concatenate([[0], (np.diff(d) == 0.0).astype(np.int8), [0]]))
+    run_a, run_b = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # samples a..b equal
+    j = np.searchsorted(to[run_a], t - 0.05, side="right") - 1
+    standing = (j >= 0) & (t + 0.05 <= to[run_b[np.maximum(j, 0)]] if run_b.size else np.zeros(t.size, bool))
+    seg = np.repeat(np.arange(len(lo)), n_in)
+    # component-major gathers: the sensor arrays are column views of the parsed files
     if w_rad_s is not None and idx.size:
         # rotation inside each window, measured from the stop time (small angles: the vector
         # integral of the rates is the rotation vector)
-        cum = np.cumsum(w_rad_s[idx] * np.diff(t, prepend=t[0])[:, None], axis=0)
-        first = np.concatenate([[0], np.cumsum(hi - lo)[:-1]])
-        at_stop = np.clip(np.searchsorted(imu_t_s, stop_times_s) - lo, 0, np.maximum(hi - lo - 1, 0))
-        ref = cum[np.minimum(first + at_stop, cum.shape[0] - 1)]
-        standing &= np.linalg.norm(cum - ref[seg], axis=1) < max_rotation_rad
-    f_t = mounting_rotation(imu_misalignment_rad).apply(f_m_s2[idx])  # trolley frame
+        cum = np.take(np.asarray(w_rad_s).T, idx, axis=1)
+        cum *= np.diff(t, prepend=t[0])
+        np.cumsum(cum, axis=1, out=cum)
+        first = np.cumsum(n_in) - n_in
+        at_stop = np.clip(np.searchsorted(imu_t_s, stop_times_s) - lo, 0, np.maximum(n_in - 1, 0))
+        cum -= cum[:, np.minimum(first + at_stop, idx.size - 1)][:, seg]
+        standing &= (cum * cum).sum(axis=0) < max_rotation_rad ** 2
     count = np.bincount(seg, weights=standing, minlength=len(lo))
-    mean = np.column_stack([np.bincount(seg, weights=f_t[:, i] * standing, minlength=len(lo)) for i in range(3)])
-    mean /= np.maximum(count, 1)[:, None]
+    f = np.take(np.asarray(f_m_s2).T, idx, axis=1)
+    f *= standing
+    mean = np.column_stack([np.bincount(seg, weights=f[i], minlength=len(lo)) for i in range(3)])
+    # the mean of the rotated samples is the rotated mean: one rotation per stop
+    mean = np.atleast_2d(mounting_rotation(imu_misalignment_rad).apply(mean / np.maximum(count, 1)[:, None]))
     roll = np.arctan2(-mean[:, 1], -mean[:, 2])
     pitch = np.arctan2(mean[:, 0], np.hypot(mean[:, 1], mean[:, 2]))
     bad = count < min_samples
