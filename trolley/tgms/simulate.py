@@ -25,7 +25,31 @@ What is simulated (all in SI, TGMS frame FRD with the IMU at its origin):
   design pose, irregularities and body motion, differentiated numerically on a 4x oversampled
   grid; Earth rate and Coriolis included; errors from ``trolley.sensors`` (MEMS preset: constant
   biases, white noise).
-* **Encoder**: wheel diameter 0.1 % off its nominal value, quantised counts.
+* **Encoder**: wheel diameter 0.1 % off its nominal value, quantised counts, and (by default;
+  ``CONSTANT_ENCODER`` switches them off) two errors the odometry's single-scale model does not
+  have, so that its validation is not self-referential:
+
+  - *creep* proportional to the longitudinal acceleration, xi = c a (``encoder_creep_s2_m``,
+    c = 1e-4 s^2/m when on): the wheel turns by (1 - xi) ds. A traction or braking force F_x at
+    the contact needs a creepage F_x / f11 (Kalker's linear theory; f11 = G a b c11 ~ 1e7 N for
+    a 0.84 m wheel on 60E1 under 60 kN). An unpowered axle only has to spin up its own inertia,
+    F_x ~ (I / r^2) a ~ 340 N per wheel at 1 m/s^2 (I ~ 120 kg m^2 per wheelset), xi ~ 3e-5 a;
+    a braked or driven axle carries ~5 t of vehicle per wheel, F_x ~ 5 kN, xi ~ 5e-4 a. 1e-4 is
+    in between. The station error it leaves is c (v^2 - v_0^2) / 2: ~1 cm after the start to
+    15 m/s, a nearly constant offset the scale model (zero at s0) cannot follow.
+  - a slow random variation of the rolling radius along s, r = r_0 (1 + eps(s))
+    (``rolling_radius_rms``, 1e-4 when on; ``rolling_radius_corr_m``, 100 m): a first-order
+    Gauss-Markov process in s (exponential autocorrelation exp(-|ds| / L), the usual model of a
+    slowly wandering scale factor). Sources: the dynamic wheel load (the Hertzian approach,
+    ~0.1 mm under 60 kN, is 2.4e-4 of r = 0.42 m and the load varies by 20-40 %), the wheelset's
+    lateral position on the conical tread (equivalent conicity 0.1 times 1 mm is 2.4e-4 of r),
+    contamination films and temperature (steel 1.2e-5 /K). Over a ride of length S it adds a
+    random-walk-like station error of about eps_rms sqrt(2 L S) (2.4 cm for 300 m), of which the
+    single scale fits the mean.
+
+  The wheel's distance is int (1 - c a) / (1 + eps(s)) ds (clipped at 0, so the counts stay
+  monotone); eps is drawn from the recording's rng after every other draw, so switching the
+  drift on changes the encoder counts only.
 * **Cameras**: each images the real rail head (60E1/54E1 outline tilted 1:40) cut by its laser
   plane, only the part facing the camera, with Brown-Conrady distortion, 0.2 px noise,
   2 % outlier points (reflections), 1 % dropped frames and 1 % frames without the gauge face.
@@ -86,6 +110,11 @@ class SimulationSettings:
     point_spacing_m : spacing of the laser points along the head outline.
     laser_plane_x_m : the laser planes are x = laser_plane_x_m in the TGMS frame (ahead of the IMU).
     wheel_scale_error : relative error of the nominal wheel diameter.
+    encoder_creep_s2_m : encoder-wheel creepage per unit longitudinal acceleration, s^2/m
+        (default 1e-4, see the module docstring; 0 = off).
+    rolling_radius_rms : rms of the relative rolling-radius variation along s (default 1e-4;
+        0 = off).
+    rolling_radius_corr_m : its correlation length (exponential autocorrelation), m.
     latitude_deg : for the Earth rate.
     body_scale : multiplies all body-motion amplitudes (0 = TGMS rigid on the rails).
     irregularity_scale : multiplies the random irregularities.
@@ -108,9 +137,19 @@ class SimulationSettings:
     point_spacing_m: float = 1.0e-3
     laser_plane_x_m: float = 0.0
     wheel_scale_error: float = 1e-3
+    encoder_creep_s2_m: float = 1e-4
+    rolling_radius_rms: float = 1e-4
+    rolling_radius_corr_m: float = 100.0
     latitude_deg: float = 40.0
     body_scale: float = 1.0
     irregularity_scale: float = 1.0
+
+
+# the encoder errors beyond the constant diameter error (the defaults; figures justified in the
+# module docstring), and the settings that switch them off: ``dataclasses.replace(settings,
+# **CONSTANT_ENCODER)`` gives the encoder the single-scale model of the odometry exactly
+ENCODER_DRIFT = {"encoder_creep_s2_m": 1e-4, "rolling_radius_rms": 1e-4, "rolling_radius_corr_m": 100.0}
+CONSTANT_ENCODER = {"encoder_creep_s2_m": 0.0, "rolling_radius_rms": 0.0}
 
 
 @dataclass
@@ -197,6 +236,65 @@ def _band_noise(rng, t: np.ndarray, rms: float, f_lo: float, f_hi: float, n: int
     f = rng.uniform(f_lo, f_hi, n)
     ph = rng.uniform(0, 2 * np.pi, n)
     return rms * np.sqrt(2.0 / n) * np.cos(2 * np.pi * np.outer(t, f) + ph).sum(axis=1)
+
+
+def rolling_radius_variation(rng, s_m: np.ndarray, rms: float, corr_m: float, ds_m: float = 0.5) -> np.ndarray:
+    """Relative rolling-radius variation eps(s): a stationary first-order Gauss-Markov process in s.
+
+    Parameters
+    ----------
+    rng : numpy Generator (the recording's).
+    s_m : stations at which eps is wanted (any order).
+    rms : its standard deviation.
+    corr_m : correlation length L (autocorrelation exp(-|ds| / L)).
+    ds_m : step of the grid the process is generated on (then interpolated linearly).
+
+    Returns
+    -------
+    eps on ``s_m`` (zeros, without drawing, when ``rms`` is 0).
+
+    References
+    ----------
+    Exact discretisation of the Ornstein-Uhlenbeck process: x_n = phi x_(n-1) + rms sqrt(1 - phi^2) w_n,
+    phi = exp(-ds / L), started from its stationary distribution (e.g. Gelb, Applied Optimal
+    Estimation, 1974, Sec. 3.8, for the first-order Markov model of slowly varying sensor errors).
+    """
+    s_m = np.asarray(s_m, float)
+    if rms == 0.0:
+        return np.zeros_like(s_m)
+    from scipy.signal import lfilter
+    grid = np.arange(s_m.min(), s_m.max() + 2 * ds_m, ds_m)
+    phi = np.exp(-ds_m / corr_m)
+    w = rng.normal(0.0, 1.0, len(grid))
+    x0 = rng.normal(0.0, rms)
+    # the AR(1) recursion as a linear filter (vectorised); zi = phi x0 starts it stationary
+    x, _ = lfilter([rms * np.sqrt(1.0 - phi * phi)], [1.0, -phi], w, zi=[phi * x0])
+    return np.interp(s_m, grid, x)
+
+
+def encoder_distance(s_m: np.ndarray, a_m_s2: np.ndarray, eps: np.ndarray, creep_s2_m: float) -> np.ndarray:
+    """Distance rolled by the encoder wheel's circumference (at its nominal radius) from s_m[0].
+
+    Parameters
+    ----------
+    s_m : true stations of the samples (non-decreasing).
+    a_m_s2 : longitudinal acceleration at the samples.
+    eps : relative rolling-radius variation at the samples.
+    creep_s2_m : creepage per unit acceleration c (xi = c a).
+
+    Returns
+    -------
+    int_(s_m[0])^s (1 - c a) / (1 + eps) ds, non-decreasing (the integrand is clipped at 0: the wheel
+    does not turn backwards while the vehicle moves forwards).
+
+    References
+    ----------
+    Creepage xi = (v - omega r) / v = F_x / f11: Kalker, Three-dimensional elastic bodies in rolling
+    contact, 1990 (linear theory); figures in the module docstring.
+    """
+    from scipy.integrate import cumulative_trapezoid
+    h = np.maximum((1.0 - creep_s2_m * np.asarray(a_m_s2)) / (1.0 + np.asarray(eps)), 0.0)
+    return cumulative_trapezoid(h, s_m, initial=0.0)
 
 
 def _bump(s, s0, amp, width):
@@ -399,14 +497,22 @@ def simulate(settings: SimulationSettings = SimulationSettings()) -> tuple[Recor
     sc = _Scenario(st, alignment, rng)
     cams = default_cameras(st.half_rail_spacing_m, st.tgms_height_m, st.laser_plane_x_m)
     t_imu, s_imu, w, f = _imu(sc, st, rng)
-    # encoder: wheel rolling along the centre line, diameter off by wheel_scale_error
-    enc = EncoderSettings()
-    counts = np.floor((s_imu - sc.s_start) / (enc.metres_per_count * (1 + st.wheel_scale_error))).astype(np.int64)
     # camera frames
     t_f = np.arange(0.0, t_imu[-1], 1.0 / st.camera_rate_hz)
     s_f = np.interp(t_f, t_imu, s_imu)
     v_f = sc.speed(t_f)
     lasers = _laser_points(sc, st, cams, t_f, s_f, v_f, rng)
+    # encoder: wheel rolling along the centre line, diameter off by wheel_scale_error; computed
+    # after the cameras so that the optional drift's draws come last and leave the rest unchanged
+    enc = EncoderSettings()
+    if st.encoder_creep_s2_m == 0.0 and st.rolling_radius_rms == 0.0:
+        # the constant-scale encoder exactly as before the drift options (bit-identical recordings)
+        dist = s_imu - sc.s_start
+    else:
+        a_imu = np.gradient(sc.speed(t_imu), t_imu)
+        eps = rolling_radius_variation(rng, s_imu, st.rolling_radius_rms, st.rolling_radius_corr_m)
+        dist = encoder_distance(s_imu, a_imu, eps, st.encoder_creep_s2_m)
+    counts = np.floor(dist / (enc.metres_per_count * (1 + st.wheel_scale_error))).astype(np.int64)
     config = TgmsConfig(track=TrackSettings(rail_profile=st.rail_profile,
                                             half_rail_spacing_m=st.half_rail_spacing_m,
                                             rail_inclination=st.rail_inclination,
