@@ -12,6 +12,7 @@ from drivers.serialport import SerialLink
 from drivers.stats import Stats
 from drivers.twins.base import Faults
 from drivers.twins.imu import ImuTwin
+from polling import wait_until
 
 L = nv.FRAME_LEN
 
@@ -30,11 +31,7 @@ def _run(twin, rate, raw_log=None, timeout_s=60.0):
     link.open()  # pyserial side first, then the twin (deps.md section 6)
     link.start()
     twin.start()
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if twin.frames_sent >= twin.n_frames and link.snapshot().bytes_in >= twin.bytes_sent:
-            break
-        time.sleep(0.01)
+    wait_until(lambda: twin.frames_sent >= twin.n_frames and link.snapshot().bytes_in >= twin.bytes_sent, timeout_s)
     link.stop()
     twin.stop()
     return link, nv.ImuFrames.concat(link.drain()), stats
@@ -102,9 +99,7 @@ def test_unplug_and_replug_keeps_received_frames_and_replays_identically(tmp_pat
     time.sleep(0.35)
     before = nv.ImuFrames.concat(link.drain())
     twin.disappear(0.3)
-    deadline = time.monotonic() + 20.0
-    while twin.frames_sent < n and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_until(lambda: twin.frames_sent >= n, 20.0, 0.02)
     time.sleep(0.2)
     link.stop()
     twin.stop()
@@ -142,14 +137,11 @@ def test_silence_counts_one_timeout_then_data_flows():
     link = SerialLink(twin.port, nv.RawImuParser(stats, 200.0), "imu", idle_timeout_s=0.15)
     link.open()
     link.start()
-    deadline = time.monotonic() + 10.0
-    while link.snapshot().timeouts == 0 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_until(lambda: link.snapshot().timeouts > 0, 10.0, 0.02)
     time.sleep(0.3)  # still silent: still one timeout
     silent = link.snapshot()
     twin.start()
-    while link.snapshot().frames_ok < 100 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_until(lambda: link.snapshot().frames_ok >= 100, 10.0, 0.02)
     link.stop()
     twin.stop()
     assert silent.timeouts == 1 and silent.bytes_in == 0 and stats.frames_ok == 100

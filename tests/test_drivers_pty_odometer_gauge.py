@@ -15,6 +15,7 @@ from drivers.stats import Stats
 from drivers.twins.base import Faults
 from drivers.twins.gauge import GaugeTwin
 from drivers.twins.odometer import OdometerTwin
+from polling import wait_until
 
 
 # ------------------------------------------------------------------ encoder maths
@@ -48,9 +49,7 @@ def _poll_until(twin, link, cfg, done, timeout_s=20.0, settle_s=0.1, **poller_kw
     """Poll the twin through the driver until ``done()`` or the timeout; stop everything and
     return the decoded records (``settle_s`` lets the last replies arrive)."""
     poller = encoder.OdometerPoller(link, cfg, **poller_kw).start()
-    deadline = time.monotonic() + timeout_s
-    while not done() and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until(done, timeout_s)
     poller.stop()
     time.sleep(settle_s)
     link.stop()
@@ -119,9 +118,7 @@ def test_gauge_through_pty_with_faults_and_replay(tmp_path):
     link.open()
     link.start()
     twin.start()
-    deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline and not (twin.lines_sent >= n and link.snapshot().bytes_in >= twin.bytes_sent):
-        time.sleep(0.01)
+    wait_until(lambda: twin.lines_sent >= n and link.snapshot().bytes_in >= twin.bytes_sent, 20.0)
     link.stop()
     twin.stop()
     recs = link.drain()
@@ -153,9 +150,7 @@ def test_odometer_unplug_replug_keeps_counts_and_distance_continuous(tmp_path):
     poller = encoder.OdometerPoller(link, cfg).start()
     time.sleep(0.4)
     twin.disappear(0.3)
-    deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline and link.snapshot().frames_ok < 60:
-        time.sleep(0.02)
+    wait_until(lambda: link.snapshot().frames_ok >= 60, 20.0, 0.02)
     poller.stop()
     link.stop()
     twin.stop()
@@ -238,9 +233,7 @@ def test_power_cycled_unplug_resets_the_counter_new_segment_distance_continues(t
     poller = encoder.OdometerPoller(link, cfg).start()
     time.sleep(0.4)
     twin.disappear(0.3, power_cycle=True)
-    deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline and len(twin.sent_counts) < (twin.resets or [10**9])[0] + 40:
-        time.sleep(0.02)
+    wait_until(lambda: len(twin.sent_counts) >= (twin.resets or [10**9])[0] + 40, 20.0, 0.02)
     poller.stop()
     link.stop()
     twin.stop()
@@ -300,9 +293,7 @@ def test_gauge_unplug_replug_keeps_lines_and_counts_the_gap(tmp_path):
     twin.start()
     time.sleep(1.0)
     twin.disappear(0.5)
-    deadline = time.monotonic() + 20.0
-    while twin.lines_sent < n and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_until(lambda: twin.lines_sent >= n, 20.0, 0.02)
     time.sleep(0.2)
     link.stop()
     twin.stop()

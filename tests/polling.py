@@ -1,0 +1,17 @@
+"""Waiting on the background threads of the pty tests (not a test module)."""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+
+def wait_until(done: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
+    """Sleep in ``poll_s`` steps until ``done()`` or ``timeout_s`` has passed; ``done()`` at the end.
+
+    The tests assert on what arrived, so a timeout is not an error here: it shows up as missing
+    data in the test's own assertion.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        time.sleep(poll_s)
+    return done()
