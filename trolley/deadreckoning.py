@@ -105,6 +105,19 @@ TURN_DETECTION_RAD = 0.5 * np.pi
 HANDLING_DETECTION_RAD = 0.05
 
 
+def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starts and ends (exclusive) of the runs of True in a boolean array."""
+    edges = np.diff(np.concatenate([[0], np.asarray(mask).astype(np.int8), [0]]))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The indices of the ranges [lo[i], hi[i]) one after the other, and the range each is from."""
+    n = hi - lo
+    which = np.repeat(np.arange(n.size), n)
+    return np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + lo[which], which
+
+
 def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """DR blocks at which the crew handled the trolley while it stood, and whether it was turned.
 
@@ -125,14 +138,11 @@ def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarr
     if d.size < 2:
         return none
     standing = np.diff(d) == 0.0  # step k -> k+1
-    edges = np.diff(np.concatenate([[0], standing.astype(np.int8), [0]]))
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # run of steps [a, b)
+    starts, ends = _true_runs(standing)  # run of steps [a, b)
     if starts.size == 0:
         return none
     # every standing block against the block where its standstill began, in one stack
-    length = ends - starts + 1  # blocks a..b
-    run = np.repeat(np.arange(starts.size), length)
-    at = np.arange(run.size) - np.repeat(np.cumsum(length) - length, length) + starts[run]
+    at, run = _ranges(starts, ends + 1)  # blocks a..b
     R = dr.trolley_to_nav
     angle = (R[starts[run]].inv() * R[at]).magnitude()
     over = angle > HANDLING_DETECTION_RAD
@@ -428,17 +438,15 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     hi = np.searchsorted(imu_t_s, stop_times_s + window_s)
     # only the samples inside the windows: a few percent of a survey
     n_in = hi - lo
-    idx = np.arange(int(n_in.sum())) - np.repeat(np.cumsum(n_in) - n_in - lo, n_in)
+    idx, seg = _ranges(lo, hi)
     t = imu_t_s[idx]
     # standing: the odometer reads the same 0.05 s before and after, i.e. [t - 0.05, t + 0.05]
     # lies inside a run of equal odometer samples (found on the odometer's own samples)
     d = np.asarray(odo_distance_m, dtype=float)
     to = np.asarray(odo_t_s, dtype=float)
-    edges = np.diff(np.concatenate([[0], (np.diff(d) == 0.0).astype(np.int8), [0]]))
-    run_a, run_b = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # samples a..b equal
+    run_a, run_b = _true_runs(np.diff(d) == 0.0)  # odometer samples a..b equal
     j = np.searchsorted(to[run_a], t - 0.05, side="right") - 1
     standing = (j >= 0) & (t + 0.05 <= to[run_b[np.maximum(j, 0)]] if run_b.size else np.zeros(t.size, bool))
-    seg = np.repeat(np.arange(len(lo)), n_in)
     # component-major gathers: the sensor arrays are column views of the parsed files
     if w_rad_s is not None and idx.size:
         # rotation inside each window, measured from the stop time (small angles: the vector
