@@ -180,24 +180,20 @@ def heading_fit(t: np.ndarray, omega_z: np.ndarray, s_app: np.ndarray, alignment
     makes the angle the white-noise domain: Claus & Schiehlen (German low-disturbance PSD, see
     ``trolley.tgms.simulate``).
     """
-    dt = float(t[1] - t[0])
-    psi_m = np.concatenate([[0.0], np.cumsum(0.5 * (omega_z[1:] + omega_z[:-1]) * dt)])
+    psi_m = cumulative_trapezoid(omega_z, t, initial=0.0)
     lever = s_app - s0_m
     # the design must cover every station the scale can map to
     span = 0.01 * (np.max(np.abs(lever)) + 1.0)
     sg, psi_d, w_d = design_z_angle(alignment, float(np.min(s_app)) - span, float(np.max(s_app)) + span)
     tc = t - t.mean()
     k = 0.0
-    for _ in range(iterations):
+    for it in range(iterations + 1):  # the last pass only evaluates the fit at the final k
         s = s0_m + (1.0 + k) * lever
         y = psi_m - np.interp(s, sg, psi_d)
         A = np.column_stack([np.ones_like(t), tc, np.interp(s, sg, w_d) * lever])
         p, *_ = np.linalg.lstsq(A, y, rcond=None)
-        k += p[2]
-    s = s0_m + (1.0 + k) * lever
-    y = psi_m - np.interp(s, sg, psi_d)
-    A = np.column_stack([np.ones_like(t), tc, np.interp(s, sg, w_d) * lever])
-    p, *_ = np.linalg.lstsq(A, y, rcond=None)
+        if it < iterations:
+            k += p[2]
     r = y - A @ p
     tau = correlation_samples(r)
     N = A.T @ A
