@@ -41,6 +41,31 @@ TERMINATOR = b"\r"
 ACK = "*0ACK"
 NACK = "*0NACK"
 FIELD_WIDTH = {8: 3, 16: 5, 24: 8, 32: 10}
+#: counter width (bits) told by the digits of a reply's count fields
+WIDTH_BITS = {w: b for b, w in FIELD_WIDTH.items()}
+_ANY_READ_RE = re.compile(r"^\*0R0(\d+),(\d+)$")
+
+
+class CounterWidthMismatch(ValueError):
+    """The counter's replies tell another counter width than the one configured."""
+
+
+def width_mismatch_error(stats: Stats, cfg: "OdometerConfig", port: str = "") -> CounterWidthMismatch | None:
+    """The error to raise after a recording whose replies had another field width, or None.
+
+    The field width tells the counter width unambiguously (3, 5, 8, 10 digits for 8, 16, 24,
+    32 bits), so the message names the ``--odometer-bits`` value to record with.
+    """
+    n = int(stats.extra.get("width_mismatch", 0))
+    if not n:
+        return None
+    seen = int(stats.extra.get("counter_bits_seen", 0))
+    where = f"odometer on {port}" if port else "odometer"
+    return CounterWidthMismatch(
+        f"{where}: {n} counter replies have {FIELD_WIDTH[seen]}-digit counts, the field width of a "
+        f"{seen}-bit counter, but the odometer is set to {cfg.bits} bits ({FIELD_WIDTH[cfg.bits]} digits); "
+        f"those replies were refused. Record again with --odometer-bits {seen} "
+        f"(\"odometer_config\": {{\"bits\": {seen}}} in a field session's devices file)")
 DEFAULT_BAUD = 115200
 
 
@@ -181,6 +206,14 @@ class EncoderParser(LineParser):
             return None
         m = self._re.match(text)
         if not m:
+            g = _ANY_READ_RE.match(text)
+            if g and len(g.group(1)) == len(g.group(2)) and len(g.group(1)) in WIDTH_BITS:
+                # a well-formed reply of another counter width: its counts would wrap at the
+                # wrong modulus, so it is refused and counted (width_mismatch_error says what to do)
+                self.stats.extra["width_mismatch"] = self.stats.extra.get("width_mismatch", 0) + 1
+                self.stats.extra["counter_bits_seen"] = WIDTH_BITS[len(g.group(1))]
+                raise ValueError(f"counter reply {text!r} is of a {WIDTH_BITS[len(g.group(1))]}-bit counter, "
+                                 f"not {self.cfg.bits}-bit (--odometer-bits)")
             raise ValueError(f"not a counter reply: {text[:40]!r}")
         c1, c2 = int(m.group(1)), int(m.group(2))
         if c1 >= 2**self.cfg.bits or c2 >= 2**self.cfg.bits:

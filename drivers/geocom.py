@@ -100,14 +100,21 @@ RETURN_CODES: dict[int, tuple[str, str]] = {
     523: ("GRC_ATA_NOT_BUSY", "ATR is not in a continuous mode."),
     524: ("GRC_ATA_STRANGE_LIGHT", "ATR: not the spot of its own target illumination."),
     525: ("GRC_ATA_V24_FAIL", "ATR: communication error to the sensor."),
+    526: ("GRC_ATA_DECODE_ERROR", "ATR: received arguments cannot be decoded."),
     527: ("GRC_ATA_HZ_FAIL", "ATR: no spot detected in the Hz direction."),
     528: ("GRC_ATA_V_FAIL", "ATR: no spot detected in the V direction."),
     529: ("GRC_ATA_HZ_STRANGE_L", "ATR: strange light in the Hz direction."),
     530: ("GRC_ATA_V_STRANGE_L", "ATR: strange light in the V direction."),
-    531: ("GRC_ATA_SLDR_TRANSFER_ERROR", "ATR: sensor transfer error."),
-    532: ("GRC_ATA_SLDR_DATA_ERROR", "ATR: sensor data error."),
-    533: ("GRC_ATA_HZ_CALIBRATION_FAILED", "ATR: Hz calibration failed."),
-    534: ("GRC_ATA_V_CALIBRATION_FAILED", "ATR: V calibration failed."),
+    # 531-537: the ATR sensor's firmware loader (slider); names as in the TPS1200 GeoCOM manual
+    531: ("GRC_ATA_SLDR_TRANSFER_PENDING", "ATR firmware loader: transfer already open (multiple OpenTransfer)."),
+    532: ("GRC_ATA_SLDR_TRANSFER_ILLEGAL", "ATR firmware loader: no transfer open."),
+    533: ("GRC_ATA_SLDR_DATA_ERROR", "ATR firmware loader: unexpected data format received."),
+    534: ("GRC_ATA_SLDR_CHK_SUM_ERROR", "ATR firmware loader: checksum error in the transmitted data."),
+    535: ("GRC_ATA_SLDR_ADDRESS_ERROR", "ATR firmware loader: address out of range."),
+    536: ("GRC_ATA_SLDR_INV_LOADFILE", "ATR firmware loader: firmware file has an invalid format."),
+    537: ("GRC_ATA_SLDR_UNSUPPORTED", "ATR firmware loader: the loaded firmware does not support upload."),
+    538: ("GRC_ATA_PS_NOT_READY", "PowerSearch system is not ready."),
+    539: ("GRC_ATA_ATR_SYSTEM_ERR", "ATR system error."),
     1283: ("GRC_TMC_NO_FULL_CORRECTION", "Warning: measurement without full correction; result usable (flag quality)."),
     1284: ("GRC_TMC_ACCURACY_GUARANTEE", "Info: accuracy cannot be guaranteed; result usable (flag quality)."),
     1285: ("GRC_TMC_ANGLE_OK", "Only the angles were measured, no distance."),
@@ -326,38 +333,63 @@ def format_param(v: object) -> str:
         s = format(Decimal(repr(v)), "f")
         return s if "." in s else s + ".0"  # always readable as a double, never as an integer
     if isinstance(v, str):
-        return '"' + v.replace('"', "") + '"'
+        # a double quote or backslash inside a string is escaped with a backslash, as the
+        # instruments write them (e.g. an instrument name "TS16 A 1\" R500")
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, (bytes, bytearray)) and len(v) == 1:
         return f"'{v[0]:02X}'"
     raise TypeError(f"cannot encode GeoCOM parameter {v!r}")
 
 
 def parse_param(s: str) -> object:
-    """Decode one ASCII parameter: "string", 'hex byte', int or float."""
+    """Decode one ASCII parameter: "string" (backslash escapes \\" and \\\\ undone), 'hex byte',
+    hexadecimal integer (``0x3AA``), decimal integer or float.
+
+    Raises
+    ------
+    ValueError : none of these forms.
+    """
     s = s.strip()
     if len(s) >= 2 and s[0] == s[-1] == '"':
-        return s[1:-1]
+        return _ESCAPE_RE.sub(lambda m: m.group(1), s[1:-1])
     if len(s) >= 2 and s[0] == s[-1] == "'":
         return int(s[1:-1], 16)
+    if _HEX_RE.match(s):
+        return int(s, 16)
     try:
         return int(s)
     except ValueError:
         return float(s)
 
 
+_ESCAPE_RE = re.compile(r"\\(.)")
+_HEX_RE = re.compile(r"^[+-]?0[xX][0-9a-fA-F]+$")
+
+
 def split_params(s: str) -> list[str]:
-    """Split on commas outside double quotes."""
+    """Split on commas outside double quotes (a backslash-escaped quote does not end a string).
+
+    Raises
+    ------
+    ValueError : a string is not closed.
+    """
     if s == "":
         return []
-    out, cur, q = [], [], False
-    for ch in s:
-        if ch == '"':
+    out, cur, q, esc = [], [], False, False
+    for ch in s:  # parameter lists are a few dozen characters: a plain scan is the clearest
+        if esc:
+            esc = False
+        elif q and ch == "\\":
+            esc = True
+        elif ch == '"':
             q = not q
         if ch == "," and not q:
             out.append("".join(cur))
             cur = []
         else:
             cur.append(ch)
+    if q:
+        raise ValueError(f"unterminated string in GeoCOM parameters {s[:60]!r}")
     out.append("".join(cur))
     return out
 

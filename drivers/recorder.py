@@ -98,6 +98,8 @@ def record(cfg: RecordConfig, stop: threading.Event | None = None) -> Recording:
     Raises
     ------
     drivers.serialport.PortNotFound : a port does not open (message names it).
+    drivers.encoder.CounterWidthMismatch : the counter replies in another counter width than
+        ``cfg.odometer.bits`` (the raw logs are kept; the message names ``--odometer-bits``).
     """
     novatel.axis_matrix(cfg.imu_axes)  # fail early on a bad map
     raw = Path(cfg.raw_dir) if cfg.raw_dir else None
@@ -132,6 +134,9 @@ def record(cfg: RecordConfig, stop: threading.Event | None = None) -> Recording:
     t, w, f, imu_type = imu_si(frames, cfg, imu_parser.rate)
     odo_t = odo_d = g_t = g_m = None
     if "odometer" in links:
+        mismatch = encoder.width_mismatch_error(links["odometer"].stats, cfg.odometer, cfg.odometer_port)
+        if mismatch is not None:
+            raise mismatch
         recs = links["odometer"].drain()
         c = np.array([r.count1 if cfg.odometer.channel == 1 else r.count2 for r in recs], np.int64)
         odo_t = np.array([r.t_host_s for r in recs], float) - t0

@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from drivers import encoder, novatel
 from drivers.replay import replay_imu
+from drivers.stats import Stats
 from drivers.twins.gauge import GaugeTwin
 from drivers.twins.imu import ImuTwin
 from drivers.twins.odometer import OdometerTwin
@@ -192,3 +193,34 @@ def test_truthsim_session_through_twins_records_a_session_the_reader_accepts(tmp
     nearest = np.abs(got.odo_distance_m[:, None] - ref[None, : 4 * got.odo_t_s.size]).min(axis=1)
     assert np.all(nearest <= cfg.metres_per_count)
     assert np.allclose(got.gauge_m, s.gauge_m, atol=5.01e-6)
+
+
+def test_record_refuses_a_counter_of_another_width_and_names_the_option(tmp_path):
+    # the counter module is 24-bit (8-digit fields); the recording is set to the default 32 bits
+    rate = 200.0
+    t = np.arange(int(6 * rate)) / rate
+    imu = ImuTwin(t, np.tile([0.0, 0.0, 0.0], (t.size, 1)), np.tile([0.0, 0.0, -9.8], (t.size, 1)),
+                  imu_type=26, rate_hz=rate).start(wait_client_s=30)
+    odo = OdometerTwin(t, 0.5 * t, encoder.OdometerConfig(bits=24), mode="time").start(wait_client_s=30)
+    out = tmp_path / "rec"
+    try:
+        r = runner.invoke(app, ["devices", "record", "--imu", imu.port, "--odometer", odo.port,
+                                "--seconds", "1.0", "--out", str(out)])
+    finally:
+        for tw in (imu, odo):
+            tw.stop()
+    assert r.exit_code == 2, r.output
+    assert "24-bit counter" in r.output and "--odometer-bits 24" in r.output and "Traceback" not in r.output
+    assert not (out / "odometer.csv").exists()
+
+
+def test_encoder_parser_counts_replies_of_another_width():
+    st = Stats()
+    p = encoder.EncoderParser(st, encoder.OdometerConfig(bits=32))
+    p.feed(encoder.format_read_reply(5, 0, bits=16) * 3 + encoder.format_read_reply(7, 0, bits=32) * 3, 0.0)
+    assert st.extra["width_mismatch"] == 3 and st.extra["counter_bits_seen"] == 16
+    err = encoder.width_mismatch_error(st, p.cfg, "/dev/ttyUSB2")
+    assert isinstance(err, encoder.CounterWidthMismatch)
+    assert "odometer on /dev/ttyUSB2: 3 counter replies have 5-digit counts" in str(err)
+    assert "--odometer-bits 16" in str(err)
+    assert encoder.width_mismatch_error(Stats(), p.cfg) is None

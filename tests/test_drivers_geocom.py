@@ -101,3 +101,27 @@ def test_reply_without_transaction_id():
     assert gc.encode_reply(0, (1.25, 2), None) == b"%R1P,0:0,1.25,2\r\n"
     with pytest.raises(gc.GeoComProtocolError):
         gc.decode_reply("%R1P,0,:0")
+
+
+def test_ata_loader_codes_named_as_in_the_tps1200_manual():
+    assert [gc.code_name(c) for c in (531, 532, 533, 534)] == [
+        "GRC_ATA_SLDR_TRANSFER_PENDING", "GRC_ATA_SLDR_TRANSFER_ILLEGAL",
+        "GRC_ATA_SLDR_DATA_ERROR", "GRC_ATA_SLDR_CHK_SUM_ERROR"]
+    assert gc.code_name(526) == "GRC_ATA_DECODE_ERROR"
+
+
+def test_reply_with_escaped_quotes_and_hexadecimal_integers():
+    # an instrument name carrying a double quote, as a TS16 writes it, and a hex integer
+    r = gc.decode_reply('%R1P,0,0:0,"TS16 A 1\\" R500",0x3AA,\'1F\',"a,b"')
+    assert r.params == ('TS16 A 1" R500', 0x3AA, 0x1F, "a,b")
+    r = gc.decode_reply('%R1P,0,0:0,"back\\\\slash",-0x10')
+    assert r.params == ("back\\slash", -16)
+    with pytest.raises(gc.GeoComProtocolError):
+        gc.decode_reply('%R1P,0,0:0,"open,1')
+
+
+@given(st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=30))
+@settings(max_examples=200, deadline=None)
+def test_string_parameters_round_trip_through_a_reply(text):
+    line = gc.encode_reply(0, (text, 7)).decode("ascii").rstrip("\r\n")
+    assert gc.decode_reply(line).params == (text, 7)

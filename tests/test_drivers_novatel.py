@@ -270,3 +270,41 @@ def test_damaged_stream_parse_is_independent_of_read_sizes(seed, cuts):
     whole, s1 = run([])
     split, s2 = run(cuts)
     assert whole == split and s1 == s2 and s1.balanced()
+
+
+def test_scale_table_covers_the_documented_types_with_their_factors():
+    arcsec = np.pi / 180.0 / 3600.0
+    ft = 0.3048
+    # hand values of NovAtel's raw IMU scale factor table
+    assert nv.imu_scale(1).gyro == 2.0**-33 and nv.imu_scale(1).accel == 2.0**-27 * ft
+    assert nv.imu_scale(4).gyro == 2.0**-33 and nv.imu_scale(4).accel == 2.0**-26 * ft
+    assert nv.imu_scale(13).gyro == pytest.approx(0.1 / 256 * arcsec, rel=1e-15)
+    assert nv.imu_scale(13).accel == 0.05 / 2.0**15
+    assert nv.imu_scale(16).gyro == 0.1 / (3600.0 * 256.0) and nv.imu_scale(16).accel == 0.05 / 2.0**15
+    g370 = nv.imu_scale(61)
+    assert g370.counts_are_rates and g370.gyro == pytest.approx(0.0151515 / 65536 * np.pi / 180, rel=1e-15)
+    assert g370.accel == pytest.approx(0.4 / 65536 * 1e-3 * 9.80665, rel=1e-15)
+    g320 = nv.imu_scale(62)
+    assert g320.counts_are_rates and g320.rate_hz == 200.0
+    assert (g320.gyro, g320.accel) == (nv.imu_scale(41).gyro, nv.imu_scale(41).accel)
+    # names as NovAtel names the types
+    assert nv.imu_scale(5).name == "HG1900-CA29" and nv.imu_scale(69).name == "HG4930-AN04-400Hz"
+    assert nv.imu_scale(69).rate_hz == 400.0
+
+
+def test_unknown_imu_type_is_a_clear_error_not_a_key_error():
+    with pytest.raises(nv.UnknownImuType, match=r"IMU type 99.*--imu-type") as e:
+        nv.imu_scale(99)
+    assert not isinstance(e.value, KeyError) and "13 iMAR-FSAS" in str(e.value)
+
+
+def test_rawimusa_lines_are_counted_as_other_messages():
+    # the RAWIMUSA example of NovAtel's documentation (protocols.md 4.1): a valid log, not RAWIMUSXA
+    rawimusa = ("%RAWIMUSA,2209,491612.254;2209,491612.253588,ea5afe00,329303960,-2512321,4410363,"
+                "309705,607017,-1009773*1fb76c28")
+    assert nv.crc32(rawimusa[1:rawimusa.rindex("*")].encode()) == 0x1FB76C28
+    xa = nv.format_rawimusxa(2209, 491612.254, [1, 2, 3], [4, 5, 6])
+    stats = Stats()
+    fr = nv.parse_rawimusxa_lines("# a comment\r\n" + rawimusa + "\r\n" + xa + "#BESTPOSA,COM1,0*00\r\n", stats)
+    assert len(fr) == 1 and stats.frames_ok == 1
+    assert stats.extra["other_msgs"] == 2 and stats.bad_format == 0

@@ -129,8 +129,11 @@ def record_cmd(
     except DeviceError as e:
         _err(str(e))
         raise typer.Exit(code=2)
-    except KeyError as e:
-        _err(f"IMU on {imu}: {str(e).strip(chr(34))}")
+    except novatel.UnknownImuType as e:
+        _err(f"IMU on {imu}: {e}")
+        raise typer.Exit(code=2)
+    except encoder.CounterWidthMismatch as e:
+        _err(str(e))
         raise typer.Exit(code=2)
     stats = {k: v.as_dict() for k, v in rec.stats.items()}
     _write_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")

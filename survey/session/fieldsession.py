@@ -318,8 +318,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def check_devices(self) -> None:
         """Every device probed, its status shown; a failing one stops the start with the reason."""
+        from rich.markup import escape
         from rich.table import Table
 
+        from drivers import encoder
         from drivers.geocom import GeoComError
         from drivers.serialport import DeviceError
 
@@ -342,7 +344,12 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             time.sleep(0.05)
         for name, n in self._new_samples().items():
             port = self.ports[name]
-            if n == 0:
+            mismatch = (encoder.width_mismatch_error(self.acq.links[name].stats, self.acq.odo_cfg, port)
+                        if name == "odometer" else None)
+            if n == 0 and mismatch is not None:  # replies arrive, but of another counter width
+                table.add_row(name, port, f"[red]{escape(str(mismatch))}[/]")
+                problems.append((name, str(mismatch), "set the counter width in the devices file"))
+            elif n == 0:
                 err = self.acq.links[name].last_error or "no data"
                 table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({err})[/]")
                 problems.append((name, f"no data from {port} in {self.config.device_wait_s:g} s",
