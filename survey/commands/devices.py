@@ -16,7 +16,7 @@ from pathlib import Path
 import typer
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
-                          no_args_is_help=True)
+                          no_args_is_help=True, rich_markup_mode=None)
 
 
 def _err(msg: str) -> None:

@@ -15,7 +15,8 @@ import typer
 from rich.console import Console
 
 err = Console(stderr=True)
-project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True)
+project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True,
+                          rich_markup_mode=None)
 
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
                                           help="folder holding the projects")]

@@ -15,7 +15,8 @@ import typer
 from rich.console import Console
 
 err = Console(stderr=True)
-survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True)
+survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True,
+                          rich_markup_mode=None)
 
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS", help="folder holding the projects")]
 SessionOption = Annotated[str, typer.Option("--session", "-s", help="session name")]

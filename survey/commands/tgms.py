@@ -19,7 +19,7 @@ from rich.console import Console
 console = Console(stderr=True)
 
 tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers + IMU + encoder -> track irregularities.",
-                       no_args_is_help=True)
+                       no_args_is_help=True, rich_markup_mode=None)
 
 
 def _fail(msg: str) -> None:
