@@ -103,8 +103,8 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
     return result, session, written
 
 
-def print_summary(result, written) -> None:
-    """A short summary of a processing run on the terminal."""
+def print_summary(result, written, con: Console | None = None) -> None:
+    """A short summary of a processing run on the terminal (``con``, default stdout)."""
     from rich.table import Table
 
     from trolley import units
@@ -126,12 +126,13 @@ def print_summary(result, written) -> None:
         t.add_row("observability ranks", f"vertical {result.observability_ranks[0]}/3, "
                                          f"level {result.observability_ranks[1]}/5")
     t.add_row("smoother", result.config.smoother)
-    Console().print(t)
+    con = con if con is not None else Console()
+    con.print(t)
     for i in range(len(result.fixes.t_s)):
         if not result.fixes.accepted[i]:
             err.print(f"[yellow]rejected fix[/] {result.fixes.point[i]} at t={result.fixes.t_s[i]:.1f} s: "
                       f"{result.fixes.reason[i]}", highlight=False)
-    Console().print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
+    con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
 
 
 def register(app: typer.Typer) -> None:
