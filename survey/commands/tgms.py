@@ -108,7 +108,8 @@ def simulate_cmd(
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
     length_m: Annotated[float, typer.Option("--length-m", min=60.0, help="track length ridden, m")] = 200.0,
     speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=1.0, max=40.0, help="nominal speed, m/s")] = 10.0,
-    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0)] = 100.0,
+    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0,
+                                                  help="camera frame rate, Hz")] = 100.0,
     rail_profile: Annotated[RailProfile, typer.Option("--rail-profile", help="rail profile (EN 13674-1)")] = "60E1",
     json_output: JsonOption = False,
 ) -> None:
