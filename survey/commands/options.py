@@ -1,4 +1,4 @@
-"""Option conventions shared by the ``trolley`` commands (docs/cli.md).
+"""Option conventions shared by the ``trolley`` commands (docs/conventions.md, "Command line").
 
 * Choices are ``Literal`` / ``Enum`` types, so typer lists them in the help and refuses any
   other value with exit code 2 before a command runs.
