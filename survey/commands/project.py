@@ -15,7 +15,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.commands.options import ImuPreset, old_name, renamed
+from survey.commands.options import ImuPreset, JsonFlag, old_name, renamed
 
 err = Console(stderr=True)
 project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True,
@@ -24,7 +24,6 @@ project_app = typer.Typer(help="Project store: CPIII points, design alignment, s
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
                                           help="folder holding the projects")]
 ProjectOption = Annotated[str, typer.Option("--project", "-p", help="project name")]
-JsonOption = Annotated[bool, typer.Option("--json", help="print the result as one JSON object on stdout")]
 
 
 def say(message: str) -> None:
@@ -60,7 +59,7 @@ def new(
                                                                     "set name or a TOML file")] = "default",
     use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
                                            "<root>/<name>/project.toml when it exists")] = True,
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
     height_old: Annotated[float | None, typer.Option("--height", hidden=True, help=old_name("--height-m"))] = None,
     tolerance_set_old: Annotated[str | None, typer.Option("--tolerance-set", hidden=True,
                                                           help=old_name("--tolerances"))] = None,
@@ -157,7 +156,7 @@ def import_cpiii(
     file: Annotated[Path, typer.Argument(help="CPIII file: CSV id,E_m,N_m,H_m or Leica GSI-8/16 (words 11, 81-83)")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import CPIII control points (all or nothing)."""
     from survey.cpiii import CpiiiError, import_cpiii_file
@@ -179,7 +178,7 @@ def import_alignment(
     file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
     from survey.store import alignment_record_from_text
@@ -209,7 +208,7 @@ def import_session(
     project: ProjectOption,
     session: Annotated[str | None, typer.Option("--session", help="session name (default: the folder name)")] = None,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import a raw session folder into the project store (one transaction)."""
     from survey.sessionio import SessionFormatError, read_session
@@ -251,7 +250,7 @@ def export_session(
     out: Annotated[Path, typer.Option("--out", help="raw session folder to write (must not exist)")],
     overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing folder")] = False,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
     from survey.sessionio import write_session
@@ -275,7 +274,7 @@ def export_session(
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
     root: RootOption = Path("projects"),
-    as_json: JsonOption = False,
+    as_json: JsonFlag = False,
 ) -> None:
     """Show a project: settings, CPIII points, design alignment, sessions."""
     import numpy as np

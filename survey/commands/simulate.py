@@ -13,7 +13,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from survey.commands.options import ImuPreset
+from survey.commands.options import ImuPreset, JsonAlways
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
@@ -143,9 +143,7 @@ def register(app: typer.Typer) -> None:
             "--turn-at-stop", help="the crew turns the trolley around at this stop (1 = the first "
                                    "after the static alignment); repeat for more")] = None,
         force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
-        json_output: Annotated[bool, typer.Option("--json", help="one JSON object on stdout (this command "
-                                                                 "prints it in any case; accepted like on "
-                                                                 "every command)")] = False,
+        json_output: JsonAlways = False,
     ) -> None:
         """Simulate a stop-and-go survey (full 3-D truth, strapdown IMU) into a raw session folder."""
         from dataclasses import replace
