@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["CrsError", "GridFactors", "crs_info", "grid_factors", "site_factors",
-           "gaussian_radius_m"]
+           "gaussian_radius_m", "session_site"]
 
 #: A projection whose meridional and parallel scales differ by more than this is not conformal:
 #: a distance then has no single reduction to the grid.
@@ -229,3 +229,28 @@ def site_factors(crs_text: str, points_enh_m) -> GridFactors:
         raise CrsError("no points to place the site by")
     c = p.mean(axis=0)
     return grid_factors(crs_text, c[0], c[1], c[2] if p.shape[1] > 2 else 0.0)
+
+
+def session_site(meta, points_enh_m):
+    """A session's grid at its site, and its metadata with the latitude derived from it.
+
+    Parameters
+    ----------
+    meta : ``trolley.session.SessionMeta``.
+    points_enh_m : (n, 3) grid points of the site (the fixes, or the CPIII points).
+
+    Returns
+    -------
+    (SessionMeta, GridFactors or None)
+        Without ``meta.crs``: ``meta`` unchanged and None. With it: the factors at the centroid
+        and ``meta`` whose NaN latitude is replaced by the site's (a latitude given by hand is
+        kept: the caller may compare it).
+    """
+    from dataclasses import replace
+
+    if not meta.crs:
+        return meta, None
+    factors = site_factors(meta.crs, points_enh_m)
+    if not np.isfinite(meta.latitude_rad):
+        meta = replace(meta, latitude_rad=factors.latitude_rad)
+    return meta, factors
