@@ -412,17 +412,26 @@ class _System:
         return (fx[:, :n] - fx[:, n:]) / (2.0 * h)
 
     def equilibrium(self) -> np.ndarray:
-        """Quasi-static state on the perfect (curved) track (Newton on the velocity-free equations)."""
-        n = 2 * N_DOF
-        x = np.zeros(n)
+        """Quasi-static state on the perfect (curved) track: the generalised forces vanish at rest.
+
+        Solved with scipy.optimize.root (Powell's hybrid method; the flange and the creep
+        saturation make plain Newton steps oscillate).
+        """
+        from scipy.optimize import root
         z4, z8 = np.zeros(4), np.zeros(8)
-        for _ in range(20):
-            r = self.rhs(x, z4, self.f_const, self.gpz, z8, z8, z4)[N_DOF:]
-            if np.max(np.abs(r)) < 1e-10:
-                break
-            a = self.jacobian(x)[N_DOF:, :N_DOF]
-            x[:N_DOF] -= np.linalg.solve(a, r)
-        return x
+        zero_v = np.zeros(N_DOF)
+
+        def residual(q):
+            x = np.concatenate([q, zero_v])
+            return self.rhs(x, z4, self.f_const, self.gpz, z8, z8, z4)[N_DOF:] * self.lin.mass
+
+        if not np.any(self.f_const):
+            return np.zeros(2 * N_DOF)
+        sol = root(residual, np.zeros(N_DOF), method="hybr")
+        if not sol.success or np.max(np.abs(residual(sol.x))) > 1e-3:
+            raise ValueError(f"no steady curving state at speed {self.v} m/s, curvature {self.kappa} 1/m "
+                             f"({sol.message})")
+        return np.concatenate([sol.x, zero_v])
 
 
 # ---------------------------------------------------------------------------------------------
