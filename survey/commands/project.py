@@ -270,6 +270,52 @@ def export_session(
         jsonout.echo({"session": session, "out": out})
 
 
+@project_app.command("set-crs")
+def set_crs(
+    name: Annotated[str, typer.Argument(help="project name")],
+    crs: Annotated[str, typer.Argument(help="coordinate reference system of the grid E, N: an EPSG code "
+                                            "(EPSG:32650), a compound one (EPSG:25832+5783) or a PROJ string")],
+    vertical_datum: Annotated[str | None, typer.Option(
+        "--vertical-datum", help="name of the height datum of H [default: the vertical part of a compound CRS]")] = None,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Set the project's CRS and vertical datum. The site latitude, grid convergence and scale
+    factor follow from it at the CPIII centroid (trolley/projection.py)."""
+    import dataclasses
+
+    import numpy as np
+
+    from trolley import units
+    from trolley.projection import CrsError, crs_info, site_factors
+
+    try:
+        info = crs_info(crs)
+    except CrsError as e:
+        fail(f"CRS: {e}")
+    vd = vertical_datum if vertical_datum is not None else (info.vertical_datum or None)
+    if vd is not None and not vd.strip():
+        fail("--vertical-datum: empty name")
+    with _open(root, name) as store:
+        settings = dataclasses.replace(store.settings(), crs=info.text, vertical_datum=vd)
+        pts = store.cpiii_points()
+        grid = None
+        if pts:
+            try:
+                grid = site_factors(info.text, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
+            except CrsError as e:
+                fail(f"CRS {info.text} at the CPIII centroid: {e}")
+            settings = dataclasses.replace(settings, latitude_rad=grid.latitude_rad)
+        store.set_settings(settings)
+    say(f"project {name}: CRS {info.text} ({info.name}), vertical datum {vd or 'not given'}")
+    if grid is None:
+        say("  no CPIII points yet: the site latitude, convergence and scale follow from them once imported")
+    else:
+        say(f"  at the CPIII centroid: latitude {units.rad_to_deg(grid.latitude_rad):.6f} deg, longitude "
+            f"{units.rad_to_deg(grid.longitude_rad):.6f} deg, grid convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
+            f"point scale {grid.point_scale:.9f}, height reduction {grid.height_reduction:.9f}, "
+            f"combined scale {grid.combined_scale:.9f}")
+
+
 @project_app.command("show")
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
@@ -288,6 +334,7 @@ def show(
         s = store.settings()
         pts = store.cpiii_points()
         al = store.alignment()
+        grid = store.site_grid() if s.crs else None
         sessions = []
         for rec in store.sessions():
             counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
@@ -302,6 +349,10 @@ def show(
             "name": info.name, "path": str(info.path), "created_utc": info.created_utc,
             "schema_version": info.schema_version,
             "settings": json.loads(settings_to_json(s)),
+            "grid": None if grid is None else {
+                "latitude_deg": units.rad_to_deg(grid.latitude_rad), "longitude_deg": units.rad_to_deg(grid.longitude_rad),
+                "convergence_deg": units.rad_to_deg(grid.convergence_rad), "point_scale": grid.point_scale,
+                "height_reduction": grid.height_reduction, "combined_scale": grid.combined_scale},
             "cpiii": {"count": len(pts), "min_enh_m": enh.min(axis=0).tolist() if len(pts) else None,
                       "max_enh_m": enh.max(axis=0).tolist() if len(pts) else None},
             "alignment": None if al is None else {"name": al.name, "file": al.file_name, "elements": al.element_count,
@@ -320,6 +371,11 @@ def show(
     t.add_column("value")
     t.add_row("store", f"{info.path} (schema v{info.schema_version}, created {info.created_utc})")
     t.add_row("site", f"latitude {units.rad_to_deg(s.latitude_rad):.4f} deg, height {s.height_m:.1f} m")
+    if s.crs:
+        g = grid
+        t.add_row("CRS", f"{s.crs}, vertical datum {s.vertical_datum or 'not given'}" + (
+            f"; at the CPIII: convergence {units.rad_to_deg(g.convergence_rad):+.6f} deg, "
+            f"combined scale {g.combined_scale:.9f}" if g is not None else ""))
     t.add_row("IMU", f"{s.imu.name}: bias instability {units.rad_s_to_deg_h(s.imu.gyro_bias_instability_rad_s):.3g} deg/h, "
                      f"ARW {units.rad_sqrt_s_to_deg_sqrt_h(s.imu.gyro_arw_rad_sqrt_s):.3g} deg/sqrt(h), "
                      f"accel bias {units.m_s2_to_ug(s.imu.accel_bias_m_s2):.0f} ug")

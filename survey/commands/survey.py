@@ -76,7 +76,7 @@ def simulated_world(store, speedup: float):
     kwargs = {k: v for k, v in kwargs.items() if k in names}
     kwargs.setdefault("imu", settings.imu)
     kwargs.update(latitude_rad=settings.latitude_rad, height_m=settings.height_m, trolley=settings.trolley,
-                  fix_sigma_m=settings.fix_sigma_m)
+                  fix_sigma_m=settings.fix_sigma_m, crs=settings.crs)
     design = parse_landxml(a.landxml_text, rail_spacing_m=settings.trolley.rail_spacing_m)
     try:
         sim = simulate_survey(design, SimulationConfig(**kwargs))
