@@ -207,6 +207,25 @@ def test_export_and_project_commands_print_strict_json(processed, tmp_path):
     assert strict_json(r.stdout)["cpiii"]["count"] == added > 0
 
 
+def test_tgms_json_is_strict_where_the_accuracy_has_no_value(tmp_path):
+    rec = tmp_path / "rec"
+    r = runner.invoke(app, ["tgms", "simulate", "--out", str(rec), "--length-m", "60", "--camera-rate-hz", "10",
+                            "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["frames"] > 0
+    r = runner.invoke(app, ["tgms", "process", str(rec), "--out", str(tmp_path / "out"), "--no-plots", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = strict_json(r.stdout)  # a 60 m ride leaves accuracy figures undefined (NaN before issue 15)
+
+    def nulls(v):
+        if isinstance(v, dict):
+            return sum(nulls(u) for u in v.values())
+        if isinstance(v, list):
+            return sum(nulls(u) for u in v)
+        return v is None
+    assert nulls(doc["accuracy_3_25m"]) > 0
+
+
 # --------------------------------------------------------------------------------- old names
 
 def test_old_option_names_still_work_and_are_the_same_option(session, processed, tmp_path):
