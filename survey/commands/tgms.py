@@ -296,16 +296,18 @@ def tune_cmd(
     import numpy as np
 
     from survey import tgms_io
+    from survey.commands.progress import progress_bar
     from trolley.tgms.tuning import tune_cml
-    try:
-        rec = tgms_io.read_recording(folder)
-    except tgms_io.TgmsFormatError as exc:
-        _fail(str(exc))
-    try:
-        with console.status("tuning (maximum likelihood)"):
-            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box)
-    except ValueError as exc:
-        _fail(f"{folder}: {exc}")
+    with progress_bar("reading the recording", console) as report:
+        try:
+            rec = tgms_io.read_recording(folder)
+        except tgms_io.TgmsFormatError as exc:
+            _fail(str(exc))
+        try:
+            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box,
+                                    progress=report)
+        except ValueError as exc:
+            _fail(f"{folder}: {exc}")
     if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
         _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
     try:
