@@ -44,7 +44,7 @@ from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, Horizontal
                                VerticalProfile)
 
 __all__ = ["LandXmlError", "parse_landxml", "landxml_text", "JOIN_TOLERANCE_M",
-           "DEFAULT_RAIL_SPACING_M"]
+           "DEFAULT_RAIL_SPACING_M", "CoordinateSystemInfo", "coordinate_system"]
 
 LANDXML_NS = "http://www.landxml.org/schema/LandXML-1.2"
 #: Largest gap allowed between consecutive elements, or between the coordinates in the file and
@@ -406,6 +406,94 @@ def _side_of_curve(hz: HorizontalAlignment, s: float) -> float:
     return float(np.sign(nz[0])) if nz.size else 0.0
 
 
+@dataclass(frozen=True)
+class CoordinateSystemInfo:
+    """The ``<CoordinateSystem>`` element of a LandXML 1.2 file (all attributes optional).
+
+    Attributes
+    ----------
+    name : ``name`` (e.g. "ETRS89 / UTM zone 32N").
+    epsg_code : ``epsgCode`` as an integer ("25832", "EPSG:25832" and "urn:ogc:def:crs:EPSG::25832"
+        all give 25832).
+    ogc_wkt : ``ogcWktCode`` when it holds WKT.
+    proj4 : a PROJ string (``+proj=...``) when ``ogcWktCode`` holds one instead of WKT (some
+        exporters write it there; the schema has no attribute of its own for it).
+    horizontal_datum, vertical_datum : ``horizontalDatum``, ``verticalDatum`` (e.g. "DHHN2016").
+    horizontal_crs_name, vertical_crs_name : ``horizontalCoordinateSystemName``,
+        ``verticalCoordinateSystemName``.
+    """
+
+    name: str | None = None
+    epsg_code: int | None = None
+    ogc_wkt: str | None = None
+    proj4: str | None = None
+    horizontal_datum: str | None = None
+    vertical_datum: str | None = None
+    horizontal_crs_name: str | None = None
+    vertical_crs_name: str | None = None
+
+    @property
+    def crs_text(self) -> str | None:
+        """What ``pyproj.CRS.from_user_input`` takes: "EPSG:n", else the WKT, else the PROJ string."""
+        if self.epsg_code is not None:
+            return f"EPSG:{self.epsg_code}"
+        return self.ogc_wkt or self.proj4
+
+
+def _parse_root(text: str) -> ET.Element:
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise LandXmlError(f"not well-formed XML: {exc}") from None
+    if _local(root.tag) != "LandXML":
+        raise LandXmlError(f"root element is <{_local(root.tag)}>, expected <LandXML>")
+    return root
+
+
+def coordinate_system(text: str) -> CoordinateSystemInfo | None:
+    """The ``<CoordinateSystem>`` of a LandXML document, or None when it has none.
+
+    Parameters
+    ----------
+    text : the XML document.
+
+    Returns
+    -------
+    CoordinateSystemInfo or None
+
+    Raises
+    ------
+    LandXmlError
+        Malformed XML, or an ``epsgCode`` that is not a number.
+    """
+    root = _parse_root(text)
+    found = _children(root, "CoordinateSystem")
+    if not found:
+        return None
+    cs = found[0]
+
+    def attr(name: str) -> str | None:
+        value = cs.get(name)
+        return value.strip() if value is not None and value.strip() else None
+
+    epsg = attr("epsgCode")
+    code = None
+    if epsg is not None:
+        digits = epsg.rsplit(":", 1)[-1].strip()
+        if not digits.isdigit():
+            raise LandXmlError(f"<CoordinateSystem>: epsgCode={epsg!r} is not an EPSG number")
+        code = int(digits)
+    wkt = attr("ogcWktCode")
+    proj4 = None
+    if wkt is not None and wkt.startswith("+"):
+        wkt, proj4 = None, wkt
+    return CoordinateSystemInfo(name=attr("name"), epsg_code=code, ogc_wkt=wkt, proj4=proj4,
+                                horizontal_datum=attr("horizontalDatum"),
+                                vertical_datum=attr("verticalDatum"),
+                                horizontal_crs_name=attr("horizontalCoordinateSystemName"),
+                                vertical_crs_name=attr("verticalCoordinateSystemName"))
+
+
 def parse_landxml(text: str, alignment_name: str | None = None, *,
                   rail_spacing_m: float | None = DEFAULT_RAIL_SPACING_M) -> Alignment:
     """Read one ``<Alignment>`` of a LandXML 1.2 document.
@@ -429,12 +517,7 @@ def parse_landxml(text: str, alignment_name: str | None = None, *,
         Malformed XML, missing or malformed attributes, unsupported element types, or elements
         that do not join within :data:`JOIN_TOLERANCE_M`. The message names the element.
     """
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise LandXmlError(f"not well-formed XML: {exc}") from None
-    if _local(root.tag) != "LandXML":
-        raise LandXmlError(f"root element is <{_local(root.tag)}>, expected <LandXML>")
+    root = _parse_root(text)
     scale = _linear_scale(root)
     found = [el for el in root.iter() if _local(el.tag) == "Alignment"]
     if not found:
