@@ -211,7 +211,7 @@ def test_gap_between_elements_is_noted_where_it_is_and_refused_when_gross():
     assert len(gap) == 1 and "<Curve> no. 3" in gap[0] and "2.00 mm" in gap[0], notes
     shifted = EXAMPLE.replace("<Start>4984.4719 1268.9227</Start>\n          <End>4966.2411 1367.2468",
                               "<Start>4984.4719 1269.0727</Start>\n          <End>4966.2411 1367.3968")
-    _expect(shifted, "<Line> no. 5", 'staStart="270.0"', "150.00 mm", "do not join")
+    _expect(shifted, "<Line> no. 5", 'staStart="270.0"', "149.9", "do not join")
 
 
 def test_kinks_and_bad_arcs_are_noted_or_refused():
