@@ -212,6 +212,8 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
         static_s=t.float("alignment.static_s", 900.0, min_value=0.0),
         initial_heading_rad=float(units.deg_to_rad(heading_deg)),
         design_alignment=design,
+        design_alignment_name=(t.string("design.name", None)
+                               if t.raw("design.name") is not _MISSING else None),
     )
 
 
@@ -287,8 +289,10 @@ def session_toml_text(meta: SessionMeta) -> str:
         "",
     ]
     if meta.design_alignment is not None:
-        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}",
-                  ""]
+        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}"]
+        if meta.design_alignment_name is not None:
+            lines.append(f"name = {json.dumps(meta.design_alignment_name, ensure_ascii=False)}")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -564,7 +568,7 @@ def read_design(folder: Path, meta: SessionMeta):
     except UnicodeDecodeError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: not UTF-8 ({exc.reason})") from None
     try:
-        return parse_landxml(text)
+        return parse_landxml(text, meta.design_alignment_name)
     except ValueError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: {exc}") from None
 

@@ -43,6 +43,7 @@ class SessionMeta:
     static_s : length of the initial static period.
     initial_heading_rad : heading to use instead of gyrocompassing, or NaN.
     design_alignment : path of the LandXML design, relative to the session folder, or None.
+    design_alignment_name : ``Alignment/@name`` to read from a design file holding several.
     """
 
     latitude_rad: float
@@ -54,6 +55,7 @@ class SessionMeta:
     static_s: float = 900.0
     initial_heading_rad: float = float("nan")
     design_alignment: str | None = None
+    design_alignment_name: str | None = None
 
 
 @dataclass

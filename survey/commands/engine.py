@@ -79,7 +79,8 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
             fail(f"{session_dir}: {exc}")
         prog.update(task, completed=1.0 - _WRITE_SHARE, description="writing the outputs")
         try:
-            written = write_outputs(out, result, session, session_dir)
+            written = write_outputs(out, result, session, session_dir,
+                                    None if design is None else design.stationing)
         except OutputFolderError as exc:
             fail(str(exc))
         except OSError as exc:
