@@ -427,14 +427,14 @@ def _station_basis(aname: str, hz: HorizontalAlignment, stationing: Stationing |
         return False
     lo, hi = hz.start_chainage_m - JOIN_TOLERANCE_M, hz.end_chainage_m + JOIN_TOLERANCE_M
 
-    def score(cant_internal, last_pvi_internal) -> float:
+    def score(cant_internal, last_pvi_internal) -> tuple[int, int]:
+        """(- cant stations off the alignment, stations on joins or the end)."""
         c = np.asarray(cant_internal, dtype=float)
-        if c.size and (np.any(c < lo) or np.any(c > hi)):
-            return -1.0
+        off = int(np.sum((c < lo) | (c > hi)))
         hit = _near_joins(c, hz)
         if last_pvi_internal is not None and abs(last_pvi_internal - hz.end_chainage_m) <= _BASIS_MATCH_M:
             hit += 1
-        return float(hit)
+        return -off, hit
 
     s_int = score(cant_raw, pvi_raw[-1] if pvi_raw else None)
     try:
@@ -442,13 +442,14 @@ def _station_basis(aname: str, hz: HorizontalAlignment, stationing: Stationing |
         pvi_dr = stationing.internal_of(pvi_raw[-1:]) if pvi_raw else None
         s_dr = score(cant_dr, None if pvi_dr is None else float(pvi_dr[0]))
     except StationNotFound:
-        s_dr = -1.0
+        s_dr = (-len(cant_raw) - 1, 0)
     drawing = s_dr > s_int
     kind = ("drawing stations (after the station equations)" if drawing
             else "internal stations (the schema's 'station' type)")
     notes.append(f"{aname}: the alignment has {len(stationing.equations)} station equation(s); cant "
-                 f"and PVI stations read as {kind}: {max(s_dr, 0):.0f} of them fall on element joins "
-                 f"or the end that way, {max(s_int, 0):.0f} read as internal stations")
+                 f"and PVI stations read as {kind}: as drawing stations {s_dr[1]} fall on element "
+                 f"joins or the end and {-s_dr[0]} cant stations off the alignment, as internal "
+                 f"stations {s_int[1]} and {-s_int[0]}")
     return drawing
 
 
@@ -512,8 +513,8 @@ def _profile(pa: ET.Element, pwhere: str, pvis, sta_internal: np.ndarray,
         if length[k] != 0.0 or radius[k] != 0.0:
             raise LandXmlError(f"{wheres[k]}: the first and last PVI cannot carry a curve")
     try:
-        profile = VerticalProfile.from_pvis(sta, elev, length, radius,
-                                            overlap_tolerance_m=PROFILE_OVERLAP_TOLERANCE_M)
+        # overlaps are checked below, where the elements can be named
+        profile = VerticalProfile.from_pvis(sta, elev, length, radius, overlap_tolerance_m=math.inf)
     except ValueError as exc:
         raise LandXmlError(f"{pwhere}: {exc}") from None
     for k in np.flatnonzero(np.asarray(radius) > 0):
@@ -524,10 +525,13 @@ def _profile(pa: ET.Element, pwhere: str, pvis, sta_internal: np.ndarray,
                                f"{radius[k]!r} between the adjacent grades is "
                                f"{profile.curve_length_m[k]:.3f} m long")
     overlap = profile.curve_end_m[:-1] - profile.curve_start_m[1:]
-    for k in np.flatnonzero(overlap > 0.0):
-        notes.append(f"{wheres[k]}: its vertical curve and the next one overlap by "
-                     f"{units.m_to_mm(overlap[k]):.3f} mm (accepted below "
-                     f"{units.m_to_mm(PROFILE_OVERLAP_TOLERANCE_M):.0f} mm)")
+    for k in np.flatnonzero(overlap > 1e-9 * max(1.0, float(np.max(np.abs(sta))))):
+        text = (f"{wheres[k]}: its vertical curve (ends at {profile.curve_end_m[k]:.4f}) and the next "
+                f"one (begins at {profile.curve_start_m[k + 1]:.4f}) overlap by "
+                f"{units.m_to_mm(overlap[k]):.3f} mm")
+        if overlap[k] > PROFILE_OVERLAP_TOLERANCE_M:
+            raise LandXmlError(f"{text} (refused above {units.m_to_mm(PROFILE_OVERLAP_TOLERANCE_M):.0f} mm)")
+        notes.append(f"{text} (accepted below {units.m_to_mm(PROFILE_OVERLAP_TOLERANCE_M):.0f} mm)")
     return profile
 
 
@@ -555,9 +559,8 @@ def _cant(al: ET.Element, aname: str, hz: HorizontalAlignment, u: "_Units",
             ends = (f"{lo:.4f} .. {hi:.4f}" if stationing is None else
                     f"{lo:.4f} .. {hi:.4f} internal, {stationing.station(lo):.4f} .. "
                     f"{stationing.station(hi):.4f} drawing")
-            raise LandXmlError(f"{where}: station {r / u.linear:.4f} lies {side} "
-                               f"({units.m_to_mm(s - hi if s > hi else lo - s):.1f} mm; the alignment "
-                               f"runs {ends})")
+            raise LandXmlError(f"{where}: station {r / u.linear:.4f} lies {side} by "
+                               f"{(s - hi if s > hi else lo - s):.4f} m (the alignment runs {ends})")
     ang = []
     for s, height_m, curv, flip, where in zip(sta, heights, curvs, flips, wheres):
         sign = curv
