@@ -107,12 +107,11 @@ class Stationing:
         return self.region_station_m[k] + self.region_sign[k] * (s - self.region_start_m[k])
 
     def back_station(self, i: int) -> float:
-        """Drawing station just behind equation ``i`` as the region before it runs."""
-        k = i
-        return float(self.region_station_m[k] + self.region_sign[k]
-                     * (self.region_start_m[k + 1] - self.region_start_m[k]))
+        """Drawing station just behind equation ``i`` (0-based), as the region before it runs."""
+        return float(self._region_end_station()[i])
 
     def _region_end_station(self) -> np.ndarray:
+        """Drawing station at the end of each region."""
         return self.region_station_m + self.region_sign * (self.region_end_m - self.region_start_m)
 
     def internal(self, station_m: float, region: int) -> float:
