@@ -285,3 +285,79 @@ def test_track_csv_chainage_is_the_drawing_station_distance_kept():
     np.testing.assert_allclose(frame["distance_m"], s)
     plain = track_frame(result)
     np.testing.assert_allclose(plain["chainage_m"], s)
+
+
+@given(st.lists(st.sampled_from(["line", "arc", "clothoid"]), min_size=1, max_size=6),
+       st.floats(0.0, 2 * math.pi), st.integers(0, 2**31 - 1))
+@settings(max_examples=40, deadline=None)
+def test_anchored_at_the_chained_starts_is_the_chained_geometry(kinds, heading, seed):
+    """Two constructions: chained from one start, and each element anchored where the chain puts it."""
+    from trolley.alignment import Arc, Clothoid, Line
+
+    rng = np.random.default_rng(seed)
+    k = 0.0
+    els = []
+    for kind in kinds:
+        length = float(rng.uniform(5.0, 300.0))
+        if kind == "line":
+            els.append(Line(length))
+            k = 0.0
+        elif kind == "arc":
+            k = float(rng.choice([-1, 1]) / rng.uniform(300.0, 5000.0))
+            els.append(Arc(length, k))
+        else:
+            k1 = float(rng.choice([-1, 1]) / rng.uniform(300.0, 5000.0))
+            els.append(Clothoid(length, k, k1))
+            k = k1
+    chained = HorizontalAlignment.from_elements(400000.0, 5600000.0, heading, els, 1000.0)
+    n = len(els)
+    anchored = HorizontalAlignment.from_anchored_elements(chained.element_E_m[:n], chained.element_N_m[:n],
+                                                          chained.element_heading_rad[:n], els, 1000.0)
+    assert np.max(anchored.join_gap_m, initial=0.0) < 1e-9 and np.max(np.abs(anchored.join_turn_rad), initial=0.0) < 1e-12
+    s = np.linspace(990.0, chained.end_chainage_m + 10.0, 200)
+    a, b = chained.evaluate(s), anchored.evaluate(s)
+    assert np.max(np.hypot(a.E_m - b.E_m, a.N_m - b.N_m)) < 1e-8
+    assert np.max(np.abs(np.angle(np.exp(1j * (a.heading_rad - b.heading_rad))))) < 1e-12
+
+
+def test_projection_onto_elements_with_direction_breaks():
+    al = read_landxml(text("direction_break_large.xml")).alignment
+    s = np.array([1010.0, 1249.0, 1300.0, 1449.0, 1451.0, 1600.0, 1749.0])
+    p = al.evaluate(s)
+    # 1.2 m to the right of each point (heading + 90 deg)
+    e = p.E_m + 1.2 * np.cos(p.heading_rad)
+    n = p.N_m - 1.2 * np.sin(p.heading_rad)
+    proj = al.project(e, n)
+    np.testing.assert_allclose(proj.chainage_m, s, atol=1e-6)
+    np.testing.assert_allclose(proj.lateral_m, 1.2, atol=1e-6)
+
+
+def test_written_file_reads_back_with_its_joins_and_equations():
+    from trolley.landxml import landxml_text
+
+    al = read_landxml(text("station_equation.xml")).alignment
+    back = read_landxml(landxml_text(al))
+    assert back.alignment.stationing.equations == al.stationing.equations
+    s = np.linspace(1000.0, 1750.0, 101)
+    a, b = al.evaluate(s), back.alignment.evaluate(s)
+    assert np.max(np.hypot(a.E_m - b.E_m, a.N_m - b.N_m)) < 1e-6
+    np.testing.assert_allclose(b.cant_rad, a.cant_rad, atol=1e-9)
+    np.testing.assert_allclose(b.H_m, a.H_m, atol=1e-9)
+    brk = read_landxml(text("direction_break_large.xml")).alignment
+    again = read_landxml(landxml_text(brk))
+    np.testing.assert_allclose(again.alignment.horizontal.join_turn_rad, brk.horizontal.join_turn_rad, atol=1e-9)
+    assert len(again.notes) == 1 and "<Line> no. 3" in again.notes[0]
+
+
+def test_session_toml_names_the_alignment_of_a_file_holding_several(tmp_path):
+    from dataclasses import replace
+
+    from survey.sessionio import read_design, read_session_meta, session_toml_text
+    from survey.store import ProjectSettings
+
+    meta = replace(ProjectSettings().session_meta("design.xml"), design_alignment_name="Gleis 2")
+    (tmp_path / "session.toml").write_text(session_toml_text(meta), encoding="utf-8")
+    (tmp_path / "design.xml").write_text(text("several_alignments.xml"), encoding="utf-8")
+    back = read_session_meta(tmp_path)
+    assert back.design_alignment_name == "Gleis 2"
+    assert_at(read_design(tmp_path, back), 1600.0, hand_position(1600.0, e0=E0 - 4.5))
