@@ -702,7 +702,10 @@ def coordinate_system(text: str) -> CoordinateSystemInfo | None:
     LandXmlError
         Malformed XML, or an ``epsgCode`` that is not a number.
     """
-    root = _parse_root(text)
+    return _coordinate_system(_parse_root(text))
+
+
+def _coordinate_system(root: ET.Element) -> CoordinateSystemInfo | None:
     found = _children(root, "CoordinateSystem")
     if not found:
         return None
@@ -855,7 +858,7 @@ def read_landxml(text: str, alignment_name: str | None = None, *,
     cant = _cant(al, aname, hz, u, rail_spacing_m, stationing, drawing, notes)
     _skipped_notes(al, aname, notes)
     alignment = Alignment(hz, profile, cant, name=al.get("name") or "", stationing=stationing)
-    return LandXmlDesign(alignment, tuple(notes), tuple(names), coordinate_system(text))
+    return LandXmlDesign(alignment, tuple(notes), tuple(names), _coordinate_system(root))
 
 
 def parse_landxml(text: str, alignment_name: str | None = None, *,
