@@ -252,6 +252,8 @@ def import_session(
         except StoreError as e:
             fail(str(e))
         counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+    for note in design.notes if design is not None else ():
+        say(f"{folder / raw.meta.design_alignment}: note: {note}")
     say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
               f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
               f"{counts['gauge_sample']} gauge readings")
