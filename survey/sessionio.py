@@ -568,8 +568,10 @@ def read_session(folder: Path) -> RawSession:
     )
 
 
-def read_design(folder: Path, meta: SessionMeta):
-    """The design alignment named by ``[design] alignment``, or None.
+def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None):
+    """The design alignment named by ``[design] alignment`` (and ``[design] name`` in a file that
+    holds several), or None. The reader's notes (skipped or tolerated elements) are appended to
+    ``notes`` when it is given, each prefixed with the file name.
 
     Returns
     -------
@@ -582,7 +584,7 @@ def read_design(folder: Path, meta: SessionMeta):
     """
     if meta.design_alignment is None:
         return None
-    from trolley.landxml import parse_landxml
+    from trolley.landxml import read_landxml
 
     path = Path(folder) / meta.design_alignment
     try:
@@ -593,9 +595,12 @@ def read_design(folder: Path, meta: SessionMeta):
     except UnicodeDecodeError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: not UTF-8 ({exc.reason})") from None
     try:
-        return parse_landxml(text, meta.design_alignment_name)
+        design = read_landxml(text, meta.design_alignment_name)
     except ValueError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: {exc}") from None
+    if notes is not None:
+        notes.extend(f"{meta.design_alignment}: {n}" for n in design.notes)
+    return design.alignment
 
 
 # ------------------------------------------------------------------------------------------
