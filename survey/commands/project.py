@@ -177,11 +177,18 @@ def import_cpiii(
 def import_alignment(
     file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
     project: ProjectOption,
+    name: Annotated[str | None, typer.Option("--name", help="Alignment/@name to import from a file that "
+                                                            "holds several")] = None,
     root: RootOption = Path("projects"),
     json_output: JsonFlag = False,
 ) -> None:
-    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
+    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design).
+
+    A file with several alignments needs --name; without it their names are listed (exit 2). What
+    the reader skipped or tolerated (Feature elements, small gaps at joins, ...) is printed as notes.
+    """
     from survey.store import alignment_record_from_text
+    from trolley.landxml import AlignmentChoiceError
 
     try:
         text = file.read_bytes().decode("utf-8")
@@ -191,15 +198,23 @@ def import_alignment(
         fail(f"{file}: not UTF-8 ({e.reason} at byte {e.start})")
     with _open(root, project) as store:
         try:
-            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m)
+            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m, name)
+        except AlignmentChoiceError as e:
+            listing = "\n".join(f"  {n}" for n in e.names)
+            fail(f"{file}: {e} (nothing imported); the alignments in the file:\n{listing}\n"
+                 f"import one with --name NAME")
         except ValueError as e:  # LandXmlError names the element
             fail(f"{file}: {e} (nothing imported)")
         store.add_alignment(rec)
+    for note in rec.notes:
+        say(f"{file}: note: {note}")
     say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
-              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m")
+              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
+        + (f", {len(rec.notes)} note(s)" if rec.notes else ""))
     if json_output:
         jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
-                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m})
+                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m,
+                      "notes": list(rec.notes)})
 
 
 @project_app.command("import-session")
@@ -225,7 +240,7 @@ def import_session(
         path = folder / raw.meta.design_alignment
         try:
             design = alignment_record_from_text(raw.meta.design_alignment, path.read_bytes().decode("utf-8"),
-                                                raw.meta.trolley.rail_spacing_m)
+                                                raw.meta.trolley.rail_spacing_m, raw.meta.design_alignment_name)
         except OSError as e:
             fail(f"{path}: {e.strerror or e}")
         except ValueError as e:  # UnicodeDecodeError and LandXmlError
@@ -236,6 +251,8 @@ def import_session(
         except StoreError as e:
             fail(str(e))
         counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+    for note in design.notes if design is not None else ():
+        say(f"{folder / raw.meta.design_alignment}: note: {note}")
     say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
               f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
               f"{counts['gauge_sample']} gauge readings")

@@ -225,10 +225,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             except StoreError as exc:
                 raise SessionAbort(str(exc), "choose another --session name, or `trolley survey resume`") from None
         if self.rec.alignment_id is not None:
-            from trolley.landxml import parse_landxml
-
             a = self.store.alignment(self.rec.alignment_id)
-            self._design = parse_landxml(a.landxml_text, rail_spacing_m=self.rec.meta.trolley.rail_spacing_m)
+            self._design = a.design(self.rec.meta.trolley.rail_spacing_m)
         if self.rec.state != "ended":
             self.store.set_session_state(self.rec.session_id, "open")
 
