@@ -516,7 +516,7 @@ def free_wheelset(p: ContactParameters, mass_kg: float, izz_kg_m2: float, speed_
 
     def f(_t, x):
         fy, mz = wheelset_forces(x[0], x[2], x[1], x[3], n0, n0, 0.0, speed_m_s, 0.0, p)
-        return [x[2], x[3], fy / mass_kg, mz / izz_kg_m2]
+        return [x[2], x[3], fy[0] / mass_kg, mz[0] / izz_kg_m2]
 
     s = np.arange(0.0, length_m, step_m)
     sol = solve_ivp(f, (0.0, s[-1] / speed_m_s), [y0_m, 0.0, 0.0, 0.0], method="Radau", t_eval=s / speed_m_s,
