@@ -144,6 +144,19 @@ class EstimatorModel:
     q_xi_factor: float = 1.0
     sigma_xi_virtual_m: float = 5e-3
 
+    def at_dt(self, dt_s: float) -> "EstimatorModel":
+        """The same model for another sample interval: the per-step Q of white-noise driven states
+        grows with dt; the sensor sigmas per sample are kept; the virtual measurement's variance is
+        scaled by dt_cal / dt so that its pull per second (its spectral density) is unchanged."""
+        from dataclasses import replace
+
+        if dt_s == self.dt_s:
+            return self
+        f = dt_s / self.dt_s
+        R = self.R.copy()
+        R[3, 3] /= f
+        return replace(self, Q=self.Q * f, R=R, dt_s=float(dt_s), sigma_xi_virtual_m=float(np.sqrt(R[3, 3])))
+
 
 def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_xi_factor: float,
                       sigma_xi_virtual_m: float):
