@@ -1,7 +1,8 @@
 """Export a processed track: geometry parameters, tolerance check, workbook, CSV and plots.
 
 ``export_outputs`` is the one entry point (the ``trolley export`` command and ``trolley demo``
-call it). It reads track.csv (and, beside it, fixes.csv and summary.json when present; the
+call it). It reads track.csv (and, beside it, fixes.csv, summary.json and the field session's
+field_record.json when present; the
 design LandXML named by the session's session.toml), computes every parameter
 (:mod:`trolley.trackgeometry`), checks them against a tolerance set
 (:mod:`trolley.tolerances`) and writes the requested outputs, each atomically.
@@ -21,6 +22,7 @@ import numpy as np
 from trolley.tolerances import ToleranceSet, find_defects
 from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
 
+from survey.fieldrecord import FIELD_RECORD, read_field_record
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
@@ -121,6 +123,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     notes: list[str] = []
     info = survey_info(folder, project_name, session_name)
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
+    record = read_field_record(folder / FIELD_RECORD) if (folder / FIELD_RECORD).is_file() else None
     tol = load_tolerances(tolerances)
     cfg = geometry_config(tol, info, **config_overrides)
     design_file = Path(design) if design else design_alignment_path(info)
@@ -141,7 +144,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     t3 = time.perf_counter()
     rep = SurveyReport(track_csv=path, geometry=geometry, columns=sheet_columns(cfg), tolerances=tol,
                        defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
-                       notes=notes)
+                       notes=notes, record=record)
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
 
 
