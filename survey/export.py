@@ -124,6 +124,9 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     info = survey_info(folder, project_name, session_name)
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
     record = read_field_record(folder / FIELD_RECORD) if (folder / FIELD_RECORD).is_file() else None
+    if record is not None:   # the field session's names, unless given explicitly
+        info.project = project_name or record.project or info.project
+        info.session = session_name or record.session or info.session
     tol = load_tolerances(tolerances)
     cfg = geometry_config(tol, info, **config_overrides)
     design_file = Path(design) if design else design_alignment_path(info)

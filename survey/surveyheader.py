@@ -124,9 +124,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
     crs = str(getattr(info, "crs", "") or "") or field("coordinate_system")
     datum = str(getattr(info, "vertical_datum", "") or "") or field("height_datum")
     s = rep.geometry.chainage_m
-    span = NOT_GIVEN
-    if rec is not None and rec.start_utc and rec.end_utc:
-        span = f"{rec.start_utc} to {rec.end_utc} (UTC)"
+    span = time_span(rec.start_utc, rec.end_utc) if rec is not None else NOT_GIVEN
     rows = [
         ("Project", info.project or (rec.project if rec is not None else "") or NOT_GIVEN),
         ("Session", info.session or (rec.session if rec is not None else "") or NOT_GIVEN),
@@ -156,17 +154,28 @@ def header_rows(rep) -> list[tuple[str, str]]:
     return rows
 
 
+def time_span(start_utc: str, end_utc: str) -> str:
+    """'2026-11-26 08:02 to 11:47 UTC' (the date once when both are on one day) from ISO 8601 texts."""
+    from datetime import datetime, timezone
+
+    try:
+        a, b = (datetime.fromisoformat(x).astimezone(timezone.utc) for x in (start_utc, end_utc))
+    except (TypeError, ValueError):
+        return NOT_GIVEN
+    end = b.strftime("%H:%M") if a.date() == b.date() else b.strftime("%Y-%m-%d %H:%M")
+    return f"{a.strftime('%Y-%m-%d %H:%M')} to {end} UTC"
+
+
 def _tolerance_source(tol) -> str:
     """Where the set comes from (the built-in file, or the user's file by name), and whether
     any limit is only an example; each limit's own source is on the Summary sheet."""
     from pathlib import PurePath
 
     origin = tol.origin or ""
-    where = (f"built-in set {origin.split(':', 1)[1]} (trolley-survey)" if origin.startswith("built-in:")
+    where = (f"built-in set {origin.split(':', 1)[1]}" if origin.startswith("built-in:")
              else f"file {PurePath(origin).name}" if origin else NOT_GIVEN)
     n_ex = sum(1 for lim in tol.limits if lim.example)
-    cited = len(tol.limits) - n_ex
-    return f"{where}; {cited} limit(s) with a cited source, {n_ex} example value(s): see the Summary sheet"
+    return f"{where}: {len(tol.limits) - n_ex} limits with a cited source, {n_ex} example values"
 
 
-__all__ = ["NOT_GIVEN", "HeaderField", "HEADER_FIELDS", "check_header_value", "header_rows", "software_version"]
+__all__ = ["NOT_GIVEN", "HeaderField", "HEADER_FIELDS", "check_header_value", "header_rows", "software_version", "time_span"]

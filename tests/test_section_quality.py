@@ -50,3 +50,11 @@ def test_equals_numpy_std_of_each_section(values, length, s0):
         assert n == sel.sum()
         if n:
             assert sd == pytest.approx(np.std(x[sel]), abs=1e-9)
+
+
+def test_a_section_the_survey_only_touches_gets_no_sd_with_the_grid_step():
+    s = np.arange(0.0, 401.0, 10.0)             # 0 .. 400: the last section holds one station
+    x = np.sin(s)
+    assert np.isfinite(section_quality(s, x).std[-1])            # one station of one expected
+    q = section_quality(s, x, step_m=10.0)
+    assert q.expected.tolist() == [20, 20, 20] and np.isnan(q.std[-1]) and np.isfinite(q.std[:2]).all()

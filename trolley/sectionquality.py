@@ -35,7 +35,7 @@ class SectionQuality:
     ----------
     start_m, end_m : section limits in chainage, m (start inclusive, end exclusive).
     count : valid samples in the section.
-    expected : stations of the grid in the section (valid or not).
+    expected : stations a full section holds (``length / step``), or the stations in it.
     mean : mean of the valid samples.
     std : standard deviation, Eq. (1); NaN when fewer than ``min_fraction`` are valid.
     """
@@ -49,7 +49,7 @@ class SectionQuality:
 
 
 def section_quality(chainage_m: np.ndarray, x: np.ndarray, length_m: float = SECTION_LENGTH_M,
-                    min_fraction: float = 0.5) -> SectionQuality:
+                    min_fraction: float = 0.5, step_m: float | None = None) -> SectionQuality:
     """Standard deviation of ``x`` per chainage section, Eq. (1).
 
     Parameters
@@ -58,6 +58,9 @@ def section_quality(chainage_m: np.ndarray, x: np.ndarray, length_m: float = SEC
     x : parameter values at the stations (NaN: not available).
     length_m : section length, m (> 0).
     min_fraction : least share of valid stations for a section to get an SD (0..1).
+    step_m : station step of a uniform grid: a full section then expects ``length_m / step_m``
+        stations, so a section the survey only touches (a few stations at its end) gets no SD;
+        None: a section expects the stations it holds.
 
     Returns
     -------
@@ -84,6 +87,10 @@ def section_quality(chainage_m: np.ndarray, x: np.ndarray, length_m: float = SEC
     n_sec = int(idx[-1]) + 1
     ok = np.isfinite(v)
     expected = np.bincount(idx, minlength=n_sec)
+    if step_m is not None:
+        if not step_m > 0:
+            raise ValueError(f"station step must be > 0, got {step_m!r}")
+        expected = np.full(n_sec, int(round(length_m / step_m)))
     count = np.bincount(idx[ok], minlength=n_sec)
     total = np.bincount(idx[ok], weights=v[ok], minlength=n_sec)
     with np.errstate(invalid="ignore", divide="ignore"):
