@@ -109,7 +109,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     put_text(ws, r, 1, "Equipment").font = Font(bold=True, size=12)
     r += 1
     eq = info.equipment
-    kv("IMU figures (preset)", eq.get("imu_name") or info.imu_name or NOT_GIVEN)
+    kv("IMU", eq.get("imu_name") or info.imu_name or NOT_GIVEN)
     legacy = {"gyro_bias_instability_deg_h": info.gyro_bias_instability_deg_h,
               "gyro_arw_deg_sqrt_h": info.gyro_arw_deg_sqrt_h}
     for key, (label, fmt) in EQUIPMENT.items():

@@ -370,7 +370,7 @@ def test_libreoffice_round_trip_keeps_values_formats_and_charts(exported, tmp_pa
         return [[(s.xVal.numRef.f.replace("'", ""), s.yVal.numRef.f.replace("'", "")) for s in ch.series]
                 for ch in ws._charts]
 
-    assert series(lo["Charts"]) == series(ours["Charts"]) and len(series(ours["Charts"])) == 4
+    assert series(lo["Charts"]) == series(ours["Charts"]) and len(series(ours["Charts"])) == 5
     assert all(ch.scatterStyle == "line" for ch in lo["Charts"]._charts)
 
 
