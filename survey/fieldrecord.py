@@ -166,11 +166,36 @@ def field_record(store, session_name: str) -> FieldRecord:
                                       int(s.dof), bool(s.accepted), tuple(s.excluded), pts))
     span = store.session_time_span_utc(sid)
     return FieldRecord(
-        project=store.info().name, session=session_name, header=store.header(),
+        project=store.info().name, session=session_name, header={**store.header(), **crs_header(store, rec)},
         start_utc=span[0] if span else "", end_utc=span[1] if span else "",
         fixes=fixes, setups=out_setups, overlaps=overlap_checks(fixes, store.settings().overlap_tolerance_m),
         stops=[RecordStop(float(p.t_start_s), float(p.t_end_s), p.label, float(p.chainage_m))
                for p in store.stops(sid)])
+
+
+def crs_header(store, rec) -> dict[str, str]:
+    """The session's coordinate system, height datum and the grid convergence and scale at the
+    CPIII centroid (``trolley project set-crs``); {} entries left out when not set."""
+    from trolley import units
+    from trolley.projection import CrsError
+
+    meta = rec.meta
+    crs = getattr(meta, "crs", None) or store.settings().crs
+    datum = getattr(meta, "vertical_datum", None) or store.settings().vertical_datum
+    out = {}
+    if crs:
+        out["coordinate_system"] = str(crs)
+        try:
+            grid = store.site_grid()
+        except CrsError as e:          # the header names the problem instead of a figure
+            out["grid"] = f"not computed ({e})"
+        else:
+            if grid is not None:
+                out["grid"] = (f"convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
+                               f"combined scale {grid.combined_scale:.9f} at the CPIII centroid")
+    if datum:
+        out["height_datum"] = str(datum)
+    return out
 
 
 def _jsonable(x):

@@ -84,7 +84,10 @@ class ProjectSettings:
     max_point_residual_m : resection metric tolerance per point.
     overlap_tolerance_m : tolerance of the overlap check after a station change.
     polar_model : curvature, refraction and grid scale of the total-station observations
-        (``docs/conventions.md``, "Total station").
+        (``docs/conventions.md``, "Total station"); with a ``crs`` the grid scale is the CRS's
+        combined scale at the CPIII centroid instead (:meth:`ProjectStore.site_grid`).
+    crs : coordinate reference system of the grid (EPSG code or PROJ string), or None.
+    vertical_datum : name of the height datum, or None.
     """
 
     latitude_rad: float = 0.4886921905584123  # 28 deg
@@ -101,10 +104,15 @@ class ProjectSettings:
     max_point_residual_m: float = 0.002
     overlap_tolerance_m: float = 0.002
     polar_model: PolarModel = field(default_factory=PolarModel)
+    crs: str | None = None
+    vertical_datum: str | None = None
 
-    def resection_config(self) -> ResectionConfig:
-        """Resection weights and tolerances of this project."""
-        return ResectionConfig(sigmas=self.instrument, model=self.polar_model,
+    def resection_config(self, grid_scale: float | None = None) -> ResectionConfig:
+        """Resection weights and tolerances of this project (``grid_scale``: the CRS's combined
+        scale at the site, replacing the polar model's)."""
+        model = self.polar_model if grid_scale is None else dataclasses.replace(self.polar_model,
+                                                                                grid_scale=float(grid_scale))
+        return ResectionConfig(sigmas=self.instrument, model=model,
                                max_standardized_residual=self.max_standardized_residual,
                                max_point_residual_m=self.max_point_residual_m)
 
@@ -112,7 +120,8 @@ class ProjectSettings:
         """Metadata of a new session recorded with these settings."""
         return SessionMeta(latitude_rad=self.latitude_rad, height_m=self.height_m, trolley=self.trolley,
                            imu=self.imu, odometer=self.odometer, fix_sigma_m=self.fix_sigma_m,
-                           static_s=self.static_s, design_alignment=design_alignment)
+                           static_s=self.static_s, design_alignment=design_alignment, crs=self.crs,
+                           vertical_datum=self.vertical_datum)
 
 
 @dataclass(frozen=True)
@@ -740,6 +749,16 @@ class ProjectStore:
         rows = self._conn.execute("SELECT point_id, e_m, n_m, h_m, source, line FROM cpiii_point ORDER BY point_id")
         return [ControlPoint(*r) for r in rows]
 
+    def site_grid(self):
+        """The project CRS's factors at the CPIII centroid (``trolley.projection.GridFactors``), or
+        None without a CRS or without CPIII points."""
+        crs = self.settings().crs
+        pts = self.cpiii_points()
+        if not crs or not pts:
+            return None
+        from trolley.projection import site_factors
+        return site_factors(crs, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
+
     def cpiii_point(self, point_id: str) -> ControlPoint | None:
         """One control point, or None."""
         r = self._conn.execute("SELECT point_id, e_m, n_m, h_m, source, line FROM cpiii_point WHERE point_id = ?",
@@ -768,6 +787,9 @@ class ProjectStore:
             raise StoreError(f"invalid session name {name!r}")
         if meta is None:
             meta = self.settings().session_meta()
+            grid = self.site_grid()
+            if grid is not None:  # the latitude of the site, from the CRS at the CPIII
+                meta = dataclasses.replace(meta, latitude_rad=grid.latitude_rad)
         state = "open" if source == "live" else "imported"
         with self._transaction() as c:
             if c.execute("SELECT 1 FROM session WHERE name = ?", (name,)).fetchone():

@@ -52,9 +52,11 @@ HEADER_FIELDS: dict[str, HeaderField] = {
     "trolley_serial": HeaderField("Trolley serial number"),
     "trolley_calibrated": HeaderField("Trolley (gauge, cant) calibrated", "date"),
     "rail_temperature_c": HeaderField("Rail temperature [°C]", "celsius"),
-    "coordinate_system": HeaderField("Coordinate system"),
-    "height_datum": HeaderField("Height datum"),
 }
+#: header entries the field record takes from the project's CRS (``trolley project set-crs``), not
+#: from ``project set``: key -> label
+CRS_FIELDS = {"coordinate_system": "Coordinate system", "height_datum": "Height datum",
+              "grid": "Grid convergence and scale"}
 
 _MAX_LEN = 200
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
@@ -120,7 +122,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
         return given.get(key) or NOT_GIVEN
 
     # coordinate system and datum: the processing's own (SurveyInfo.crs / vertical_datum, when the
-    # engine records them), else what the crew gave
+    # engine records them), else the session's (field record, from `trolley project set-crs`)
     crs = str(getattr(info, "crs", "") or "") or field("coordinate_system")
     datum = str(getattr(info, "vertical_datum", "") or "") or field("height_datum")
     s = rep.geometry.chainage_m
@@ -147,6 +149,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
         (HEADER_FIELDS["rail_temperature_c"].label, field("rail_temperature_c")),
         ("Coordinate system", crs),
         ("Height datum", datum),
+        ("Grid convergence and scale", field("grid")),
         ("Software", software_version()),
         ("Tolerance set", f"{rep.tolerances.name}: {rep.tolerances.title}"),
         ("Tolerance source", _tolerance_source(rep.tolerances)),
@@ -178,4 +181,4 @@ def _tolerance_source(tol) -> str:
     return f"{where}: {len(tol.limits) - n_ex} limits with a cited source, {n_ex} example values"
 
 
-__all__ = ["NOT_GIVEN", "HeaderField", "HEADER_FIELDS", "check_header_value", "header_rows", "software_version", "time_span"]
+__all__ = ["NOT_GIVEN", "HeaderField", "HEADER_FIELDS", "CRS_FIELDS", "check_header_value", "header_rows", "software_version", "time_span"]

@@ -243,7 +243,7 @@ def header_lines(rep: SurveyReport) -> list[str]:
         join("Chainage", "Survey date and time", "Crew / operator"),
         "   |   ".join([device("Total station", "totalstation"), device("IMU", "imu")]),
         "   |   ".join([device("Trolley", "trolley"), f"Rail temperature [°C]: {h['Rail temperature [°C]']}",
-                        join("Coordinate system", "Height datum")]),
+                        join("Coordinate system", "Height datum", "Grid convergence and scale")]),
         f"Software: {h['Software']}   |   Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
     ]
 

@@ -756,6 +756,13 @@ class Alignment:
                                rho_h_1_m=hz.rho_h_1_m, drho_h_ds_1_m2=hz.drho_h_ds_1_m2,
                                rho_v_1_m=rho_v, rho_tw_1_m=rho_tw)
 
+    def translated(self, dE_m: float, dN_m: float) -> "Alignment":
+        """The same alignment moved by (dE, dN) in the grid (same elements, bearings, profile, cant)."""
+        h = self.horizontal
+        moved = HorizontalAlignment(h.start_E_m + float(dE_m), h.start_N_m + float(dN_m), h.start_heading_rad,
+                                    h.elements, h.start_chainage_m)
+        return Alignment(moved, self.profile, self.cant, self.name)
+
     def project(self, E_m, N_m, H_m=None) -> Projection:
         """Project grid points onto the alignment.
 

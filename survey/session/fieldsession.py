@@ -425,7 +425,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self._device_fault(f"total station: {exc}")
             return False
         label = f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}"
-        fix = FixRecord(t, label, m.E_m, m.N_m, m.H_m, sigma, sigma, sigma, setup_id=self.setup_id)
+        fix = FixRecord(t, label, *self.grid_coordinates(m), sigma, sigma, sigma, setup_id=self.setup_id)
         verdict = self._live_verdict(fix)
         accepted = verdict is None or bool(verdict.accepted)
         reason = "accepted" if accepted else f"{SUSPICIOUS}: {verdict.reason}"
