@@ -41,12 +41,13 @@ class ExportResult:
     Attributes
     ----------
     report : the survey report (geometry, defects, statistics).
-    xlsx, csv, plots : files written (None / empty when not requested).
+    xlsx, pdf, csv, plots : files written (None / empty when not requested).
     timings_s : seconds per stage ("read", "geometry", "check", "xlsx", "csv", "plots").
     """
 
     report: SurveyReport
     xlsx: Path | None = None
+    pdf: Path | None = None
     csv: Path | None = None
     plots: list[Path] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -67,7 +68,7 @@ class ExportResult:
             "step_m": rep.geometry.step_m, "tolerances": rep.tolerances.name,
             "design": str(rep.design_file) if rep.design_file else None,
             "defects": len(rep.defects), "passed": rep.passed,
-            "xlsx": str(self.xlsx) if self.xlsx else None, "csv": str(self.csv) if self.csv else None,
+            "xlsx": str(self.xlsx) if self.xlsx else None, "pdf": str(self.pdf) if self.pdf else None, "csv": str(self.csv) if self.csv else None,
             "plots": [str(p) for p in self.plots], "notes": rep.notes,
             "timings_s": {k: round(v, 4) for k, v in self.timings_s.items()},
         }
@@ -186,7 +187,7 @@ def write_track_csv(path: Path, rep: SurveyReport) -> Path:
 def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
                    tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
                    project_name: str | None = None, session_name: str | None = None,
-                   progress: Callable[[str, float], None] | None = None,
+                   progress: Callable[[str, float], None] | None = None, pdf: Path | None = None,
                    **config_overrides) -> ExportResult:
     """Compute the survey sheet of a processed track and write the requested outputs.
 
@@ -204,7 +205,8 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         titles; they override summary.json's (which knows only what ``trolley process`` was
         told). The field session passes its project store's and session's names.
     progress : optional ``progress(step, fraction)`` called before each stage (geometry, workbook,
-        CSV, plots) with the fraction of the export done (survey/commands/progress.py).
+        CSV, plots, PDF) with the fraction of the export done (survey/commands/progress.py).
+    pdf : PDF report to write (survey/reportpdf.py; None: skip).
     config_overrides : :class:`trolley.trackgeometry.GeometryConfig` fields.
 
     Returns
@@ -218,7 +220,7 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     """
     # rough shares of the run time of each stage, for the progress bar only
     shares = {"geometry": 0.3, "xlsx": 0.4 if xlsx is not None else 0.0, "csv": 0.05 if csv is not None else 0.0,
-              "plots": 0.25 if plots_dir is not None else 0.0}
+              "plots": 0.25 if plots_dir is not None else 0.0, "pdf": 0.4 if pdf is not None else 0.0}
     total = sum(shares.values())
     done = 0.0
 
@@ -252,4 +254,11 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         t = time.perf_counter()
         result.plots = write_plots(Path(plots_dir), rep)
         timings["plots"] = time.perf_counter() - t
+    if pdf is not None:
+        from survey.reportpdf import write_pdf_report
+
+        report("writing the PDF report", "pdf")
+        t = time.perf_counter()
+        result.pdf = write_pdf_report(Path(pdf), rep).path
+        timings["pdf"] = time.perf_counter() - t
     return result

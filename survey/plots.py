@@ -178,7 +178,8 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
         ax.plot(in_x(rej), np.zeros(in_x(rej).size), "x", color="tab:red", ms=6, mew=1.5, transform=tr,
                 clip_on=False, label="rejected / undone fix")
     head = by_key[keys[0]].header
-    ax.set_ylabel(("|" + head.replace(" [mm]", "| [mm]", 1)) if chord else head, fontsize=8)
+    head = ("|" + head.replace(" [mm]", "| [mm]", 1)) if chord else head
+    ax.set_ylabel(head.replace("] ", "]\n", 1), fontsize=8)   # quantity [unit] / sign convention
     ax.grid(True, lw=0.4, alpha=0.6)
     ax.legend(loc="upper right", fontsize=7, ncol=3)
     if xlim is not None:
