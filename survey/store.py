@@ -708,6 +708,28 @@ class ProjectStore:
             c.execute("INSERT OR REPLACE INTO setting (key, value_json) VALUES ('project', ?)",
                       (settings_to_json(settings),))
 
+    # -- survey header (`trolley project set`) ---------------------------------------------------
+    def header(self) -> dict[str, str]:
+        """The survey header fields the crew gave (survey.surveyheader.HEADER_FIELDS keys)."""
+        row = self._conn.execute("SELECT value_json FROM setting WHERE key = 'header'").fetchone()
+        return dict(json.loads(row[0])) if row else {}
+
+    def set_header(self, key: str, value: str) -> str:
+        """Set (or with an empty value clear) one header field after checking it
+        (:func:`survey.surveyheader.check_header_value`; ValueError when bad). Returns the value stored."""
+        from survey.surveyheader import check_header_value
+
+        text = check_header_value(key, value)
+        with self._transaction() as c:
+            row = c.execute("SELECT value_json FROM setting WHERE key = 'header'").fetchone()
+            doc = dict(json.loads(row[0])) if row else {}
+            if text:
+                doc[key] = text
+            else:
+                doc.pop(key, None)
+            c.execute("INSERT OR REPLACE INTO setting (key, value_json) VALUES ('header', ?)", (json.dumps(doc),))
+        return text
+
     # -- CPIII -----------------------------------------------------------------------------------
     def add_cpiii_points(self, points: Sequence[ControlPoint]) -> int:
         """Add control points in one transaction.
@@ -923,6 +945,16 @@ class ProjectStore:
         rows = self._conn.execute("SELECT t_s, kind, detail, id FROM session_event WHERE session_id = ? ORDER BY id",
                                   (session_id,))
         return [SessionEvent(*r) for r in rows]
+
+    def session_time_span_utc(self, session_id: int) -> tuple[str, str] | None:
+        """First and last wall-clock time (UTC, ISO 8601) at which the session stored a setup,
+        a fix decision, a note or an event; None when it stored none of them."""
+        r = self._conn.execute(
+            "SELECT MIN(u), MAX(u) FROM (SELECT created_utc AS u FROM session_event WHERE session_id = ?1 "
+            "UNION ALL SELECT created_utc FROM station_setup WHERE session_id = ?1 "
+            "UNION ALL SELECT d.created_utc FROM fix_decision d JOIN fix f ON f.id = d.fix_id WHERE f.session_id = ?1 "
+            "UNION ALL SELECT created_utc FROM note WHERE session_id = ?1)", (session_id,)).fetchone()
+        return None if r is None or r[0] is None else (str(r[0]), str(r[1]))
 
     # -- raw and decoded data --------------------------------------------------------------------
     def raw_chunks(self, session_id: int, device: str | None = None) -> list[RawChunk]:

@@ -1,5 +1,5 @@
 """``trolley project ...``: create a project store, import CPIII points, the design alignment and
-raw session folders, export sessions, and show what a project holds.
+raw session folders, export sessions, set the survey header fields, and show what a project holds.
 
 Every command opens ``<root>/<name>/project.sqlite`` (``--root``, default ``projects``, or the
 environment variable ``TROLLEY_PROJECTS``). Bad input is one line on stderr naming the file and
@@ -333,6 +333,29 @@ def set_crs(
             f"combined scale {grid.combined_scale:.9f}")
 
 
+@project_app.command("set")
+def set_field(
+    key: Annotated[str, typer.Argument(help="header field: line, track, client, crew, totalstation, "
+                                            "totalstation_serial, totalstation_calibrated, imu, imu_serial, "
+                                            "imu_calibrated, trolley, trolley_serial, trolley_calibrated, "
+                                            "rail_temperature_c (the CRS: project set-crs)")],
+    value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
+                                              "\"\" clears the field")],
+    project: ProjectOption = ...,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them)."""
+    from survey.surveyheader import HEADER_FIELDS
+
+    with _open(root, project) as store:
+        try:
+            text = store.set_header(key, value)
+        except ValueError as e:
+            fail(str(e))
+    label = HEADER_FIELDS[key].label
+    say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
+
+
 @project_app.command("show")
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
@@ -351,6 +374,7 @@ def show(
         s = store.settings()
         pts = store.cpiii_points()
         al = store.alignment()
+        header = store.header()
         grid = store.site_grid() if s.crs else None
         sessions = []
         for rec in store.sessions():
@@ -366,6 +390,7 @@ def show(
             "name": info.name, "path": str(info.path), "created_utc": info.created_utc,
             "schema_version": info.schema_version,
             "settings": json.loads(settings_to_json(s)),
+            "header": header,
             "grid": None if grid is None else {
                 "latitude_deg": units.rad_to_deg(grid.latitude_rad), "longitude_deg": units.rad_to_deg(grid.longitude_rad),
                 "convergence_deg": units.rad_to_deg(grid.convergence_rad), "point_scale": grid.point_scale,
@@ -423,6 +448,10 @@ def show(
                                f"{al.chainage_start_m:.3f} .. {al.chainage_end_m:.3f} m")
     else:
         t.add_row("alignment", "none (trolley project import-alignment FILE.xml --project NAME)")
+    from survey.surveyheader import HEADER_FIELDS, NOT_GIVEN
+
+    for key, fld in HEADER_FIELDS.items():
+        t.add_row(f"{fld.label} ({key})", header.get(key, NOT_GIVEN))
     out.print(t)
     st = Table(title="sessions")
     for col in ("name", "state", "source", "created (UTC)", "IMU samples", "fixes accepted/all", "setups"):
