@@ -47,6 +47,7 @@ COMMAND_MODULES: list[str] = [
     "budget",
     "tgms",
     "survey",
+    "inservice",
 ]
 
 for _name in COMMAND_MODULES:
