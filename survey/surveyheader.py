@@ -96,13 +96,10 @@ def check_header_value(key: str, value: str) -> str:
 
 
 def software_version() -> str:
-    """``trolley-survey X.Y.Z`` of the installed package."""
-    from importlib.metadata import PackageNotFoundError, version
+    """``trolley-survey X.Y.Z`` of the installed package (:func:`survey.version.version`)."""
+    from survey.version import DISTRIBUTION, version
 
-    try:
-        return f"trolley-survey {version('trolley-survey')}"
-    except PackageNotFoundError:
-        return "trolley-survey (version unknown: not installed as a package)"
+    return f"{DISTRIBUTION} {version()}"
 
 
 def header_rows(rep) -> list[tuple[str, str]]:
