@@ -226,6 +226,21 @@ def test_tgms_json_is_strict_where_the_accuracy_has_no_value(tmp_path):
     assert nulls(doc["accuracy_3_25m"]) > 0
 
 
+def test_survey_start_json_is_the_final_summary_alone(tmp_path):
+    sys.path.insert(0, str(Path(__file__).parent))
+    from session_project import make_project
+
+    make_project(tmp_path / "projects")
+    (tmp_path / "crew.txt").write_text("fix\nmove\nfix\nmove\nfix\nend\n")
+    p = subprocess.run([sys.executable, "-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                        "--session", "s", "--simulate", "--speedup", "25", "--script", "crew.txt", "--json"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    doc = strict_json(p.stdout)
+    assert doc["session"] == "s" and doc["fixes_accepted"] >= 2
+    assert (tmp_path / doc["track_csv"]).is_file() and (tmp_path / doc["xlsx"]).is_file()  # relative to cwd
+
+
 # --------------------------------------------------------------------------------- old names
 
 def test_old_option_names_still_work_and_are_the_same_option(session, processed, tmp_path):
