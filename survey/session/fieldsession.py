@@ -225,10 +225,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             except StoreError as exc:
                 raise SessionAbort(str(exc), "choose another --session name, or `trolley survey resume`") from None
         if self.rec.alignment_id is not None:
-            from trolley.landxml import parse_landxml
-
             a = self.store.alignment(self.rec.alignment_id)
-            self._design = parse_landxml(a.landxml_text, rail_spacing_m=self.rec.meta.trolley.rail_spacing_m)
+            self._design = a.design(self.rec.meta.trolley.rail_spacing_m)
         if self.rec.state != "ended":
             self.store.set_session_state(self.rec.session_id, "open")
 
@@ -446,7 +444,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self._device_fault(f"total station: {exc}")
             return False
         label = f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}"
-        fix = FixRecord(t, label, m.E_m, m.N_m, m.H_m, sigma, sigma, sigma, setup_id=self.setup_id)
+        fix = FixRecord(t, label, *self.grid_coordinates(m), sigma, sigma, sigma, setup_id=self.setup_id)
         verdict = self._live_verdict(fix)
         accepted = verdict is None or bool(verdict.accepted)
         reason = "accepted" if accepted else f"{SUSPICIOUS}: {verdict.reason}"

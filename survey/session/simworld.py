@@ -168,7 +168,7 @@ def prism_position_enh(sim, t_s: float) -> np.ndarray:
     w, x, yq, z = handling_quat(motion, np.array([float(t_s)]))[0]
     turned = Rotation.from_euler("ZYX", [y, pch, r]) * Rotation.from_quat([x, yq, z, w])
     lever_n = turned.apply(np.asarray(sim.config.trolley.prism_lever_arm_m, float))
-    return np.array([p[0] + geo.origin_E_m + lever_n[1], p[1] + geo.origin_N_m + lever_n[0], p[2] - lever_n[2]])
+    return geo.grid_enh(np.array([p[0] + lever_n[1], p[1] + lever_n[0], p[2] - lever_n[2]]))
 
 
 def stop_index_at(sim, t_s: float) -> int:
@@ -204,9 +204,8 @@ class SimWorld:
         p = geo.position(np.array([s0]))[0]
         yaw = float(geo.attitude(np.array([s0]))[2][0])
         left = np.array([-math.cos(yaw), math.sin(yaw)])  # (E, N) to the left of the heading
-        self.station_enh_m = np.array([p[0] + geo.origin_E_m + options.station_offset_m * left[0],
-                                       p[1] + geo.origin_N_m + options.station_offset_m * left[1],
-                                       p[2] + 1.2])
+        self.station_enh_m = geo.grid_enh(np.array([p[0] + options.station_offset_m * left[0],
+                                                    p[1] + options.station_offset_m * left[1], p[2] + 1.2]))
         self.duration_s = float(max(raw.imu_t_s[-1], raw.odo_t_s[-1]))
 
     # ------------------------------------------------------------------ lifecycle
@@ -309,9 +308,8 @@ class SimWorld:
         s = float(np.clip(chainage_m + o.station_ahead_m, geo.start_chainage_m, geo.end_chainage_m))
         p = geo.position(np.array([s]))[0]
         yaw = float(geo.attitude(np.array([s]))[2][0])
-        self.place_instrument(np.array([p[0] + geo.origin_E_m - o.station_offset_m * math.cos(yaw),
-                                        p[1] + geo.origin_N_m + o.station_offset_m * math.sin(yaw),
-                                        p[2] + 1.2]), k)
+        self.place_instrument(geo.grid_enh(np.array([p[0] - o.station_offset_m * math.cos(yaw),
+                                                     p[1] + o.station_offset_m * math.sin(yaw), p[2] + 1.2])), k)
 
     def place_instrument(self, station_enh_m, k: int) -> None:
         """Put the instrument at ``station_enh_m`` with setup ``k``'s circle orientation (also on resume)."""

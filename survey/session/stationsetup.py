@@ -50,7 +50,7 @@ class StationSetupSteps:
 
         self.screen.phase = "station setup"
         points = self._setup_points()
-        config = self.settings.resection_config()
+        config = self.settings.resection_config(self._grid_scale())
         if self.world is not None:  # the twin has no curvature/refraction model
             config = replace(config, model=replace(config.model, curvature_refraction=False))
         first = not self.store.station_setups(self.rec.session_id)
@@ -151,8 +151,32 @@ class StationSetupSteps:
                                "(3 are needed)", "check the prisms and the lines of sight, then resume")
         return done, PolarObservations(np.array(hz), np.array(v), np.array(sd))
 
+    def _grid_scale(self) -> float | None:
+        """Grid distance / ground distance of the total station's measurements: the project CRS's
+        combined scale (point scale x height reduction) at the CPIII centroid, or None (the polar
+        model's own). The simulated twin measures in the grid itself: None."""
+        if self.world is not None:
+            return None
+        if not hasattr(self, "_grid_scale_value"):
+            grid = self.store.site_grid()
+            self._grid_scale_value = None if grid is None else grid.combined_scale
+        return self._grid_scale_value
+
+    def grid_coordinates(self, m) -> tuple[float, float, float]:
+        """E, N, H of a measurement reduced to the grid (:func:`trolley.resection.reduce_to_grid`):
+        the instrument computed them with the ground distance from the station it was given."""
+        from trolley.resection import reduce_to_grid
+
+        scale = self._grid_scale()
+        station = getattr(self, "_station_enh_m", None)
+        if scale is None or station is None:
+            return m.E_m, m.N_m, m.H_m
+        e, n, h = reduce_to_grid(station, [m.E_m, m.N_m, m.H_m], scale)
+        return float(e), float(n), float(h)
+
     def _give_station(self, station_enh_m, orientation_rad: float) -> None:
         """TMC_SetStation, then orient the circle so that it reads grid azimuths."""
+        self._station_enh_m = np.asarray(station_enh_m, dtype=float).copy()
         e, n, h = (float(x) for x in station_enh_m)
         self.ts.set_station(e, n, h, 0.0)
         hz, _ = self.ts.angle()
@@ -213,14 +237,15 @@ class StationSetupSteps:
         except (GeoComError, DeviceError) as exc:
             self.say(f"overlap check not measured: {exc}")
             return True
-        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], [m.E_m, m.N_m, m.H_m],
+        here = self.grid_coordinates(m)
+        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], list(here),
                            self.settings.overlap_tolerance_m)
         d = oc.difference_enh_mm
         verdict = "within" if oc.within_tolerance else "[bold red]OUTSIDE[/]"
         self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
                  f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
         sigma = self.rec.meta.fix_sigma_m
-        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", m.E_m, m.N_m, m.H_m,
+        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", *here,
                         sigma, sigma, sigma, setup_id=self.setup_id)
         v = self._live_verdict(fix)
         ok = oc.within_tolerance and (v is None or bool(v.accepted))
