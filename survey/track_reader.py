@@ -390,22 +390,29 @@ def design_alignment_name(info: SurveyInfo) -> str | None:
 
 
 def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
-               alignment_name: str | None = None) -> TrackInput:
+               alignment_name: str | None = None, notes: list[str] | None = None) -> TrackInput:
     """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
     (internal stations: track.csv's ``distance_m`` when it has one).
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
-    positive when the left rail is higher, like the measured cant.
+    positive when the left rail is higher, like the measured cant. The LandXML reader's notes,
+    and a word on the chainage when the design has station equations, are appended to ``notes``.
     """
-    from trolley.landxml import LandXmlError, parse_landxml
+    from trolley.landxml import LandXmlError, read_landxml
 
     try:
-        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
-                                  rail_spacing_m=rail_spacing_m)
+        design = read_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
+                              rail_spacing_m=rail_spacing_m)
     except (OSError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
     except LandXmlError as e:
         raise ExportInputError(f"{landxml_path}: {e}") from None
+    alignment = design.alignment
+    if notes is not None:
+        notes.extend(f"{Path(landxml_path).name}: {n}" for n in design.notes)
+        if alignment.stationing is not None and alignment.stationing.equations:
+            notes.append(f"{Path(landxml_path).name} has station equations: the chainages here are internal "
+                         f"stations (track.csv distance_m); the drawing's stationing is track.csv chainage_m")
     d = alignment.evaluate(track.chainage_m)
     track.design_E_m, track.design_N_m = d.E_m, d.N_m
     track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)
