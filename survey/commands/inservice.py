@@ -69,7 +69,8 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
     ax.set_xlabel("chainage [m]  (alignment positive to the right)")
     for a in axes:
         a.grid(True, lw=0.4, alpha=0.6)
-        a.legend(loc="upper right", fontsize=8)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fd, tmp = tempfile.mkstemp(prefix=".alignment-", suffix=".png", dir=path.parent)
     os.close(fd)
