@@ -8,26 +8,15 @@ from dataclasses import asdict
 import numpy as np
 import pandas as pd
 import pytest
-import typer
+from test_inservice_io import _app
 from typer.testing import CliRunner
 
 from survey import inservice_io as io
-from survey.commands.inservice import register
 from survey.inservice_model import ModelFileError, model_toml_text, read_model, write_model
 from trolley.inservice.identification import EstimatorModel
 from trolley.inservice.model import ModelParameters, simulate_response
 
 P = ModelParameters()
-
-
-def _app():
-    app = typer.Typer()
-    register(app)
-
-    @app.command()
-    def other():  # a second command keeps "inservice" a group
-        pass
-    return app
 
 
 @pytest.fixture(scope="module")

@@ -42,6 +42,18 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _save_atomic(path: Path, save) -> None:
+    """Call ``save(tmp)`` on a temporary file next to ``path``, then rename it to ``path``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        save(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
 def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") -> None:
     import matplotlib
 
@@ -72,15 +84,10 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
         if a.get_legend_handles_labels()[0]:
             a.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=".alignment-", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp)
-        os.replace(tmp, path)
+        _save_atomic(path, fig.savefig)
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) -> None:
@@ -112,14 +119,7 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
         _num(ws, i, 3, g, "0.000")
     ws.freeze_panes = "A5"
     _print_setup(ws, landscape=False)
-    fd, tmp = tempfile.mkstemp(prefix=".inservice-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
-        wb.save(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    _save_atomic(path, wb.save)
 
 
 @inservice_app.command("process")
