@@ -95,7 +95,7 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
     from openpyxl import Workbook
 
     from survey.sheet_text import put_text
-    from survey.workbook import _header, _num, _print_setup
+    from survey.workbook import _header, _num
 
     wb = Workbook()
     ws = wb.active
@@ -118,7 +118,10 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
         _num(ws, i, 2, a, "0.000")
         _num(ws, i, 3, g, "0.000")
     ws.freeze_panes = "A5"
-    _print_setup(ws, landscape=False)
+    ws.page_setup.paperSize = ws.PAPERSIZE_A4
+    ws.page_setup.fitToWidth, ws.page_setup.fitToHeight = 1, 0
+    ws.sheet_properties.pageSetUpPr.fitToPage = True
+    ws.print_title_rows = "4:4"
     _save_atomic(path, wb.save)
 
 
