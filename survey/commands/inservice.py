@@ -206,7 +206,8 @@ def process_cmd(
         out.mkdir(parents=True, exist_ok=True)
         _atomic_write_csv(out / "irregularities.csv",
                           pd.DataFrame({"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}), "%.6g")
-        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {recording.resolve().parent.name}/{recording.name}")
+        run_name = f"{recording.resolve().parent.name}/{recording.name}"
+        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {run_name}")
         _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
                     grid, est_mm, sig_mm)
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
