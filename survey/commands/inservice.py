@@ -42,6 +42,18 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _save_atomic(path: Path, save) -> None:
+    """Call ``save(tmp)`` on a temporary file next to ``path``, then rename it to ``path``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        save(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
 def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") -> None:
     import matplotlib
 
@@ -69,17 +81,13 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
     ax.set_xlabel("chainage [m]  (alignment positive to the right)")
     for a in axes:
         a.grid(True, lw=0.4, alpha=0.6)
-        a.legend(loc="upper right", fontsize=8)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=".alignment-", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp)
-        os.replace(tmp, path)
+        _save_atomic(path, fig.savefig)
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) -> None:
@@ -87,7 +95,7 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
     from openpyxl import Workbook
 
     from survey.sheet_text import put_text
-    from survey.workbook import _header, _num, _print_setup
+    from survey.workbook import _header, _num
 
     wb = Workbook()
     ws = wb.active
@@ -110,15 +118,11 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
         _num(ws, i, 2, a, "0.000")
         _num(ws, i, 3, g, "0.000")
     ws.freeze_panes = "A5"
-    _print_setup(ws, landscape=False)
-    fd, tmp = tempfile.mkstemp(prefix=".inservice-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
-        wb.save(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    ws.page_setup.paperSize = ws.PAPERSIZE_A4
+    ws.page_setup.fitToWidth, ws.page_setup.fitToHeight = 1, 0
+    ws.sheet_properties.pageSetUpPr.fitToPage = True
+    ws.print_title_rows = "4:4"
+    _save_atomic(path, wb.save)
 
 
 @inservice_app.command("process")
@@ -202,7 +206,8 @@ def process_cmd(
         out.mkdir(parents=True, exist_ok=True)
         _atomic_write_csv(out / "irregularities.csv",
                           pd.DataFrame({"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}), "%.6g")
-        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {recording.name}")
+        run_name = f"{recording.resolve().parent.name}/{recording.name}"
+        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {run_name}")
         _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
                     grid, est_mm, sig_mm)
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
