@@ -127,6 +127,21 @@ def test_process_cli_exits_2_without_crs_and_succeeds_with_it(design, tmp_path):
     assert math.degrees(back.meta.latitude_rad) == pytest.approx(28.01, abs=0.01)
     r = runner.invoke(app, ["process", str(folder), "--out", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output
+    # the survey sheet carries the CRS, the scale factor and the convergence
+    import json
+
+    from openpyxl import load_workbook
+
+    from survey.export import export_outputs
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["crs"] == CRS and summary["grid_convergence_deg"] == pytest.approx(0.96, abs=0.01)
+    export_outputs(tmp_path / "out", tmp_path / "survey.xlsx", tmp_path / "table.csv", tmp_path / "plots")
+    wb = load_workbook(tmp_path / "survey.xlsx")
+    sheet = {row[0].value: row[1].value for row in wb["Summary"].iter_rows(min_row=1, max_col=2)}
+    assert sheet["CRS"] == CRS and sheet["Vertical datum"] == "(not given)"
+    assert sheet["Grid convergence [deg]"] == pytest.approx(summary["grid_convergence_deg"], abs=1e-12)
+    assert sheet["Grid scale factor"] == pytest.approx(summary["grid_scale_factor"], abs=1e-15)
+    assert 1.00008 < sheet["Grid scale factor"] < 1.0001  # k0 (1 + x^2 / 2R^2) at 200 km
 
 
 def test_session_toml_crs_round_trip_and_errors(tmp_path):

@@ -686,6 +686,12 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         "heading_sigma_deg": float(np.rad2deg(heading_sigma)),
         "nodes": int(len(nodes)),
         "observability_ranks": list(ranks) if ranks is not None else None,
+        # the project grid at the site (trolley.projection); None without a CRS
+        "crs": meta.crs,
+        "vertical_datum": meta.vertical_datum,
+        "grid_convergence_deg": float(np.rad2deg(grid.convergence_rad)) if grid is not None else None,
+        "grid_scale_factor": grid.point_scale if grid is not None else None,
+        "grid_combined_scale": grid.combined_scale if grid is not None else None,
     }
     report("done", 1.0)
     return ProcessResult(stations, traj, fixes, align, dr, ranks, config, int(len(nodes)), summary)
