@@ -15,6 +15,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -179,6 +180,7 @@ def write_track_csv(path: Path, rep: SurveyReport) -> Path:
 def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
                    tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
                    project_name: str | None = None, session_name: str | None = None,
+                   progress: Callable[[str, float], None] | None = None,
                    **config_overrides) -> ExportResult:
     """Compute the survey sheet of a processed track and write the requested outputs.
 
@@ -195,6 +197,8 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     project_name, session_name : project and session names for the Summary sheet and the plot
         titles; they override summary.json's (which knows only what ``trolley process`` was
         told). The field session passes its project store's and session's names.
+    progress : optional ``progress(step, fraction)`` called before each stage (geometry, workbook,
+        CSV, plots) with the fraction of the export done (survey/commands/progress.py).
     config_overrides : :class:`trolley.trackgeometry.GeometryConfig` fields.
 
     Returns
@@ -206,23 +210,39 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     ExportInputError, trolley.tolerances.ToleranceError
         Unusable input (the message names file, row and column).
     """
+    # rough shares of the run time of each stage, for the progress bar only
+    shares = {"geometry": 0.3, "xlsx": 0.4 if xlsx is not None else 0.0, "csv": 0.05 if csv is not None else 0.0,
+              "plots": 0.25 if plots_dir is not None else 0.0}
+    total = sum(shares.values())
+    done = 0.0
+
+    def report(step: str, stage: str) -> None:
+        nonlocal done
+        if progress is not None:
+            progress(step, done / total)
+        done += shares[stage]
+
+    report("computing the track geometry", "geometry")
     rep, timings = build_report(track_csv, tolerances, design, project_name, session_name, **config_overrides)
     result = ExportResult(report=rep, timings_s=timings)
     if xlsx is not None:
         from survey.workbook import write_workbook
 
+        report("writing the survey sheet", "xlsx")
         t = time.perf_counter()
         stages: dict[str, float] = {}
         result.xlsx = write_workbook(Path(xlsx), rep, stages)
         timings["xlsx"] = time.perf_counter() - t
         timings.update({f"xlsx_{k}": v for k, v in stages.items()})
     if csv is not None:
+        report("writing the track CSV", "csv")
         t = time.perf_counter()
         result.csv = write_track_csv(Path(csv), rep)
         timings["csv"] = time.perf_counter() - t
     if plots_dir is not None:
         from survey.plots import write_plots
 
+        report("drawing the plots", "plots")
         t = time.perf_counter()
         result.plots = write_plots(Path(plots_dir), rep)
         timings["plots"] = time.perf_counter() - t

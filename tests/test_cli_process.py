@@ -23,7 +23,8 @@ def session(tmp_path_factory):
 
 def test_process_writes_track_csv_as_formats_says(session, tmp_path):
     out = tmp_path / "processed"
-    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--smoother", "tfs"])
+    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--smoother", "tfs",
+                             "--observability"])
     assert r.exit_code == 0, r.output
     track = pd.read_csv(out / "track.csv")
     assert list(track.columns) == TRACK_COLUMNS

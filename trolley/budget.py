@@ -630,7 +630,8 @@ def monte_carlo_block_runs(nodes: int, memory_bytes: int = MONTE_CARLO_MEMORY_BY
 
 def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: float = 0.3,
                 seed: int | None = None, memory_bytes: int = MONTE_CARLO_MEMORY_BYTES,
-                prior_position_m: float | None = None) -> MonteCarloResult:
+                prior_position_m: float | None = None,
+                progress: Callable[[str, float], None] | None = None) -> MonteCarloResult:
     """Monte Carlo of the budget: simulate ``runs`` intervals of the linear error models.
 
     Both channels of :mod:`trolley.error_models` (vertical, and level at heading ``heading_rad``)
@@ -647,6 +648,9 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     sigma and a fix arrives at t = 0 as well; the case's ``initial.position_m`` must then be the
     sigma after that fix, ``sqrt(p s^2 / (p + s^2))`` (see ``docs/budget_derivation.md``), for
     the analytic sigma to apply. This checks the reading of P(0) by simulation.
+
+    ``progress(step, fraction)``, when given, is called after every block with the fraction of
+    the runs done (the CLI's progress bar).
 
     Returns
     -------
@@ -688,6 +692,8 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
         for d in DIRECTIONS:
             sumsq[d] += np.sum(err[d] ** 2, axis=1)
         done += n
+        if progress is not None:
+            progress(f"Monte Carlo, {done} of {runs} runs", done / runs)
     times = np.arange(K) * dt
     sig = sigma_along(case, times)
     rms = {d: np.sqrt(sumsq[d] / runs) for d in DIRECTIONS}

@@ -6,10 +6,12 @@ file, row and column, with exit code 2 and no output written.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+
+from survey.commands.options import Smoother, old_name, renamed
 
 err = Console(stderr=True)
 
@@ -23,12 +25,31 @@ def fail(message: str, code: int = 2) -> None:
 def process(
     session_dir: Annotated[Path, typer.Argument(help="raw session folder (FORMATS.md section 1)")],
     out: Annotated[Path, typer.Option("--out", help="output folder for track.csv, fixes.csv, summary.json")],
-    smoother: Annotated[str, typer.Option(help="rts (Rauch-Tung-Striebel) or tfs (two-filter); none = filtered only")] = "rts",
-    step: Annotated[float, typer.Option(help="chainage step of the output stations, m")] = 0.625,
+    smoother: Annotated[Smoother, typer.Option(help="rts (Rauch-Tung-Striebel) or tfs (two-filter); "
+                                                    "none = filtered only")] = "rts",
+    step_m: Annotated[float, typer.Option("--step-m", help="chainage step of the output stations, m")] = 0.625,
+    observability: Annotated[bool, typer.Option(
+        "--observability", help="also report the observability ranks of the session's interval models "
+                                "(Jiang 2017 Eq. 26; imports python-control, about 1 s more)")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="print the summary as one JSON object on "
+                                                             "stdout, nothing else")] = False,
+    step_old: Annotated[Optional[float], typer.Option("--step", hidden=True, help=old_name("--step-m"))] = None,
 ) -> None:
     """Filter and smooth a raw stop-and-go session into track.csv (Jiang 2017)."""
-    result, session, written = run_process(session_dir, out, smoother, step)
-    print_summary(result, written)
+    step_m = renamed(step_m, step_old, "--step-m", "--step", 0.625)
+    result, session, written = run_process(session_dir, out, smoother, step_m, observability=observability)
+    if json_output:
+        from survey import jsonout
+        from survey.trackio import summary_dict
+
+        doc = summary_dict(result, session, session_dir)
+        doc.update(track_csv=written.track_csv, fixes_csv=written.fixes_csv, summary_json=written.summary_json,
+                   rejected_fixes=[{"point": result.fixes.point[i], "t_s": result.fixes.t_s[i],
+                                    "reason": result.fixes.reason[i]}
+                                   for i in range(len(result.fixes.t_s)) if not result.fixes.accepted[i]])
+        jsonout.echo(doc)
+    else:
+        print_summary(result, written)
 
 
 #: Share of the progress bar for reading the session before processing, and for writing after.
@@ -36,15 +57,15 @@ _READ_SHARE, _WRITE_SHARE = 0.15, 0.05
 
 
 def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float = 0.625,
-                force_accept: tuple[str, ...] = ()):
+                force_accept: tuple[str, ...] = (), observability: bool = False):
     """Read, process and write one session; exits with a clear message on bad input.
 
     The progress bar follows the engine's own sub-steps (dead reckoning, each filter and
     smoother pass node by node, stations) through the ``progress`` callback of
-    :func:`trolley.engine.process_session`.
+    :func:`trolley.engine.process_session`. The observability ranks (python-control, a slow
+    import) are computed only with ``observability=True``.
     """
-    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
-
+    from survey.commands.progress import progress_bar, share
     from survey.sessionio import SessionFormatError, read_design, read_session
     from survey.trackio import OutputFolderError, write_outputs
     from trolley.engine import ProcessConfig, process_session
@@ -52,17 +73,10 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
     if smoother not in ("rts", "tfs", "none"):
         fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
     if not step > 0:
-        fail(f"--step must be positive, not {step}")
+        fail(f"--step-m must be positive, not {step}")
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
-    with Progress(TextColumn("{task.description:<48}"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
-                  console=err, transient=True) as prog:
-        task = prog.add_task("reading the session", total=1.0)
-
-        def engine_progress(step_name: str, fraction: float) -> None:
-            done = _READ_SHARE + (1.0 - _READ_SHARE - _WRITE_SHARE) * fraction
-            prog.update(task, completed=done, description=step_name)
-
+    with progress_bar("reading the session", err) as report:
         try:
             session = read_session(session_dir)
             design = read_design(session_dir, session.meta)
@@ -70,26 +84,27 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
             fail(str(exc))
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
             fail(f"{session_dir}: {exc}")
-        prog.update(task, completed=_READ_SHARE)
+        report("processing", _READ_SHARE)
         try:
             result = process_session(session, design, ProcessConfig(smoother=smoother, step_m=step,
                                                                    force_accept=force_accept),
-                                     progress=engine_progress)
+                                     with_observability=observability,
+                                     progress=share(report, _READ_SHARE, 1.0 - _WRITE_SHARE))
         except ValueError as exc:
             fail(f"{session_dir}: {exc}")
-        prog.update(task, completed=1.0 - _WRITE_SHARE, description="writing the outputs")
+        report("writing the outputs", 1.0 - _WRITE_SHARE)
         try:
             written = write_outputs(out, result, session, session_dir)
         except OutputFolderError as exc:
             fail(str(exc))
         except OSError as exc:
             fail(f"{out}: cannot write the outputs: {exc}")
-        prog.update(task, completed=1.0)
+        report("done", 1.0)
     return result, session, written
 
 
-def print_summary(result, written) -> None:
-    """A short summary of a processing run on the terminal."""
+def print_summary(result, written, con: Console | None = None) -> None:
+    """A short summary of a processing run on the terminal (``con``, default stdout)."""
     from rich.table import Table
 
     from trolley import units
@@ -111,12 +126,13 @@ def print_summary(result, written) -> None:
         t.add_row("observability ranks", f"vertical {result.observability_ranks[0]}/3, "
                                          f"level {result.observability_ranks[1]}/5")
     t.add_row("smoother", result.config.smoother)
-    Console().print(t)
+    con = con if con is not None else Console()
+    con.print(t)
     for i in range(len(result.fixes.t_s)):
         if not result.fixes.accepted[i]:
             err.print(f"[yellow]rejected fix[/] {result.fixes.point[i]} at t={result.fixes.t_s[i]:.1f} s: "
                       f"{result.fixes.reason[i]}", highlight=False)
-    Console().print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
+    con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
 
 
 def register(app: typer.Typer) -> None:

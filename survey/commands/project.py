@@ -14,12 +14,17 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from survey import jsonout
+from survey.commands.options import ImuPreset, old_name, renamed
+
 err = Console(stderr=True)
-project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True)
+project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True,
+                          rich_markup_mode=None)
 
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
                                           help="folder holding the projects")]
 ProjectOption = Annotated[str, typer.Option("--project", "-p", help="project name")]
+JsonOption = Annotated[bool, typer.Option("--json", help="print the result as one JSON object on stdout")]
 
 
 def say(message: str) -> None:
@@ -48,13 +53,17 @@ def _open(root: Path, name: str):
 def new(
     name: Annotated[str, typer.Argument(help="project name (a folder under --root)")],
     root: RootOption = Path("projects"),
-    imu: Annotated[str | None, typer.Option(help="IMU preset: rlg, fog or mems [default: project.toml or rlg]")] = None,
+    imu: Annotated[ImuPreset | None, typer.Option(help="IMU preset [default: project.toml or rlg]")] = None,
     latitude_deg: Annotated[float | None, typer.Option(help="site latitude, degrees [default: project.toml or 28]")] = None,
-    height: Annotated[float | None, typer.Option(help="site height, m [default: project.toml or 50]")] = None,
-    tolerance_set: Annotated[str, typer.Option(help="tolerance set for defects: default, a built-in set name "
-                                                    "or a TOML file")] = "default",
+    height: Annotated[float | None, typer.Option("--height-m", help="site height, m [default: project.toml or 50]")] = None,
+    tolerance_set: Annotated[str, typer.Option("--tolerances", help="tolerance set for defects: default, a built-in "
+                                                                    "set name or a TOML file")] = "default",
     use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
                                            "<root>/<name>/project.toml when it exists")] = True,
+    json_output: JsonOption = False,
+    height_old: Annotated[float | None, typer.Option("--height", hidden=True, help=old_name("--height-m"))] = None,
+    tolerance_set_old: Annotated[str | None, typer.Option("--tolerance-set", hidden=True,
+                                                          help=old_name("--tolerances"))] = None,
 ) -> None:
     """Create a project store <root>/<name>/project.sqlite.
 
@@ -69,6 +78,9 @@ def new(
     from trolley import units
     from trolley.sensors import IMU_PRESETS
 
+    height = renamed(height, height_old, "--height-m", "--height")
+    tolerance_option = "--tolerance-set" if tolerance_set_old is not None else "--tolerances"
+    tolerance_set = renamed(tolerance_set, tolerance_set_old, "--tolerances", "--tolerance-set", "default")
     settings = ProjectSettings()
     folder = Path(root) / name
     design = points = None
@@ -102,8 +114,6 @@ def new(
             except CpiiiError as e:
                 fail(str(e))
     if imu is not None:
-        if imu not in IMU_PRESETS:
-            fail(f"--imu must be one of {', '.join(IMU_PRESETS)}, not {imu!r}")
         settings = dataclasses.replace(settings, imu=IMU_PRESETS[imu])
     if latitude_deg is not None:
         if not -90.0 <= latitude_deg <= 90.0:
@@ -117,7 +127,7 @@ def new(
     try:
         load_tolerance_set(tolerance_set)
     except ToleranceError as e:
-        fail(f"--tolerance-set: {e}")
+        fail(f"{tolerance_option}: {e}")
     settings = dataclasses.replace(settings, tolerance_set=tolerance_set)
     try:
         store = ProjectStore.create(root, name, settings)
@@ -134,6 +144,12 @@ def new(
             f"{design.chainage_start_m:.3f} .. {design.chainage_end_m:.3f} m")
     if points is not None:
         say(f"  {len(points)} CPIII points from {points[0].source}")
+    if json_output:
+        jsonout.echo({"project": name, "store": store.path,
+                      "design": None if design is None else {
+                          "name": design.name, "file": design.file_name, "elements": design.element_count,
+                          "chainage_start_m": design.chainage_start_m, "chainage_end_m": design.chainage_end_m},
+                      "cpiii_points": 0 if points is None else len(points)})
 
 
 @project_app.command("import-cpiii")
@@ -141,6 +157,7 @@ def import_cpiii(
     file: Annotated[Path, typer.Argument(help="CPIII file: CSV id,E_m,N_m,H_m or Leica GSI-8/16 (words 11, 81-83)")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
+    json_output: JsonOption = False,
 ) -> None:
     """Import CPIII control points (all or nothing)."""
     from survey.cpiii import CpiiiError, import_cpiii_file
@@ -153,6 +170,8 @@ def import_cpiii(
         total = len(store.cpiii_points())
     extra = f", {res.already_present} already present" if res.already_present else ""
     say(f"{file}: {res.added} CPIII points imported{extra}; the project has {total}")
+    if json_output:
+        jsonout.echo({"file": file, "added": res.added, "already_present": res.already_present, "total": total})
 
 
 @project_app.command("import-alignment")
@@ -160,6 +179,7 @@ def import_alignment(
     file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
+    json_output: JsonOption = False,
 ) -> None:
     """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
     from survey.store import alignment_record_from_text
@@ -178,6 +198,9 @@ def import_alignment(
         store.add_alignment(rec)
     say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
               f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m")
+    if json_output:
+        jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
+                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m})
 
 
 @project_app.command("import-session")
@@ -186,6 +209,7 @@ def import_session(
     project: ProjectOption,
     session: Annotated[str | None, typer.Option("--session", help="session name (default: the folder name)")] = None,
     root: RootOption = Path("projects"),
+    json_output: JsonOption = False,
 ) -> None:
     """Import a raw session folder into the project store (one transaction)."""
     from survey.sessionio import SessionFormatError, read_session
@@ -216,6 +240,8 @@ def import_session(
     say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
               f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
               f"{counts['gauge_sample']} gauge readings")
+    if json_output:
+        jsonout.echo({"folder": folder, "session": name, "records": counts})
 
 
 @project_app.command("export-session")
@@ -223,8 +249,9 @@ def export_session(
     project: ProjectOption,
     session: Annotated[str, typer.Option("--session", help="session name")],
     out: Annotated[Path, typer.Option("--out", help="raw session folder to write (must not exist)")],
-    overwrite: Annotated[bool, typer.Option(help="replace an existing folder")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing folder")] = False,
     root: RootOption = Path("projects"),
+    json_output: JsonOption = False,
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
     from survey.sessionio import write_session
@@ -240,6 +267,8 @@ def export_session(
     except (FileExistsError, ValueError) as e:
         fail(str(e))
     say(f"session {session!r} written to {out}")
+    if json_output:
+        jsonout.echo({"session": session, "out": out})
 
 
 @project_app.command("set-crs")
@@ -292,7 +321,7 @@ def set_crs(
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
     root: RootOption = Path("projects"),
-    as_json: Annotated[bool, typer.Option("--json", help="machine-readable summary on stdout")] = False,
+    as_json: JsonOption = False,
 ) -> None:
     """Show a project: settings, CPIII points, design alignment, sessions."""
     import numpy as np
@@ -334,7 +363,7 @@ def show(
                           "imu_samples": c["imu_sample"], "fixes_accepted": a, "fixes": n, "setups": k}
                          for r, c, a, n, k in sessions],
         }
-        typer.echo(json.dumps(doc, indent=2))
+        jsonout.echo(doc, indent=2)
         return
 
     out = Console()

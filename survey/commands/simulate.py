@@ -7,12 +7,13 @@ progress and errors to stderr.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+
+from survey.commands.options import ImuPreset
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
@@ -134,7 +135,7 @@ def register(app: typer.Typer) -> None:
         project: Annotated[Path, typer.Option(help="project folder with project.toml and the "
                                                    "design")] = Path("projects/demo"),
         length_m: Annotated[Optional[float], typer.Option("--length-m", help="surveyed length, m")] = None,
-        imu: Annotated[Optional[str], typer.Option(help="IMU grade: rlg, fog or mems")] = None,
+        imu: Annotated[Optional[ImuPreset], typer.Option(help="IMU grade (default: the project's)")] = None,
         seed: Annotated[Optional[int], typer.Option(help="random seed")] = None,
         fix_spacing_m: Annotated[Optional[float], typer.Option("--fix-spacing-m",
                                                                help="stop spacing, m")] = None,
@@ -155,12 +156,16 @@ def register(app: typer.Typer) -> None:
             "--crs-in-session/--no-crs-in-session",
             help="write [site] crs to session.toml (off: a crew that did not give it)")] = True,
         force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+        json_output: Annotated[bool, typer.Option("--json", help="one JSON object on stdout (this command "
+                                                                 "prints it in any case; accepted like on "
+                                                                 "every command)")] = False,
     ) -> None:
         """Simulate a stop-and-go survey (full 3-D truth, strapdown IMU) into a raw session folder."""
         from dataclasses import replace
 
         from rich.console import Console
 
+        from survey import jsonout
         from survey.sessionio import write_session, write_truth_csv
         from trolley.landxml import parse_landxml
         from trolley.sensors import IMU_PRESETS
@@ -246,4 +251,4 @@ def register(app: typer.Typer) -> None:
             "simulate_s": round(t1 - t0, 3),
             "write_s": round(t2 - t1, 3),
         }
-        typer.echo(json.dumps(summary))
+        jsonout.echo(summary)
