@@ -174,3 +174,30 @@ def test_curve_steady_state():
     sysm = vh._System(vh.VehicleParameters(), 20.0, kappa)
     q = sysm.equilibrium()
     assert q[0] == pytest.approx(r.wheelset_y_m[0], abs=1e-9) and q[0] < q[1] < 0.0
+
+
+def test_rigid_vehicle_motions_load_no_suspension():
+    """The assembled Jacobians: moving the whole car sideways, or yawing it about its centre
+    (y_k = eps x_k, psi = eps), or lifting the sprung bodies with the wheelset inputs deflects no
+    element; rolling the body alone does (the anti-roll bars and springs)."""
+    p = vh.VehicleParameters()
+    lin = vh._assemble(p, 0.0)
+    bx = vh._bodies(p).x
+    lateral = np.zeros(vh.N_DOF)
+    yaw = np.zeros(vh.N_DOF)
+    for body in range(7):
+        base = body if body < 4 else (vh._frame_dof(body - 4, 0) if body < 6 else vh._BODY)
+        lateral[base] = 1.0
+        yaw[base] = bx[body]
+        yaw[4 + body if body < 4 else base + 1] = 1.0
+    bounce = np.zeros(vh.N_DOF)
+    for base in (vh._frame_dof(0, 0), vh._frame_dof(1, 0), vh._BODY):
+        bounce[base + 3] = 1.0
+    u = np.concatenate([np.ones(4), np.zeros(4)])
+    for q, uu in ((lateral, 0 * u), (yaw, 0 * u), (bounce, u)):
+        assert np.max(np.abs(lin.j @ q + lin.ju @ uu)) < 1e-12
+    roll = np.zeros(vh.N_DOF)
+    roll[vh._BODY + 2] = 1.0
+    assert np.max(np.abs(lin.j @ roll)) > 0.5
+    k = lin.kc[:, :vh.N_DOF]
+    assert np.allclose(k, k.T)
