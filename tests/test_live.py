@@ -163,7 +163,6 @@ def test_live_screen_sigma_grows_past_the_planned_spacing():
     assert predicted_sigma_mm(meta, 60.0, 240.0) > predicted_sigma_mm(meta, 60.0, 60.0)
 
 
-<<<<<<< HEAD
 def test_live_filter_in_a_projected_grid_off_the_central_meridian():
     # 200 km east of UTM 50N's central meridian (0.96 deg of convergence): with the CRS the live
     # gate accepts every fix and agrees with the batch engine; without it the fixes are rejected
@@ -195,7 +194,8 @@ def test_live_filter_in_a_projected_grid_off_the_central_meridian():
     late = ses.imu_t_s > ses.imu_t_s[static][-1]
     lp2.add_samples(ses.imu_t_s[late], ses.imu_w_rad_s[late], ses.imu_f_m_s2[late], ses.odo_t_s, ses.odo_distance_m)
     assert not lp2.add_fix(ses.fixes.t_s[-1], ses.fixes.point[-1], ses.fixes.enh_m[-1]).accepted
-=======
+
+
 @pytest.mark.parametrize("length_m", [240.0, 480.0])
 def test_live_interval_summaries_agree_with_the_final_track_on_short_surveys(length_m):
     """Each interval's live track, its summary and its geometry agree with the final track within
@@ -245,4 +245,3 @@ def test_live_interval_summaries_agree_with_the_final_track_on_short_surveys(len
         for x in chk.defects:  # a live defect is one of the final track's
             assert any(y.parameter == x.parameter and y.start_chainage_m <= x.end_chainage_m + 0.7
                        and x.start_chainage_m <= y.end_chainage_m + 0.7 for y in final_defects), x
->>>>>>> main
