@@ -144,15 +144,6 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     if not info.present:
         kv("Note", "no processing summary beside track.csv: equipment and fix figures not given")
     r += 1
-    put_text(ws, r, 1, "Coordinate reference system").font = Font(bold=True, size=12)
-    r += 1
-    kv("CRS", info.crs or "(not given: a local grid, north = true north)")
-    kv("Vertical datum", info.vertical_datum or "(not given)")
-    kv("Grid scale factor", info.grid_scale_factor if math.isfinite(info.grid_scale_factor) else "(no CRS)",
-       "0.000000000")
-    kv("Grid convergence [deg]", info.grid_convergence_deg if math.isfinite(info.grid_convergence_deg)
-       else "(no CRS)", "0.000000")
-    r += 1
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
     kv("Design alignment", str(rep.design_file) if rep.design_file else "none: design columns empty")

@@ -138,10 +138,13 @@ def test_process_cli_exits_2_without_crs_and_succeeds_with_it(design, tmp_path):
     export_outputs(tmp_path / "out", tmp_path / "survey.xlsx", tmp_path / "table.csv", tmp_path / "plots")
     wb = load_workbook(tmp_path / "survey.xlsx")
     sheet = {row[0].value: row[1].value for row in wb["Summary"].iter_rows(min_row=1, max_col=2)}
-    assert sheet["CRS"] == CRS and sheet["Vertical datum"] == "(not given)"
-    assert sheet["Grid convergence [deg]"] == pytest.approx(summary["grid_convergence_deg"], abs=1e-12)
-    assert sheet["Grid scale factor"] == pytest.approx(summary["grid_scale_factor"], abs=1e-15)
-    assert 1.00008 < sheet["Grid scale factor"] < 1.0001  # k0 (1 + x^2 / 2R^2) at 200 km
+    from survey.surveyheader import NOT_GIVEN
+    assert sheet["Coordinate system"] == CRS and sheet["Height datum"] == NOT_GIVEN
+    grid = sheet["Grid convergence and scale"]
+    assert f"convergence {summary['grid_convergence_deg']:+.6f} deg" in grid
+    assert f"point scale factor {summary['grid_scale_factor']:.9f}" in grid
+    assert f"combined scale {summary['grid_combined_scale']:.9f}" in grid
+    assert 1.00008 < summary["grid_scale_factor"] < 1.0001  # k0 (1 + x^2 / 2R^2) at 200 km
 
 
 def test_session_toml_crs_round_trip_and_errors(tmp_path):

@@ -126,11 +126,11 @@ def test_survey_sheet_shows_the_crs(tmp_path):
 
     (tmp_path / "summary.json").write_text(json.dumps({
         "crs": CRS, "vertical_datum": "Yellow Sea 1985", "grid_scale_factor": 1.000092,
-        "grid_convergence_deg": 0.9589, "fixes_used": 3}))
+        "grid_convergence_deg": 0.9589, "grid_combined_scale": 1.000084, "fixes_used": 3}))
     info = read_summary_json(tmp_path / "summary.json")
     assert (info.crs, info.vertical_datum, info.grid_scale_factor, info.grid_convergence_deg) == (
         CRS, "Yellow Sea 1985", 1.000092, 0.9589)
-    assert "crs" not in info.extra
+    assert info.grid_combined_scale == 1.000084 and "crs" not in info.extra
     empty = tmp_path / "e.json"
     empty.write_text("{}")
     e = read_summary_json(empty)

@@ -57,6 +57,7 @@ def test_field_session_off_the_central_meridian(tmp_path):
 
     wb = openpyxl.load_workbook(folder / "sessions" / "ref" / "survey.xlsx", read_only=True)
     cells = [c for row in wb["Summary"].iter_rows(values_only=True) for c in row if c is not None]
-    assert cells[cells.index("CRS") + 1] == "EPSG:32650"
-    assert abs(cells[cells.index("Grid convergence [deg]") + 1] - 0.96) < 0.01
+    assert cells[cells.index("Coordinate system") + 1] == "EPSG:32650"
+    grid = cells[cells.index("Grid convergence and scale") + 1]
+    assert abs(float(grid.split("convergence ")[1].split(" deg")[0]) - 0.96) < 0.01
     shutil.rmtree(tmp_path / "projects")
