@@ -135,3 +135,64 @@ def test_survey_sheet_shows_the_crs(tmp_path):
     empty.write_text("{}")
     e = read_summary_json(empty)
     assert e.crs == "" and math.isnan(e.grid_scale_factor)
+
+
+def _design_with(cs_element: str) -> str:
+    from trolley.alignment import Alignment, HorizontalAlignment, Line
+    from trolley.landxml import landxml_text
+
+    h = HorizontalAlignment.from_elements(SITE[0] - 100.0, SITE[1] - 100.0, 0.7, [Line(300.0)])
+    xml = landxml_text(Alignment(h, name="up"))
+    return xml.replace("</Units>", "</Units>\n  " + cs_element, 1) if cs_element else xml
+
+
+def test_import_alignment_reads_the_landxml_coordinate_system(tmp_path):
+    root = str(tmp_path)
+    run("project", "new", "p", "--root", root, "--no-toml")
+    csv = tmp_path / "cp.csv"
+    csv.write_text("id,E_m,N_m,H_m\n" + "".join(f"{p.point_id},{p.e_m},{p.n_m},{p.h_m}\n" for p in cpiii()))
+    run("project", "import-cpiii", str(csv), "--project", "p", "--root", root)
+    f = tmp_path / "design.xml"
+    f.write_text(_design_with('<CoordinateSystem name="WGS 84 / UTM zone 50N" epsgCode="32650" '
+                              'verticalDatum="Yellow Sea 1985"/>'))
+    r = run("project", "import-alignment", str(f), "--project", "p", "--root", root)
+    assert "the project's CRS is now EPSG:32650" in r.stderr and "grid convergence +0.95" in r.stderr
+    doc = json.loads(run("project", "show", "p", "--root", root, "--json").stdout)
+    assert doc["settings"]["crs"] == "EPSG:32650" and doc["settings"]["vertical_datum"] == "Yellow Sea 1985"
+    assert doc["settings"]["latitude_rad"] == pytest.approx(math.radians(doc["grid"]["latitude_deg"]), abs=1e-12)
+    # the same CRS again: nothing to say; another one: the project keeps its own, with a note
+    r = run("project", "import-alignment", str(f), "--project", "p", "--root", root)
+    assert "CoordinateSystem" not in r.stderr
+    f.write_text(_design_with('<CoordinateSystem epsgCode="urn:ogc:def:crs:EPSG::32651"/>'))
+    r = run("project", "import-alignment", str(f), "--project", "p", "--root", root)
+    assert "differs from the project's CRS EPSG:32650" in r.stderr
+    assert json.loads(run("project", "show", "p", "--root", root, "--json").stdout)["settings"]["crs"] == "EPSG:32650"
+    # a name alone, or a geographic CRS: a note, nothing changed, the design still imported
+    run("project", "new", "q", "--root", root, "--no-toml")
+    for cs, says in (('<CoordinateSystem name="Local grid"/>', "gives no epsgCode"),
+                     ('<CoordinateSystem epsgCode="4326"/>', "not a projected CRS")):
+        f.write_text(_design_with(cs))
+        r = run("project", "import-alignment", str(f), "--project", "q", "--root", root)
+        assert says in r.stderr and "alignment 'up'" in r.stderr
+        assert json.loads(run("project", "show", "q", "--root", root, "--json").stdout)["settings"]["crs"] is None
+
+
+def test_project_new_checks_the_toml_crs(tmp_path):
+    import shutil
+
+    from survey.commands.simulate import _REPO_DEMO
+
+    folder = tmp_path / "d"
+    shutil.copytree(_REPO_DEMO, folder)
+    toml = (folder / "project.toml").read_text()
+    (folder / "project.toml").write_text(toml.replace("[site]\n", '[site]\ncrs = "EPSG:4326"\n', 1))
+    r = run("project", "new", "d", "--root", str(tmp_path), code=2)
+    assert "key site.crs" in r.stderr and "not a projected CRS" in r.stderr
+    assert not (folder / "project.sqlite").exists()
+    (folder / "project.toml").write_text(toml.replace("[site]\n", '[site]\ncrs = "EPSG:32650"\n', 1))
+    run("project", "new", "d", "--root", str(tmp_path))
+    doc = json.loads(run("project", "show", "d", "--root", str(tmp_path), "--json").stdout)
+    assert doc["settings"]["crs"] == "EPSG:32650"
+    # the demo lies on the central meridian of UTM 50N: no convergence to speak of, k ~ k0
+    assert abs(doc["grid"]["convergence_deg"]) < 0.01 and doc["grid"]["point_scale"] == pytest.approx(0.9996, abs=1e-6)
+    assert doc["settings"]["latitude_rad"] == pytest.approx(math.radians(doc["grid"]["latitude_deg"]), abs=1e-12)
