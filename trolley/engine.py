@@ -260,9 +260,11 @@ def check_rotation(dr: DeadReckoning, fix_blocks: np.ndarray, fix_ned: np.ndarra
             f"{after:.3f} m after turning them back; scale {scale:.6f})")
     if grid is None:
         raise GridRotationError(
-            f"{what}. That is the grid convergence of a map projection ({-deg:+.4f} deg): give the "
-            "project's coordinate reference system ([site] crs = \"EPSG:...\" in session.toml, or "
-            "`trolley project set-crs`), and the engine turns true north into grid north")
+            f"{what}. That is what the grid convergence of a map projection does ({-deg:+.4f} deg here; "
+            "0.96 deg 200 km off a UTM central meridian at 28 deg N): give the project's coordinate reference "
+            "system ([site] crs = \"EPSG:...\" in session.toml, or `trolley project set-crs`), and the engine "
+            "turns true north into grid north. If the grid is a local one with true north, the initial "
+            "heading is off by that much instead")
     raise GridRotationError(
         f"{what}, after the convergence of {grid.convergence_rad * 180 / np.pi:+.4f} deg of the CRS given was "
         "applied: check the CRS (its zone) and the initial heading")
