@@ -100,6 +100,10 @@ class SurveyInfo:
 
     ``equipment`` holds the figures of :data:`EQUIPMENT` that are known (summary.json
     ``equipment``, else the session's session.toml); ``equipment_source`` says where from.
+    ``crs``, ``vertical_datum``: the project grid ("" = not given: a local grid, true north);
+    ``grid_scale_factor`` (the projection's point scale k), ``grid_combined_scale`` (k times the
+    height reduction) and ``grid_convergence_deg`` at the site (NaN without a CRS;
+    ``trolley.projection``).
     """
 
     project: str = ""
@@ -119,6 +123,11 @@ class SurveyInfo:
     rail_spacing_m: float = 1.500
     nominal_gauge_m: float = 1.435
     present: bool = False
+    crs: str = ""
+    vertical_datum: str = ""
+    grid_scale_factor: float = math.nan
+    grid_convergence_deg: float = math.nan
+    grid_combined_scale: float = math.nan
     extra: dict = field(default_factory=dict)
 
 
@@ -305,7 +314,8 @@ def read_summary_json(path: Path) -> SurveyInfo:
 
     known = {"session_dir", "project", "session", "imu", "equipment", "smoother", "fixes_used",
              "fixes_rejected", "rms_innovation_mm", "max_sigma_mm", "step_m", "rail_spacing_m",
-             "nominal_gauge_m"}
+             "nominal_gauge_m", "crs", "vertical_datum", "grid_scale_factor", "grid_convergence_deg",
+             "grid_combined_scale"}
     equipment = _equipment_from_json(path, doc.get("equipment"))
     return SurveyInfo(
         project=str(doc.get("project", "")), session=str(doc.get("session", "")),
@@ -317,6 +327,9 @@ def read_summary_json(path: Path) -> SurveyInfo:
         rms_innovation_mm=num(doc, "rms_innovation_mm"), max_sigma_mm=num(doc, "max_sigma_mm"),
         step_m=num(doc, "step_m"), rail_spacing_m=num(doc, "rail_spacing_m", 1.500),
         nominal_gauge_m=num(doc, "nominal_gauge_m", 1.435), present=True,
+        crs=str(doc.get("crs") or ""), vertical_datum=str(doc.get("vertical_datum") or ""),
+        grid_scale_factor=num(doc, "grid_scale_factor"), grid_convergence_deg=num(doc, "grid_convergence_deg"),
+        grid_combined_scale=num(doc, "grid_combined_scale"),
         extra={k: v for k, v in doc.items() if k not in known})
 
 

@@ -216,7 +216,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
         else:
             design = self.store.alignment()
-            meta = self.settings.session_meta("alignment.xml" if design else None)
+            meta = self.store.session_meta("alignment.xml" if design else None)
             if self.world is not None:
                 meta = replace(meta, initial_heading_rad=self.world.sim.session.meta.initial_heading_rad,
                                static_s=self.world.sim.session.meta.static_s)
