@@ -1,7 +1,8 @@
 """Export a processed track: geometry parameters, tolerance check, workbook, CSV and plots.
 
 ``export_outputs`` is the one entry point (the ``trolley export`` command and ``trolley demo``
-call it). It reads track.csv (and, beside it, fixes.csv and summary.json when present; the
+call it). It reads track.csv (and, beside it, fixes.csv, summary.json and the field session's
+field_record.json when present; the
 design LandXML named by the session's session.toml), computes every parameter
 (:mod:`trolley.trackgeometry`), checks them against a tolerance set
 (:mod:`trolley.tolerances`) and writes the requested outputs, each atomically.
@@ -22,10 +23,11 @@ import numpy as np
 from trolley.tolerances import ToleranceSet, find_defects
 from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
 
+from survey.fieldrecord import FIELD_RECORD, read_field_record
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
-from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
-                                 read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
+from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
+                                 read_fixes_csv, read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
                                  SurveyInfo)
 from survey.track_table import SurveyReport, column_values, sheet_columns
 
@@ -39,12 +41,13 @@ class ExportResult:
     Attributes
     ----------
     report : the survey report (geometry, defects, statistics).
-    xlsx, csv, plots : files written (None / empty when not requested).
+    xlsx, pdf, csv, plots : files written (None / empty when not requested).
     timings_s : seconds per stage ("read", "geometry", "check", "xlsx", "csv", "plots").
     """
 
     report: SurveyReport
     xlsx: Path | None = None
+    pdf: Path | None = None
     csv: Path | None = None
     plots: list[Path] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -65,7 +68,7 @@ class ExportResult:
             "step_m": rep.geometry.step_m, "tolerances": rep.tolerances.name,
             "design": str(rep.design_file) if rep.design_file else None,
             "defects": len(rep.defects), "passed": rep.passed,
-            "xlsx": str(self.xlsx) if self.xlsx else None, "csv": str(self.csv) if self.csv else None,
+            "xlsx": str(self.xlsx) if self.xlsx else None, "pdf": str(self.pdf) if self.pdf else None, "csv": str(self.csv) if self.csv else None,
             "plots": [str(p) for p in self.plots], "notes": rep.notes,
             "timings_s": {k: round(v, 4) for k, v in self.timings_s.items()},
         }
@@ -122,13 +125,17 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     notes: list[str] = []
     info = survey_info(folder, project_name, session_name)
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
+    record = read_field_record(folder / FIELD_RECORD) if (folder / FIELD_RECORD).is_file() else None
+    if record is not None:   # the field session's names, unless given explicitly
+        info.project = project_name or record.project or info.project
+        info.session = session_name or record.session or info.session
     tol = load_tolerances(tolerances)
     cfg = geometry_config(tol, info, **config_overrides)
     design_file = Path(design) if design else design_alignment_path(info)
     if design_file is not None:
         if not design_file.is_file():
             raise ExportInputError(f"{design_file}: design alignment file not found")
-        track = add_design(track, design_file, cfg.rail_spacing_m)
+        track = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info))
     else:
         notes.append("no design alignment (summary.json / session.toml [design]): design columns empty")
     if np.isnan(track.lateral_dev_m).all():
@@ -142,7 +149,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     t3 = time.perf_counter()
     rep = SurveyReport(track_csv=path, geometry=geometry, columns=sheet_columns(cfg), tolerances=tol,
                        defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
-                       notes=notes)
+                       notes=notes, record=record)
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
 
 
@@ -180,7 +187,7 @@ def write_track_csv(path: Path, rep: SurveyReport) -> Path:
 def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
                    tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
                    project_name: str | None = None, session_name: str | None = None,
-                   progress: Callable[[str, float], None] | None = None,
+                   progress: Callable[[str, float], None] | None = None, pdf: Path | None = None,
                    **config_overrides) -> ExportResult:
     """Compute the survey sheet of a processed track and write the requested outputs.
 
@@ -198,7 +205,8 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         titles; they override summary.json's (which knows only what ``trolley process`` was
         told). The field session passes its project store's and session's names.
     progress : optional ``progress(step, fraction)`` called before each stage (geometry, workbook,
-        CSV, plots) with the fraction of the export done (survey/commands/progress.py).
+        CSV, plots, PDF) with the fraction of the export done (survey/commands/progress.py).
+    pdf : PDF report to write (survey/reportpdf.py; None: skip).
     config_overrides : :class:`trolley.trackgeometry.GeometryConfig` fields.
 
     Returns
@@ -212,7 +220,7 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     """
     # rough shares of the run time of each stage, for the progress bar only
     shares = {"geometry": 0.3, "xlsx": 0.4 if xlsx is not None else 0.0, "csv": 0.05 if csv is not None else 0.0,
-              "plots": 0.25 if plots_dir is not None else 0.0}
+              "plots": 0.25 if plots_dir is not None else 0.0, "pdf": 0.4 if pdf is not None else 0.0}
     total = sum(shares.values())
     done = 0.0
 
@@ -246,4 +254,11 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         t = time.perf_counter()
         result.plots = write_plots(Path(plots_dir), rep)
         timings["plots"] = time.perf_counter() - t
+    if pdf is not None:
+        from survey.reportpdf import write_pdf_report
+
+        report("writing the PDF report", "pdf")
+        t = time.perf_counter()
+        result.pdf = write_pdf_report(Path(pdf), rep).path
+        timings["pdf"] = time.perf_counter() - t
     return result

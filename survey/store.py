@@ -148,7 +148,11 @@ class ControlPoint:
 
 @dataclass(frozen=True)
 class AlignmentRecord:
-    """A design alignment: the LandXML text verbatim plus what was parsed from it."""
+    """A design alignment: the LandXML text verbatim plus what was parsed from it.
+
+    ``name`` is the ``Alignment/@name`` chosen in a file that holds several. ``notes`` are what
+    the reader reported at import (not stored: reading the text again gives them again).
+    """
 
     file_name: str
     landxml_text: str
@@ -158,6 +162,21 @@ class AlignmentRecord:
     chainage_end_m: float
     imported_utc: str = ""
     alignment_id: int | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def alignment_name(self) -> str | None:
+        """The name to pass to the LandXML reader: None when the file holds one alignment."""
+        from trolley.landxml import alignment_names
+
+        return self.name if len(alignment_names(self.landxml_text)) > 1 else None
+
+    def design(self, rail_spacing_m: float | None = None):
+        """The ``trolley.alignment.Alignment`` this record holds (its text read again)."""
+        from trolley.landxml import parse_landxml
+
+        kwargs = {} if rail_spacing_m is None else {"rail_spacing_m": rail_spacing_m}
+        return parse_landxml(self.landxml_text, self.alignment_name, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -689,6 +708,28 @@ class ProjectStore:
             c.execute("INSERT OR REPLACE INTO setting (key, value_json) VALUES ('project', ?)",
                       (settings_to_json(settings),))
 
+    # -- survey header (`trolley project set`) ---------------------------------------------------
+    def header(self) -> dict[str, str]:
+        """The survey header fields the crew gave (survey.surveyheader.HEADER_FIELDS keys)."""
+        row = self._conn.execute("SELECT value_json FROM setting WHERE key = 'header'").fetchone()
+        return dict(json.loads(row[0])) if row else {}
+
+    def set_header(self, key: str, value: str) -> str:
+        """Set (or with an empty value clear) one header field after checking it
+        (:func:`survey.surveyheader.check_header_value`; ValueError when bad). Returns the value stored."""
+        from survey.surveyheader import check_header_value
+
+        text = check_header_value(key, value)
+        with self._transaction() as c:
+            row = c.execute("SELECT value_json FROM setting WHERE key = 'header'").fetchone()
+            doc = dict(json.loads(row[0])) if row else {}
+            if text:
+                doc[key] = text
+            else:
+                doc.pop(key, None)
+            c.execute("INSERT OR REPLACE INTO setting (key, value_json) VALUES ('header', ?)", (json.dumps(doc),))
+        return text
+
     # -- CPIII -----------------------------------------------------------------------------------
     def add_cpiii_points(self, points: Sequence[ControlPoint]) -> int:
         """Add control points in one transaction.
@@ -905,6 +946,16 @@ class ProjectStore:
                                   (session_id,))
         return [SessionEvent(*r) for r in rows]
 
+    def session_time_span_utc(self, session_id: int) -> tuple[str, str] | None:
+        """First and last wall-clock time (UTC, ISO 8601) at which the session stored a setup,
+        a fix decision, a note or an event; None when it stored none of them."""
+        r = self._conn.execute(
+            "SELECT MIN(u), MAX(u) FROM (SELECT created_utc AS u FROM session_event WHERE session_id = ?1 "
+            "UNION ALL SELECT created_utc FROM station_setup WHERE session_id = ?1 "
+            "UNION ALL SELECT d.created_utc FROM fix_decision d JOIN fix f ON f.id = d.fix_id WHERE f.session_id = ?1 "
+            "UNION ALL SELECT created_utc FROM note WHERE session_id = ?1)", (session_id,)).fetchone()
+        return None if r is None or r[0] is None else (str(r[0]), str(r[1]))
+
     # -- raw and decoded data --------------------------------------------------------------------
     def raw_chunks(self, session_id: int, device: str | None = None) -> list[RawChunk]:
         """Raw bytes of a session (optionally one device), in arrival order."""
@@ -1064,6 +1115,9 @@ class ProjectStore:
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)
         design = self.alignment(rec.alignment_id) if rec.alignment_id is not None else None
+        if design is not None and design.alignment_name is not None:
+            # the file holds several alignments: session.toml [design] names the one surveyed
+            raw = replace(raw, meta=replace(raw.meta, design_alignment_name=design.alignment_name))
         return crop_session(raw, self.survey_start_s(sid)), (design.landxml_text if design else None)
 
 
@@ -1092,20 +1146,34 @@ def _insert_alignment(c: sqlite3.Connection, rec: AlignmentRecord) -> int:
     return int(cur.lastrowid)
 
 
-def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float | None = None) -> AlignmentRecord:
-    """Parse a LandXML design (``trolley.landxml.parse_landxml``) into a record that keeps the text verbatim.
+def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float | None = None,
+                               alignment_name: str | None = None) -> AlignmentRecord:
+    """Read a LandXML design (``trolley.landxml.read_landxml``) into a record that keeps the text verbatim.
+
+    Parameters
+    ----------
+    file_name, text : the file's name and its text.
+    rail_spacing_m : rail spacing for the cant (None: the file's ``gauge``).
+    alignment_name : the ``Alignment/@name`` to take from a file holding several.
+
+    Returns
+    -------
+    AlignmentRecord
+        With the reader's notes (skipped elements, tolerated mismatches) in ``notes``.
 
     Raises
     ------
+    trolley.landxml.AlignmentChoiceError : several alignments and no (or an unknown) name.
     trolley.landxml.LandXmlError : the file is not a usable LandXML 1.2 alignment.
     """
-    from trolley.landxml import parse_landxml
+    from trolley.landxml import read_landxml
 
     kwargs = {} if rail_spacing_m is None else {"rail_spacing_m": rail_spacing_m}
-    al = parse_landxml(text, **kwargs)
+    d = read_landxml(text, alignment_name, **kwargs)
+    al = d.alignment
     return AlignmentRecord(file_name=file_name, landxml_text=text, name=al.name or Path(file_name).stem,
                            element_count=len(al.horizontal.elements), chainage_start_m=al.start_chainage_m,
-                           chainage_end_m=al.end_chainage_m)
+                           chainage_end_m=al.end_chainage_m, notes=d.notes)
 
 
 def _insert_fix(c: sqlite3.Connection, session_id: int, fix: FixRecord) -> int:

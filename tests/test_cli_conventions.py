@@ -251,6 +251,26 @@ def test_progress_share_maps_a_sub_step_onto_its_part_of_the_bar():
     assert share(None, 0.0, 1.0) is None
 
 
+def test_monte_carlo_progress_rises_to_one_and_leaves_the_draws_alone():
+    from trolley import budget as B
+    from trolley.sensors import IMU_PRESETS
+    from trolley.budget import SensorFigures
+    figs = SensorFigures(gyro_bias_instability_rad_s=IMU_PRESETS["rlg"].gyro_bias_instability_rad_s,
+                         gyro_arw_rad_sqrt_s=IMU_PRESETS["rlg"].gyro_arw_rad_sqrt_s, heading_error_rad=None,
+                         level_error_rad=1e-4, fix_spacing_m=60.0, speed_m_s=1.0, fix_sigma_m=6e-4,
+                         latitude_rad=0.5, gyrocompassing=True)
+    case = B.resolve_case(figs).case
+    seen = []
+    memory = 8 * 61 * 40 * 7  # a few runs a block: several blocks
+    with_bar = B.monte_carlo(case, 50, seed=3, memory_bytes=memory, progress=lambda s, f: seen.append(f))
+    without = B.monte_carlo(case, 50, seed=3, memory_bytes=memory)
+    assert with_bar.block_runs < 50
+    for d in B.DIRECTIONS:
+        np.testing.assert_array_equal(with_bar.rms_m[d], without.rms_m[d])
+    assert np.all(np.diff(seen) >= 0) and seen[-1] == pytest.approx(1.0) and seen[0] < 0.5
+    assert len(seen) == 6 * int(np.ceil(50 / with_bar.block_runs))
+
+
 # ----------------------------------------------------------------------------- python-control
 
 CHECK = """

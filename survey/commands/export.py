@@ -11,7 +11,7 @@ from pathlib import Path
 
 import typer
 
-from survey.commands.options import old_name, renamed
+from survey.commands.options import JsonAlways, old_name, renamed
 
 
 class LateralSign(str, Enum):
@@ -36,6 +36,8 @@ def export(
                                       "output folder holding processed/track.csv. A raw session folder "
                                       "must be processed first."),
     xlsx: Path = typer.Option(None, "--xlsx", help="Excel survey sheet to write."),
+    pdf: Path = typer.Option(None, "--pdf", help="PDF report to write (cover with the survey header, summary, "
+                                                 "strip charts per km, defects, free-station QA)."),
     tolerances: str = typer.Option("hsr_ballastless_static", "--tolerances",
                                    help="Built-in tolerance set (hsr_ballastless_static, en13848_5_alert) or a TOML file."),
     csv: Path = typer.Option(None, "--csv", help="Track table as CSV (injection-safe)."),
@@ -50,14 +52,13 @@ def export(
     project: str = typer.Option(None, "--project", help="Project name for the Summary sheet (default: summary.json's)."),
     session: str = typer.Option(None, "--session", help="Session name for the Summary sheet (default: summary.json's)."),
     fail_on_defects: bool = typer.Option(False, "--fail-on-defects", help="Exit with code 1 when any defect is found."),
-    json_output: bool = typer.Option(False, "--json", help="One JSON object on stdout (this command prints it "
-                                                           "in any case; the flag is accepted like on every command)."),
+    json_output: JsonAlways = False,
     twist_base_old: float = typer.Option(None, "--twist-base", hidden=True, help=old_name("--twist-base-m")),
     chord_old: float = typer.Option(None, "--chord", hidden=True, help=old_name("--chord-m")),
     gauge_rate_base_old: float = typer.Option(None, "--gauge-rate-base", hidden=True,
                                               help=old_name("--gauge-rate-base-m")),
 ) -> None:
-    """Compute track geometry, check tolerances, write the Excel survey sheet / CSV / plots."""
+    """Compute track geometry, check tolerances, write the Excel survey sheet / PDF report / CSV / plots."""
     from rich.console import Console
 
     from survey import jsonout
@@ -70,14 +71,14 @@ def export(
     chord_m = renamed(chord_m, chord_old, "--chord-m", "--chord")
     gauge_rate_base_m = renamed(gauge_rate_base_m, gauge_rate_base_old, "--gauge-rate-base-m", "--gauge-rate-base")
     console = Console(stderr=True)
-    for out in (xlsx, csv):
+    for out in (xlsx, csv, pdf):
         if out is not None and not Path(out).parent.is_dir():
             typer.echo(f"error: {out}: folder {Path(out).parent} does not exist", err=True)
             raise typer.Exit(code=2)
     try:
         with progress_bar("computing the track geometry", console) as report:
             result = export_outputs(track, xlsx, csv, plots, tolerances=tolerances, design=design,
-                                    project_name=project, session_name=session, progress=report,
+                                    project_name=project, session_name=session, progress=report, pdf=pdf,
                                     twist_base_m=twist_base_m, versine_chord_m=chord_m,
                                     gauge_rate_base_m=gauge_rate_base_m, lateral_sign=lateral_sign.value,
                                     cant_sign=cant_sign.value, versine_sign=versine_sign.value)

@@ -1,5 +1,5 @@
 """``trolley project ...``: create a project store, import CPIII points, the design alignment and
-raw session folders, export sessions, and show what a project holds.
+raw session folders, export sessions, set the survey header fields, and show what a project holds.
 
 Every command opens ``<root>/<name>/project.sqlite`` (``--root``, default ``projects``, or the
 environment variable ``TROLLEY_PROJECTS``). Bad input is one line on stderr naming the file and
@@ -15,7 +15,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.commands.options import ImuPreset, old_name, renamed
+from survey.commands.options import ImuPreset, JsonFlag, old_name, renamed
 
 err = Console(stderr=True)
 project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True,
@@ -24,7 +24,6 @@ project_app = typer.Typer(help="Project store: CPIII points, design alignment, s
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
                                           help="folder holding the projects")]
 ProjectOption = Annotated[str, typer.Option("--project", "-p", help="project name")]
-JsonOption = Annotated[bool, typer.Option("--json", help="print the result as one JSON object on stdout")]
 
 
 def say(message: str) -> None:
@@ -60,7 +59,7 @@ def new(
                                                                     "set name or a TOML file")] = "default",
     use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
                                            "<root>/<name>/project.toml when it exists")] = True,
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
     height_old: Annotated[float | None, typer.Option("--height", hidden=True, help=old_name("--height-m"))] = None,
     tolerance_set_old: Annotated[str | None, typer.Option("--tolerance-set", hidden=True,
                                                           help=old_name("--tolerances"))] = None,
@@ -157,7 +156,7 @@ def import_cpiii(
     file: Annotated[Path, typer.Argument(help="CPIII file: CSV id,E_m,N_m,H_m or Leica GSI-8/16 (words 11, 81-83)")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import CPIII control points (all or nothing)."""
     from survey.cpiii import CpiiiError, import_cpiii_file
@@ -178,11 +177,18 @@ def import_cpiii(
 def import_alignment(
     file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
     project: ProjectOption,
+    name: Annotated[str | None, typer.Option("--name", help="Alignment/@name to import from a file that "
+                                                            "holds several")] = None,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
-    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
+    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design).
+
+    A file with several alignments needs --name; without it their names are listed (exit 2). What
+    the reader skipped or tolerated (Feature elements, small gaps at joins, ...) is printed as notes.
+    """
     from survey.store import alignment_record_from_text
+    from trolley.landxml import AlignmentChoiceError
 
     try:
         text = file.read_bytes().decode("utf-8")
@@ -192,15 +198,23 @@ def import_alignment(
         fail(f"{file}: not UTF-8 ({e.reason} at byte {e.start})")
     with _open(root, project) as store:
         try:
-            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m)
+            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m, name)
+        except AlignmentChoiceError as e:
+            listing = "\n".join(f"  {n}" for n in e.names)
+            fail(f"{file}: {e} (nothing imported); the alignments in the file:\n{listing}\n"
+                 f"import one with --name NAME")
         except ValueError as e:  # LandXmlError names the element
             fail(f"{file}: {e} (nothing imported)")
         store.add_alignment(rec)
+    for note in rec.notes:
+        say(f"{file}: note: {note}")
     say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
-              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m")
+              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
+        + (f", {len(rec.notes)} note(s)" if rec.notes else ""))
     if json_output:
         jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
-                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m})
+                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m,
+                      "notes": list(rec.notes)})
 
 
 @project_app.command("import-session")
@@ -209,7 +223,7 @@ def import_session(
     project: ProjectOption,
     session: Annotated[str | None, typer.Option("--session", help="session name (default: the folder name)")] = None,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import a raw session folder into the project store (one transaction)."""
     from survey.sessionio import SessionFormatError, read_session
@@ -226,7 +240,7 @@ def import_session(
         path = folder / raw.meta.design_alignment
         try:
             design = alignment_record_from_text(raw.meta.design_alignment, path.read_bytes().decode("utf-8"),
-                                                raw.meta.trolley.rail_spacing_m)
+                                                raw.meta.trolley.rail_spacing_m, raw.meta.design_alignment_name)
         except OSError as e:
             fail(f"{path}: {e.strerror or e}")
         except ValueError as e:  # UnicodeDecodeError and LandXmlError
@@ -237,6 +251,8 @@ def import_session(
         except StoreError as e:
             fail(str(e))
         counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+    for note in design.notes if design is not None else ():
+        say(f"{folder / raw.meta.design_alignment}: note: {note}")
     say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
               f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
               f"{counts['gauge_sample']} gauge readings")
@@ -251,7 +267,7 @@ def export_session(
     out: Annotated[Path, typer.Option("--out", help="raw session folder to write (must not exist)")],
     overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing folder")] = False,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
     from survey.sessionio import write_session
@@ -317,11 +333,34 @@ def set_crs(
             f"combined scale {grid.combined_scale:.9f}")
 
 
+@project_app.command("set")
+def set_field(
+    key: Annotated[str, typer.Argument(help="header field: line, track, client, crew, totalstation, "
+                                            "totalstation_serial, totalstation_calibrated, imu, imu_serial, "
+                                            "imu_calibrated, trolley, trolley_serial, trolley_calibrated, "
+                                            "rail_temperature_c (the CRS: project set-crs)")],
+    value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
+                                              "\"\" clears the field")],
+    project: ProjectOption = ...,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them)."""
+    from survey.surveyheader import HEADER_FIELDS
+
+    with _open(root, project) as store:
+        try:
+            text = store.set_header(key, value)
+        except ValueError as e:
+            fail(str(e))
+    label = HEADER_FIELDS[key].label
+    say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
+
+
 @project_app.command("show")
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
     root: RootOption = Path("projects"),
-    as_json: JsonOption = False,
+    as_json: JsonFlag = False,
 ) -> None:
     """Show a project: settings, CPIII points, design alignment, sessions."""
     import numpy as np
@@ -335,6 +374,7 @@ def show(
         s = store.settings()
         pts = store.cpiii_points()
         al = store.alignment()
+        header = store.header()
         grid = store.site_grid() if s.crs else None
         sessions = []
         for rec in store.sessions():
@@ -350,6 +390,7 @@ def show(
             "name": info.name, "path": str(info.path), "created_utc": info.created_utc,
             "schema_version": info.schema_version,
             "settings": json.loads(settings_to_json(s)),
+            "header": header,
             "grid": None if grid is None else {
                 "latitude_deg": units.rad_to_deg(grid.latitude_rad), "longitude_deg": units.rad_to_deg(grid.longitude_rad),
                 "convergence_deg": units.rad_to_deg(grid.convergence_rad), "point_scale": grid.point_scale,
@@ -407,6 +448,10 @@ def show(
                                f"{al.chainage_start_m:.3f} .. {al.chainage_end_m:.3f} m")
     else:
         t.add_row("alignment", "none (trolley project import-alignment FILE.xml --project NAME)")
+    from survey.surveyheader import HEADER_FIELDS, NOT_GIVEN
+
+    for key, fld in HEADER_FIELDS.items():
+        t.add_row(f"{fld.label} ({key})", header.get(key, NOT_GIVEN))
     out.print(t)
     st = Table(title="sessions")
     for col in ("name", "state", "source", "created (UTC)", "IMU samples", "fixes accepted/all", "setups"):

@@ -16,13 +16,11 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.commands.options import (RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
+from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
 
 console = Console(stderr=True)
 
-JsonOption = Annotated[bool, typer.Option("--json", help="one JSON object on stdout (this command prints it in "
-                                                         "any case; accepted like on every command)")]
 tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers + IMU + encoder -> track irregularities.",
                        no_args_is_help=True, rich_markup_mode=None)
 
@@ -111,7 +109,7 @@ def simulate_cmd(
     camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0,
                                                   help="camera frame rate, Hz")] = 100.0,
     rail_profile: Annotated[RailProfile, typer.Option("--rail-profile", help="rail profile (EN 13674-1)")] = "60E1",
-    json_output: JsonOption = False,
+    json_output: JsonAlways = False,
 ) -> None:
     """Write a synthetic TGMS recording folder plus truth.csv."""
     from survey import tgms_io
@@ -182,7 +180,7 @@ def process_cmd(
     trajectory: Annotated[Optional[TgmsTrajectory], typer.Option(help="trajectory estimator (overrides --params)")] = None,
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="write PNG plots into --out")] = True,
-    json_output: JsonOption = False,
+    json_output: JsonAlways = False,
     step_old: Annotated[Optional[float], typer.Option("--step", min=0.01, max=5.0, hidden=True,
                                                       help=old_name("--step-m"))] = None,
 ) -> None:
@@ -291,7 +289,7 @@ def tune_cmd(
     box: Annotated[TgmsBox, typer.Option(help="search box: relative (4 decades around the defaults) or absolute "
                                               "(1e-4..1e4 in the paper's variances, Eq. 17; excludes a MEMS gyro's "
                                               "true noise at 100 Hz)")] = "relative",
-    json_output: JsonOption = False,
+    json_output: JsonAlways = False,
 ) -> None:
     """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2).
     --evaluations is a hard limit on the filter runs."""
