@@ -134,7 +134,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
         ("Line", field("line")),
         ("Track", field("track")),
         ("Client", field("client")),
-        ("Chainage", f"{km_label(float(s[0]), 3)} to {km_label(float(s[-1]), 3)} ({s.size} stations, "
+        ("Chainage", f"{km_label(rep.station(float(s[0])), 3)} to {km_label(rep.station(float(s[-1])), 3)} ({s.size} stations, "
                      f"step {rep.geometry.step_m:g} m)"),
         ("Survey date and time", span),
         ("Crew / operator", field("crew")),

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from trolley import units
+from trolley.stationing import Stationing
 from trolley.trackgeometry import TrackInput
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
@@ -403,13 +404,20 @@ def design_alignment_name(info: SurveyInfo) -> str | None:
 
 
 def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
-               alignment_name: str | None = None, notes: list[str] | None = None) -> TrackInput:
+               alignment_name: str | None = None,
+               notes: list[str] | None = None) -> tuple[TrackInput, Stationing | None]:
     """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
     (internal stations: track.csv's ``distance_m`` when it has one).
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
     positive when the left rail is higher, like the measured cant. The LandXML reader's notes,
     and a word on the chainage when the design has station equations, are appended to ``notes``.
+
+    Returns
+    -------
+    track : with the design columns.
+    stationing : the design's drawing stationing (trolley.stationing.Stationing) when it has
+        station equations, else None (the drawing stationing is the internal station).
     """
     from trolley.landxml import LandXmlError, read_landxml
 
@@ -424,10 +432,12 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
     if notes is not None:
         notes.extend(f"{Path(landxml_path).name}: {n}" for n in design.notes)
         if alignment.stationing is not None and alignment.stationing.equations:
-            notes.append(f"{Path(landxml_path).name} has station equations: the chainages here are internal "
-                         f"stations (track.csv distance_m); the drawing's stationing is track.csv chainage_m")
+            notes.append(f"{Path(landxml_path).name} has station equations: every chainage shown is the "
+                         f"drawing's stationing (track.csv chainage_m); chords, twist bases, wavelength "
+                         f"filters and sections run along the distance (track.csv distance_m)")
     d = alignment.evaluate(track.chainage_m)
     track.design_E_m, track.design_N_m = d.E_m, d.N_m
     track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)
     track.design_cant_m = rail_spacing_m * np.sin(d.cant_rad)
-    return track
+    st = alignment.stationing
+    return track, (st if st is not None and st.equations else None)

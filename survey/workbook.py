@@ -27,6 +27,7 @@ import zipfile
 from datetime import datetime, timezone
 from pathlib import Path
 from xml.etree import ElementTree as ET
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -100,8 +101,11 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     kv("Track file", rep.track_csv.name)
     kv("Written (UTC)", datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S"))
     kv("Stations", int(g.chainage_m.size))
-    kv("Chainage from [m]", float(g.chainage_m[0]), KM_FORMAT)
-    kv("Chainage to [m]", float(g.chainage_m[-1]), KM_FORMAT)
+    kv("Chainage from [m]", rep.station(float(g.chainage_m[0])), KM_FORMAT)
+    kv("Chainage to [m]", rep.station(float(g.chainage_m[-1])), KM_FORMAT)
+    for _, text in rep.equations():
+        kv("Station equation", f"{text}: chainages are the drawing's stationing; lengths, chords, "
+                               "twist bases, filters and sections run along the distance")
     kv("Station step [m]", float(g.step_m), "0.000")
     if g.resampled:
         kv("Note", "input chainage not uniform: values interpolated linearly onto the grid")
@@ -282,10 +286,11 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
         fmt = col.number_format if col else "0.000"
         _num(ws, r, 1, i)
         put_text(ws, r, 2, col.header if col else d.parameter)
-        _num(ws, r, 3, d.start_chainage_m, "0.000")
-        _num(ws, r, 4, d.end_chainage_m, "0.000")
-        _num(ws, r, 5, d.start_chainage_m, KM_FORMAT)
-        _num(ws, r, 6, d.end_chainage_m, KM_FORMAT)
+        start, end = rep.station(d.start_chainage_m), rep.station(d.end_chainage_m)   # drawing stations
+        _num(ws, r, 3, start, "0.000")
+        _num(ws, r, 4, end, "0.000")
+        _num(ws, r, 5, start, KM_FORMAT)
+        _num(ws, r, 6, end, KM_FORMAT)
         _num(ws, r, 7, d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, "0.000")
         conv = col.display if col else (lambda x: x)
         _num(ws, r, 8, float(conv(np.array([d.peak]))[0]), fmt)
@@ -339,8 +344,8 @@ def _quality_table(ws, rep: SurveyReport, r: int) -> None:
     for i in range(q0.start_m.size):
         rr = r + 1 + i
         _num(ws, rr, 1, i + 1)
-        _num(ws, rr, 2, max(q0.start_m[i], float(rep.geometry.chainage_m[0])), KM_FORMAT)
-        _num(ws, rr, 3, min(q0.end_m[i], float(rep.geometry.chainage_m[-1])), KM_FORMAT)
+        _num(ws, rr, 2, rep.station(max(q0.start_m[i], float(rep.geometry.chainage_m[0]))), KM_FORMAT)
+        _num(ws, rr, 3, rep.station(min(q0.end_m[i], float(rep.geometry.chainage_m[-1]))), KM_FORMAT)
         _num(ws, rr, 4, int(q0.count[i]))
         for j, q in enumerate(quals, start=5):
             _num(ws, rr, j, float(q.std[i]) * 1e3, "0.00")
@@ -459,13 +464,14 @@ def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
     from trolley.trackgeometry import rail_values
 
     g = rep.geometry
+    station = rep.station_m
     by_key = {c.key: c for c in rep.columns}
     rails = rail_values(g)
     lat, cant = by_key["lateral_dev_m"].header.split("]")[-1].strip(), by_key["cant_m"].header.split("]")[-1].strip()
 
     def col(key):
         c = by_key[key]
-        return (c.header, c.number_format, column_values(c, g))
+        return (c.header, c.number_format, column_values(c, g, station))
 
     def mm(header, x):
         return (header, "0.00", np.round(x * 1e3, 4))
@@ -481,25 +487,32 @@ def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
 
 
 def _track_print_sheet(ws, rep: SurveyReport) -> None:
-    """The Track table for paper: a row every :data:`PRINT_STEP_M`, the centre line and each rail."""
+    """The Track table for paper: a row every :data:`PRINT_STEP_M` of drawing stationing, the
+    centre line and each rail; a text row where a station equation makes the stationing jump."""
     r0 = _sheet_header(ws, rep, f"Track (printable view, every {PRINT_STEP_M:g} m; all stations on the "
                                 "Track sheet): centre line and each rail")
     g = rep.geometry
     k = max(1, int(round(PRINT_STEP_M / g.step_m)))
     # stations on multiples of PRINT_STEP_M when the grid holds them, else every k-th
-    on_grid = np.isclose(np.mod(g.chainage_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
+    on_grid = np.isclose(np.mod(rep.station_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
     idx = np.flatnonzero(on_grid) if on_grid.sum() >= g.chainage_m.size // k else np.arange(0, g.chainage_m.size, k)
+    # one note row before the first printed station at or after each station equation
+    eqs = rep.equations()
+    before = np.searchsorted(g.chainage_m[idx], [s for s, _ in eqs], side="left")
+    row = r0 + 1 + np.arange(idx.size) + np.searchsorted(np.sort(before), np.arange(idx.size), side="right")
     cols = print_columns(rep)
     _header(ws, r0, [h for h, _, _ in cols])
     ws.row_dimensions[r0].height = 58
     for j, (_, fmt, v) in enumerate(cols, start=1):
         vals = v[idx].tolist()
-        for i, x in enumerate(vals, start=r0 + 1):
+        for i, x in zip(row.tolist(), vals):
             _num(ws, i, j, x, fmt)
         ws.column_dimensions[_col_letter(j)].width = 13 if j == 1 else 10.5
+    for n, (b, (_, text)) in enumerate(sorted(zip(before.tolist(), eqs))):
+        put_text(ws, r0 + 1 + b + n, 1, text)
     ws.freeze_panes = f"B{r0 + 1}"
     if not (np.isfinite(rep.geometry.columns["gauge_dev_m"]).any()):
-        put_text(ws, r0 + len(idx) + 2, 1, "gauge not measured: rail alignment values not available")
+        put_text(ws, r0 + len(idx) + len(eqs) + 2, 1, "gauge not measured: rail alignment values not available")
 
 
 #: charts on the Charts sheet: title, y-axis title, geometry columns (cant and its deviation apart:
@@ -552,7 +565,8 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     data = ws.parent["ChartData"]
     put_text(data, 1, 1, "tolerance lines of the Charts sheet: chainage [m], value")
     xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
-    s0, s1 = float(rep.geometry.chainage_m[0]), float(rep.geometry.chainage_m[-1])
+    station = rep.station_m    # the Track sheet's chainage column: drawing stationing
+    s0, s1 = float(station.min()), float(station.max())
     r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]")
     drow = 2
     slot = 0
@@ -611,7 +625,7 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
     from openpyxl.formatting.rule import FormulaRule
     from openpyxl.styles import Font, PatternFill
 
-    _header(ws, 1, [c.header for c in rep.columns])
+    _header(ws, 1, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
     ws.row_dimensions[1].height = 58
     for j, col in enumerate(rep.columns, start=1):
         c = ws.cell(row=2, column=j, value=0.0)
@@ -664,16 +678,24 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
     repr) and one %-template per run of rows with the same empty cells (0.28-0.43 s).
     """
     n = rep.geometry.chainage_m.size
+    station = rep.station_m
     rows_num = [str(i) for i in range(2, n + 2)]
     per_col = []
     for j, col in enumerate(rep.columns, start=1):
         L = _col_letter(j)
         s = styles.get(L, "0")
-        vals = column_values(col, rep.geometry).tolist()
+        vals = column_values(col, rep.geometry, station).tolist()
         pre = f'<c r="{L}'
         mid = f'" s="{s}"><v>'
         per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v == v else ""   # v != v: NaN -> no cell
                         for r, v in zip(rows_num, vals)])
+    eqs = rep.equations()
+    if eqs:   # the text of each station equation in the row of the first station at or after it
+        L = _col_letter(len(rep.columns) + 1)
+        at = dict(zip(np.searchsorted(rep.geometry.chainage_m, [s for s, _ in eqs], side="left").tolist(),
+                      [escape(t) for _, t in eqs]))
+        per_col.append([f'<c r="{L}{r}" t="inlineStr"><is><t>{at[i]}</t></is></c>' if i in at else ""
+                        for i, r in enumerate(rows_num)])
     return "".join(f'<row r="{r}">' + "".join(cells) + "</row>" for r, cells in zip(rows_num, zip(*per_col)))
 
 
@@ -693,7 +715,7 @@ def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float])
     xml = xml[:m.start()] + rows + xml[m.end():]
     t1 = time.perf_counter()
     timings["rows_xml"] = t1 - t0
-    last = _col_letter(len(rep.columns))
+    last = _col_letter(len(rep.columns) + (1 if rep.equations() else 0))
     xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{n + 1}"/>', xml, count=1)
     fd, tmp = tempfile.mkstemp(prefix=".splice-", suffix=".xlsx", dir=path.parent)
     os.close(fd)
