@@ -208,13 +208,13 @@ def km_axis(ax, rep: SurveyReport | None = None) -> None:
     ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(station(x), 1)))
     ax.set_xlabel("chainage [km+m]" + (" (drawing stationing)" if rep is not None and rep.equations() else ""))
     for s, text in ([] if rep is None else rep.equations()):
-        for a in ax.get_figure().axes:
-            lo, hi = a.get_xlim()
-            if lo <= s <= hi:
-                a.axvline(s, color="black", ls="--", lw=0.8)
-                if a is ax:
-                    a.annotate(text, (s, 0), xycoords=a.get_xaxis_transform(), xytext=(3, 3),
-                               textcoords="offset points", fontsize=7, rotation=90, va="bottom")
+        shown = [a for a in ax.get_figure().axes if a.get_xlim()[0] <= s <= a.get_xlim()[1]]
+        for a in shown:
+            a.axvline(s, color="black", ls="--", lw=0.8)
+        if shown:   # "1+300.000 back = 2+300.000 ahead" at the foot of the first panel (the legend is at the top)
+            shown[0].text(s, 0.03, " " + text.split(": ", 1)[1].split(" (")[0], transform=shown[0].get_xaxis_transform(),
+                          fontsize=7, va="bottom", ha="left", zorder=6,
+                          bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
 
 
 def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
