@@ -310,8 +310,8 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
 
 
 #: parameters of the section-quality table (EN 13848-6 style SD): geometry column, label
-QUALITY_COLUMNS = [("level_D1_m", "Longitudinal level D1"), ("align_D1_m", "Alignment D1"),
-                   ("cant_dev_m", "Cross level (cant dev)"), ("gauge_dev_m", "Gauge dev"), ("twist_m", "Twist")]
+QUALITY_COLUMNS = [("level_D1_m", "level D1"), ("align_D1_m", "alignment D1"),
+                   ("cant_dev_m", "cross level"), ("gauge_dev_m", "gauge dev"), ("twist_m", "twist")]
 
 
 def section_table(rep: SurveyReport):
