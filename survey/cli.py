@@ -47,10 +47,21 @@ COMMAND_MODULES: list[str] = [
     "budget",
     "tgms",
     "survey",
+    "inservice",
 ]
 
 for _name in COMMAND_MODULES:
     importlib.import_module(f"survey.commands.{_name}").register(app)
+
+
+def _plain_help(typer_app: typer.Typer) -> None:
+    """Plain click help for every command group, whatever its own Typer(...) said."""
+    for group in typer_app.registered_groups:
+        group.typer_instance.rich_markup_mode = None
+        _plain_help(group.typer_instance)
+
+
+_plain_help(app)
 
 
 def main() -> None:

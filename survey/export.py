@@ -26,8 +26,8 @@ from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
 from survey.fieldrecord import FIELD_RECORD, read_field_record
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
-from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
-                                 read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
+from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
+                                 read_fixes_csv, read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
                                  SurveyInfo)
 from survey.track_table import SurveyReport, column_values, sheet_columns
 
@@ -135,7 +135,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     if design_file is not None:
         if not design_file.is_file():
             raise ExportInputError(f"{design_file}: design alignment file not found")
-        track = add_design(track, design_file, cfg.rail_spacing_m)
+        track = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info), notes)
     else:
         notes.append("no design alignment (summary.json / session.toml [design]): design columns empty")
     if np.isnan(track.lateral_dev_m).all():

@@ -221,6 +221,8 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
         static_s=t.float("alignment.static_s", 900.0, min_value=0.0),
         initial_heading_rad=float(units.deg_to_rad(heading_deg)),
         design_alignment=design,
+        design_alignment_name=(t.string("design.name", None)
+                               if t.raw("design.name") is not _MISSING else None),
         crs=crs,
         vertical_datum=vertical_datum,
     )
@@ -306,8 +308,10 @@ def session_toml_text(meta: SessionMeta) -> str:
         "",
     ]
     if meta.design_alignment is not None:
-        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}",
-                  ""]
+        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}"]
+        if meta.design_alignment_name is not None:
+            lines.append(f"name = {json.dumps(meta.design_alignment_name, ensure_ascii=False)}")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -564,8 +568,10 @@ def read_session(folder: Path) -> RawSession:
     )
 
 
-def read_design(folder: Path, meta: SessionMeta):
-    """The design alignment named by ``[design] alignment``, or None.
+def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None):
+    """The design alignment named by ``[design] alignment`` (and ``[design] name`` in a file that
+    holds several), or None. The reader's notes (skipped or tolerated elements) are appended to
+    ``notes`` when it is given, each prefixed with the file name.
 
     Returns
     -------
@@ -578,7 +584,7 @@ def read_design(folder: Path, meta: SessionMeta):
     """
     if meta.design_alignment is None:
         return None
-    from trolley.landxml import parse_landxml
+    from trolley.landxml import read_landxml
 
     path = Path(folder) / meta.design_alignment
     try:
@@ -589,9 +595,12 @@ def read_design(folder: Path, meta: SessionMeta):
     except UnicodeDecodeError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: not UTF-8 ({exc.reason})") from None
     try:
-        return parse_landxml(text)
+        design = read_landxml(text, meta.design_alignment_name)
     except ValueError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: {exc}") from None
+    if notes is not None:
+        notes.extend(f"{meta.design_alignment}: {n}" for n in design.notes)
+    return design.alignment
 
 
 # ------------------------------------------------------------------------------------------

@@ -148,7 +148,11 @@ class ControlPoint:
 
 @dataclass(frozen=True)
 class AlignmentRecord:
-    """A design alignment: the LandXML text verbatim plus what was parsed from it."""
+    """A design alignment: the LandXML text verbatim plus what was parsed from it.
+
+    ``name`` is the ``Alignment/@name`` chosen in a file that holds several. ``notes`` are what
+    the reader reported at import (not stored: reading the text again gives them again).
+    """
 
     file_name: str
     landxml_text: str
@@ -158,6 +162,21 @@ class AlignmentRecord:
     chainage_end_m: float
     imported_utc: str = ""
     alignment_id: int | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def alignment_name(self) -> str | None:
+        """The name to pass to the LandXML reader: None when the file holds one alignment."""
+        from trolley.landxml import alignment_names
+
+        return self.name if len(alignment_names(self.landxml_text)) > 1 else None
+
+    def design(self, rail_spacing_m: float | None = None):
+        """The ``trolley.alignment.Alignment`` this record holds (its text read again)."""
+        from trolley.landxml import parse_landxml
+
+        kwargs = {} if rail_spacing_m is None else {"rail_spacing_m": rail_spacing_m}
+        return parse_landxml(self.landxml_text, self.alignment_name, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -749,6 +768,15 @@ class ProjectStore:
         rows = self._conn.execute("SELECT point_id, e_m, n_m, h_m, source, line FROM cpiii_point ORDER BY point_id")
         return [ControlPoint(*r) for r in rows]
 
+    def session_meta(self, design_alignment: str | None = None) -> SessionMeta:
+        """Metadata of a new session: the settings', with the site latitude the CRS gives at the
+        CPIII centroid when the project has a CRS (:meth:`site_grid`)."""
+        meta = self.settings().session_meta(design_alignment)
+        grid = self.site_grid()
+        if grid is not None:
+            meta = dataclasses.replace(meta, latitude_rad=grid.latitude_rad)
+        return meta
+
     def site_grid(self):
         """The project CRS's factors at the CPIII centroid (``trolley.projection.GridFactors``), or
         None without a CRS or without CPIII points."""
@@ -786,10 +814,7 @@ class ProjectStore:
         if not name or any(c in name for c in "/\\"):
             raise StoreError(f"invalid session name {name!r}")
         if meta is None:
-            meta = self.settings().session_meta()
-            grid = self.site_grid()
-            if grid is not None:  # the latitude of the site, from the CRS at the CPIII
-                meta = dataclasses.replace(meta, latitude_rad=grid.latitude_rad)
+            meta = self.session_meta()
         state = "open" if source == "live" else "imported"
         with self._transaction() as c:
             if c.execute("SELECT 1 FROM session WHERE name = ?", (name,)).fetchone():
@@ -1096,6 +1121,9 @@ class ProjectStore:
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)
         design = self.alignment(rec.alignment_id) if rec.alignment_id is not None else None
+        if design is not None and design.alignment_name is not None:
+            # the file holds several alignments: session.toml [design] names the one surveyed
+            raw = replace(raw, meta=replace(raw.meta, design_alignment_name=design.alignment_name))
         return crop_session(raw, self.survey_start_s(sid)), (design.landxml_text if design else None)
 
 
@@ -1124,20 +1152,34 @@ def _insert_alignment(c: sqlite3.Connection, rec: AlignmentRecord) -> int:
     return int(cur.lastrowid)
 
 
-def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float | None = None) -> AlignmentRecord:
-    """Parse a LandXML design (``trolley.landxml.parse_landxml``) into a record that keeps the text verbatim.
+def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float | None = None,
+                               alignment_name: str | None = None) -> AlignmentRecord:
+    """Read a LandXML design (``trolley.landxml.read_landxml``) into a record that keeps the text verbatim.
+
+    Parameters
+    ----------
+    file_name, text : the file's name and its text.
+    rail_spacing_m : rail spacing for the cant (None: the file's ``gauge``).
+    alignment_name : the ``Alignment/@name`` to take from a file holding several.
+
+    Returns
+    -------
+    AlignmentRecord
+        With the reader's notes (skipped elements, tolerated mismatches) in ``notes``.
 
     Raises
     ------
+    trolley.landxml.AlignmentChoiceError : several alignments and no (or an unknown) name.
     trolley.landxml.LandXmlError : the file is not a usable LandXML 1.2 alignment.
     """
-    from trolley.landxml import parse_landxml
+    from trolley.landxml import read_landxml
 
     kwargs = {} if rail_spacing_m is None else {"rail_spacing_m": rail_spacing_m}
-    al = parse_landxml(text, **kwargs)
+    d = read_landxml(text, alignment_name, **kwargs)
+    al = d.alignment
     return AlignmentRecord(file_name=file_name, landxml_text=text, name=al.name or Path(file_name).stem,
                            element_count=len(al.horizontal.elements), chainage_start_m=al.start_chainage_m,
-                           chainage_end_m=al.end_chainage_m)
+                           chainage_end_m=al.end_chainage_m, notes=d.notes)
 
 
 def _insert_fix(c: sqlite3.Connection, session_id: int, fix: FixRecord) -> int:

@@ -7,7 +7,8 @@ the column.
 
 Missing values: in track.csv the columns lateral_dev_mm, vertical_dev_mm, gauge_mm, cant_mm and
 twist_mm may be empty (no design / not measured); an empty cell or the text ``nan`` there is
-"not available". Every other cell must be a finite number; chainage must increase strictly.
+"not available". Every other cell must be a finite number; chainage (distance_m when present) must increase
+strictly.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from trolley import units
 from trolley.trackgeometry import TrackInput
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
-TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm"]
+TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
 FIX_NUMERIC = ["t_s", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"]
 
 
@@ -99,6 +100,10 @@ class SurveyInfo:
 
     ``equipment`` holds the figures of :data:`EQUIPMENT` that are known (summary.json
     ``equipment``, else the session's session.toml); ``equipment_source`` says where from.
+    ``crs``, ``vertical_datum``: the project grid ("" = not given: a local grid, true north);
+    ``grid_scale_factor`` (the projection's point scale k), ``grid_combined_scale`` (k times the
+    height reduction) and ``grid_convergence_deg`` at the site (NaN without a CRS;
+    ``trolley.projection``).
     """
 
     project: str = ""
@@ -118,6 +123,11 @@ class SurveyInfo:
     rail_spacing_m: float = 1.500
     nominal_gauge_m: float = 1.435
     present: bool = False
+    crs: str = ""
+    vertical_datum: str = ""
+    grid_scale_factor: float = math.nan
+    grid_convergence_deg: float = math.nan
+    grid_combined_scale: float = math.nan
     extra: dict = field(default_factory=dict)
 
 
@@ -246,10 +256,12 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
             raise ExportInputError(f"{path}: no stations (only a header row)")
         present_optional = [n for n in TRACK_OPTIONAL if n in header]
         cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
-    s = cols["chainage_m"]
+    # distance_m (the internal station) increases even where station equations make chainage_m jump
+    along = "distance_m" if "distance_m" in cols and np.all(np.isfinite(cols["distance_m"])) else "chainage_m"
+    s = cols[along]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
-        raise ExportInputError(f"{path}: row {i + 2}, column chainage_m: chainage {s[i]!r} does not increase")
+        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {s[i]!r} does not increase")
     nan = np.full(s.size, np.nan)
     mm = units.mm_to_m
     track = TrackInput(
@@ -302,7 +314,8 @@ def read_summary_json(path: Path) -> SurveyInfo:
 
     known = {"session_dir", "project", "session", "imu", "equipment", "smoother", "fixes_used",
              "fixes_rejected", "rms_innovation_mm", "max_sigma_mm", "step_m", "rail_spacing_m",
-             "nominal_gauge_m"}
+             "nominal_gauge_m", "crs", "vertical_datum", "grid_scale_factor", "grid_convergence_deg",
+             "grid_combined_scale"}
     equipment = _equipment_from_json(path, doc.get("equipment"))
     return SurveyInfo(
         project=str(doc.get("project", "")), session=str(doc.get("session", "")),
@@ -314,6 +327,9 @@ def read_summary_json(path: Path) -> SurveyInfo:
         rms_innovation_mm=num(doc, "rms_innovation_mm"), max_sigma_mm=num(doc, "max_sigma_mm"),
         step_m=num(doc, "step_m"), rail_spacing_m=num(doc, "rail_spacing_m", 1.500),
         nominal_gauge_m=num(doc, "nominal_gauge_m", 1.435), present=True,
+        crs=str(doc.get("crs") or ""), vertical_datum=str(doc.get("vertical_datum") or ""),
+        grid_scale_factor=num(doc, "grid_scale_factor"), grid_convergence_deg=num(doc, "grid_convergence_deg"),
+        grid_combined_scale=num(doc, "grid_combined_scale"),
         extra={k: v for k, v in doc.items() if k not in known})
 
 
@@ -358,37 +374,58 @@ def session_equipment(session_dir: Path) -> tuple[dict, str]:
         return {}, f"equipment figures not read: {e}"
 
 
-def design_alignment_path(info: SurveyInfo) -> Path | None:
-    """The LandXML file named by the session's session.toml [design] alignment, if any."""
+def _design_table(info: SurveyInfo) -> dict:
+    """session.toml's [design] table of the survey's session folder ({} when there is none)."""
     if not info.session_dir:
-        return None
+        return {}
     toml_path = Path(info.session_dir) / "session.toml"
     if not toml_path.is_file():
-        return None
+        return {}
     try:
         doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{toml_path}: not valid TOML ({e})") from None
-    name = doc.get("design", {}).get("alignment") if isinstance(doc.get("design"), dict) else None
+    return doc["design"] if isinstance(doc.get("design"), dict) else {}
+
+
+def design_alignment_path(info: SurveyInfo) -> Path | None:
+    """The LandXML file named by the session's session.toml [design] alignment, if any."""
+    name = _design_table(info).get("alignment")
     if not name:
         return None
     return Path(info.session_dir) / str(name)
 
 
-def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float) -> TrackInput:
-    """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages.
+def design_alignment_name(info: SurveyInfo) -> str | None:
+    """session.toml [design] name: the alignment to read from a LandXML file holding several."""
+    name = _design_table(info).get("name")
+    return str(name) if name else None
+
+
+def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
+               alignment_name: str | None = None, notes: list[str] | None = None) -> TrackInput:
+    """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
+    (internal stations: track.csv's ``distance_m`` when it has one).
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
-    positive when the left rail is higher, like the measured cant.
+    positive when the left rail is higher, like the measured cant. The LandXML reader's notes,
+    and a word on the chainage when the design has station equations, are appended to ``notes``.
     """
-    from trolley.landxml import LandXmlError, parse_landxml
+    from trolley.landxml import LandXmlError, read_landxml
 
     try:
-        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"), rail_spacing_m=rail_spacing_m)
+        design = read_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
+                              rail_spacing_m=rail_spacing_m)
     except (OSError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
     except LandXmlError as e:
         raise ExportInputError(f"{landxml_path}: {e}") from None
+    alignment = design.alignment
+    if notes is not None:
+        notes.extend(f"{Path(landxml_path).name}: {n}" for n in design.notes)
+        if alignment.stationing is not None and alignment.stationing.equations:
+            notes.append(f"{Path(landxml_path).name} has station equations: the chainages here are internal "
+                         f"stations (track.csv distance_m); the drawing's stationing is track.csv chainage_m")
     d = alignment.evaluate(track.chainage_m)
     track.design_E_m, track.design_N_m = d.E_m, d.N_m
     track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)

@@ -207,6 +207,40 @@ def test_export_and_project_commands_print_strict_json(processed, tmp_path):
     assert strict_json(r.stdout)["cpiii"]["count"] == added > 0
 
 
+def test_tgms_json_is_strict_where_the_accuracy_has_no_value(tmp_path):
+    rec = tmp_path / "rec"
+    r = runner.invoke(app, ["tgms", "simulate", "--out", str(rec), "--length-m", "60", "--camera-rate-hz", "10",
+                            "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["frames"] > 0
+    r = runner.invoke(app, ["tgms", "process", str(rec), "--out", str(tmp_path / "out"), "--no-plots", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = strict_json(r.stdout)  # a 60 m ride leaves accuracy figures undefined (NaN before issue 15)
+
+    def nulls(v):
+        if isinstance(v, dict):
+            return sum(nulls(u) for u in v.values())
+        if isinstance(v, list):
+            return sum(nulls(u) for u in v)
+        return v is None
+    assert nulls(doc["accuracy_3_25m"]) > 0
+
+
+def test_survey_start_json_is_the_final_summary_alone(tmp_path):
+    sys.path.insert(0, str(Path(__file__).parent))
+    from session_project import make_project
+
+    make_project(tmp_path / "projects")
+    (tmp_path / "crew.txt").write_text("fix\nmove\nfix\nmove\nfix\nend\n")
+    p = subprocess.run([sys.executable, "-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                        "--session", "s", "--simulate", "--speedup", "25", "--script", "crew.txt", "--json"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    doc = strict_json(p.stdout)
+    assert doc["session"] == "s" and doc["fixes_accepted"] >= 2
+    assert (tmp_path / doc["track_csv"]).is_file() and (tmp_path / doc["xlsx"]).is_file()  # relative to cwd
+
+
 # --------------------------------------------------------------------------------- old names
 
 def test_old_option_names_still_work_and_are_the_same_option(session, processed, tmp_path):
@@ -249,6 +283,26 @@ def test_progress_share_maps_a_sub_step_onto_its_part_of_the_bar():
     sub("filter", 1.0)
     assert seen == [("filter", 0.15), ("filter", pytest.approx(0.55)), ("filter", pytest.approx(0.95))]
     assert share(None, 0.0, 1.0) is None
+
+
+def test_monte_carlo_progress_rises_to_one_and_leaves_the_draws_alone():
+    from trolley import budget as B
+    from trolley.sensors import IMU_PRESETS
+    from trolley.budget import SensorFigures
+    figs = SensorFigures(gyro_bias_instability_rad_s=IMU_PRESETS["rlg"].gyro_bias_instability_rad_s,
+                         gyro_arw_rad_sqrt_s=IMU_PRESETS["rlg"].gyro_arw_rad_sqrt_s, heading_error_rad=None,
+                         level_error_rad=1e-4, fix_spacing_m=60.0, speed_m_s=1.0, fix_sigma_m=6e-4,
+                         latitude_rad=0.5, gyrocompassing=True)
+    case = B.resolve_case(figs).case
+    seen = []
+    memory = 8 * 61 * 40 * 7  # a few runs a block: several blocks
+    with_bar = B.monte_carlo(case, 50, seed=3, memory_bytes=memory, progress=lambda s, f: seen.append(f))
+    without = B.monte_carlo(case, 50, seed=3, memory_bytes=memory)
+    assert with_bar.block_runs < 50
+    for d in B.DIRECTIONS:
+        np.testing.assert_array_equal(with_bar.rms_m[d], without.rms_m[d])
+    assert np.all(np.diff(seen) >= 0) and seen[-1] == pytest.approx(1.0) and seen[0] < 0.5
+    assert len(seen) == 6 * int(np.ceil(50 / with_bar.block_runs))
 
 
 # ----------------------------------------------------------------------------- python-control

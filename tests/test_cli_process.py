@@ -9,7 +9,7 @@ from survey.cli import app
 
 runner = CliRunner()
 TRACK_COLUMNS = ("chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,"
-                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm").split(",")
+                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm,distance_m").split(",")
 
 
 @pytest.fixture(scope="module")

@@ -174,3 +174,56 @@ def test_curve_steady_state():
     sysm = vh._System(vh.VehicleParameters(), 20.0, kappa)
     q = sysm.equilibrium()
     assert q[0] == pytest.approx(r.wheelset_y_m[0], abs=1e-9) and q[0] < q[1] < 0.0
+
+
+def test_rigid_vehicle_motions_load_no_suspension():
+    """The assembled Jacobians: moving the whole car sideways, or yawing it about its centre
+    (y_k = eps x_k, psi = eps), or lifting the sprung bodies with the wheelset inputs deflects no
+    element; rolling the body alone does (the anti-roll bars and springs)."""
+    p = vh.VehicleParameters()
+    lin = vh._assemble(p, 0.0)
+    bx = vh._bodies(p).x
+    lateral = np.zeros(vh.N_DOF)
+    yaw = np.zeros(vh.N_DOF)
+    for body in range(7):
+        base = body if body < 4 else (vh._frame_dof(body - 4, 0) if body < 6 else vh._BODY)
+        lateral[base] = 1.0
+        yaw[base] = bx[body]
+        yaw[4 + body if body < 4 else base + 1] = 1.0
+    bounce = np.zeros(vh.N_DOF)
+    for base in (vh._frame_dof(0, 0), vh._frame_dof(1, 0), vh._BODY):
+        bounce[base + 3] = 1.0
+    u = np.concatenate([np.ones(4), np.zeros(4)])
+    for q, uu in ((lateral, 0 * u), (yaw, 0 * u), (bounce, u)):
+        assert np.max(np.abs(lin.j @ q + lin.ju @ uu)) < 1e-12
+    roll = np.zeros(vh.N_DOF)
+    roll[vh._BODY + 2] = 1.0
+    assert np.max(np.abs(lin.j @ roll)) > 0.5
+    k = lin.kc[:, :vh.N_DOF]
+    assert np.allclose(k, k.T)
+
+
+def test_robustness_factors_change_the_truth_not_the_nominal():
+    """conicity -10 % / Kalker 50 % act on the simulated vehicle only: the nominal values the
+    estimator gets stay, the truth's free-wheelset wavelength grows by 1 / sqrt(0.9) and the
+    bogie mode moves."""
+    p0 = vh.VehicleParameters()
+    p1 = vh.with_factors(p0, conicity_factor=0.9, creep_factor=0.5)
+    assert p1.nominal() == p0.nominal()
+    assert vh.kinematic_wavelength(p1.contact) == pytest.approx(vh.kinematic_wavelength(p0.contact) / np.sqrt(0.9))
+    f0 = vh.first_lateral_mode(p0, 20.0).frequency_hz
+    assert abs(vh.first_lateral_mode(p1, 20.0).frequency_hz - f0) > 0.02
+    fx0, _ = ct.creep_forces(1e-6, 0.0, C.wheel_load_n, C)
+    fx1, _ = ct.creep_forces(1e-6, 0.0, C.wheel_load_n, C, creep_factor=0.5)
+    assert fx1 == pytest.approx(0.5 * fx0, rel=1e-3)
+
+
+@pytest.mark.parametrize("conicity_factor,creep_factor,speed,low,high", [
+    (1.0, 1.0, 10.0, 0.63, 0.75), (0.9, 1.0, 20.0, 1.0, 1.26), (1.0, 0.5, 20.0, 0.9, 1.26),
+    (0.9, 0.5, 20.0, 0.9, 1.26), (1.0, 1.0, 40.0, 2.0, 3.0)])
+def test_first_lateral_mode_tracks_the_bogie_not_a_body_or_primary_mode(conicity_factor, creep_factor, speed,
+                                                                      low, high):
+    """The kinematic bogie frequency scales roughly with V sqrt(lambda): the selected mode stays in its
+    window (the car body modes are at 0.63-0.88 Hz at any speed, the primary-suspension ones above 6 Hz)."""
+    p = vh.with_factors(vh.VehicleParameters(), conicity_factor, creep_factor)
+    assert low < vh.first_lateral_mode(p, speed).frequency_hz < high

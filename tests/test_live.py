@@ -161,3 +161,87 @@ def test_live_screen_sigma_grows_past_the_planned_spacing():
     assert here[1] == pytest.approx(1e3 * max(worst_sigma(c90, "lateral"), worst_sigma(c90, "vertical")), rel=1e-12)
     # a slower trolley (more time for the gyro errors) is predicted worse at the same distance
     assert predicted_sigma_mm(meta, 60.0, 240.0) > predicted_sigma_mm(meta, 60.0, 60.0)
+
+
+def test_live_filter_in_a_projected_grid_off_the_central_meridian():
+    # 200 km east of UTM 50N's central meridian (0.96 deg of convergence): with the CRS the live
+    # gate accepts every fix and agrees with the batch engine; without it the fixes are rejected
+    design = parse_landxml(DEMO.read_text(encoding="utf-8")).translated(200000.0, 0.0)
+    s = simulate_survey(design, SimulationConfig(length_m=240.0, static_s=120.0, imu_rate_hz=100.0, seed=11,
+                                                 crs="EPSG:32650"))
+    lp, verdicts, intervals = _feed(design, s)
+    assert all(v.accepted for v in verdicts)
+    batch = process_session(s.session, design, ProcessConfig(relinearisations=0, smoother="none"),
+                            with_observability=False)
+    assert np.allclose([v.nis for v in verdicts], batch.fixes.nis, rtol=1e-2, atol=1e-9)
+    # the innovations are reported in the grid, as the batch engine reports them (left in the local
+    # frame, the 0.26 m one would be off by 0.96 deg: 4 mm, beyond this 0.5 % tolerance)
+    assert np.allclose(np.array([v.innovation_enh_m for v in verdicts]), batch.fixes.innovation_enh_m,
+                       rtol=5e-3, atol=2e-5)
+    lat = np.concatenate([r.stations.lateral_dev_m for r in intervals])
+    ch = np.concatenate([r.stations.chainage_m for r in intervals])
+    true_lat = np.interp(ch, s.truth.chainage_m,
+                         np.asarray(design.project(s.truth.E_m, s.truth.N_m, s.truth.H_m).lateral_m))
+    assert np.sqrt(np.mean((lat - true_lat) ** 2)) < 1.5e-3
+    import dataclasses
+    no_crs = dataclasses.replace(s, session=dataclasses.replace(
+        s.session, meta=dataclasses.replace(s.session.meta, crs=None)))
+    lp2 = LiveProcessor(no_crs.session.meta, design, ProcessConfig(relinearisations=0))
+    ses = no_crs.session
+    static = ses.imu_t_s <= ses.imu_t_s[0] + ses.meta.static_s
+    lp2.align(ses.imu_t_s[static], ses.imu_w_rad_s[static], ses.imu_f_m_s2[static])
+    lp2.add_fix(ses.fixes.t_s[0], ses.fixes.point[0], ses.fixes.enh_m[0])
+    late = ses.imu_t_s > ses.imu_t_s[static][-1]
+    lp2.add_samples(ses.imu_t_s[late], ses.imu_w_rad_s[late], ses.imu_f_m_s2[late], ses.odo_t_s, ses.odo_distance_m)
+    assert not lp2.add_fix(ses.fixes.t_s[-1], ses.fixes.point[-1], ses.fixes.enh_m[-1]).accepted
+
+
+@pytest.mark.parametrize("length_m", [240.0, 480.0])
+def test_live_interval_summaries_agree_with_the_final_track_on_short_surveys(length_m):
+    """Each interval's live track, its summary and its geometry agree with the final track within
+    2 mm, also in the first and last metres of the interval where the trolley starts and stops
+    (the error states are interpolated in odometer distance between the filter nodes, as the final
+    processing does: linear in time they put 5-10 mm false deviations at the ends of each
+    interval). No defect is found live that the final track does not have."""
+    from survey.export import geometry_config
+    from survey.session.interval import interval_check, tolerance_set
+    from survey.track_reader import SurveyInfo
+    from trolley.tolerances import find_defects
+    from trolley.trackgeometry import TrackInput, track_geometry
+
+    from survey.commands.simulate import project_settings
+    from trolley.sensors import IMU_PRESETS
+
+    kwargs, preset, xml = project_settings(DEMO.parent)  # the demo project: RLG, 1 m/s, 60 m intervals
+    design = parse_landxml(xml)
+    s = simulate_survey(design, SimulationConfig(**{**kwargs, "imu": IMU_PRESETS[preset], "length_m": length_m,
+                                                    "imu_rate_hz": 100.0}))
+    _, verdicts, intervals = _feed(design, s, ProcessConfig())
+    final = process_session(s.session, design, ProcessConfig(), with_observability=False).stations
+    tol = tolerance_set("default")
+    tr = s.session.meta.trolley
+    track = TrackInput(final.chainage_m, final.E_m, final.N_m, final.H_m, final.sigma_E_m, final.sigma_N_m,
+                       final.sigma_H_m, final.lateral_dev_m, final.vertical_dev_m, final.gauge_m, final.cant_m)
+    d = design.evaluate(track.chainage_m)
+    track.design_E_m, track.design_N_m, track.design_H_m = d.E_m, d.N_m, d.H_m
+    track.design_cant_m = tr.rail_spacing_m * np.sin(d.cant_rad)
+    geo = track_geometry(track, geometry_config(tol, SurveyInfo(rail_spacing_m=tr.rail_spacing_m,
+                                                                nominal_gauge_m=tr.nominal_gauge_m)))
+    final_defects = find_defects(geo.chainage_m, geo.columns, tol)
+    assert all(v.accepted for v in verdicts) and len(intervals) == round(length_m / 60.0)
+    for r in intervals:
+        st = r.stations
+        i = np.searchsorted(np.round(final.chainage_m, 6), np.round(st.chainage_m, 6))
+        assert np.array_equal(np.round(final.chainage_m[i], 6), np.round(st.chainage_m, 6))
+        for col in ("lateral_dev_m", "vertical_dev_m", "cant_m"):
+            assert np.nanmax(np.abs(getattr(st, col) - getattr(final, col)[i])) < 2e-3, col
+        assert abs(r.max_abs_lateral_dev_m - np.nanmax(np.abs(final.lateral_dev_m[i]))) < 2e-3
+        assert abs(r.max_abs_vertical_dev_m - np.nanmax(np.abs(final.vertical_dev_m[i]))) < 2e-3
+        chk = interval_check(st, design, tol, tr.rail_spacing_m, tr.nominal_gauge_m)
+        g = np.searchsorted(np.round(geo.chainage_m, 6), np.round(chk.geometry.chainage_m, 6))
+        for name in ("versine_h_dev_m", "versine_v_dev_m", "twist_m", "gauge_dev_m", "cant_dev_m"):
+            dd = np.abs(chk.geometry.columns[name] - geo.columns[name][g])
+            assert not np.any(dd > 2e-3), name
+        for x in chk.defects:  # a live defect is one of the final track's
+            assert any(y.parameter == x.parameter and y.start_chainage_m <= x.end_chainage_m + 0.7
+                       and x.start_chainage_m <= y.end_chainage_m + 0.7 for y in final_defects), x

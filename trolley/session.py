@@ -45,6 +45,7 @@ class SessionMeta:
     static_s : length of the initial static period.
     initial_heading_rad : heading to use instead of gyrocompassing, or NaN.
     design_alignment : path of the LandXML design, relative to the session folder, or None.
+    design_alignment_name : ``Alignment/@name`` to read from a design file holding several.
     crs : the project grid's coordinate reference system (EPSG code, PROJ string), or None: the
         grid is then taken as a local map with true north and ground scale.
     vertical_datum : name of the height datum of H, or None.
@@ -59,6 +60,7 @@ class SessionMeta:
     static_s: float = 900.0
     initial_heading_rad: float = float("nan")
     design_alignment: str | None = None
+    design_alignment_name: str | None = None
     crs: str | None = None
     vertical_datum: str | None = None
 

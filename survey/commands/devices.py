@@ -16,7 +16,7 @@ from pathlib import Path
 import typer
 
 from survey import jsonout
-from survey.commands.options import Device, old_name, renamed
+from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
                           no_args_is_help=True, rich_markup_mode=None)
@@ -54,7 +54,7 @@ def probe(
     crc: bool | None = typer.Option(None, "--crc/--no-crc",
                                     help="GeoCOM CRC-16 field on/off (default: on if the instrument answers with it)."),
     timeout_s: float = typer.Option(3.0, "--timeout-s", help="Reply timeout of quick calls."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout."),
+    as_json: JsonFlag = False,
     totalstation_old: str | None = typer.Option(None, "--totalstation", hidden=True,
                                                 help=old_name("--totalstation-port")),
 ) -> None:
@@ -116,7 +116,7 @@ def record_cmd(
     imu_baud: int = typer.Option(460800, "--imu-baud", min=1, help="IMU line speed."),
     odometer_baud: int = typer.Option(115200, "--odometer-baud", min=1, help="Counter module line speed."),
     gauge_baud: int = typer.Option(115200, "--gauge-baud", min=1, help="Gauge sensor line speed."),
-    as_json: bool = typer.Option(False, "--json", help="Print what was recorded as one JSON object on stdout."),
+    as_json: JsonFlag = False,
     imu_old: str | None = typer.Option(None, "--imu", hidden=True, help=old_name("--imu-port")),
     odometer_old: str | None = typer.Option(None, "--odometer", hidden=True, help=old_name("--odometer-port")),
     gauge_old: str | None = typer.Option(None, "--gauge", hidden=True, help=old_name("--gauge-port")),
@@ -237,8 +237,7 @@ def simulate(
     fault_device: list[Device] = typer.Option(list(Device), "--fault-device",
                                               help="Devices the faults apply to (repeat; default: all)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the faults' random draws."),
-    as_json: bool = typer.Option(False, "--json", help="The devices' ports as one JSON object on stdout (printed "
-                                                       "in any case; accepted like on every command)."),
+    as_json: JsonAlways = False,
 ) -> None:
     """Start the device twins on pseudo-terminals, write which port each listens on, run until
     interrupted (SIGINT/SIGTERM: ptys closed, the devices file removed, exit code 0)."""

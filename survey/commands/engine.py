@@ -18,7 +18,10 @@ err = Console(stderr=True)
 
 def fail(message: str, code: int = 2) -> None:
     """Print a one-line error to stderr and exit non-zero."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    from rich.text import Text
+
+    # the message as text, not markup: "[site] crs" must print as written
+    err.print(Text.assemble(("error: ", "bold red"), message), highlight=False, soft_wrap=True)
     raise typer.Exit(code=code)
 
 
@@ -76,10 +79,11 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         fail(f"--step-m must be positive, not {step}")
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
+    design_notes: list[str] = []
     with progress_bar("reading the session", err) as report:
         try:
             session = read_session(session_dir)
-            design = read_design(session_dir, session.meta)
+            design = read_design(session_dir, session.meta, design_notes)
         except SessionFormatError as exc:
             fail(str(exc))
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
@@ -94,12 +98,15 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
             fail(f"{session_dir}: {exc}")
         report("writing the outputs", 1.0 - _WRITE_SHARE)
         try:
-            written = write_outputs(out, result, session, session_dir)
+            written = write_outputs(out, result, session, session_dir,
+                                    None if design is None else design.stationing)
         except OutputFolderError as exc:
             fail(str(exc))
         except OSError as exc:
             fail(f"{out}: cannot write the outputs: {exc}")
         report("done", 1.0)
+    for note in design_notes:
+        err.print(f"note: {note}", highlight=False, soft_wrap=True, markup=False)
     return result, session, written
 
 

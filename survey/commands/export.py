@@ -11,7 +11,7 @@ from pathlib import Path
 
 import typer
 
-from survey.commands.options import old_name, renamed
+from survey.commands.options import JsonAlways, old_name, renamed
 
 
 class LateralSign(str, Enum):
@@ -52,8 +52,7 @@ def export(
     project: str = typer.Option(None, "--project", help="Project name for the Summary sheet (default: summary.json's)."),
     session: str = typer.Option(None, "--session", help="Session name for the Summary sheet (default: summary.json's)."),
     fail_on_defects: bool = typer.Option(False, "--fail-on-defects", help="Exit with code 1 when any defect is found."),
-    json_output: bool = typer.Option(False, "--json", help="One JSON object on stdout (this command prints it "
-                                                           "in any case; the flag is accepted like on every command)."),
+    json_output: JsonAlways = False,
     twist_base_old: float = typer.Option(None, "--twist-base", hidden=True, help=old_name("--twist-base-m")),
     chord_old: float = typer.Option(None, "--chord", hidden=True, help=old_name("--chord-m")),
     gauge_rate_base_old: float = typer.Option(None, "--gauge-rate-base", hidden=True,

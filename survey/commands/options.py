@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 from enum import Enum
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import typer
 
@@ -25,6 +25,13 @@ TgmsTrajectory = Literal["ltv", "ekf"]
 TgmsModel = Literal["kf", "ltv", "ekf"]
 TgmsBox = Literal["relative", "absolute"]
 RailProfile = Literal["60E1", "54E1"]
+
+
+#: ``--json`` of a command that prints a table or lines otherwise.
+JsonFlag = Annotated[bool, typer.Option("--json", help="print the result as one JSON object on stdout")]
+#: ``--json`` of a command whose stdout is its JSON summary in any case.
+JsonAlways = Annotated[bool, typer.Option("--json", help="one JSON object on stdout (this command prints it in "
+                                                         "any case; accepted like on every command)")]
 
 
 class Device(str, Enum):

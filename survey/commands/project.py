@@ -15,7 +15,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.commands.options import ImuPreset, old_name, renamed
+from survey.commands.options import ImuPreset, JsonFlag, old_name, renamed
 
 err = Console(stderr=True)
 project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True,
@@ -24,7 +24,6 @@ project_app = typer.Typer(help="Project store: CPIII points, design alignment, s
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
                                           help="folder holding the projects")]
 ProjectOption = Annotated[str, typer.Option("--project", "-p", help="project name")]
-JsonOption = Annotated[bool, typer.Option("--json", help="print the result as one JSON object on stdout")]
 
 
 def say(message: str) -> None:
@@ -60,7 +59,7 @@ def new(
                                                                     "set name or a TOML file")] = "default",
     use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
                                            "<root>/<name>/project.toml when it exists")] = True,
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
     height_old: Annotated[float | None, typer.Option("--height", hidden=True, help=old_name("--height-m"))] = None,
     tolerance_set_old: Annotated[str | None, typer.Option("--tolerance-set", hidden=True,
                                                           help=old_name("--tolerances"))] = None,
@@ -72,6 +71,8 @@ def new(
     alignment and CPIII file named in [design] are imported. Options override the file.
     """
     import dataclasses
+
+    import numpy as np
 
     from survey.cpiii import CpiiiError, read_cpiii_file
     from survey.store import ProjectSettings, ProjectStore, StoreError, alignment_record_from_text, project_path
@@ -129,6 +130,16 @@ def new(
     except ToleranceError as e:
         fail(f"{tolerance_option}: {e}")
     settings = dataclasses.replace(settings, tolerance_set=tolerance_set)
+    toml_crs = None
+    if settings.crs:
+        from trolley.projection import CrsError, crs_info, site_factors
+
+        try:
+            toml_crs = crs_info(settings.crs)
+            if points:
+                site_factors(toml_crs.text, np.array([[p.e_m, p.n_m, p.h_m] for p in points]))
+        except CrsError as e:
+            fail(f"{folder / 'project.toml'}: key site.crs: {e}")
     try:
         store = ProjectStore.create(root, name, settings)
     except StoreError as e:
@@ -138,12 +149,21 @@ def new(
             store.add_alignment(design)
         if points is not None:
             store.add_cpiii_points(points)
+        # a project.toml's [site] crs wins (checked before the store was created); else the
+        # design's <CoordinateSystem>
+        crs_notes = []
+        if toml_crs is not None:
+            apply_crs(store, toml_crs, settings.vertical_datum or toml_crs.vertical_datum or None)
+        elif design is not None:
+            crs_notes = design_crs(store, folder / design_name, xml)
     say(f"created project {name}: {store.path}")
     if design is not None:
         say(f"  design {design.name!r} ({design.file_name}): {design.element_count} elements, chainage "
             f"{design.chainage_start_m:.3f} .. {design.chainage_end_m:.3f} m")
     if points is not None:
         say(f"  {len(points)} CPIII points from {points[0].source}")
+    for note in crs_notes:
+        say(f"  note: {note}")
     if json_output:
         jsonout.echo({"project": name, "store": store.path,
                       "design": None if design is None else {
@@ -157,7 +177,7 @@ def import_cpiii(
     file: Annotated[Path, typer.Argument(help="CPIII file: CSV id,E_m,N_m,H_m or Leica GSI-8/16 (words 11, 81-83)")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import CPIII control points (all or nothing)."""
     from survey.cpiii import CpiiiError, import_cpiii_file
@@ -178,11 +198,18 @@ def import_cpiii(
 def import_alignment(
     file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
     project: ProjectOption,
+    name: Annotated[str | None, typer.Option("--name", help="Alignment/@name to import from a file that "
+                                                            "holds several")] = None,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
-    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
+    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design).
+
+    A file with several alignments needs --name; without it their names are listed (exit 2). What
+    the reader skipped or tolerated (Feature elements, small gaps at joins, ...) is printed as notes.
+    """
     from survey.store import alignment_record_from_text
+    from trolley.landxml import AlignmentChoiceError
 
     try:
         text = file.read_bytes().decode("utf-8")
@@ -192,15 +219,24 @@ def import_alignment(
         fail(f"{file}: not UTF-8 ({e.reason} at byte {e.start})")
     with _open(root, project) as store:
         try:
-            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m)
+            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m, name)
+        except AlignmentChoiceError as e:
+            listing = "\n".join(f"  {n}" for n in e.names)
+            fail(f"{file}: {e} (nothing imported); the alignments in the file:\n{listing}\n"
+                 f"import one with --name NAME")
         except ValueError as e:  # LandXmlError names the element
             fail(f"{file}: {e} (nothing imported)")
         store.add_alignment(rec)
+        crs_notes = design_crs(store, file, text)
+    for note in (*rec.notes, *crs_notes):
+        say(f"{file}: note: {note}")
     say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
-              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m")
+              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
+        + (f", {len(rec.notes)} note(s)" if rec.notes else ""))
     if json_output:
         jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
-                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m})
+                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m,
+                      "notes": list(rec.notes), "crs_notes": list(crs_notes)})
 
 
 @project_app.command("import-session")
@@ -209,7 +245,7 @@ def import_session(
     project: ProjectOption,
     session: Annotated[str | None, typer.Option("--session", help="session name (default: the folder name)")] = None,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Import a raw session folder into the project store (one transaction)."""
     from survey.sessionio import SessionFormatError, read_session
@@ -226,7 +262,7 @@ def import_session(
         path = folder / raw.meta.design_alignment
         try:
             design = alignment_record_from_text(raw.meta.design_alignment, path.read_bytes().decode("utf-8"),
-                                                raw.meta.trolley.rail_spacing_m)
+                                                raw.meta.trolley.rail_spacing_m, raw.meta.design_alignment_name)
         except OSError as e:
             fail(f"{path}: {e.strerror or e}")
         except ValueError as e:  # UnicodeDecodeError and LandXmlError
@@ -237,6 +273,8 @@ def import_session(
         except StoreError as e:
             fail(str(e))
         counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+    for note in design.notes if design is not None else ():
+        say(f"{folder / raw.meta.design_alignment}: note: {note}")
     say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
               f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
               f"{counts['gauge_sample']} gauge readings")
@@ -251,7 +289,7 @@ def export_session(
     out: Annotated[Path, typer.Option("--out", help="raw session folder to write (must not exist)")],
     overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing folder")] = False,
     root: RootOption = Path("projects"),
-    json_output: JsonOption = False,
+    json_output: JsonFlag = False,
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
     from survey.sessionio import write_session
@@ -282,12 +320,7 @@ def set_crs(
 ) -> None:
     """Set the project's CRS and vertical datum. The site latitude, grid convergence and scale
     factor follow from it at the CPIII centroid (trolley/projection.py)."""
-    import dataclasses
-
-    import numpy as np
-
-    from trolley import units
-    from trolley.projection import CrsError, crs_info, site_factors
+    from trolley.projection import CrsError, crs_info
 
     try:
         info = crs_info(crs)
@@ -297,17 +330,44 @@ def set_crs(
     if vd is not None and not vd.strip():
         fail("--vertical-datum: empty name")
     with _open(root, name) as store:
-        settings = dataclasses.replace(store.settings(), crs=info.text, vertical_datum=vd)
-        pts = store.cpiii_points()
-        grid = None
-        if pts:
-            try:
-                grid = site_factors(info.text, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
-            except CrsError as e:
-                fail(f"CRS {info.text} at the CPIII centroid: {e}")
-            settings = dataclasses.replace(settings, latitude_rad=grid.latitude_rad)
-        store.set_settings(settings)
-    say(f"project {name}: CRS {info.text} ({info.name}), vertical datum {vd or 'not given'}")
+        try:
+            grid = apply_crs(store, info, vd)
+        except CrsError as e:
+            fail(f"CRS {info.text} at the CPIII centroid: {e}")
+    say_crs(f"project {name}", info, vd, grid)
+
+
+def apply_crs(store, info, vertical_datum: str | None):
+    """Make ``info`` (``trolley.projection.CrsInfo``) the project's CRS and ``vertical_datum`` its
+    height datum; the settings' latitude becomes the CRS's at the CPIII centroid. Returns the grid
+    factors there (``GridFactors``), or None without CPIII points.
+
+    Raises
+    ------
+    trolley.projection.CrsError
+        The CPIII centroid lies outside the CRS's domain (nothing is stored).
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from trolley.projection import site_factors
+
+    settings = dataclasses.replace(store.settings(), crs=info.text, vertical_datum=vertical_datum)
+    pts = store.cpiii_points()
+    grid = None
+    if pts:
+        grid = site_factors(info.text, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
+        settings = dataclasses.replace(settings, latitude_rad=grid.latitude_rad)
+    store.set_settings(settings)
+    return grid
+
+
+def say_crs(who: str, info, vertical_datum: str | None, grid) -> None:
+    """The CRS now in force and its factors at the CPIII centroid, on stderr."""
+    from trolley import units
+
+    say(f"{who}: CRS {info.text} ({info.name}), vertical datum {vertical_datum or 'not given'}")
     if grid is None:
         say("  no CPIII points yet: the site latitude, convergence and scale follow from them once imported")
     else:
@@ -315,6 +375,45 @@ def set_crs(
             f"{units.rad_to_deg(grid.longitude_rad):.6f} deg, grid convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
             f"point scale {grid.point_scale:.9f}, height reduction {grid.height_reduction:.9f}, "
             f"combined scale {grid.combined_scale:.9f}")
+
+
+def design_crs(store, file, text: str) -> list[str]:
+    """Read the design's LandXML ``<CoordinateSystem>`` (``trolley.landxml.coordinate_system``).
+
+    A project without a CRS takes the file's (an EPSG code, WKT or PROJ string that pyproj knows),
+    with its vertical datum; a project whose CRS differs keeps its own. Returns the notes to print
+    (what was taken, or why not).
+    """
+    from trolley.landxml import coordinate_system
+    from trolley.projection import CrsError, crs_info, same_crs
+
+    try:
+        cs = coordinate_system(text)
+    except ValueError as e:
+        return [f"<CoordinateSystem> not read: {e}"]
+    if cs is None:
+        return []
+    label = cs.name or cs.horizontal_crs_name or "(no name)"
+    if cs.crs_text is None:
+        return [f"<CoordinateSystem> {label!r} gives no epsgCode and no WKT or PROJ definition: the project CRS "
+                f"is {store.settings().crs or 'not set'} (trolley project set-crs)"]
+    try:
+        info = crs_info(cs.crs_text)
+    except CrsError as e:
+        return [f"<CoordinateSystem> {label!r}: {e}; the project CRS is unchanged"]
+    current = store.settings().crs
+    if current:
+        if same_crs(current, info.text):
+            return []
+        return [f"<CoordinateSystem> {info.text} ({info.name}) differs from the project's CRS {current}: the project "
+                "keeps its own (trolley project set-crs to change it)"]
+    vd = cs.vertical_datum or cs.vertical_crs_name or info.vertical_datum or None
+    try:
+        grid = apply_crs(store, info, vd)
+    except CrsError as e:
+        return [f"<CoordinateSystem> {info.text}: at the CPIII centroid: {e}; the project CRS is unchanged"]
+    say_crs(f"{file}: <CoordinateSystem>", info, vd, grid)
+    return [f"the project's CRS is now {info.text} from the file's <CoordinateSystem>"]
 
 
 @project_app.command("set")
@@ -344,7 +443,7 @@ def set_field(
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
     root: RootOption = Path("projects"),
-    as_json: JsonOption = False,
+    as_json: JsonFlag = False,
 ) -> None:
     """Show a project: settings, CPIII points, design alignment, sessions."""
     import numpy as np

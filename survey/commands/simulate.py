@@ -13,7 +13,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from survey.commands.options import ImuPreset
+from survey.commands.options import ImuPreset, JsonAlways
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
@@ -156,9 +156,7 @@ def register(app: typer.Typer) -> None:
             "--crs-in-session/--no-crs-in-session",
             help="write [site] crs to session.toml (off: a crew that did not give it)")] = True,
         force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
-        json_output: Annotated[bool, typer.Option("--json", help="one JSON object on stdout (this command "
-                                                                 "prints it in any case; accepted like on "
-                                                                 "every command)")] = False,
+        json_output: JsonAlways = False,
     ) -> None:
         """Simulate a stop-and-go survey (full 3-D truth, strapdown IMU) into a raw session folder."""
         from dataclasses import replace

@@ -55,7 +55,6 @@ def simulated_world(store, speedup: float):
 
     from survey.commands.simulate import ProjectFileError, project_settings
     from survey.session.simworld import SimOptions, SimWorld
-    from trolley.landxml import parse_landxml
     from trolley.sensors import IMU_PRESETS
     from trolley.truthsim import SimulationConfig, simulate_survey
 
@@ -77,7 +76,7 @@ def simulated_world(store, speedup: float):
     kwargs.setdefault("imu", settings.imu)
     kwargs.update(latitude_rad=settings.latitude_rad, height_m=settings.height_m, trolley=settings.trolley,
                   fix_sigma_m=settings.fix_sigma_m, crs=settings.crs)
-    design = parse_landxml(a.landxml_text, rail_spacing_m=settings.trolley.rail_spacing_m)
+    design = a.design(settings.trolley.rail_spacing_m)
     try:
         sim = simulate_survey(design, SimulationConfig(**kwargs))
     except ValueError as exc:

@@ -16,13 +16,11 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.commands.options import (RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
+from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
 
 console = Console(stderr=True)
 
-JsonOption = Annotated[bool, typer.Option("--json", help="one JSON object on stdout (this command prints it in "
-                                                         "any case; accepted like on every command)")]
 tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers + IMU + encoder -> track irregularities.",
                        no_args_is_help=True, rich_markup_mode=None)
 
@@ -30,6 +28,16 @@ tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers +
 def _fail(msg: str) -> None:
     console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
+
+
+def _read_recording(folder: Path):
+    """The recording in ``folder``; a bad folder is one line naming the file, exit 2."""
+    from survey import tgms_io
+
+    try:
+        return tgms_io.read_recording(folder)
+    except tgms_io.TgmsFormatError as exc:
+        _fail(str(exc))
 
 
 def parse_band(text: str, step_m: float):
@@ -111,7 +119,7 @@ def simulate_cmd(
     camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0,
                                                   help="camera frame rate, Hz")] = 100.0,
     rail_profile: Annotated[RailProfile, typer.Option("--rail-profile", help="rail profile (EN 13674-1)")] = "60E1",
-    json_output: JsonOption = False,
+    json_output: JsonAlways = False,
 ) -> None:
     """Write a synthetic TGMS recording folder plus truth.csv."""
     from survey import tgms_io
@@ -182,7 +190,7 @@ def process_cmd(
     trajectory: Annotated[Optional[TgmsTrajectory], typer.Option(help="trajectory estimator (overrides --params)")] = None,
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="write PNG plots into --out")] = True,
-    json_output: JsonOption = False,
+    json_output: JsonAlways = False,
     step_old: Annotated[Optional[float], typer.Option("--step", min=0.01, max=5.0, hidden=True,
                                                       help=old_name("--step-m"))] = None,
 ) -> None:
@@ -222,10 +230,7 @@ def process_cmd(
         console.print(f"[yellow]warning:[/yellow] --orientation {orientation} is ignored: the 12-state smoother "
                       "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
     with progress_bar("reading the recording", console) as report:
-        try:
-            rec = tgms_io.read_recording(folder)
-        except tgms_io.TgmsFormatError as exc:
-            _fail(str(exc))
+        rec = _read_recording(folder)
         try:
             res = process(rec, params, step_m=step, match_curves=not no_curve_matching,
                           progress=share(report, 0.1, 1.0))
@@ -291,23 +296,22 @@ def tune_cmd(
     box: Annotated[TgmsBox, typer.Option(help="search box: relative (4 decades around the defaults) or absolute "
                                               "(1e-4..1e4 in the paper's variances, Eq. 17; excludes a MEMS gyro's "
                                               "true noise at 100 Hz)")] = "relative",
-    json_output: JsonOption = False,
+    json_output: JsonAlways = False,
 ) -> None:
     """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2).
     --evaluations is a hard limit on the filter runs."""
     import numpy as np
 
     from survey import tgms_io
+    from survey.commands.progress import progress_bar
     from trolley.tgms.tuning import tune_cml
-    try:
-        rec = tgms_io.read_recording(folder)
-    except tgms_io.TgmsFormatError as exc:
-        _fail(str(exc))
-    try:
-        with console.status("tuning (maximum likelihood)"):
-            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box)
-    except ValueError as exc:
-        _fail(f"{folder}: {exc}")
+    with progress_bar("reading the recording", console) as report:
+        rec = _read_recording(folder)
+        try:
+            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box,
+                                    progress=report)
+        except ValueError as exc:
+            _fail(f"{folder}: {exc}")
     if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
         _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
     try:

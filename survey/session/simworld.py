@@ -193,6 +193,8 @@ class SimWorld:
         self.clock: SimClock | None = None
         self.twins: dict = {}
         self.fix_attempts: dict[int, int] = {}
+        self.setup_attempts: dict[tuple, int] = {}
+        self.setup_k = 0  # the station setup the instrument stands for (its circle orientation)
         raw = sim.session
         self.gauge_t0_s = 0.0
         # instrument beside the track, a little ahead of the first stop
@@ -285,8 +287,18 @@ class SimWorld:
 
     # ------------------------------------------------------------------ total station
     def aim_at_point(self, enh_m) -> None:
-        """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims)."""
-        self.twins["totalstation"].set_target(tuple(float(x) for x in enh_m))
+        """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims).
+
+        The reading noise of this pointing is seeded by (setup, point, attempt), like a fix's, so
+        that a station setup measured again after a resume reads the same values as it would
+        have in an uninterrupted session."""
+        ts = self.twins["totalstation"]
+        target = tuple(float(x) for x in enh_m)
+        key = (self.setup_k, *(int(round(1e3 * abs(x))) for x in target))
+        attempt = self.setup_attempts.get(key, 0)
+        self.setup_attempts[key] = attempt + 1
+        ts.seed_noise([self.options.seed, 1000, *key, attempt])
+        ts.set_target(target)
 
     def move_instrument(self, k: int, chainage_m: float) -> None:
         """Station change: the instrument is set up anew beside the track near ``chainage_m``
@@ -303,11 +315,20 @@ class SimWorld:
         """Put the instrument at ``station_enh_m`` with setup ``k``'s circle orientation (also on resume)."""
         ts = self.twins["totalstation"]
         self.station_enh_m = np.asarray(station_enh_m, float).copy()
+        self.setup_k = int(k)
         with ts._lock:
             ts.position = tuple(map(float, self.station_enh_m))  # where it physically stands
             ts.orientation = (self.options.orientation_rad + 0.37 * k) % (2 * math.pi)
         ts.noise_angle_rad = self.options.angle_sigma_rad
         ts.noise_dist_m = self.options.distance_sigma_m
+
+    def restore_fix_attempts(self, fix_times_s) -> None:
+        """On resume: count the fixes already measured at each stop (``fix_times_s``, every stored
+        fix), so that the next attempt at a stop gets the noise it would have had without the crash."""
+        self.fix_attempts = {}
+        for t in fix_times_s:
+            k = stop_index_at(self.sim, float(t))
+            self.fix_attempts[k] = self.fix_attempts.get(k, 0) + 1
 
     def quiet_instrument(self) -> None:
         """No reading noise from now on (the prism target carries the fix noise)."""

@@ -24,13 +24,24 @@ class StationSetupSteps:
         if setups:
             self.setup_id = setups[-1].setup_id
             if self.world is not None:
-                self.world.place_instrument(setups[-1].station_enh_m, len(setups) - 1)
-                self.world.quiet_instrument()
+                self._restore_simulated_instrument()
             self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
             self.say(f"station setup {self.setup_id} restored from the store")
             return
         with self.crew_busy():
             self.new_station("free station on CPIII")
+
+    def _restore_simulated_instrument(self) -> None:
+        """On resume: the simulated instrument stands where it physically stood before the crash
+        (the last ``simulated_instrument`` event; the first position otherwise), not at the
+        resected station, which carries the setup's errors that the fixes must keep."""
+        import json
+
+        moves = [json.loads(e.detail) for e in self.store.events(self.rec.session_id)
+                 if e.kind == "simulated_instrument"]
+        if moves:
+            self.world.place_instrument(np.array(moves[-1]["station_enh_m"]), moves[-1]["setup"])
+        self.world.quiet_instrument()
 
     def new_station(self, title: str) -> None:
         """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
@@ -180,6 +191,10 @@ class StationSetupSteps:
             if self.config.script is None:
                 self.say("station change: stop the trolley first")
             return False
+        if self._fix_distance_pending:  # resumed: the odometer data up to the last fix are not in yet
+            if self.config.script is None:
+                self.say("station change: waiting for the odometer data up to the last fix; press s again")
+            return False
         with self.crew_busy():
             return self._station_change(dist)
 
@@ -188,18 +203,31 @@ class StationSetupSteps:
         from drivers.serialport import DeviceError
         from trolley.resection import overlap_check
 
-        k = sum(1 for s in self.store.station_setups(self.rec.session_id) if s.accepted)
-        if self.world is not None:
-            here = self.chainage_now(dist)
-            self.world.move_instrument(k, here if np.isfinite(here) else dist)
-            e, n, h = self.world.station_enh_m
-            self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
-        self.say(f"station change: setting up station {k + 1}")
-        self._event("station_change", f"setup {k + 1}")
-        self.new_station(f"station {k + 1} on CPIII")
+        import json
+
+        sid = self.rec.session_id
+        k = sum(1 for s in self.store.station_setups(sid) if s.accepted)
+        # a station change interrupted by a crash (resume): its steps already stored are not repeated
+        resumed, self._station_resumed = self._station_resumed, None
+        if resumed is not None and resumed == k:
+            k -= 1  # its new setup was stored: go on with the overlap check
+            self.say(f"station change: station {k + 1} was set up before the interruption")
+        else:
+            if self.world is not None:
+                here = self.chainage_now(dist)
+                self.world.move_instrument(k, here if np.isfinite(here) else dist)
+                e, n, h = self.world.station_enh_m
+                self._event("simulated_instrument", json.dumps({"setup": k, "station_enh_m": [e, n, h]}))
+                self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
+            self.say(f"station change: setting up station {k + 1}")
+            if resumed != k + 1:  # stored once, also when the crash came during the setup
+                self._event("station_change", f"setup {k + 1}")
+            self.new_station(f"station {k + 1} on CPIII")
         first = self.last_fix
         if first is None or abs(dist - self.last_fix_distance_m) > 0.01 or first.setup_id == self.setup_id:
             return True
+        if any(f.setup_id == self.setup_id and f.reason.startswith("overlap check") for f in self.store.fixes(sid)):
+            return True  # measured (and decided) before the interruption
         t = self.now()
         if self.world is not None:
             self.world.aim_at_prism(t, self.rec.meta.fix_sigma_m)

@@ -112,10 +112,10 @@ def saturation_factor(force_lin_n, limit_n) -> np.ndarray:
     """
     f = np.asarray(force_lin_n, float)
     lim = np.asarray(limit_n, float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        beta = np.where(lim > 0, f / np.where(lim > 0, lim, 1.0), np.inf)
-        eps = np.where(beta <= 3.0, 1.0 - beta / 3.0 + beta ** 2 / 27.0, 1.0 / beta)
-    return np.where(lim > 0, eps, 0.0)
+    beta = f / np.maximum(lim, 1e-200)  # lim = 0: beta huge, eps = 1 / beta ~ 0
+    b3 = np.minimum(beta, 3.0)
+    # 1 - b/3 + b^2/27 up to beta = 3 (where it is 1/3), then 1/beta: one expression, no division by 0
+    return (1.0 - b3 / 3.0 + b3 * b3 / 27.0) * (3.0 / np.maximum(beta, 3.0))
 
 
 def creep_forces(nu_x, nu_y, normal_n, p: ContactParameters, creep_factor: float = 1.0):
@@ -158,11 +158,14 @@ def wheelset_forces(y_rel_m, vy_m_s, psi_rad, wz_rad_s, normal_left_n, normal_ri
     (F_y, M_z) : lateral force (N, left positive) and yaw moment (N m, counter-clockwise positive).
     """
     dr = rolling_radius_difference(y_rel_m, p)
-    nux_l = -(p.b * curvature_1_m + p.b * wz_rad_s / speed_m_s + dr / (2.0 * p.r0))
-    nuy = vy_m_s / speed_m_s - psi_rad
-    fx_l, fy_l = creep_forces(nux_l, nuy, normal_left_n, p, creep_factor)
-    fx_r, fy_r = creep_forces(-nux_l, nuy, normal_right_n, p, creep_factor)
+    nux_l = np.atleast_1d(-(p.b * curvature_1_m + p.b * wz_rad_s / speed_m_s + dr / (2.0 * p.r0)))
+    nuy = np.broadcast_to(vy_m_s / speed_m_s - psi_rad, nux_l.shape)
+    normal_left_n = np.broadcast_to(normal_left_n, nux_l.shape)
+    normal_right_n = np.broadcast_to(normal_right_n, nux_l.shape)
+    # both wheels in one call: left on the first half, right on the second
+    fx, fy = creep_forces(np.concatenate([nux_l, -nux_l]), np.concatenate([nuy, nuy]),
+                          np.concatenate([normal_left_n, normal_right_n]), p, creep_factor)
+    n = len(nux_l)
     n_sum = np.maximum(normal_left_n, 0.0) + np.maximum(normal_right_n, 0.0)
-    fy = fy_l + fy_r - n_sum * (dr + cross_level_m) / (2.0 * p.b) + flange_force(y_rel_m, p)
-    mz = p.b * (fx_r - fx_l)
-    return fy, mz
+    fy_total = fy[:n] + fy[n:] - n_sum * (dr + cross_level_m) / (2.0 * p.b) + flange_force(y_rel_m, p)
+    return fy_total, p.b * (fx[n:] - fx[:n])
