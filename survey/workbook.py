@@ -146,7 +146,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     r += 1
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
-    kv("Design alignment", str(rep.design_file) if rep.design_file else "none: design columns empty")
+    kv("Design alignment", rep.design_file.name if rep.design_file else "none: design columns empty")
     for name, text in conventions(cfg):
         kv(name, text)
     kv("Twist", f"cant(s) - cant(s - {cfg.twist_base_m:g} m)")
@@ -205,9 +205,13 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             put_text(ws, r, 13, "example value" + (f" ({lim.note})" if lim.note else "") if lim.example
                      else lim.source)
         r += 1
-    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 60), start=1):
+    from openpyxl.styles import Alignment
+
+    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 44), start=1):
         if j > 2:
             ws.column_dimensions[_col_letter(j)].width = w
+    for row in ws.iter_rows(min_col=13, max_col=13):      # limit sources wrap: the page stays readable
+        row[0].alignment = Alignment(wrap_text=True, vertical="top")
 
 
 #: rows 1-7 of every sheet but Track: the header block (title and six lines); the table starts at TABLE_ROW
