@@ -567,7 +567,9 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     s0, s1 = float(rep.geometry.chainage_m[0]), float(rep.geometry.chainage_m[-1])
     for j in range(1, CHART_COLUMNS + 1):    # explicit: LibreOffice's default column is wider than Excel's
         ws.column_dimensions[_col_letter(j)].width = 8.43
-    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]", CHART_COLUMNS)
+    # the header merged over fewer columns than printed: LibreOffice's columns are wider than Excel's,
+    # and a merged line reaching past the page width printed an empty page of its own
+    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]", CHART_COLUMNS - 2)
     drow = 2
     slot = 0
     for title, ytitle, keys in CHARTS:
