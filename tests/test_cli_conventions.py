@@ -205,6 +205,9 @@ def test_export_and_project_commands_print_strict_json(processed, tmp_path):
     added = strict_json(r.stdout)["added"]
     r = runner.invoke(app, ["project", "show", "p", "--root", str(root), "--json"])
     assert strict_json(r.stdout)["cpiii"]["count"] == added > 0
+    r = runner.invoke(app, ["project", "set", "crew", "A. Smith", "-p", "p", "--root", str(root), "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["value"] == "A. Smith"
 
 
 def test_tgms_json_is_strict_where_the_accuracy_has_no_value(tmp_path):

@@ -25,7 +25,9 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
+from survey import jsonout
 from survey.commands.inservice_simulate import simulate_cmd
+from survey.commands.options import JsonAlways
 
 console = Console(stderr=True)
 
@@ -134,6 +136,7 @@ def process_cmd(
         "--model", help="model.toml from `trolley inservice calibrate` (default: the recording's nominal "
                         "parameters with default noise)")] = None,
     smoother: Annotated[str, typer.Option("--smoother", help="rts (forward filter + RTS smoother) or none")] = "rts",
+    json_output: JsonAlways = False,
 ) -> None:
     """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
     import numpy as np
@@ -213,7 +216,7 @@ def process_cmd(
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    print(json.dumps(summary))
+    jsonout.echo(summary)
 
 
 @inservice_app.command("calibrate")
@@ -223,6 +226,7 @@ def calibrate_cmd(
     length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
     import numpy as np
@@ -248,10 +252,10 @@ def calibrate_cmd(
         write_model(out, mdl)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    print(json.dumps({"out": str(out), "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
-                      "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
-                      "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
-                      "cpu_s": round(time.process_time() - t0, 2)}))
+    jsonout.echo({"out": out, "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
+                  "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
+                  "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
+                  "cpu_s": round(time.process_time() - t0, 2)})
 
 
 def register(app: typer.Typer) -> None:

@@ -317,6 +317,7 @@ def set_crs(
     vertical_datum: Annotated[str | None, typer.Option(
         "--vertical-datum", help="name of the height datum of H [default: the vertical part of a compound CRS]")] = None,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Set the project's CRS and vertical datum. The site latitude, grid convergence and scale
     factor follow from it at the CPIII centroid (trolley/projection.py)."""
@@ -335,6 +336,9 @@ def set_crs(
         except CrsError as e:
             fail(f"CRS {info.text} at the CPIII centroid: {e}")
     say_crs(f"project {name}", info, vd, grid)
+    if json_output:
+        jsonout.echo({"project": name, "crs": info.text, "crs_name": info.name, "vertical_datum": vd,
+                      "cpiii_centroid": grid})
 
 
 def apply_crs(store, info, vertical_datum: str | None):
@@ -434,6 +438,7 @@ def set_field(
                                               "\"\" clears the field")],
     project: ProjectOption = ...,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them)."""
     from survey.surveyheader import HEADER_FIELDS
@@ -445,6 +450,8 @@ def set_field(
             fail(str(e))
     label = HEADER_FIELDS[key.value].label
     say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
+    if json_output:
+        jsonout.echo({"project": project, "key": key, "label": label, "value": text or None})
 
 
 @project_app.command("show")
