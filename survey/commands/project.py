@@ -420,20 +420,12 @@ def design_crs(store, file, text: str) -> list[str]:
     return [f"the project's CRS is now {info.text} from the file's <CoordinateSystem>"]
 
 
-def _header_keys():
-    from enum import Enum
-
-    from survey.surveyheader import HEADER_FIELDS
-
-    return Enum("HeaderKey", {k: k for k in HEADER_FIELDS}, type=str)
-
-
-HeaderKey = _header_keys()
-
-
 @project_app.command("set")
 def set_field(
-    key: Annotated[HeaderKey, typer.Argument(metavar="KEY", help="header field (the CRS: `project set-crs`)")],
+    key: Annotated[str, typer.Argument(metavar="KEY", help=(
+        "header field: line, track, client, crew, totalstation, totalstation_serial, totalstation_calibrated, "
+        "imu, imu_serial, imu_calibrated, trolley, trolley_serial, trolley_calibrated, rail_temperature_c "
+        "(checked by the store, which holds the one list; the CRS: `project set-crs`)"))],
     value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
                                               "\"\" clears the field")],
     project: ProjectOption = ...,
@@ -445,10 +437,10 @@ def set_field(
 
     with _open(root, project) as store:
         try:
-            text = store.set_header(key.value, value)
+            text = store.set_header(key, value)
         except ValueError as e:
             fail(str(e))
-    label = HEADER_FIELDS[key.value].label
+    label = HEADER_FIELDS[key].label
     say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
     if json_output:
         jsonout.echo({"project": project, "key": key, "label": label, "value": text or None})
