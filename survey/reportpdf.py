@@ -232,7 +232,8 @@ def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
                                   _fmt(p.height_m * 1e3), _fmt(p.hz_rad / arcsec, 1), _fmt(p.zenith_rad / arcsec, 1),
                                   _fmt(p.distance_m * 1e3), _fmt(p.max_standardized, 1),
                                   p.reason if (p.flagged or not p.used) else "ok"], p.flagged or not p.used))
-    out.append(("title", ["Overlap checks (new minus old station)"], False))
+    out.append(("title", ["Overlap checks: old / new fix, stations; new minus old station dE, dN, dH [mm] in the "
+                          "across, along, height columns; tolerance [mm] in the distance column; verdict"], False))
     for o in rec.overlaps:
         out.append(("point", [f"{o.old_point} / {o.new_point}", f"{o.from_station}->{o.to_station}",
                               _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), "", "",

@@ -158,6 +158,15 @@ def header_rows(rep) -> list[tuple[str, str]]:
     return rows
 
 
+def _grid(info) -> str:
+    """The processing's grid convergence and combined scale (summary.json), '' when not known."""
+    conv = getattr(info, "grid_convergence_deg", math.nan)
+    scale = getattr(info, "grid_combined_scale", math.nan)
+    if not (math.isfinite(conv) and math.isfinite(scale)):
+        return ""
+    return f"convergence {conv:+.6f} deg, scale {scale:.9f} (site)"
+
+
 def time_span(start_utc: str, end_utc: str) -> str:
     """'2026-11-26 08:02 to 11:47 UTC' (the date once when both are on one day) from ISO 8601 texts."""
     from datetime import datetime, timezone

@@ -150,7 +150,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     r += 1
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
-    kv("Design alignment", str(rep.design_file) if rep.design_file else "none: design columns empty")
+    kv("Design alignment", rep.design_file.name if rep.design_file else "none: design columns empty")
     for name, text in conventions(cfg):
         kv(name, text)
     kv("Twist", f"cant(s) - cant(s - {cfg.twist_base_m:g} m)")
@@ -209,9 +209,13 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             put_text(ws, r, 13, "example value" + (f" ({lim.note})" if lim.note else "") if lim.example
                      else lim.source)
         r += 1
-    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 60), start=1):
+    from openpyxl.styles import Alignment
+
+    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 44), start=1):
         if j > 2:
             ws.column_dimensions[_col_letter(j)].width = w
+    for row in ws.iter_rows(min_col=13, max_col=13):      # limit sources wrap: the page stays readable
+        row[0].alignment = Alignment(wrap_text=True, vertical="top")
 
 
 #: rows 1-7 of every sheet but Track: the header block (title and six lines); the table starts at TABLE_ROW
@@ -244,21 +248,27 @@ def header_lines(rep: SurveyReport) -> list[str]:
 
     return [
         join("Project", "Session", "Line", "Track", "Client"),
-        join("Chainage", "Survey date and time", "Crew / operator", "Rail temperature [°C]"),
+        join("Chainage", "Survey date and time", "Crew / operator"),
         "   |   ".join([device("Total station", "totalstation"), device("IMU", "imu")]),
-        "   |   ".join([device("Trolley", "trolley"), f"Software: {h['Software']}"]),
+        "   |   ".join([device("Trolley", "trolley"), join("Rail temperature [°C]", "Software")]),
         join("Coordinate system", "Height datum", "Grid convergence and scale"),
         f"Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
     ]
 
 
-def _sheet_header(ws, rep: SurveyReport, title: str) -> int:
-    """Title and header block in rows 1-7 (text overflowing to the right). Returns :data:`TABLE_ROW`."""
-    from openpyxl.styles import Font
+def _sheet_header(ws, rep: SurveyReport, title: str, width: int) -> int:
+    """Title and header block in rows 1-7. Each line is merged over the sheet's ``width`` printed
+    columns and wraps inside them (two lines of room), so no text runs past the printed width
+    (LibreOffice prints such overflow on a page of its own). Returns :data:`TABLE_ROW`."""
+    from openpyxl.styles import Alignment, Font
 
     put_text(ws, 1, 1, title).font = Font(bold=True, size=13)
     for i, line in enumerate(header_lines(rep), start=2):
-        put_text(ws, i, 1, line).font = Font(size=8)
+        c = put_text(ws, i, 1, line)
+        c.font = Font(size=8)
+        c.alignment = Alignment(wrap_text=True, vertical="top")
+        ws.merge_cells(start_row=i, start_column=1, end_row=i, end_column=width)
+        ws.row_dimensions[i].height = 21
     return TABLE_ROW
 
 
@@ -272,7 +282,7 @@ def _field_only_rejections(rep: SurveyReport):
 
 
 def _defects_sheet(ws, rep: SurveyReport) -> None:
-    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section")
+    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section", 12)
     heads = ["#", "Parameter", "From [m]", "To [m]", "From [km+m]", "To [km+m]", "Length [m]", "Peak",
              "Limit", "Unit", "Stations", "Limit source"]
     _header(ws, r0, heads)
@@ -309,8 +319,8 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
 
 
 #: parameters of the section-quality table (EN 13848-6 style SD): geometry column, label
-QUALITY_COLUMNS = [("level_D1_m", "Longitudinal level D1"), ("align_D1_m", "Alignment D1"),
-                   ("cant_dev_m", "Cross level (cant dev)"), ("gauge_dev_m", "Gauge dev"), ("twist_m", "Twist")]
+QUALITY_COLUMNS = [("level_D1_m", "level D1"), ("align_D1_m", "alignment D1"),
+                   ("cant_dev_m", "cross level"), ("gauge_dev_m", "gauge dev"), ("twist_m", "twist")]
 
 
 def section_table(rep: SurveyReport):
@@ -354,7 +364,7 @@ def _quality_table(ws, rep: SurveyReport, r: int) -> None:
 def _fixes_sheet(ws, rep: SurveyReport) -> None:
     from openpyxl.styles import PatternFill
 
-    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason")
+    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason", 13)
     if rep.fixes is None and rep.record is None:
         put_text(ws, r0, 1, "fixes.csv not found next to track.csv: no per-stop fix information")
         ws.column_dimensions["A"].width = 70
@@ -396,7 +406,7 @@ def _stations_sheet(ws, rep: SurveyReport) -> None:
 
     from trolley import units
 
-    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks")
+    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks", 10)
     for j, w in enumerate((12, 10, 12, 12, 12, 10, 10, 11, 9, 44), start=1):
         ws.column_dimensions[_col_letter(j)].width = w
     rec = rep.record
@@ -490,7 +500,7 @@ def _track_print_sheet(ws, rep: SurveyReport) -> None:
     """The Track table for paper: a row every :data:`PRINT_STEP_M` of drawing stationing, the
     centre line and each rail; a text row where a station equation makes the stationing jump."""
     r0 = _sheet_header(ws, rep, f"Track (printable view, every {PRINT_STEP_M:g} m; all stations on the "
-                                "Track sheet): centre line and each rail")
+                                "Track sheet): centre line and each rail", 13)
     g = rep.geometry
     k = max(1, int(round(PRINT_STEP_M / g.step_m)))
     # stations on multiples of PRINT_STEP_M when the grid holds them, else every k-th
@@ -528,8 +538,10 @@ CHARTS = [
 CHART_COLOURS = ["1F77B4", "FF7F0E", "2CA02C", "9467BD", "8C564B"]
 TOLERANCE_COLOUR = "C00000"
 #: chart size (cm) and the rows each takes: two charts per A4 landscape page below the header block
-CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 6.0, 25.0, 12
+CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 5.6, 24.0, 11
 CHARTS_PER_PAGE = 2
+#: columns of the printed Charts sheet (14 x 8.43 characters: the chart's 25 cm within the printed width)
+CHART_COLUMNS = 14
 
 #: x-axis tick labels of the charts: km+m without decimals (1+234)
 CHART_KM_FORMAT = '0"+"000'
@@ -567,7 +579,11 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
     station = rep.station_m    # the Track sheet's chainage column: drawing stationing
     s0, s1 = float(station.min()), float(station.max())
-    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]")
+    for j in range(1, CHART_COLUMNS + 1):    # explicit: LibreOffice's default column is wider than Excel's
+        ws.column_dimensions[_col_letter(j)].width = 8.43
+    # the header merged over fewer columns than printed: LibreOffice's columns are wider than Excel's,
+    # and a merged line reaching past the page width printed an empty page of its own
+    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]", CHART_COLUMNS - 2)
     drow = 2
     slot = 0
     for title, ytitle, keys in CHARTS:
@@ -613,11 +629,12 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
         page, k_on_page = divmod(slot, CHARTS_PER_PAGE)
         row = r0 + page * CHARTS_PER_PAGE * CHART_ROWS + k_on_page * CHART_ROWS
         if k_on_page == 0 and page > 0:
-            ws.row_breaks.append(Break(id=row - 1))
+            ws.row_breaks.append(Break(id=row - 1, max=16383))
         ws.add_chart(ch, f"A{row}")
         slot += 1
-    pages = -(-slot // CHARTS_PER_PAGE)
-    ws.print_area = f"A1:P{r0 + max(pages, 1) * CHARTS_PER_PAGE * CHART_ROWS - 1}"
+    last = r0 + max(slot - 1, 0) // CHARTS_PER_PAGE * CHARTS_PER_PAGE * CHART_ROWS \
+        + max(slot - 1, 0) % CHARTS_PER_PAGE * CHART_ROWS + CHART_ROWS - 1      # the last chart's last row
+    ws.print_area = f"A1:{_col_letter(CHART_COLUMNS)}{last}"
 
 
 def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
