@@ -27,7 +27,7 @@ from survey.fieldrecord import FIELD_RECORD, read_field_record
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
-                                 read_fixes_csv, read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
+                                 read_fixes_csv, read_summary_json, read_track_file, resolve_track_csv, session_equipment,
                                  SurveyInfo)
 from survey.track_table import SurveyReport, column_values, sheet_columns
 
@@ -121,7 +121,8 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     t0 = time.perf_counter()
     path = resolve_track_csv(Path(track_csv))
     folder = path.parent
-    track, _ = read_track_csv(path)
+    file = read_track_file(path)
+    track = file.track
     notes: list[str] = []
     info = survey_info(folder, project_name, session_name)
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
@@ -132,13 +133,18 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     tol = load_tolerances(tolerances)
     cfg = geometry_config(tol, info, **config_overrides)
     design_file = Path(design) if design else design_alignment_path(info)
-    stationing = None
+    stationing = file.stationing     # the design's (exact) replaces it below when it has equations
     if design_file is not None:
         if not design_file.is_file():
             raise ExportInputError(f"{design_file}: design alignment file not found")
-        track, stationing = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info), notes)
+        track, design_stationing = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info),
+                                              notes)
+        stationing = design_stationing or stationing
     else:
         notes.append("no design alignment (summary.json / session.toml [design]): design columns empty")
+        if stationing is not None:
+            notes.append("track.csv chainage_m jumps against distance_m: the chainages shown are track.csv's "
+                         "chainage_m, each station equation placed at the first station after its jump")
     if np.isnan(track.lateral_dev_m).all():
         notes.append("track.csv has no lateral/vertical deviations: alignment, level, long-chord and "
                      "band values are empty")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from trolley import units
-from trolley.stationing import Stationing
+from trolley.stationing import StationEquation, Stationing
 from trolley.trackgeometry import TrackInput
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
@@ -242,14 +242,64 @@ def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
     return out
 
 
-def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
-    """Read a track.csv (FORMATS.md section 2).
+def stationing_of_track(distance_m: np.ndarray, chainage_m: np.ndarray, tol_m: float = 1e-5) -> Stationing | None:
+    """The drawing stationing a track.csv shows: its ``chainage_m`` against ``distance_m``.
+
+    Between stations the chainage runs with the distance (or against it); where it does not, a
+    station equation is taken at the first station after the break, its drawing station ahead
+    that station's chainage. Used when no design gives the equations exactly (a track.csv
+    exported without its LandXML); the equations are then placed within one station step.
 
     Returns
     -------
-    track : TrackInput in SI (no design columns yet).
-    twist_file_m : the file's own twist column, m (NaN where empty).
+    Stationing, or None when the chainage is the distance at every station.
     """
+    d, c = np.asarray(distance_m, dtype=float), np.asarray(chainage_m, dtype=float)
+    dd, dc = np.diff(d), np.diff(c)
+    sign = np.where(np.abs(dc - dd) <= tol_m, 1, np.where(np.abs(dc + dd) <= tol_m, -1, 0))
+    eqs: list[StationEquation] = []
+    cur = 1
+    if d.size and (abs(c[0] - d[0]) > tol_m or (sign.size and sign[0] == -1)):
+        cur = -1 if sign.size and sign[0] == -1 else 1
+        eqs.append(StationEquation(float(d[0]), float(c[0]), None, cur > 0))
+    # only the steps that break the stationing or turn its direction (a handful): a short loop
+    for i in np.flatnonzero((sign == 0) | (sign != np.r_[sign[:1], sign[:-1]])).tolist():
+        if sign[i] == 0:
+            cur = int(sign[i + 1]) if i + 1 < sign.size and sign[i + 1] != 0 else 1
+            eqs.append(StationEquation(float(d[i + 1]), float(c[i + 1]), float(c[i]), cur > 0))
+        elif sign[i] != cur and not (eqs and eqs[-1].internal_m == d[i]):
+            cur = int(sign[i])
+            eqs.append(StationEquation(float(d[i]), float(c[i]), float(c[i]), cur > 0))
+    if not eqs:
+        return None
+    return Stationing(float(d[0]), float(d[-1] + (dd[-1] if dd.size else 1.0)), eqs)
+
+
+@dataclass
+class TrackFile:
+    """A track.csv as the export reads it.
+
+    Attributes
+    ----------
+    track : TrackInput in SI along the internal station (no design columns yet).
+    twist_file_m : the file's own twist column, m (NaN where empty).
+    stationing : the file's drawing stationing (:func:`stationing_of_track`), None when its
+        chainage_m is its distance_m (or it has no distance_m).
+    """
+
+    track: TrackInput
+    twist_file_m: np.ndarray
+    stationing: Stationing | None = None
+
+
+def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
+    """Read a track.csv (FORMATS.md section 2): (track, twist_file_m) of :func:`read_track_file`."""
+    f = read_track_file(path)
+    return f.track, f.twist_file_m
+
+
+def read_track_file(path: Path) -> TrackFile:
+    """Read a track.csv (FORMATS.md section 2; distance_m, docs/conventions.md)."""
     cols = _track_columns_fast(path)
     if cols is None:
         header, body = _read_csv_rows(path)
@@ -270,7 +320,8 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
         sigma_E_m=mm(cols["sigma_E_mm"]), sigma_N_m=mm(cols["sigma_N_mm"]), sigma_H_m=mm(cols["sigma_H_mm"]),
         lateral_dev_m=mm(cols.get("lateral_dev_mm", nan)), vertical_dev_m=mm(cols.get("vertical_dev_mm", nan)),
         gauge_m=mm(cols.get("gauge_mm", nan)), cant_m=mm(cols.get("cant_mm", nan)))
-    return track, mm(cols.get("twist_mm", nan))
+    st = stationing_of_track(s, cols["chainage_m"]) if along == "distance_m" else None
+    return TrackFile(track, mm(cols.get("twist_mm", nan)), st)
 
 
 def read_fixes_csv(path: Path) -> list[FixRow]:

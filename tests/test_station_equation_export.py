@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from survey.cli import app
@@ -144,3 +146,58 @@ def test_injected_defect_is_listed_at_its_drawing_station(exported):
     assert AHEAD + 80.0 - 1.0 <= r[2] <= r[3] <= AHEAD + 81.0 + 1.0
     assert r[4] == r[2] and r[5] == r[3]                     # the km+m columns: the same stations
     assert r[6] == pytest.approx(r[3] - r[2] + 0.625)       # the length runs along the distance
+
+
+def test_export_without_the_design_takes_the_stationing_from_track_csv(exported, tmp_path):
+    """track.csv alone (no summary.json, no design): the chainages shown are still its chainage_m."""
+    shutil.copy(exported / "processed" / "track.csv", tmp_path / "track.csv")
+    out = tmp_path / "out.csv"
+    r = _run(["export", str(tmp_path / "track.csv"), "--csv", str(out), "--json"])
+    assert "jumps against distance_m" in r.stdout
+    src, got = _columns(tmp_path / "track.csv"), _columns(out)
+    np.testing.assert_allclose(got["chainage_m"], src["chainage_m"], atol=1e-9)
+    np.testing.assert_allclose(got["distance_m"], src["distance_m"], atol=1e-9)
+
+
+# stationing_of_track: hand cases (distance 1296..1304 every 1 m), then a round trip
+D = 1296.0 + np.arange(9.0)
+
+
+@pytest.mark.parametrize("chainage, equations", [
+    (D.copy(), []),
+    (np.where(D < 1300, D, D + 1000.0), [(1300.0, 2300.0, True)]),                  # forward jump
+    (np.where(D < 1300, D, D - 50.0), [(1300.0, 1250.0, True)]),                    # backward jump
+    (np.where(D < 1300, D, 5000.0 - (D - 1300.0)), [(1300.0, 5000.0, False)]),      # decreasing ahead
+    (np.where(D <= 1300, D, 1300.0 - (D - 1300.0)), [(1300.0, 1300.0, False)]),     # turns without a jump
+    (D + 100.0, [(1296.0, 1396.0, True)]),                                          # renumbered start
+])
+def test_stationing_of_track_by_hand(chainage, equations):
+    from survey.track_reader import stationing_of_track
+
+    st = stationing_of_track(D, chainage)
+    if not equations:
+        assert st is None
+        return
+    assert [(e.internal_m, e.ahead_m, e.increasing) for e in st.equations] == equations
+    np.testing.assert_allclose(st.station(D), chainage, atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st_=st.data())
+def test_stationing_of_track_reproduces_every_station(st_):
+    """Any stationing sampled on a grid comes back at every sample (two regions may merge when an
+    equation continues the stationing, and equations between two samples move to the later one)."""
+    from trolley.stationing import StationEquation, Stationing
+
+    from survey.track_reader import stationing_of_track
+
+    step = st_.draw(st.sampled_from([0.25, 0.5, 0.625, 1.0]))
+    n = st_.draw(st.integers(3, 60))
+    d = 1000.0 + step * np.arange(n)
+    at = sorted(set(st_.draw(st.lists(st.floats(d[0], d[-1] - 1e-3), max_size=4))))
+    eqs = [StationEquation(a, st_.draw(st.floats(-5000.0, 5000.0).map(lambda x: round(x, 3))), None,
+                           st_.draw(st.booleans())) for a in at]
+    true = Stationing(d[0], d[-1] + step, eqs)
+    c = np.round(true.station(d), 6)      # as track.csv writes it
+    got = stationing_of_track(d, c)
+    np.testing.assert_allclose(c if got is None else got.station(d), c, atol=1e-6)
