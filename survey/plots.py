@@ -212,7 +212,8 @@ def km_axis(ax, rep: SurveyReport | None = None) -> None:
         for a in shown:
             a.axvline(s, color="black", ls="--", lw=0.8)
         if shown:   # "1+300.000 back = 2+300.000 ahead" at the foot of the first panel (the legend is at the top)
-            shown[0].text(s, 0.03, " " + text.split(": ", 1)[1].split(" (")[0], transform=shown[0].get_xaxis_transform(),
+            label = " " + text.split(": ", 1)[1].split(" (")[0]
+            shown[0].text(s, 0.03, label, transform=shown[0].get_xaxis_transform(),
                           fontsize=7, va="bottom", ha="left", zorder=6,
                           bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
 
