@@ -201,3 +201,28 @@ def test_stationing_of_track_reproduces_every_station(st_):
     c = np.round(true.station(d), 6)      # as track.csv writes it
     got = stationing_of_track(d, c)
     np.testing.assert_allclose(c if got is None else got.station(d), c, atol=1e-6)
+
+
+def test_plots_and_pdf_label_the_drawing_stationing(exported, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from survey.export import build_report
+    from survey.plots import km_axis
+    from survey.reportpdf import page_plan, write_pdf_report
+
+    rep, _ = build_report(exported / "processed")
+    fig, (top, bottom) = plt.subplots(2, 1, sharex=True)
+    top.set_xlim(1280.0, 1320.0)
+    km_axis(bottom, rep)
+    fmt = bottom.xaxis.get_major_formatter()
+    assert fmt(1290.0, 0) == "1+290.0" and fmt(1310.0, 0) == "2+310.0"   # the axis runs along the distance
+    assert bottom.get_xlabel() == "chainage [km+m] (drawing stationing)"
+    for ax in (top, bottom):      # the equation line on every panel, its label on the top one
+        assert [tuple(ln.get_xdata()) for ln in ax.get_lines()] == [(1300.0, 1300.0)]
+    assert [t.get_text() for t in top.texts] == [" 1+300.000 back = 2+300.000 ahead"] and not bottom.texts
+    plt.close(fig)
+    assert "Strip charts 1+200 to 2+400" in [t for t, _ in page_plan(rep)]
+    assert write_pdf_report(tmp_path / "r.pdf", rep).path.stat().st_size > 0
