@@ -16,12 +16,37 @@ import pexpect
 from session_project import make_project
 
 
+def _start(tmp_path, session: str, speedup: str):
+    """A simulated session started at a terminal (pexpect)."""
+    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
+    return pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                                          "--session", session, "--simulate", "--speedup", speedup],
+                         cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+
+
+def _end(child) -> None:
+    """``e``, confirmed with ``y``: the session ends and writes the sheet."""
+    child.send("e")
+    child.expect("end the session\\? y = end it")
+    child.send("y")
+    child.expect("survey sheet:", timeout=90)
+    child.expect(pexpect.EOF)
+
+
+def _fix(child, label: str) -> None:
+    """``f`` until the fix ``label`` is accepted (a machine too loaded to stream for 1 s pauses the
+    session for a device fault, and the key is answered with that)."""
+    for _ in range(20):
+        child.send("f")
+        if child.expect([f"{label} accepted", "waiting for the devices"]) == 0:
+            return
+        time.sleep(0.5)
+    raise AssertionError(f"{label} not taken")
+
+
 def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
     make_project(tmp_path / "projects", static_s="20.0", stop_s="30.0")  # 2 s per stop at 15x: time to type
-    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
-    child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
-                                           "--session", "kb", "--simulate", "--speedup", "15"],
-                          cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+    child = _start(tmp_path, "kb", "15")
     try:
         child.expect("a accept")
         child.send("d")  # drop the point data snooping suggests, see the table again, accept
@@ -49,11 +74,7 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         child.expect("paused: p to resume first")
         child.send("p")
         child.expect("resumed")
-        child.send("e")
-        child.expect("end the session\\? y = end it")
-        child.send("y")
-        child.expect("survey sheet:", timeout=90)
-        child.expect(pexpect.EOF)
+        _end(child)
     finally:
         child.close()
     assert child.exitstatus == 0
@@ -79,33 +100,24 @@ def test_at_40x_the_world_waits_at_a_stop_f_while_moving_is_answered_and_e_asks_
     the crew has taken its fix. ``f`` while the trolley moves says why nothing happens; ``e`` asks
     before it ends the session."""
     make_project(tmp_path / "projects", static_s="20.0")  # 8 s stops (tests/session_project.py)
-    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
-    child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
-                                           "--session", "fast", "--simulate", "--speedup", "40"],
-                          cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+    child = _start(tmp_path, "fast", "40")
     try:
         child.expect("a accept")
         child.send("a")
         child.expect("station accepted")
-        child.send("f")
-        child.expect("FIX001 accepted")
+        _fix(child, "FIX001")
         child.expect("static alignment done")
         child.expect("moving")
         child.send("f")
         child.expect("f ignored: the trolley is moving")
         child.expect("standing at 60")
         time.sleep(2.0)  # 80 s of simulated time at 40x: ten times the stop, had the world not waited
-        child.send("f")
-        child.expect("FIX002 accepted")
+        _fix(child, "FIX002")
         child.send("e")
         child.expect("end the session\\? y = end it")
         child.send("x")
         child.expect("the session goes on")
-        child.send("e")
-        child.expect("end the session\\? y = end it")
-        child.send("y")
-        child.expect("survey sheet:", timeout=90)
-        child.expect(pexpect.EOF)
+        _end(child)
     finally:
         child.close()
     assert child.exitstatus == 0

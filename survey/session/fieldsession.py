@@ -633,12 +633,13 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _hold_at_stop(self, standing: bool, dist: float) -> None:
         """An interactive simulated session: the simulated world waits at a stop until the crew has
-        taken its fix (a real trolley waits for its crew; the simulator's motion is scripted in
-        time, and at 40x a stop would last a fraction of a second)."""
+        taken its fix, at the start once the static alignment is done (a real trolley waits for its
+        crew; the simulator's motion is scripted in time, and at 40x a stop would last a fraction
+        of a second)."""
         if self.world is None or self.config.script is not None:
             return
-        hold = (standing and self.aligned and bool(self.accepted_fixes) and not self.ended
-                and abs(dist - self.last_fix_distance_m) > 1.0 and not self.world.finished(self.data_time()))
+        hold = (standing and self.aligned and not self.ended and not self.world.finished(self.data_time())
+                and (not self.accepted_fixes or abs(dist - self.last_fix_distance_m) > 1.0))
         if hold != self._stop_held:
             if hold:
                 self.world.clock.freeze()
