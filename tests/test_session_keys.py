@@ -164,3 +164,50 @@ def test_one_set_of_keys_on_the_screen(tmp_path):
         assert shown() == ["end the session?"]
         fs._confirm_end, fs.note_buffer = False, "rail"
         assert shown() == ["note:"]
+
+
+def test_an_ended_session_is_reopened_to_add_intervals(tmp_path):
+    """The crew ends at the 60 m stop before its fix (``e``, ``y``: one fix, nothing to process);
+    ``trolley survey resume --reopen`` continues the session with a script: the fix at 60 m, the
+    next interval, the fix at 120 m. The session is processed again at its new end."""
+    import subprocess
+
+    make_project(tmp_path / "projects", static_s="20.0")
+    child = _start(tmp_path, "kb", "40")
+    try:
+        child.expect("a accept")
+        child.send("a")
+        child.expect("station accepted")
+        _fix(child, "FIX001")
+        child.expect("standing at 60")
+        child.send("e")
+        child.expect("end the session\\? y = end it")
+        child.send("y")
+        child.expect("fewer than two accepted fixes: nothing to process", timeout=90)
+        child.expect(pexpect.EOF)
+    finally:
+        child.close()
+    assert child.exitstatus == 0
+    args = [sys.executable, "-m", "survey.cli", "survey", "resume", "t1", "--root", "projects", "--session", "kb"]
+    (tmp_path / "add.txt").write_text("fix\nmove\nfix\nend\n")
+    r = subprocess.run(args + ["--reopen", "--script", "add.txt"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300, env={**os.environ, "COLUMNS": "160"})
+    assert r.returncode == 0, r.stderr[-3000:]
+    from survey.commands.survey import simulated_world
+    from survey.session.simworld import stop_index_at
+    from survey.store import ProjectStore
+
+    with ProjectStore.open(tmp_path / "projects" / "t1") as st:
+        sid = st.session("kb").session_id
+        fixes = st.fixes(sid)
+        sim = simulated_world(st, 1.0).sim
+        kinds = [e.kind for e in st.events(sid)]
+        finals = [p for p in st.processing_runs(sid) if p.kind == "final"]
+        track = st.track(finals[-1].run_id)
+        assert st.session("kb").state == "ended"
+    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True), ("FIX003", True)]
+    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1, 2]
+    assert kinds.count("end") == 2 and kinds.index("reopened") < kinds.index("resumed")
+    assert kinds.count("interval") == 2  # the live summaries of the two intervals added
+    assert len(finals) == 1 and track.chainage_m[0] < 1.0 and track.chainage_m[-1] > 119.0
+    assert "survey.xlsx" in r.stdout

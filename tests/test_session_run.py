@@ -275,3 +275,4 @@ def test_resume_of_an_ended_session_is_refused(project):
     root, _ = project
     r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "ref"], root)
     assert r.returncode == 2 and "has ended" in r.stderr and "Traceback" not in r.stderr
+    assert "--reopen" in r.stderr  # the way to add intervals to it

@@ -57,6 +57,7 @@ class SessionConfig:
     live : process each interval as soon as its closing fix is accepted.
     tolerances : tolerance set of the live interval summaries and of the survey sheet (None: the
         project's setting); resolved once by :func:`survey.session.interval.tolerance_set_name`.
+    reopen : on resume, reopen an ended session to add intervals (the script, if any, starts again).
     """
 
     script: list[Action] | None = None
@@ -65,6 +66,7 @@ class SessionConfig:
     setup_points: int = 8
     live: bool = True
     tolerances: str | None = None
+    reopen: bool = False
 
 
 @dataclass
@@ -207,13 +209,21 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         if self.resume:
             self.rec = self.store.session(self.name)
-            if self.rec.state == "ended":
-                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
-                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
-                                       "start a new session with `trolley survey start`")
-                return  # ended but its final processing did not finish: run() does only that
             if self.rec.source != "live":
                 raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
+            if self.rec.state == "ended" and self.config.reopen:
+                # reopened to add intervals: the session goes on from its last data; the next end
+                # processes it again (a new "final" run)
+                last = max(self._stored_state()["last"].values(), default=0.0)
+                self.store.set_session_state(self.rec.session_id, "open")
+                self._event("reopened", f"data up to t = {last:.3f} s", t_s=last)
+                self.rec = self.store.session(self.name)
+            elif self.rec.state == "ended":
+                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
+                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
+                                       f"`trolley survey resume PROJECT --session {self.name} --reopen` "
+                                       "reopens it to add intervals; or start a new session")
+                return  # ended but its final processing did not finish: run() does only that
         else:
             design = self.store.alignment()
             meta = self.settings.session_meta("alignment.xml" if design else None)
@@ -848,6 +858,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 self.direction = -self.direction
             elif ev.kind == "script":
                 self.script_index = int(ev.detail)
+            elif ev.kind == "reopened":  # the script of a reopened session starts again
+                self.script_index = 0
         fixes = self.store.fixes(sid, accepted_only=True)
         self.stop_count = len(self.store.stops(sid))
         self.accepted_fixes.extend(fixes)
@@ -876,7 +888,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if script is None or self.script_index >= len(script):
             return
         events = self.store.events(self.rec.session_id)
-        last = max((i for i, e in enumerate(events) if e.kind == "script"), default=-1)
+        last = max((i for i, e in enumerate(events) if e.kind in ("script", "reopened")), default=-1)
         last_step_t = events[last].t_s if last >= 0 else -math.inf
         a = script[self.script_index]
         done = False
