@@ -148,6 +148,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         #: resume: the setup number (1-based) of a station change the crash interrupted
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
+        self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
         self._key_prompt = ""  # a question of the station setup, shown instead of the loop's keys
@@ -515,6 +516,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             try:
                 if self._live_thread is not None:
                     self._live_thread.join()
+                self._replay_due()
                 self._feed_live(fix.t_s)  # after a resume the filter has not seen these data yet
                 self._live.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
                                    np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), force_accept=True)
@@ -537,7 +539,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         fix = self.accepted_fixes.pop()
         self.store.decide_fix(fix.fix_id, False, "undone by the crew")
-        if self._live is not None:
+        replay = self._live_replay
+        if replay and replay[-1].fix_id == fix.fix_id:
+            replay.pop()  # resumed, and not replayed yet: it never will be
+        elif self._live is not None:
             try:
                 self._live.undo_last_fix()
             except Exception:
@@ -590,6 +595,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._check_health()
         self._alignment_step()
         self._settle_fix_distance()
+        self._replay_due()
         standing, speed, dist = self.motion()
         t = self.now()
         if standing and self.stop_started_s is None and self.aligned:
