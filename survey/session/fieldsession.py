@@ -148,6 +148,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         #: resume: the setup number (1-based) of a station change the crash interrupted
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
+        self._resume_moved = False  # resume: the trolley moved in the interrupted ``move`` step
         self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
@@ -765,7 +766,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             if not self.aligned:
                 return False
             if not st.get("moved"):
-                st["moved"] = not standing
+                st["moved"], self._resume_moved = (not standing) or self._resume_moved, False
                 return False
             return standing
         if a.name == "station":
@@ -906,6 +907,14 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             changes = [e for e in events[last + 1:] if e.kind == "station_change"]
             if changes:
                 self._station_resumed = int(changes[-1].detail.split()[-1])
+        elif a.name == "move":
+            # the trolley moved since the step began: the step waits for it to stand, not to move
+            # again (else the crew would miss the stop it was arriving at when the session died)
+            od = self._odometer()
+            if od.shape[0] and np.isfinite(last_step_t):
+                d0 = float(np.interp(last_step_t, od[:, 0], od[:, 1]))
+                self._resume_moved = bool(np.max(np.abs(od[od[:, 0] >= last_step_t, 1] - d0), initial=0.0)
+                                          > STAND_TOLERANCE_M)
         if done:
             self.script_index += 1
             self._event("script", str(self.script_index))
