@@ -96,13 +96,10 @@ def check_header_value(key: str, value: str) -> str:
 
 
 def software_version() -> str:
-    """``trolley-survey X.Y.Z`` of the installed package."""
-    from importlib.metadata import PackageNotFoundError, version
+    """``trolley-survey X.Y.Z`` of the installed package (:func:`survey.version.version`)."""
+    from survey.version import DISTRIBUTION, version
 
-    try:
-        return f"trolley-survey {version('trolley-survey')}"
-    except PackageNotFoundError:
-        return "trolley-survey (version unknown: not installed as a package)"
+    return f"{DISTRIBUTION} {version()}"
 
 
 def header_rows(rep) -> list[tuple[str, str]]:
@@ -125,6 +122,10 @@ def header_rows(rep) -> list[tuple[str, str]]:
     # engine records them), else the session's (field record, from `trolley project set-crs`)
     crs = str(getattr(info, "crs", "") or "") or field("coordinate_system")
     datum = str(getattr(info, "vertical_datum", "") or "") or field("height_datum")
+    grid = field("grid")
+    if math.isfinite(getattr(info, "grid_convergence_deg", math.nan)):  # the processing's own, at the fixes
+        grid = (f"convergence {info.grid_convergence_deg:+.6f} deg, point scale factor {info.grid_scale_factor:.9f}, "
+                f"combined scale {info.grid_combined_scale:.9f} at the site")
     s = rep.geometry.chainage_m
     span = time_span(rec.start_utc, rec.end_utc) if rec is not None else NOT_GIVEN
     rows = [
@@ -133,7 +134,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
         ("Line", field("line")),
         ("Track", field("track")),
         ("Client", field("client")),
-        ("Chainage", f"{km_label(float(s[0]), 3)} to {km_label(float(s[-1]), 3)} ({s.size} stations, "
+        ("Chainage", f"{km_label(rep.station(float(s[0])), 3)} to {km_label(rep.station(float(s[-1])), 3)} ({s.size} stations, "
                      f"step {rep.geometry.step_m:g} m)"),
         ("Survey date and time", span),
         ("Crew / operator", field("crew")),
@@ -149,12 +150,21 @@ def header_rows(rep) -> list[tuple[str, str]]:
         (HEADER_FIELDS["rail_temperature_c"].label, field("rail_temperature_c")),
         ("Coordinate system", crs),
         ("Height datum", datum),
-        ("Grid convergence and scale", field("grid")),
+        ("Grid convergence and scale", grid),
         ("Software", software_version()),
         ("Tolerance set", f"{rep.tolerances.name}: {rep.tolerances.title}"),
         ("Tolerance source", _tolerance_source(rep.tolerances)),
     ]
     return rows
+
+
+def _grid(info) -> str:
+    """The processing's grid convergence and combined scale (summary.json), '' when not known."""
+    conv = getattr(info, "grid_convergence_deg", math.nan)
+    scale = getattr(info, "grid_combined_scale", math.nan)
+    if not (math.isfinite(conv) and math.isfinite(scale)):
+        return ""
+    return f"convergence {conv:+.6f} deg, scale {scale:.9f} (site)"
 
 
 def time_span(start_utc: str, end_utc: str) -> str:

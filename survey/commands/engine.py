@@ -18,7 +18,10 @@ err = Console(stderr=True)
 
 def fail(message: str, code: int = 2) -> None:
     """Print a one-line error to stderr and exit non-zero."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    from rich.text import Text
+
+    # the message as text, not markup: "[site] crs" must print as written
+    err.print(Text.assemble(("error: ", "bold red"), message), highlight=False, soft_wrap=True)
     raise typer.Exit(code=code)
 
 

@@ -228,7 +228,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 return  # ended but its final processing did not finish: run() does only that
         else:
             design = self.store.alignment()
-            meta = self.settings.session_meta("alignment.xml" if design else None)
+            meta = self.store.session_meta("alignment.xml" if design else None)
             if self.world is not None:
                 meta = replace(meta, initial_heading_rad=self.world.sim.session.meta.initial_heading_rad,
                                static_s=self.world.sim.session.meta.static_s)
