@@ -43,8 +43,6 @@ _NS_PKG_REL = "http://schemas.openxmlformats.org/package/2006/relationships"
 TRACK_SHEET = "Track"
 #: the printable view of the Track sheet
 TRACK_PRINT_SHEET = "Track print"
-#: freeze the header row and the chainage + station columns
-TRACK_FREEZE = "C2"
 
 
 def _col_letter(i: int) -> str:
@@ -218,9 +216,14 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
         row[0].alignment = Alignment(wrap_text=True, vertical="top")
 
 
-#: rows 1-7 of every sheet but Track: the header block (title and six lines); the table starts at TABLE_ROW
+#: rows 1-7 of every sheet but Summary: the header block (title and six lines); the table's column
+#: header row is TABLE_ROW (on the Track sheet too: its station rows start at TRACK_FIRST_ROW)
 HEADER_ROWS = 7
 TABLE_ROW = HEADER_ROWS + 2
+#: the first station row of the Track sheet (its column header is TABLE_ROW)
+TRACK_FIRST_ROW = TABLE_ROW + 1
+#: freeze the Track sheet below its column header row and right of the chainage + station columns
+TRACK_FREEZE = f"C{TRACK_FIRST_ROW}"
 
 
 def _source_name(origin: str) -> str:
@@ -576,7 +579,8 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     track = ws.parent[track_ws_title]
     data = ws.parent["ChartData"]
     put_text(data, 1, 1, "tolerance lines of the Charts sheet: chainage [m], value")
-    xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
+    first, last_row = TRACK_FIRST_ROW, TRACK_FIRST_ROW + n - 1
+    xref = Reference(track, min_col=index["chainage_m"], min_row=first, max_row=last_row)
     station = rep.station_m    # the Track sheet's chainage column: drawing stationing
     s0, s1 = float(station.min()), float(station.max())
     for j in range(1, CHART_COLUMNS + 1):    # explicit: LibreOffice's default column is wider than Excel's
@@ -604,7 +608,7 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
         ch.legend.position = "b"
         ch.height, ch.width = CHART_HEIGHT_CM, CHART_WIDTH_CM
         for i, k in enumerate(keys):
-            yref = Reference(track, min_col=index[k], min_row=1, max_row=n + 1)
+            yref = Reference(track, min_col=index[k], min_row=TABLE_ROW, max_row=last_row)   # title + values
             ser = Series(yref, xref, title_from_data=True)
             ser.marker.symbol = "none"
             ser.smooth = False
@@ -638,22 +642,28 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
 
 
 def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
-    """Header, template row 2 (styles), widths, freeze, autofilter, conditional formats."""
+    """Header block (rows 1-7, as on every sheet), column header row :data:`TABLE_ROW`, template
+    row :data:`TRACK_FIRST_ROW` (styles), widths, freeze, autofilter, conditional formats."""
     from openpyxl.formatting.rule import FormulaRule
     from openpyxl.styles import Font, PatternFill
 
-    _header(ws, 1, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
-    ws.row_dimensions[1].height = 58
+    index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
+    # the header block spans the first printed column group (the page it prints on)
+    first_group = min([index[k] - 1 for k in TRACK_PRINT_GROUPS if k in index] or [len(rep.columns)])
+    _sheet_header(ws, rep, "Track: every station, every column", first_group)
+    head, row0 = TABLE_ROW, TRACK_FIRST_ROW
+    _header(ws, head, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
+    ws.row_dimensions[head].height = 58
     for j, col in enumerate(rep.columns, start=1):
-        c = ws.cell(row=2, column=j, value=0.0)
+        c = ws.cell(row=row0, column=j, value=0.0)
         c.number_format = col.number_format
         ws.column_dimensions[_col_letter(j)].width = 11 if col.unit != "m" else 13
     ws.freeze_panes = TRACK_FREEZE
     last = _col_letter(len(rep.columns))
-    ws.auto_filter.ref = f"A1:{last}{n + 1}"
+    end = row0 + n - 1
+    ws.auto_filter.ref = f"A{head}:{last}{end}"
     red = PatternFill("solid", fgColor="FFC7CE", bgColor="FFC7CE")
     font = Font(color="9C0006")
-    index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
     for lim in rep.tolerances.limits:
         j = index.get(lim.column)
         if j is None:
@@ -662,12 +672,12 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
         L = _col_letter(j)
         conds = []
         if math.isfinite(lo):
-            conds.append(f"{L}2<{lo!r}")
+            conds.append(f"{L}{row0}<{lo!r}")
         if math.isfinite(hi):
-            conds.append(f"{L}2>{hi!r}")
+            conds.append(f"{L}{row0}>{hi!r}")
         # ISNUMBER: empty cells (no value) are not exceedances
-        formula = f"AND(ISNUMBER({L}2),OR({','.join(conds)}))"
-        ws.conditional_formatting.add(f"{L}2:{L}{n + 1}", FormulaRule(formula=[formula], fill=red, font=font))
+        formula = f"AND(ISNUMBER({L}{row0}),OR({','.join(conds)}))"
+        ws.conditional_formatting.add(f"{L}{row0}:{L}{end}", FormulaRule(formula=[formula], fill=red, font=font))
 
 
 def _sheet_part(z: zipfile.ZipFile, title: str) -> str:
@@ -686,7 +696,7 @@ def _sheet_part(z: zipfile.ZipFile, title: str) -> str:
 
 
 def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
-    """SpreadsheetML ``<row>`` elements 2..n+1 of the Track sheet.
+    """SpreadsheetML ``<row>`` elements of the Track sheet's stations (from :data:`TRACK_FIRST_ROW`).
 
     The values come per column as numpy arrays; the text is built by one comprehension per
     column (repr: the shortest text that reads back to the same float). Measured on 16 000 x 45
@@ -696,7 +706,7 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
     """
     n = rep.geometry.chainage_m.size
     station = rep.station_m
-    rows_num = [str(i) for i in range(2, n + 2)]
+    rows_num = [str(i) for i in range(TRACK_FIRST_ROW, TRACK_FIRST_ROW + n)]
     per_col = []
     for j, col in enumerate(rep.columns, start=1):
         L = _col_letter(j)
@@ -717,23 +727,23 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
 
 
 def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float]) -> None:
-    """Replace the template row 2 of the Track sheet by all station rows (in place)."""
+    """Replace the template row :data:`TRACK_FIRST_ROW` of the Track sheet by all station rows (in place)."""
     t0 = time.perf_counter()
     n = rep.geometry.chainage_m.size
     with zipfile.ZipFile(path) as z:
         part = _sheet_part(z, TRACK_SHEET)
         members = [(i, z.read(i.filename)) for i in z.infolist()]
     xml = dict((i.filename, data) for i, data in members)[part].decode("utf-8")
-    m = re.search(r'<row r="2"[^>]*>.*?</row>', xml, flags=re.S)
+    m = re.search(rf'<row r="{TRACK_FIRST_ROW}"[^>]*>.*?</row>', xml, flags=re.S)
     if m is None:
-        raise RuntimeError("template row 2 missing from the Track sheet")
-    styles = dict(re.findall(r'<c r="([A-Z]+)2"[^>]*?\ss="(\d+)"', m.group(0)))
+        raise RuntimeError(f"template row {TRACK_FIRST_ROW} missing from the Track sheet")
+    styles = dict(re.findall(rf'<c r="([A-Z]+){TRACK_FIRST_ROW}"[^>]*?\ss="(\d+)"', m.group(0)))
     rows = _station_rows_xml(rep, styles)
     xml = xml[:m.start()] + rows + xml[m.end():]
     t1 = time.perf_counter()
     timings["rows_xml"] = t1 - t0
     last = _col_letter(len(rep.columns) + (1 if rep.equations() else 0))
-    xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{n + 1}"/>', xml, count=1)
+    xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{TRACK_FIRST_ROW + n - 1}"/>', xml, count=1)
     fd, tmp = tempfile.mkstemp(prefix=".splice-", suffix=".xlsx", dir=path.parent)
     os.close(fd)
     try:
@@ -791,10 +801,11 @@ def _print_setup(ws, rep: SurveyReport, title_rows: str | None, fit_width: bool 
 
 def _track_print_setup(ws, rep: SurveyReport) -> None:
     """The full Track sheet on paper: column groups, one group per page across, chainage and
-    station repeated on each (print title columns), header row on each page."""
+    station repeated on each (print title columns), the column header row on each page (the
+    header block above it prints once, on the first page)."""
     from openpyxl.worksheet.pagebreak import Break
 
-    _print_setup(ws, rep, "1:1", fit_width=False)
+    _print_setup(ws, rep, f"{TABLE_ROW}:{TABLE_ROW}", fit_width=False)
     ws.print_title_cols = "A:B"
     ws.page_setup.scale = 80
     ws.page_setup.pageOrder = "overThenDown"
@@ -821,8 +832,9 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     from openpyxl import Workbook
 
     path = Path(path)
-    if rep.geometry.chainage_m.size + 1 > 1_048_576:
-        raise ValueError(f"{path}: {rep.geometry.chainage_m.size} stations exceed the 1 048 575 data rows "
+    if rep.geometry.chainage_m.size + TRACK_FIRST_ROW - 1 > 1_048_576:
+        raise ValueError(f"{path}: {rep.geometry.chainage_m.size} stations exceed the "
+                         f"{1_048_576 - TRACK_FIRST_ROW + 1} station rows "
                          "of an Excel sheet; export a shorter stretch or use --csv")
     timings = {} if timings is None else timings
     t0 = time.perf_counter()

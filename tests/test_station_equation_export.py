@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from survey.cli import app
+from track_sheet import track_table
 
 DATA = Path(__file__).resolve().parent / "data"
 EQ_INTERNAL, BACK, AHEAD = 1300.0, 1300.0, 2300.0
@@ -104,17 +105,17 @@ def test_workbook_shows_the_drawing_stationing(exported):
 
     wb = openpyxl.load_workbook(exported / "sheet.xlsx")
     ws = wb["Track"]
-    head = [c.value for c in ws[1]]
+    top, head = track_table(ws)
     assert head[0] == "Chainage [m]" and head[1] == "Station [km+m]" and head[-1] == "Station equation"
     chain = {}
     note_rows = []
-    for r in range(2, ws.max_row + 1):
+    for r in range(top + 1, ws.max_row + 1):
         chain[r] = ws.cell(r, 1).value
         assert ws.cell(r, 2).value == chain[r]
         if ws.cell(r, len(head)).value:
             note_rows.append(r)
     d = _columns(exported / "processed" / "track.csv")["distance_m"]
-    row_of = {round(float(x), 6): i + 2 for i, x in enumerate(d)}
+    row_of = {round(float(x), 6): i + top + 1 for i, x in enumerate(d)}
     # hand-chosen points: internal station -> drawing station
     for internal, drawing in [(1200.0, 1200.0), (1250.0, 1250.0), (1299.375, 1299.375), (1300.0, 2300.0),
                               (1350.0, 2350.0), (1400.0, 2400.0)]:
