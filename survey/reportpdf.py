@@ -38,8 +38,8 @@ STRIP_M = 1000.0
 #: line spacing of the tables (multiples of the font's line height)
 LINESPACING = 1.3
 #: table rows per page
-DEFECT_ROWS = 30
-QA_ROWS = 34
+DEFECT_ROWS = 50
+QA_ROWS = 56
 
 
 @dataclass(frozen=True)
@@ -61,47 +61,61 @@ def _frame(fig, rep: SurveyReport, title: str, page: int, total: int) -> None:
     fig.text(0.97, 0.015, f"tolerances {rep.tolerances.name}", fontsize=7, ha="right")
 
 
-def _line_pitch(fig, fontsize: float) -> float:
-    """The baseline distance of a multi-line text at ``fontsize`` and :data:`LINESPACING`, as a
-    figure fraction (measured: 41 lines less one, over 40)."""
-    renderer = fig.canvas.get_renderer()
-    one = fig.text(0, 0, "lp", fontsize=fontsize, linespacing=LINESPACING, family="DejaVu Sans")
-    many = fig.text(0, 0, "\n".join(["lp"] * 41), fontsize=fontsize, linespacing=LINESPACING, family="DejaVu Sans")
-    pitch = (many.get_window_extent(renderer).height - one.get_window_extent(renderer).height) / 40
-    one.remove()
-    many.remove()
-    return pitch / fig.bbox.height
+#: the table font: monospaced, so the columns of a row line up as text (DejaVu Sans Mono's advance)
+TABLE_FONT = "DejaVu Sans Mono"
+_MONO_ADVANCE_EM = 0.602
 
 
-def _table(ax, rows: list[list[str]], heads: list[str], widths: list[float] | None = None, red: set[int] = frozenset(),
-           fontsize: float = 7.0, bold: set[int] = frozenset()) -> None:
-    """A table at the top of ``ax``: one multi-line text per column (matplotlib's Table draws
-    every cell as its own text and took 15 s for 1100 cells), a blue header row, row rules, and
-    the rows in ``red`` shaded red, those in ``bold`` (titles spanning the row) in bold."""
+def _row_pitch(fig, fontsize: float) -> float:
+    """Distance between table rows as a figure fraction: :data:`LINESPACING` times the font size."""
+    return fontsize * LINESPACING / 72.0 / fig.get_figheight()
+
+
+def _row_text(cells: list[str], chars: list[int]) -> str:
+    """One table row as monospaced text: each cell padded (or cut, ending in an ellipsis) to its
+    column's width in characters."""
+    out = []
+    for text, n in zip(cells, chars):
+        text = str(text)
+        out.append(text.ljust(n) if len(text) < n else text[:max(n - 2, 0)] + "… ")
+    return "".join(out).rstrip()
+
+
+def _table(ax, rows: list[list[str]], heads: list[str] | None, widths: list[float] | None = None,
+           red: set[int] = frozenset(), fontsize: float = 7.0, bold: set[int] = frozenset(),
+           subheads: set[int] = frozenset()) -> None:
+    """A table at the top of ``ax``: one monospaced text per row, each at its own computed height
+    (row ``i``'s centre at ``top - (i + 1.5) * pitch``), so rows stay on their rules and shading
+    down the page (matplotlib's Table draws every cell as its own text and took 15 s for 1100
+    cells; one multi-line text per column drifted from the shading by about a line near the
+    foot of a page). ``heads`` (if given) is a blue header row; rows in ``subheads`` are header
+    rows of a section (blue, bold), in ``bold`` titles spanning the row, in ``red`` shaded red."""
     from matplotlib.patches import Rectangle
 
     ax.axis("off")
     fig = ax.figure
     box = ax.get_position()
-    widths = widths or [1.0 / len(heads)] * len(heads)
-    scale = box.width / sum(widths)
-    row_h = _line_pitch(fig, fontsize)
+    ncol = len(heads) if heads else max(len(r) for r in rows)
+    widths = widths or [1.0 / ncol] * ncol
+    char_w = _MONO_ADVANCE_EM * fontsize / 72.0 / fig.get_figwidth()        # figure fraction per character
+    total = int((box.width - 0.006) / char_w)
+    chars = [int(w / sum(widths) * total) for w in widths]
+    chars[-1] = total - sum(chars[:-1])
+    pitch = _row_pitch(fig, fontsize)
     top = box.y1
-    fig.patches.append(Rectangle((box.x0, top - row_h), box.width, row_h, transform=fig.transFigure,
-                                 facecolor="#DDEBF7", edgecolor="none", zorder=0))
-    for i in sorted(red):
-        fig.patches.append(Rectangle((box.x0, top - (i + 2) * row_h), box.width, row_h, transform=fig.transFigure,
-                                     facecolor="#FFC7CE", edgecolor="none", zorder=0))
-    x = box.x0
-    for j, (head, w) in enumerate(zip(heads, widths)):
-        fig.text(x + 0.003, top - 0.5 * row_h, head, fontsize=fontsize, weight="bold", va="center")
-        # a blank line would be lower than the others: a no-break space keeps every line one pitch
-        plain = "\n".join("\u00a0" if i in bold or j >= len(r) or not r[j] else r[j] for i, r in enumerate(rows))
-        fig.text(x + 0.003, top - row_h - 0.12 * row_h, plain, fontsize=fontsize, va="top",
-                 linespacing=LINESPACING, family="DejaVu Sans")
-        x += w * scale
-    for i in sorted(bold):
-        fig.text(box.x0 + 0.003, top - (i + 1.5) * row_h, rows[i][0], fontsize=fontsize, weight="bold", va="center")
+    lines = ([(heads, "head")] if heads else []) + [
+        (r, "sub" if i in subheads else "title" if i in bold else "row") for i, r in enumerate(rows)]
+    first = 1 if heads else 0
+    for k, (cells, kind) in enumerate(lines):
+        y = top - (k + 1) * pitch
+        fill = ("#DDEBF7" if kind in ("head", "sub") else
+                "#FFC7CE" if kind == "row" and (k - first) in red else None)
+        if fill:
+            fig.patches.append(Rectangle((box.x0, y), box.width, pitch, transform=fig.transFigure,
+                                         facecolor=fill, edgecolor="none", zorder=0))
+        text = _row_text(cells[:1], [total]) if kind == "title" else _row_text(cells, chars)
+        fig.text(box.x0 + 0.003, y + 0.5 * pitch, text, fontsize=fontsize, va="center", family=TABLE_FONT,
+                 weight="normal" if kind == "row" else "bold")
 
 
 def _fmt(x: float, digits: int = 2) -> str:
@@ -212,8 +226,18 @@ def _quality(fig, rep: SurveyReport) -> None:
     _table(ax, rows, ["#", "From", "To"] + [f"SD {lab}" for _, lab in keys])
 
 
+#: column headings of the free-station QA sections (each section has its own)
+QA_POINT_HEADS = ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]', "Dist [mm]",
+                  "|w| max", "Reason"]
+QA_OVERLAP_HEADS = ["Old / new fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "|d| 3D [mm]", "",
+                    "Tol. [mm]", "Verdict", "Reason"]
+QA_FIX_HEADS = ["Point", "Time [s]", "", "", "", "", "", "", "", "Reason"]
+QA_WIDTHS = [0.13, 0.07, 0.07, 0.07, 0.07, 0.07, 0.06, 0.06, 0.08, 0.32]
+
+
 def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
-    """Rows of the free-station QA pages: (kind, cells, red)."""
+    """Rows of the free-station QA pages: (kind, cells, red), kind "title" (a section's title),
+    "head" (its column headings) or "point" (a row of values)."""
     from trolley import units
 
     from survey.workbook import _field_only_rejections
@@ -226,33 +250,56 @@ def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
         out.append(("title", [f"Station {st.station}: E {st.E_m:.4f} N {st.N_m:.4f} H {st.H_m:.4f} m, sigma0 "
                               f"{st.sigma0:.2f} ({st.dof} dof), {'accepted' if st.accepted else 'not accepted'}, "
                               f"{sum(p.used for p in st.pointings)} points used"
-                              + (f", dropped {', '.join(dropped)}" if dropped else "")], False))
+                              + (f", dropped {', '.join(dropped)}" if dropped else "")
+                              + "; residuals across / along / height of the line of sight"], False))
+        out.append(("head", QA_POINT_HEADS, False))
         for p in st.pointings:
             out.append(("point", [p.point, "yes" if p.used else "dropped", _fmt(p.across_m * 1e3), _fmt(p.along_m * 1e3),
                                   _fmt(p.height_m * 1e3), _fmt(p.hz_rad / arcsec, 1), _fmt(p.zenith_rad / arcsec, 1),
                                   _fmt(p.distance_m * 1e3), _fmt(p.max_standardized, 1),
                                   p.reason if (p.flagged or not p.used) else "ok"], p.flagged or not p.used))
-    out.append(("title", ["Overlap checks: old / new fix, stations; new minus old station dE, dN, dH [mm] in the "
-                          "across, along, height columns; tolerance [mm] in the distance column; verdict"], False))
+    out.append(("title", ["Overlap checks: the same CPIII point fixed from two stations; new minus old position "
+                          "in grid E, N and height"], False))
+    out.append(("head", QA_OVERLAP_HEADS, False))
     for o in rec.overlaps:
+        d3 = math.sqrt(o.dE_m ** 2 + o.dN_m ** 2 + o.dH_m ** 2)
         out.append(("point", [f"{o.old_point} / {o.new_point}", f"{o.from_station}->{o.to_station}",
-                              _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), "", "",
+                              _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), _fmt(d3 * 1e3), "",
                               _fmt(o.tolerance_m * 1e3), "within" if o.within else "OUTSIDE", o.reason], not o.within))
     out.append(("title", ["Fixes rejected or undone"], False))
+    out.append(("head", QA_FIX_HEADS, False))
     for f in sorted(list(_field_only_rejections(rep)) + [f for f in (rep.fixes or []) if not f.accepted],
                     key=lambda f: f.t_s):
-        out.append(("point", [f.point, f"t {f.t_s:.1f} s", "", "", "", "", "", "", "", f.reason or "rejected"], True))
+        out.append(("point", [f.point, f"{f.t_s:.1f}", "", "", "", "", "", "", "", f.reason or "rejected"], True))
     return out
 
 
+def qa_pages(rows: list[tuple[str, list[str], bool]], per_page: int = QA_ROWS) -> list[list[tuple[str, list[str], bool]]]:
+    """The QA rows cut into pages of at most ``per_page`` rows. A page that starts inside a
+    section starts with that section's column headings again; no page ends on a title or
+    headings without a row below them."""
+    pages: list[list] = [[]]
+    head = None
+    for row in rows:
+        kind = row[0]
+        if kind == "head":
+            head = row
+        page = pages[-1]
+        # rows this one needs on the same page: a title its headings and a first row, headings a first row
+        need = 3 if kind == "title" else 2 if kind == "head" else 1
+        if len(page) + need > per_page and page:
+            pages.append([] if kind != "point" or head is None else [head])
+        pages[-1].append(row)
+    return pages
+
+
 def _qa(fig, chunk) -> None:
-    heads = ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]', "Dist [mm]",
-             "|w| max / verdict", "Reason"]
-    rows = [cells if kind == "point" else [cells[0]] + [""] * 9 for kind, cells, _ in chunk]
+    rows = [cells if kind != "title" else [cells[0]] for kind, cells, _ in chunk]
     red = {i for i, (_, _, r) in enumerate(chunk) if r}
     bold = {i for i, (kind, _, _) in enumerate(chunk) if kind == "title"}
+    subheads = {i for i, (kind, _, _) in enumerate(chunk) if kind == "head"}
     ax = fig.add_axes([0.05, 0.06, 0.9, 0.86])
-    _table(ax, rows, heads, [0.13, 0.07, 0.07, 0.07, 0.07, 0.06, 0.06, 0.07, 0.1, 0.3], red, fontsize=6.5, bold=bold)
+    _table(ax, rows, None, QA_WIDTHS, red, fontsize=6.5, bold=bold, subheads=subheads)
 
 
 def page_plan(rep: SurveyReport) -> list[tuple[str, callable]]:
@@ -278,8 +325,7 @@ def page_plan(rep: SurveyReport) -> list[tuple[str, callable]]:
             0.05, 0.9, "No field record beside track.csv (a track processed outside a field session): station "
                        "setups and overlap checks not given.", fontsize=10)))
     else:
-        rows = _qa_rows(rep)
-        chunks = [rows[i:i + QA_ROWS] for i in range(0, len(rows), QA_ROWS)]
+        chunks = qa_pages(_qa_rows(rep))
         for j, chunk in enumerate(chunks, start=1):
             plan.append((f"Free-station QA ({j}/{len(chunks)})", lambda fig, c=chunk: _qa(fig, c)))
     return plan
