@@ -229,8 +229,8 @@ def _quality(fig, rep: SurveyReport) -> None:
 #: column headings of the free-station QA sections (each section has its own)
 QA_POINT_HEADS = ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]', "Dist [mm]",
                   "|w| max", "Reason"]
-QA_OVERLAP_HEADS = ["Old / new fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "|d| 3D [mm]", "",
-                    "Tol. [mm]", "Verdict", "Reason"]
+QA_OVERLAP_HEADS = ["Old / new fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "", "",
+                    "Tol./axis [mm]", "Verdict", "Reason"]
 QA_FIX_HEADS = ["Point", "Time [s]", "", "", "", "", "", "", "", "Reason"]
 QA_WIDTHS = [0.13, 0.07, 0.07, 0.07, 0.07, 0.07, 0.06, 0.06, 0.08, 0.32]
 
@@ -259,12 +259,11 @@ def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
                                   _fmt(p.distance_m * 1e3), _fmt(p.max_standardized, 1),
                                   p.reason if (p.flagged or not p.used) else "ok"], p.flagged or not p.used))
     out.append(("title", ["Overlap checks: the same CPIII point fixed from two stations; new minus old position "
-                          "in grid E, N and height"], False))
+                          "in grid E, N and height, each within the tolerance"], False))
     out.append(("head", QA_OVERLAP_HEADS, False))
     for o in rec.overlaps:
-        d3 = math.sqrt(o.dE_m ** 2 + o.dN_m ** 2 + o.dH_m ** 2)
         out.append(("point", [f"{o.old_point} / {o.new_point}", f"{o.from_station}->{o.to_station}",
-                              _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), _fmt(d3 * 1e3), "",
+                              _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), "", "",
                               _fmt(o.tolerance_m * 1e3), "within" if o.within else "OUTSIDE", o.reason], not o.within))
     out.append(("title", ["Fixes rejected or undone"], False))
     out.append(("head", QA_FIX_HEADS, False))

@@ -156,8 +156,9 @@ def test_qa_sections_have_their_own_headings(report):
     assert rows[i + 1][1][2:5] == ["dE [mm]", "dN [mm]", "dH [mm]"]
     over = rows[i + 2]
     assert over[0] == "point" and " / " in over[1][0]
-    d = [float(x) for x in over[1][2:6]]
-    assert d[3] == pytest.approx(math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2), abs=0.02)   # |d| 3D
+    o = res.report.record.overlaps[0]
+    assert over[1][2:5] == [f"{x * 1e3:.2f}" for x in (o.dE_m, o.dN_m, o.dH_m)]
+    assert over[1][7:9] == [f"{o.tolerance_m * 1e3:.2f}", "within" if o.within else "OUTSIDE"]
     j = next(j for j, (k, c, _) in enumerate(rows) if k == "title" and c[0] == "Fixes rejected or undone")
     assert rows[j + 1] == ("head", QA_FIX_HEADS, False)
     assert all(rows[k - 1][0] in ("head", "point") for k in range(len(rows)) if kinds[k] == "point")
