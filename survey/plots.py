@@ -11,6 +11,15 @@ carries the filter's start-up transient (within half the longest wavelength of t
 end of the record, trolley/bands.py "NaN gaps"), are hatched grey; the long-chord checks are drawn
 as their magnitude (the value is the largest difference along the chord with its sign, which
 flips from one station to the next: drawn signed it reads as a comb).
+
+The magnitude of a check with more than two points spacings along the chord (30 m / 5 m) rises
+and falls with a period of one spacing p, and that is the check itself, not the drawing: the
+largest difference of points p apart takes a steep stretch of the deviation whole when the
+chord's points straddle it and split over two pairs when they do not, so as the chord slides
+by 0.625 m the value cycles every p (a single 1 mm ramp over 2 m reads 0.83, 0.52, 0.46, 0.77,
+0.83 mm ... every 5 m; a pure 20 m sine of 0.5 mm between 0.50 and 0.83 mm). Such a panel draws
+the per-station values thin and, as its line, their maximum over one spacing
+(:func:`chord_envelope`): the check with the chord's points at their worst place.
 """
 from __future__ import annotations
 
@@ -70,6 +79,29 @@ def _panel_limit(rep: SurveyReport, keys: list[str]) -> tuple[float, float, str]
 def is_chord(key: str) -> bool:
     """A long-chord check column (drawn as its magnitude)."""
     return key.startswith("chord")
+
+
+def chord_spacing_m(rep: SurveyReport, key: str) -> float | None:
+    """The point spacing p of the long-chord check ``key`` if its magnitude cycles with p (more
+    than two spacings along the chord), else None (B = 2p: the value is +-one versine)."""
+    from trolley.trackgeometry import long_chord_name
+
+    for chord, spacing in rep.geometry.config.long_chords_m:
+        if key in (long_chord_name(chord, spacing, "lat"), long_chord_name(chord, spacing, "vert")):
+            return float(spacing) if round(chord / spacing) > 2 else None
+    return None
+
+
+def chord_envelope(magnitude: np.ndarray, spacing_m: float, step_m: float) -> np.ndarray:
+    """The largest magnitude within half a spacing either side of each station (a centred running
+    maximum over one spacing p, scipy.ndimage.maximum_filter1d); NaN where the value is NaN."""
+    from scipy.ndimage import maximum_filter1d
+
+    v = np.asarray(magnitude, dtype=float)
+    half = int(round(0.5 * spacing_m / step_m))
+    out = maximum_filter1d(np.where(np.isnan(v), -np.inf, v), size=2 * half + 1, mode="nearest")
+    out[np.isnan(v)] = np.nan
+    return out
 
 
 def edge_zones(chainage_m: np.ndarray, values: np.ndarray, key: str) -> list[tuple[float, float]]:
@@ -136,6 +168,11 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
             label = "|" + col.header.replace(" [mm]", "| [mm]", 1)
         if not np.isfinite(v[sel]).any():
             continue
+        p = chord_spacing_m(rep, k) if is_chord(k) else None
+        if p is not None:   # the per-station values thin; the line is their maximum over one spacing
+            ax.plot(s[sel], v[sel], lw=0.4, color=colours[n % 3], alpha=0.35, label=f"{label} per station")
+            v = chord_envelope(v, p, rep.geometry.step_m)
+            label = f"{label}, max over {p:g} m"
         vals.append(v[sel][np.isfinite(v[sel])])
         ax.plot(s[sel], v[sel], lw=0.9, color=colours[n % 3], label=label)
         if k in SIGMA_OF:

@@ -185,3 +185,39 @@ def test_qa_pages_hand_cut():
     got = [[r[1][0] for r in p] for p in qa_pages(rows, 4)]
     assert got == [["S1", "P", "p0", "p1"], ["P", "p2", "p3", "p4"], ["Ov", "dE", "o1"], ["Fx", "F", "f0", "f1"],
                    ["F", "f2"]]
+
+
+def test_chord_magnitude_cycles_with_the_spacing_and_the_plot_draws_its_maximum(report):
+    """The 30 m / 5 m check's magnitude cycles every 5 m by its definition (hand case: a single
+    1 mm ramp over 2 m); the panel's line is the maximum over one spacing, which is flat there,
+    and the per-station values are drawn thin beneath it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from survey.plots import chord_envelope, chord_spacing_m, draw_panel, panel_marks
+    from trolley.trackgeometry import long_chord_check
+
+    step = 0.625
+    s = np.arange(0.0, 200.0, step)
+    ramp = np.clip((s - 100.0) / 2.0, 0.0, 1.0) * 1e-3
+    v = np.abs(long_chord_check(ramp, 30.0, 5.0, step))
+    mid = v[np.searchsorted(s, 90.0):np.searchsorted(s, 110.0)]
+    assert mid.max() - mid.min() > 0.3e-3                                # 0.83 vs 0.46 mm: the check itself
+    np.testing.assert_allclose(mid[:8], mid[8:16], atol=1e-12)            # period: 8 stations = 5 m
+    env = chord_envelope(v, 5.0, step)[np.searchsorted(s, 90.0):np.searchsorted(s, 110.0)]
+    np.testing.assert_allclose(env, mid.max(), atol=1e-12)               # flat at the worst phase
+    assert np.isnan(chord_envelope(v, 5.0, step)[np.isnan(v)]).all()
+    _, res = report
+    rep = res.report
+    assert chord_spacing_m(rep, "chord30_5_lat_m") == 5.0 and chord_spacing_m(rep, "chord300_150_lat_m") is None
+    fig, ax = plt.subplots()
+    draw_panel(ax, rep, ["chord30_5_lat_m"], panel_marks(rep))
+    raw, line = ax.get_lines()[:2]
+    assert raw.get_linewidth() < line.get_linewidth() and line.get_label().endswith("max over 5 m")
+    a, b = raw.get_ydata(), line.get_ydata()
+    ok = np.isfinite(a)
+    assert np.all(b[ok] >= a[ok]) and np.nanmax(b) == pytest.approx(np.nanmax(a))
+    plt.close(fig)
