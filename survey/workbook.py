@@ -259,18 +259,19 @@ def header_lines(rep: SurveyReport) -> list[str]:
     ]
 
 
-def _sheet_header(ws, rep: SurveyReport, title: str, width: int) -> int:
-    """Title and header block in rows 1-7. Each line is merged over the sheet's ``width`` printed
-    columns and wraps inside them (two lines of room), so no text runs past the printed width
-    (LibreOffice prints such overflow on a page of its own). Returns :data:`TABLE_ROW`."""
+def _sheet_header(ws, rep: SurveyReport, title: str, width: int, first_col: int = 1) -> int:
+    """Title and header block in rows 1-7, from column ``first_col``. Each line is merged over
+    the sheet's printed columns up to ``width`` and wraps inside them (two lines of room), so no
+    text runs past the printed width (LibreOffice prints such overflow on a page of its own).
+    Returns :data:`TABLE_ROW`."""
     from openpyxl.styles import Alignment, Font
 
-    put_text(ws, 1, 1, title).font = Font(bold=True, size=13)
+    put_text(ws, 1, first_col, title).font = Font(bold=True, size=13)
     for i, line in enumerate(header_lines(rep), start=2):
-        c = put_text(ws, i, 1, line)
+        c = put_text(ws, i, first_col, line)
         c.font = Font(size=8)
         c.alignment = Alignment(wrap_text=True, vertical="top")
-        ws.merge_cells(start_row=i, start_column=1, end_row=i, end_column=width)
+        ws.merge_cells(start_row=i, start_column=first_col, end_row=i, end_column=width)
         ws.row_dimensions[i].height = 21
     return TABLE_ROW
 
@@ -648,9 +649,11 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
     from openpyxl.styles import Font, PatternFill
 
     index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
-    # the header block spans the first printed column group (the page it prints on)
+    # the header block spans the first printed column group right of chainage and station (the
+    # page it prints on): columns A:B repeat on every page, and a block starting in A printed its
+    # first two columns' worth, cut off, on the other groups' pages
     first_group = min([index[k] - 1 for k in TRACK_PRINT_GROUPS if k in index] or [len(rep.columns)])
-    _sheet_header(ws, rep, "Track: every station, every column", first_group)
+    _sheet_header(ws, rep, "Track: every station, every column", first_group, first_col=3)
     head, row0 = TABLE_ROW, TRACK_FIRST_ROW
     _header(ws, head, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
     ws.row_dimensions[head].height = 58

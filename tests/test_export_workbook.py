@@ -85,7 +85,8 @@ def test_workbook_structure(exported):
     ws = wb["Track"]
     head, heads = track_table(ws)
     first = head + 1                                         # the first station row
-    assert head > HEADER_ROWS and ws.cell(2, 1).value.startswith("Project: ")   # the header block above
+    # the header block above the table, right of the chainage and station columns (repeated on every page)
+    assert head > HEADER_ROWS and ws.cell(2, 3).value.startswith("Project: ") and ws.cell(2, 1).value is None
     assert heads[:3] == ["Chainage [m]", "Station [km+m]", "E [m]"]
     assert "Lateral dev [mm] +right" in heads and "Twist 3 m [mm] +left high" in heads
     assert "Alignment D1 3-25 m [mm] +right" in heads and "Chord 300/150 m vert [mm] +up" in heads
@@ -326,7 +327,7 @@ def test_libreoffice_opens_workbook(exported, tmp_path):
     with open(tmp_path / "survey-Track.csv", newline="", encoding="utf-8") as f:
         rows = list(csv.reader(f))
     head = next(i for i, r in enumerate(rows) if r[0] == "Chainage [m]")
-    assert len(rows) == head + 1 + N and rows[0][0].startswith("Track") and rows[1][0].startswith("Project: =1+1")
+    assert len(rows) == head + 1 + N and rows[0][2].startswith("Track") and rows[1][2].startswith("Project: =1+1")
     g = res.report.geometry
     j = rows[head].index("Cant [mm] +left high")
     vals = np.array([float(r[j]) for r in rows[head + 1:]])
@@ -360,7 +361,7 @@ def test_libreoffice_round_trip_keeps_values_formats_and_charts(exported, tmp_pa
     assert lo.sheetnames == ours.sheetnames
     head, heads = track_table(ours["Track"])
     assert track_table(lo["Track"]) == (head, heads)
-    assert [lo["Track"].cell(r, 1).value for r in range(1, head)] == [ours["Track"].cell(r, 1).value
+    assert [lo["Track"].cell(r, 3).value for r in range(1, head)] == [ours["Track"].cell(r, 3).value
                                                                        for r in range(1, head)]  # header block
     a = np.array([[np.nan if v is None else v for v in r]
                   for r in ours["Track"].iter_rows(min_row=head + 1, values_only=True)], dtype=float)
