@@ -656,7 +656,7 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
     _sheet_header(ws, rep, "Track: every station, every column", first_group, first_col=3)
     head, row0 = TABLE_ROW, TRACK_FIRST_ROW
     _header(ws, head, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
-    ws.row_dimensions[head].height = 58
+    ws.row_dimensions[head].height = 72    # five wrapped lines: "Versine H 10 m [mm] centre-chord +right"
     for j, col in enumerate(rep.columns, start=1):
         c = ws.cell(row=row0, column=j, value=0.0)
         c.number_format = col.number_format
