@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -21,6 +19,7 @@ import numpy as np
 from trolley.tolerances import ToleranceSet, find_defects
 from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
 
+from survey.atomicwrite import write_text_atomic
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
@@ -163,17 +162,7 @@ def write_track_csv(path: Path, rep: SurveyReport) -> Path:
     # (0.17 s) is as fast as formatting per column and faster than numpy's astype(str) (0.28 s)
     # or pandas.to_csv (0.28 s), which give the same text.
     lines = [",".join("" if v != v else repr(v) for v in row) for row in body.tolist()]
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".csv", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(buf.getvalue())
-            f.write("\n".join(lines))
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text_atomic(path, buf.getvalue() + "\n".join(lines) + "\n")
 
 
 def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,

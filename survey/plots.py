@@ -7,12 +7,11 @@ are on every axis and in the legends.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from survey.atomicwrite import write_with
 from survey.track_table import SurveyReport, limit_in_display
 
 #: file stem, title, panels (each a list of geometry columns sharing one y axis and unit)
@@ -115,14 +114,8 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
         axes[0, 0].set_title(f"{title} - {names}")
         fig.tight_layout()
         out = folder / f"{stem}.png"
-        fd, tmp = tempfile.mkstemp(prefix=f".{stem}-", suffix=".png", dir=folder)
-        os.close(fd)
         try:
-            fig.savefig(tmp, format="png")
-            os.replace(tmp, out)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+            write_with(out, lambda tmp: fig.savefig(tmp, format="png"))
         finally:
             plt.close(fig)
         written.append(out)

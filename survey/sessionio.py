@@ -30,6 +30,8 @@ from trolley import units
 from trolley.sensors import ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
+from survey.atomicwrite import folder_mode, write_text_atomic, write_with
+
 __all__ = [
     "SessionFormatError",
     "FORMAT_ID",
@@ -312,7 +314,7 @@ def read_session_meta(folder: Path) -> SessionMeta:
 
 def write_session_meta(path: Path, meta: SessionMeta) -> None:
     """Write ``session.toml`` (atomic: temp file + os.replace)."""
-    _atomic_text(Path(path), session_toml_text(meta))
+    write_text_atomic(Path(path), session_toml_text(meta))
 
 
 # ------------------------------------------------------------------------------------------
@@ -687,7 +689,7 @@ def write_session(folder: Path, session: RawSession, design_xml: str | None = No
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
     try:
-        os.chmod(tmp, 0o755)
+        os.chmod(tmp, folder_mode())
         _write_session_files(tmp, session, design_xml, exact)
         for name, writer in (extra_files or {}).items():
             writer(tmp / name)
@@ -722,18 +724,6 @@ def move_into_place(tmp: Path, folder: Path) -> None:
         old.unlink()
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 # ------------------------------------------------------------------------------------------
 # truth.csv
 # ------------------------------------------------------------------------------------------
@@ -754,15 +744,7 @@ def write_truth_csv(path: Path, truth, step_m: float = 0.1) -> None:
     p = truth.resampled(step_m)
     cols = [p.chainage_m, p.E_m, p.N_m, p.H_m, p.roll_rad, p.pitch_rad, p.yaw_rad, p.gauge_m,
             units.m_to_mm(p.cant_m), units.m_to_mm(p.lateral_m), units.m_to_mm(p.vertical_m)]
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    os.close(fd)
-    try:
-        write_csv_columns(Path(tmp), TRUTH_COLUMNS, cols, [_EXACT] * len(cols))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_with(path, lambda tmp: write_csv_columns(tmp, TRUTH_COLUMNS, cols, [_EXACT] * len(cols)))
 
 
 def read_truth_csv(path: Path):

@@ -12,7 +12,6 @@ Optional keys we added where FORMATS.md is silent (documented in ``docs/tgms.md`
 from __future__ import annotations
 
 import os
-import tempfile
 import tomllib
 from pathlib import Path
 
@@ -24,6 +23,8 @@ from trolley.tgms.camera import Camera
 from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
 from trolley.tgms.recording import LaserPoints, Recording
 
+from survey.atomicwrite import atomic_path, write_text_atomic
+
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
 
@@ -34,37 +35,9 @@ class TgmsFormatError(ValueError):
 
 # ---------------------------------------------------------------------------------------------
 # atomic writing
-def _atomic_write_text(path: Path, text: str) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write a text file atomically (temporary file in the same folder, then os.replace)."""
-    _atomic_write_text(Path(path), text)
-
-
 def _atomic_write_csv(path: Path, df: pd.DataFrame, float_format: str | None = None) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         df.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 # ---------------------------------------------------------------------------------------------
@@ -262,7 +235,7 @@ def write_recording(folder: str | os.PathLike, rec: Recording) -> None:
     """Write a recording folder (creates the folder; every file written atomically)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _atomic_write_text(folder / rec.config.track.alignment, landxml_text(rec.alignment))
+    write_text_atomic(folder / rec.config.track.alignment, landxml_text(rec.alignment))
     w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
     _atomic_write_csv(folder / "imu.csv", pd.DataFrame({
         "t_s": rec.imu_t_s, "wx_rad_s": w[:, 0], "wy_rad_s": w[:, 1], "wz_rad_s": w[:, 2],
@@ -273,7 +246,7 @@ def write_recording(folder: str | os.PathLike, rec: Recording) -> None:
                            "u_px": np.round(lp.u_px, 3), "v_px": np.round(lp.v_px, 3)})
         _atomic_write_csv(folder / f"laser_{side}.csv", df)
     # tgms.toml last: a folder without it is not a recording
-    _atomic_write_text(folder / "tgms.toml", tgms_toml_text(rec.config))
+    write_text_atomic(folder / "tgms.toml", tgms_toml_text(rec.config))
 
 
 TRUTH_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm",

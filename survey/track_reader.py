@@ -23,6 +23,8 @@ import numpy as np
 from trolley import units
 from trolley.trackgeometry import TrackInput
 
+from survey.sheet_text import csv_read_text
+
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
 TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm"]
 FIX_NUMERIC = ["t_s", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"]
@@ -274,11 +276,11 @@ def read_fixes_csv(path: Path) -> list[FixRow]:
         acc = (r[ia] if ia < len(r) else "").strip().lower()
         if acc not in ("1", "0", "true", "false", "1.0", "0.0"):
             raise ExportInputError(f"{path}: row {i + 2}, column accepted: expected 1 or 0, got {acc[:20]!r}")
-        out.append(FixRow(t_s=float(cols["t_s"][i]), point=r[ip] if ip < len(r) else "",
+        out.append(FixRow(t_s=float(cols["t_s"][i]), point=csv_read_text(r[ip] if ip < len(r) else ""),
                           E_m=float(cols["E_m"][i]), N_m=float(cols["N_m"][i]), H_m=float(cols["H_m"][i]),
                           innov_E_m=mm(float(cols["innov_E_mm"][i])), innov_N_m=mm(float(cols["innov_N_mm"][i])),
                           innov_H_m=mm(float(cols["innov_H_mm"][i])), nis=float(cols["nis"][i]),
-                          accepted=acc in ("1", "true", "1.0"), reason=r[ir] if ir < len(r) else ""))
+                          accepted=acc in ("1", "true", "1.0"), reason=csv_read_text(r[ir] if ir < len(r) else "")))
     return out
 
 

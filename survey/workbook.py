@@ -19,9 +19,7 @@ shared/research/protocols.md 6 (columns, formula injection); deps.md 5 (openpyxl
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 import time
 import zipfile
 from datetime import datetime, timezone
@@ -30,6 +28,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
+from survey.atomicwrite import atomic_path
 from survey.sheet_text import put_text
 from survey.track_reader import EQUIPMENT
 from survey.track_table import KM_FORMAT, SurveyReport, column_values, conventions, limit_in_display
@@ -392,19 +391,13 @@ def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float])
     timings["rows_xml"] = t1 - t0
     last = _col_letter(len(rep.columns))
     xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{n + 1}"/>', xml, count=1)
-    fd, tmp = tempfile.mkstemp(prefix=".splice-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as out:
             for info, data in members:
                 payload = xml.encode("utf-8") if info.filename == part else data
                 zi = zipfile.ZipInfo(info.filename, date_time=info.date_time)
                 zi.compress_type = zipfile.ZIP_DEFLATED
                 out.writestr(zi, payload, compresslevel=1)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     timings["zip"] = time.perf_counter() - t1
 
 
@@ -456,16 +449,10 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     _charts_sheet(charts, TRACK_SHEET, rep, n)
     for ws, landscape in ((summary, True), (track, True), (defects, True), (fixes, True), (charts, True)):
         _print_setup(ws, landscape)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         t1 = time.perf_counter()
         timings["openpyxl_build"] = t1 - t0
         wb.save(tmp)
         timings["openpyxl_save"] = time.perf_counter() - t1
-        _splice_track_rows(Path(tmp), rep, timings)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        _splice_track_rows(tmp, rep, timings)
     return path

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+
+from survey.atomicwrite import write_text_atomic, write_with
 
 IMU_CHOICES = ("rlg", "fog", "mems", "custom")
 
@@ -33,19 +33,6 @@ def _num(x) -> float | None:
     """A JSON-safe float: None for nan and inf."""
     x = float(x)
     return x if math.isfinite(x) else None
-
-
-def _write_atomic(path: Path, write) -> None:
-    """Write through a temporary file in the same folder, then os.replace (no partial files)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _check_nonnegative(**values) -> None:
@@ -363,7 +350,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     text = csv_text(["distance_m", "time_s", "vertical_mm", "lateral_mm", "longitudinal_mm"],
                     [dist, t] + [units.m_to_mm(sig[d]) for d in ("vertical", "lateral", "longitudinal")])
     p = folder / "budget_sigma.csv"
-    _write_atomic(p, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    write_text_atomic(p, text)
     written.append(p)
 
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -377,7 +364,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     ax.legend()
     fig.tight_layout()
     p = folder / "budget_sigma.png"
-    _write_atomic(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    write_with(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
     plt.close(fig)
     written.append(p)
 
@@ -395,7 +382,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     text = csv_text(["gyro_arw_deg_sqrt_h", "max_gyro_bias_lateral_deg_h", "max_gyro_bias_vertical_deg_h"],
                     [arw, curves["lateral"], curves["vertical"]])
     p = folder / "budget_requirements.csv"
-    _write_atomic(p, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    write_text_atomic(p, text)
     written.append(p)
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -425,7 +412,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     ax.legend(fontsize=8)
     fig.tight_layout()
     p = folder / "budget_requirements.png"
-    _write_atomic(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    write_with(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
     plt.close(fig)
     written.append(p)
     return written

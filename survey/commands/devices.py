@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 
 import typer
+
+from survey.atomicwrite import write_text_atomic
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
                           no_args_is_help=True)
@@ -21,18 +21,6 @@ devices_app = typer.Typer(help="Check, record and simulate the trolley's serial 
 
 def _err(msg: str) -> None:
     typer.echo("error: " + " ".join(str(msg).split()), err=True)
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _csv(header: list[str], cols: list) -> str:
@@ -136,18 +124,18 @@ def record_cmd(
         _err(str(e))
         raise typer.Exit(code=2)
     stats = {k: v.as_dict() for k, v in rec.stats.items()}
-    _write_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
+    write_text_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
     if len(rec.imu_t_s) == 0:
         _err(f"IMU on {imu}: no valid RAWIMUSXB frame in {seconds:g} s; nothing written but "
              f"{out / 'stats.json'} and the raw logs")
         raise typer.Exit(code=1)
     w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
-    _write_atomic(out / "imu.csv", _csv(["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
+    write_text_atomic(out / "imu.csv", _csv(["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
                                         [rec.imu_t_s, w[:, 0], w[:, 1], w[:, 2], f[:, 0], f[:, 1], f[:, 2]]))
     if rec.odo_t_s is not None:
-        _write_atomic(out / "odometer.csv", _csv(["t_s", "distance_m"], [rec.odo_t_s, rec.odo_distance_m]))
+        write_text_atomic(out / "odometer.csv", _csv(["t_s", "distance_m"], [rec.odo_t_s, rec.odo_distance_m]))
     if rec.gauge_t_s is not None:
-        _write_atomic(out / "gauge.csv", _csv(["t_s", "gauge_m"], [rec.gauge_t_s, rec.gauge_m]))
+        write_text_atomic(out / "gauge.csv", _csv(["t_s", "gauge_m"], [rec.gauge_t_s, rec.gauge_m]))
     from rich.console import Console
 
     Console(stderr=True).print(
@@ -257,7 +245,7 @@ def simulate(
     try:
         ports = fleet.ports_json()
         if out is not None:
-            _write_atomic(out, json.dumps(ports, indent=2) + "\n")
+            write_text_atomic(out, json.dumps(ports, indent=2) + "\n")
             wrote = True
         typer.echo(json.dumps(ports))
         import sys

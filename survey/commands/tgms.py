@@ -9,12 +9,13 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+
+from survey.atomicwrite import write_text_atomic, write_with
 
 console = Console(stderr=True)
 
@@ -153,10 +154,10 @@ def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[
         ax.grid(alpha=0.3)
         fig.tight_layout()
         p = out / f"{name}.png"
-        tmp = out / f".{name}.png.tmp"
-        fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
-        os.replace(tmp, p)
+        try:
+            write_with(p, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+        finally:
+            plt.close(fig)
         files.append(p.name)
     return files
 
@@ -302,7 +303,7 @@ def tune_cmd(
     if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
         _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
     try:
-        tgms_io.write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
+        write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     print(json.dumps({"out": str(out), "params": params.to_dict(), **info}))
