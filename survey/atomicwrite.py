@@ -21,6 +21,7 @@ temporary file.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
 import shutil
 import tempfile
@@ -33,6 +34,8 @@ RAW_FILES = frozenset({"imu.csv", "odometer.csv", "gauge.csv", "fixes.csv", "ses
                        "tgms.toml", "encoder.csv", "lasers.csv", "track.csv"})
 
 _UMASK_LOCK = threading.Lock()
+# (temporary, target) pairs whose os.replace waits for the enclosing all_or_nothing() block
+_PENDING: contextvars.ContextVar[list[tuple[Path, Path]] | None] = contextvars.ContextVar("_PENDING", default=None)
 
 
 class OutputError(ValueError):
@@ -93,16 +96,54 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
                                     suffix=path.suffix if suffix is None else suffix)
     os.close(fd)
     tmp = Path(tmp_name)
+    pending = _PENDING.get()
     try:
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.chmod(tmp, file_mode())
+        if pending is not None:
+            pending.append((tmp, path))
+            return
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     _fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def all_or_nothing() -> Iterator[None]:
+    """Defer every :func:`atomic_path` replace inside the block to its successful end.
+
+    Each file is written completely to its temporary first; only when the block ends without an
+    exception are they all renamed onto their targets (in the order they were written), so a
+    command with several outputs (export: xlsx, CSV, plots) leaves either all of them new or
+    none; on an exception every temporary is removed and no target is touched.
+    """
+    outer = _PENDING.get()
+    pending: list[tuple[Path, Path]] = []
+    token = _PENDING.set(pending)
+    try:
+        yield
+    except BaseException:
+        for tmp, _ in pending:
+            tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        _PENDING.reset(token)
+    if outer is not None:
+        outer.extend(pending)
+        return
+    try:
+        for i, (tmp, path) in enumerate(pending):
+            os.replace(tmp, path)
+    except BaseException:
+        for tmp, _ in pending[i:]:
+            tmp.unlink(missing_ok=True)
+        raise
+    for folder in {path.parent for _, path in pending}:
+        _fsync_dir(folder)
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
@@ -137,8 +178,9 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[Path] = (),
-                  folders: Iterable[tuple[str, Path | None]] = ()) -> None:
+def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[Path | None] = (),
+                  folders: Iterable[tuple[str, Path | None]] = (),
+                  made_before: Callable[[Path], bool] = lambda p: False) -> None:
     """Check every output of a command before the first one is written.
 
     Parameters
@@ -147,6 +189,8 @@ def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[P
     inputs : files the command reads: no output may be one of them.
     folders : (option name, folder) pairs of output folders (made if missing, so only an
         existing non-folder or an unwritable folder is refused).
+    made_before : True for an existing file that this command wrote earlier (it may be replaced
+        even when it carries a raw file's name).
 
     Raises
     ------
@@ -170,7 +214,7 @@ def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[P
             if _same_file(out, src):
                 raise OutputError(f"{option} {out}: is one of this command's inputs; "
                                   "choose another file name (the input is left unchanged)")
-        if out.name in RAW_FILES and out.exists():
+        if out.name in RAW_FILES and out.exists() and not made_before(out):
             raise OutputError(f"{option} {out}: would overwrite the data file {out.name} of "
                               f"{out.parent}; choose another file name")
         key = out.resolve()
@@ -234,7 +278,7 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out")
     if not out.is_dir() or not any(out.iterdir()):
         return
     if not force:
-        raise OutputError(f"{option} {out}: exists and is not empty (use --force to replace it)")
+        raise OutputError(f"{option} {out}: already exists and is not empty (use --force to replace it)")
     if not made_by(out, command):
         raise OutputError(f"{option} {out}: not made by `trolley {command}` (no {MARKER_NAME} marker); "
                           "--force replaces only such folders, choose another folder")

@@ -19,7 +19,7 @@ import numpy as np
 from trolley.tolerances import ToleranceSet, find_defects
 from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
 
-from survey.atomicwrite import write_text_atomic
+from survey.atomicwrite import all_or_nothing, check_outputs, write_text_atomic
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
@@ -195,8 +195,45 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     ExportInputError, trolley.tolerances.ToleranceError
         Unusable input (the message names file, row and column).
     """
+    check_export_outputs(track_csv, xlsx, csv, plots_dir, tolerances, design)
     rep, timings = build_report(track_csv, tolerances, design, project_name, session_name, **config_overrides)
     result = ExportResult(report=rep, timings_s=timings)
+    with all_or_nothing():
+        _write_outputs(result, rep, xlsx, csv, plots_dir, timings)
+    return result
+
+
+def _made_by_export(path: Path) -> bool:
+    """True for a CSV that :func:`write_track_csv` wrote (its header has the design columns)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return fh.readline().startswith(_EXPORT_CSV_HEAD)
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+_EXPORT_CSV_HEAD = "chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,design_E_m,"
+
+
+def check_export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
+                         tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None) -> None:
+    """Check every output before any is written: folders exist and are writable, no output is one
+    of the inputs (track.csv, fixes.csv, summary.json, design, tolerance file) or a raw session
+    file, no two options name the same file.
+
+    Raises
+    ------
+    survey.atomicwrite.OutputError, ExportInputError
+    """
+    path = resolve_track_csv(Path(track_csv))
+    inputs = [path, path.parent / "fixes.csv", path.parent / "summary.json", design,
+              Path(tolerances) if Path(tolerances).suffix.lower() == ".toml" else None]
+    check_outputs([("--xlsx", xlsx), ("--csv", csv)], inputs=inputs, folders=[("--plots", plots_dir)],
+                  made_before=_made_by_export)
+
+
+def _write_outputs(result: ExportResult, rep: SurveyReport, xlsx: Path | None, csv: Path | None,
+                   plots_dir: Path | None, timings: dict[str, float]) -> None:
     if xlsx is not None:
         from survey.workbook import write_workbook
 
@@ -215,4 +252,3 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         t = time.perf_counter()
         result.plots = write_plots(Path(plots_dir), rep)
         timings["plots"] = time.perf_counter() - t
-    return result

@@ -227,16 +227,22 @@ def export_session(
     root: RootOption = Path("projects"),
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
+    from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
     from survey.sessionio import write_session
     from survey.store import StoreError
 
+    try:
+        guard_overwrite(out, "project export-session", overwrite, "--out")
+    except OutputError as e:
+        fail(str(e))
     with _open(root, project) as store:
         try:
             raw, design_xml = store.raw_session(session)
         except StoreError as e:
             fail(str(e))
     try:
-        write_session(out, raw, design_xml, overwrite=overwrite)
+        write_session(out, raw, design_xml, overwrite=overwrite,
+                      extra_files={MARKER_NAME: lambda p: p.write_text("project export-session\n", encoding="utf-8")})
     except (FileExistsError, ValueError) as e:
         fail(str(e))
     say(f"session {session!r} written to {out}")

@@ -148,6 +148,7 @@ def register(app: typer.Typer) -> None:
 
         from rich.console import Console
 
+        from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
         from survey.sessionio import write_session, write_truth_csv
         from trolley.landxml import parse_landxml
         from trolley.sensors import IMU_PRESETS
@@ -177,8 +178,10 @@ def register(app: typer.Typer) -> None:
         for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):
             if key in kwargs and not kwargs[key] > 0:
                 fail(f"{key.replace('_', '-')}: must be > 0, got {kwargs[key]!r}")
-        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
-            fail(f"{out}: already exists and is not empty (use --force to replace it)")
+        try:
+            guard_overwrite(out, "simulate", force)
+        except OutputError as exc:
+            fail(str(exc))
         try:
             alignment = parse_landxml(xml)
         except ValueError as exc:
@@ -198,7 +201,8 @@ def register(app: typer.Typer) -> None:
                                                     design_alignment="alignment.xml"))
         try:
             write_session(out, session, xml, overwrite=force,
-                          extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m)})
+                          extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m),
+                                       MARKER_NAME: lambda p: p.write_text("simulate\n", encoding="utf-8")})
         except (OSError, ValueError) as exc:
             fail(f"{out}: {exc}")
         t2 = time.perf_counter()

@@ -15,7 +15,8 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
-from survey.atomicwrite import write_text_atomic, write_with
+from survey.atomicwrite import (MARKER_NAME, OutputError, all_or_nothing, check_outputs, made_by, write_marker,
+                                write_text_atomic, write_with)
 
 console = Console(stderr=True)
 
@@ -24,7 +25,9 @@ tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers +
 
 
 def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    from rich.text import Text
+
+    console.print(Text.assemble(("error:", "red"), " ", msg), highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 
@@ -89,8 +92,20 @@ def read_params(path: Path):
         raise ValueError(f"{path.name}: {exc}") from None
 
 
+def _params_file(path: Path) -> bool:
+    """True for a parameter file that ``tune`` wrote (its first line names the format)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return fh.readline().strip() == f'format = "{PARAMS_FORMAT}"'
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+PARAMS_FORMAT = "trolley-tgms-params/1"
+
+
 def params_toml_text(params, extra: dict | None = None) -> str:
-    lines = ['format = "trolley-tgms-params/1"']
+    lines = [f'format = "{PARAMS_FORMAT}"']
     for k, v in (extra or {}).items():
         lines.append(f"{k} = {v!r}")
     for k, v in params.to_dict().items():
@@ -114,12 +129,19 @@ def simulate_cmd(
         _fail(f"--rail-profile must be 60E1 or 54E1, got {rail_profile!r}")
     st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
                             camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
+    if out.is_dir() and any(out.iterdir()) and not made_by(out, "tgms simulate"):
+        _fail(f"--out {out}: exists and was not written by `trolley tgms simulate` (no {MARKER_NAME} "
+              "marker); give a new folder, an existing recording or session is never overwritten")
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {out}: exists and is not a folder")
     with console.status("simulating"):
         rec, truth = simulate(st)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        tgms_io.write_recording(out, rec)
-        tgms_io.write_truth(out / "truth.csv", truth)
+        with all_or_nothing():
+            tgms_io.write_recording(out, rec)
+            tgms_io.write_truth(out / "truth.csv", truth)
+        write_marker(out, "tgms simulate")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     n_frames = int(max(rec.lasers["left"].frame.max(), rec.lasers["right"].frame.max())) + 1
@@ -291,6 +313,10 @@ def tune_cmd(
         _fail(f"--model must be kf, ltv or ekf, got {model!r}")
     if box not in ("relative", "absolute"):
         _fail(f"--box must be relative or absolute, got {box!r}")
+    try:
+        check_outputs([("--out", out)], inputs=[folder / "tgms.toml"], made_before=_params_file)
+    except OutputError as exc:
+        _fail(str(exc))
     try:
         rec = tgms_io.read_recording(folder)
     except tgms_io.TgmsFormatError as exc:
