@@ -374,13 +374,45 @@ def _parser_error(path: Path, exc: Exception) -> SessionFormatError:
     return SessionFormatError(f"{path.name}: {where}malformed CSV ({msg.strip()})")
 
 
-def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> SessionFormatError:
-    """Re-read as text and describe the first non-numeric or non-finite numeric cell."""
+#: Largest magnitude a cell of these columns can plausibly hold, SI units. A finite but absurd
+#: value (1e308 in an IMU cell) would otherwise pass the finite check and end as a garbage or
+#: empty track; the limits are far beyond any real instrument: a navigation gyro's range is
+#: below 35 rad/s (2000 deg/s), an accelerometer's below 200 g, a survey below 10 000 km.
+PLAUSIBLE_ABS = {
+    "t_s": 1e10, "wx_rad_s": 100.0, "wy_rad_s": 100.0, "wz_rad_s": 100.0,
+    "fx_m_s2": 2000.0, "fy_m_s2": 2000.0, "fz_m_s2": 2000.0, "distance_m": 1e7, "gauge_m": 10.0,
+    "chainage_m": 1e8, "E_m": 1e8, "N_m": 1e8, "H_m": 1e5,
+}
+#: A fix's 1-sigma, m: below 1 micrometre no instrument measures, above 100 m it is no fix.
+SIGMA_RANGE_M = (1e-6, 100.0)
+#: Rows re-read as text at a time when a bad cell must be found (bounded memory).
+_LOCATE_CHUNK_ROWS = 200_000
+
+
+def _cell_problem(value: str) -> str:
+    value = value.strip()
+    if value == "":
+        return "empty value"
+    if value.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+        return f"{value!r} is not a finite number"
+    return f"{value!r} is not a number"
+
+
+def _text_rows(path: Path, header: list[str], cols: list[str], first: int, nrows: int):
+    """Rows ``first`` .. ``first + nrows`` (0-based data rows) of ``cols`` as text."""
     import pandas as pd
 
-    raw = pd.read_csv(path, usecols=[names[c] for c in numeric], dtype=str,
-                      keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
-                      engine="c")
+    return pd.read_csv(path, header=None, names=header, usecols=cols, skiprows=first + 1, nrows=nrows,
+                       dtype=str, keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
+                       engine="c")
+
+
+def _first_bad_text(path: Path, header: list[str], names: dict[str, str], numeric: list[str],
+                    first: int, nrows: int) -> SessionFormatError | None:
+    """The first non-numeric or non-finite cell of rows ``first`` .. ``first + nrows``, or None."""
+    import pandas as pd
+
+    raw = _text_rows(path, header, [names[c] for c in numeric], first, nrows)
     best = None
     for c in numeric:
         text = raw[names[c]]
@@ -390,13 +422,62 @@ def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> S
             i = int(np.argmax(bad))
             if best is None or i < best[0]:
                 best = (i, c, text.iloc[i])
-    if best is None:  # pragma: no cover - the fast path and this path disagree
-        return SessionFormatError(f"{path.name}: unreadable numeric data")
+    if best is None:
+        return None
     i, c, value = best
-    what = "empty value" if value.strip() == "" else (
-        f"{value!r} is not a finite number" if value.strip().lower().lstrip("+-") in
-        ("nan", "inf", "infinity") else f"{value!r} is not a number")
-    return SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {what}")
+    return SessionFormatError(f"{path.name}: row {_row(first + i)}, column {c}: {_cell_problem(value)}")
+
+
+def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> SessionFormatError:
+    """Find the first non-numeric or non-finite numeric cell and describe it.
+
+    Reads the numeric columns again as floats in blocks of :data:`_LOCATE_CHUNK_ROWS` rows (as
+    fast as the first read, memory bounded by one block) and only the block that fails as text,
+    so a bad cell at the end of a 5-million-row file costs about one more read of the file, not
+    a text copy of all of it (issue 12).
+    """
+    import pandas as pd
+
+    header = _header(path)
+    cols = [names[c] for c in numeric]
+    reader = pd.read_csv(path, usecols=cols, dtype={c: "float64" for c in cols}, chunksize=_LOCATE_CHUNK_ROWS,
+                         skip_blank_lines=False, encoding="utf-8-sig", engine="c")
+    first = 0
+    with reader:
+        while True:
+            try:
+                chunk = next(reader)
+            except StopIteration:
+                break
+            except ValueError:
+                found = _first_bad_text(path, header, names, numeric, first, _LOCATE_CHUNK_ROWS)
+                if found is not None:
+                    return found
+                break
+            finite = np.isfinite(chunk[cols].to_numpy(dtype=float))
+            if not finite.all():
+                i = int(np.argmax(~finite.all(axis=1)))
+                found = _first_bad_text(path, header, names, numeric, first + i, 1)
+                if found is not None:
+                    return found
+            first += len(chunk)
+    return SessionFormatError(f"{path.name}: unreadable numeric data")
+
+
+def _check_plausible(path: Path, columns: list[str], m: np.ndarray) -> None:
+    """Refuse finite but absurd values (:data:`PLAUSIBLE_ABS`), naming the first row and column."""
+    limits = np.array([PLAUSIBLE_ABS.get(c, np.inf) for c in columns])
+    if np.isinf(limits).all():
+        return
+    out = np.abs(m) > limits
+    rows = out.any(axis=1)
+    if not rows.any():
+        return
+    i = int(np.argmax(rows))
+    j = int(np.argmax(out[i]))
+    c = columns[j]
+    raise SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {float(m[i, j]):g} is not a plausible "
+                             f"value (|{c}| <= {limits[j]:g})")
 
 
 def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.ndarray:
@@ -428,8 +509,11 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
     # one float block: a view, its rows being the file's rows
     m = df[[names[c] for c in required]].to_numpy(dtype=float)
     m.flags.writeable = False
-    if not np.isfinite(m).all():
-        raise _locate_bad_cell(path, names, required)
+    finite = np.isfinite(m)
+    if not finite.all():
+        i = int(np.argmax(~finite.all(axis=1)))
+        raise _first_bad_text(path, header, names, required, i, 1) or _locate_bad_cell(path, names, required)
+    _check_plausible(path, required, m)
     _check_time(path, m[:, required.index("t_s")])
     return m
 
@@ -471,9 +555,9 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         vals[c] = v
     first = None
     for c in num + sig:
-        bad = ~np.isfinite(vals[c])
+        bad = ~np.isfinite(vals[c]) | (np.abs(vals[c]) > PLAUSIBLE_ABS.get(c, np.inf))
         if c in sig:
-            bad |= ~(vals[c] > 0)
+            bad |= ~((vals[c] >= SIGMA_RANGE_M[0]) & (vals[c] <= SIGMA_RANGE_M[1]))
         if np.any(bad):
             i = int(np.argmax(bad))
             if first is None or i < first[0]:
@@ -486,8 +570,11 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         i, c = first
         value = raw[names[c]].iloc[i]
         what = ("empty point label" if c == "point" else
-                "sigma must be a positive number" if c in sig and value.strip() != "" and
+                f"sigma must be a positive number from {SIGMA_RANGE_M[0]:g} to {SIGMA_RANGE_M[1]:g} m"
+                if c in sig and value.strip() != "" and
                 np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
+                f"{value.strip()} is not a plausible value (|{c}| <= {PLAUSIBLE_ABS[c]:g})"
+                if c in PLAUSIBLE_ABS and np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
                 "empty value" if value.strip() == "" else
                 f"{value!r} is not a finite number"
                 if value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity")
@@ -777,4 +864,5 @@ def _read_numeric_generic(path: Path, required: list[str]) -> dict[str, np.ndarr
     out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
     if any(not np.all(np.isfinite(v)) for v in out.values()):
         raise _locate_bad_cell(path, names, required)
+    _check_plausible(path, required, np.column_stack([out[c] for c in required]))
     return out

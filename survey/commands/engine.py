@@ -5,18 +5,24 @@ file, row and column, with exit code 2 and no output written.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 from rich.console import Console
+
+from survey.limits import check_allocation
 
 err = Console(stderr=True)
 
 
 def fail(message: str, code: int = 2) -> None:
-    """Print a one-line error to stderr and exit non-zero."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    """Print a one-line error to stderr (literally: no markup from the data) and exit non-zero."""
+    from rich.text import Text
+
+    err.print(Text.assemble(("error:", "bold red"), " ", message), highlight=False, soft_wrap=True)
     raise typer.Exit(code=code)
 
 
@@ -30,6 +36,9 @@ def process(
     result, session, written = run_process(session_dir, out, smoother, step)
     print_summary(result, written)
 
+
+#: Memory one output station needs through resampling and writing (about 60 float columns), bytes.
+_STATION_BYTES = 512
 
 #: Share of the progress bar for reading the session before processing, and for writing after.
 _READ_SHARE, _WRITE_SHARE = 0.15, 0.05
@@ -51,8 +60,8 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
 
     if smoother not in ("rts", "tfs", "none"):
         fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
-    if not step > 0:
-        fail(f"--step must be positive, not {step}")
+    if not (step > 0 and math.isfinite(step)):
+        fail(f"--step must be a positive finite number, not {step}")
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
     with Progress(TextColumn("{task.description:<48}"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
@@ -71,12 +80,20 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
             fail(f"{session_dir}: {exc}")
         prog.update(task, completed=_READ_SHARE)
+        span_m = float(np.ptp(session.odo_distance_m)) if session.odo_distance_m.size else 0.0
+        try:
+            # stations: a few dozen float columns each through resampling and writing
+            check_allocation(span_m / step + 1, _STATION_BYTES, f"--step {step:g} over {span_m:.1f} m")
+        except ValueError as exc:
+            fail(str(exc))
         try:
             result = process_session(session, design, ProcessConfig(smoother=smoother, step_m=step,
                                                                    force_accept=force_accept),
                                      progress=engine_progress)
         except ValueError as exc:
             fail(f"{session_dir}: {exc}")
+        if result.stations.chainage_m.size == 0:
+            fail(f"{session_dir}: no track stations (the trolley did not move between two fixes); nothing written")
         prog.update(task, completed=1.0 - _WRITE_SHARE, description="writing the outputs")
         try:
             written = write_outputs(out, result, session, session_dir)
@@ -91,6 +108,7 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
 def print_summary(result, written) -> None:
     """A short summary of a processing run on the terminal."""
     from rich.table import Table
+    from rich.text import Text
 
     from trolley import units
 
@@ -114,9 +132,10 @@ def print_summary(result, written) -> None:
     Console().print(t)
     for i in range(len(result.fixes.t_s)):
         if not result.fixes.accepted[i]:
-            err.print(f"[yellow]rejected fix[/] {result.fixes.point[i]} at t={result.fixes.t_s[i]:.1f} s: "
-                      f"{result.fixes.reason[i]}", highlight=False)
-    Console().print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
+            err.print(Text.assemble(("rejected fix", "yellow"), f" {result.fixes.point[i]} at t="
+                                    f"{result.fixes.t_s[i]:.1f} s: {result.fixes.reason[i]}"), highlight=False)
+    Console().print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
+                    markup=False, highlight=False)
 
 
 def register(app: typer.Typer) -> None:

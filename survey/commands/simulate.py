@@ -14,6 +14,8 @@ from typing import Annotated, Optional
 
 import typer
 
+from survey.limits import check_allocation
+
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
 #: project.toml [simulation] keys -> SimulationConfig fields (all floats unless listed)
@@ -120,6 +122,29 @@ def project_settings(project: Path):
     return kwargs, preset, xml
 
 
+#: Memory one simulated IMU sample needs through the simulation and the writing (truth states,
+#: the six channels, noise, CSV text), bytes; one truth.csv row likewise.
+_SAMPLE_BYTES = 1024
+_TRUTH_ROW_BYTES = 256
+
+
+def check_simulation_size(config, truth_step_m: float) -> None:
+    """Refuse a simulation whose arrays would not fit in memory, before it starts.
+
+    The duration is the static period, the stops and the runs between them; every sensor
+    sample and every truth.csv row is counted (:func:`survey.limits.check_allocation`).
+    """
+    stops = config.length_m / config.fix_spacing_m + 1
+    duration_s = (config.static_s + stops * (config.stop_s + config.accel_time_s)
+                  + config.length_m / config.speed_m_s)
+    rates = config.imu_rate_hz + config.odometer_rate_hz + config.gauge_rate_hz
+    check_allocation(duration_s * rates, _SAMPLE_BYTES,
+                     f"--rate-hz {config.imu_rate_hz:g} over {duration_s:.4g} s (--length-m, --static-s, "
+                     f"--fix-spacing-m)")
+    check_allocation(config.length_m / truth_step_m, _TRUTH_ROW_BYTES,
+                     f"--truth-step-m {truth_step_m:g} over {config.length_m:g} m")
+
+
 def register(app: typer.Typer) -> None:
     """Add ``trolley simulate`` to the app."""
 
@@ -149,6 +174,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
+        from survey.limits import check_finite
         from survey.sessionio import write_session, write_truth_csv
         from trolley.landxml import parse_landxml
         from trolley.sensors import IMU_PRESETS
@@ -178,6 +204,14 @@ def register(app: typer.Typer) -> None:
         for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):
             if key in kwargs and not kwargs[key] > 0:
                 fail(f"{key.replace('_', '-')}: must be > 0, got {kwargs[key]!r}")
+        try:
+            for option, value in (("--length-m", length_m), ("--fix-spacing-m", fix_spacing_m),
+                                  ("--rate-hz", rate_hz), ("--truth-step-m", step_m)):
+                check_finite(value, option, positive=True)
+            check_finite(static_s, "--static-s", minimum=0.0)
+            check_simulation_size(SimulationConfig(**kwargs), step_m)
+        except (ValueError, TypeError) as exc:
+            fail(str(exc))
         try:
             guard_overwrite(out, "simulate", force)
         except OutputError as exc:
