@@ -56,7 +56,8 @@ def error_text(exc: BaseException) -> str | None:
     if isinstance(exc, MemoryError):
         return "not enough memory for this input (reduce the size or the rate parameters)"
     if isinstance(exc, sqlite3.Error):
-        return one_line(f"project store: {exc}")
+        hint = " (is the disk full, or the store read-only?)" if isinstance(exc, sqlite3.OperationalError) else ""
+        return one_line(f"project store: {exc}{hint}")
     if isinstance(exc, (ValueError, MarkupError, OverflowError, StoreError, SessionAbort, DeviceError,
                         GeoComError)):
         return one_line(exc) or type(exc).__name__

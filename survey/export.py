@@ -79,6 +79,26 @@ def geometry_config(tol: ToleranceSet, info: SurveyInfo, **overrides) -> Geometr
     return replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
 
 
+#: The option that sets each geometry base (the tolerance set's key has the field's name).
+_BASE_OPTIONS = {"twist_base_m": "--twist-base", "versine_chord_m": "--chord", "gauge_rate_base_m": "--gauge-rate-base"}
+
+
+def _check_bases(cfg: GeometryConfig, chainage_m: np.ndarray, path: Path) -> None:
+    """Every base and chord must be finite and at least one station step long: a shorter one
+    cannot be evaluated from the stations of ``path``.
+
+    Raises
+    ------
+    ExportInputError naming the option (and the tolerance-set key).
+    """
+    step = float(np.median(np.diff(chainage_m))) if chainage_m.size > 1 else 0.0
+    for name, option in _BASE_OPTIONS.items():
+        v = float(getattr(cfg, name))
+        if not np.isfinite(v) or v < step:
+            raise ExportInputError(f"{option} ({name}) {v:g} m: must be finite and at least the station step "
+                                   f"{step:g} m of {path}")
+
+
 def survey_info(folder: Path, project_name: str | None = None, session_name: str | None = None) -> SurveyInfo:
     """What the Summary sheet says about the survey whose track.csv lies in ``folder``.
 
@@ -122,6 +142,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
     tol = load_tolerances(tolerances)
     cfg = geometry_config(tol, info, **config_overrides)
+    _check_bases(cfg, track.chainage_m, path)
     design_file = Path(design) if design else design_alignment_path(info)
     if design_file is not None:
         if not design_file.is_file():

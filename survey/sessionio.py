@@ -31,6 +31,7 @@ from trolley.sensors import ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
 from survey.atomicwrite import folder_mode, write_text_atomic, write_with
+from survey.names import is_relative_inside
 
 __all__ = [
     "SessionFormatError",
@@ -200,8 +201,7 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
     design = t.string("design.alignment", None) if t.raw("design.alignment") is not _MISSING \
         else None
     if design is not None:
-        p = Path(design)
-        if design == "" or p.is_absolute() or ".." in p.parts:
+        if not is_relative_inside(design):
             raise t.error("design.alignment", f"must be a relative path inside the session "
                                               f"folder, got {design!r}")
     return SessionMeta(

@@ -24,6 +24,7 @@ from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
 from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import atomic_path, write_text_atomic
+from survey.names import inside
 
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
@@ -205,14 +206,21 @@ def read_recording(folder: str | os.PathLike) -> Recording:
     toml_path = folder / "tgms.toml"
     if not toml_path.exists():
         raise TgmsFormatError(f"tgms.toml: file not found in {folder}")
-    cfg = parse_tgms_toml(toml_path.read_text(encoding="utf-8"))
-    al_path = folder / cfg.track.alignment
-    if not al_path.exists():
+    try:
+        text = toml_path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise TgmsFormatError(f"{toml_path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+    cfg = parse_tgms_toml(text)
+    try:
+        al_path = inside(folder, cfg.track.alignment, f"{toml_path}: key track.alignment")
+    except ValueError as exc:
+        raise TgmsFormatError(str(exc)) from None
+    if not al_path.is_file():
         raise TgmsFormatError(f"tgms.toml: track.alignment names {cfg.track.alignment!r}, not found in {folder}")
     try:
         alignment = parse_landxml(al_path.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise TgmsFormatError(f"{al_path.name}: {exc}") from None
+    except ValueError as exc:  # UnicodeDecodeError included
+        raise TgmsFormatError(f"{al_path}: {exc}") from None
     imu = _read_csv(folder / "imu.csv", ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"], strict=True)
     enc = _read_csv(folder / "encoder.csv", ["t_s", "count"], integer=("count",))
     lasers = {}

@@ -23,6 +23,7 @@ import numpy as np
 from trolley import units
 from trolley.trackgeometry import TrackInput
 
+from survey.names import inside
 from survey.sheet_text import csv_read_text
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
@@ -374,7 +375,10 @@ def design_alignment_path(info: SurveyInfo) -> Path | None:
     name = doc.get("design", {}).get("alignment") if isinstance(doc.get("design"), dict) else None
     if not name:
         return None
-    return Path(info.session_dir) / str(name)
+    try:
+        return inside(Path(info.session_dir), str(name), f"{toml_path}: key design.alignment")
+    except ValueError as e:
+        raise ExportInputError(str(e)) from None
 
 
 def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float) -> TrackInput:

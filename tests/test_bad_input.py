@@ -413,3 +413,57 @@ def test_bad_input(probe: Probe, inputs: Inputs, tmp_path: Path, monkeypatch, me
     allowed = {k for k in new | changed if Path(k).name in probe.may_write}
     assert changed - allowed == set(), changed
     assert new - allowed == set(), new
+
+
+# ------------------------------------------------------------------------------------------
+# the project store: full disk, foreign and damaged files
+# ------------------------------------------------------------------------------------------
+def _trolley_with_file_limit(args: list[str], limit_bytes: int | None, cwd: Path):
+    """Run ``trolley ARGS`` in a subprocess whose files cannot grow beyond ``limit_bytes``
+    (RLIMIT_FSIZE with SIGXFSZ ignored: writes fail with EFBIG as on a full disk)."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return subprocess.run([sys.executable, "-m", "survey.cli", *args], cwd=cwd, capture_output=True, text=True,
+                          preexec_fn=limit if limit_bytes is not None else None, timeout=600)
+
+
+def test_full_disk_during_project_new_leaves_no_stub(tmp_path):
+    r = _trolley_with_file_limit(["project", "new", "p", "--root", "r", "--no-toml"], 20_000, tmp_path)
+    assert r.returncode == 2 and "project store" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "r").exists()  # no stub project.sqlite, not even the folders
+    r = _trolley_with_file_limit(["project", "new", "p", "--root", "r", "--no-toml"], None, tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "r" / "p").iterdir()) == ["project.sqlite"]
+
+
+def test_full_disk_during_an_import_leaves_the_store_usable(tmp_path, inputs):
+    r = _trolley_with_file_limit(["project", "new", "p", "--root", "r", "--no-toml"], None, tmp_path)
+    assert r.returncode == 0, r.stderr
+    store = tmp_path / "r" / "p" / "project.sqlite"
+    args = ["project", "import-session", str(inputs.session), "--project", "p", "--root", "r", "--session", "s"]
+    r = _trolley_with_file_limit(args, store.stat().st_size + 50_000, tmp_path)
+    assert r.returncode == 2 and "project store" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = _trolley_with_file_limit(["project", "show", "p", "--root", "r", "--json"], None, tmp_path)
+    assert r.returncode == 0 and '"sessions": []' in r.stdout, r.stderr
+    r = _trolley_with_file_limit(args, None, tmp_path)
+    assert r.returncode == 0 and "imported" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("command", [["show", "p"], ["new", "p", "--no-toml"], ["import-cpiii", "c.csv", "-p", "p"]])
+def test_foreign_sqlite_file_is_refused_unchanged(tmp_path, command):
+    _foreign_sqlite(tmp_path / "r")
+    (tmp_path / "c.csv").write_text("point,E_m,N_m,H_m\nCP1,1,2,3\n")
+    before = (tmp_path / "r" / "p" / "project.sqlite").read_bytes()
+    r = CliRunner().invoke(app, ["project", *[c if c != "c.csv" else str(tmp_path / "c.csv") for c in command],
+                                 "--root", str(tmp_path / "r")])
+    assert r.exit_code == 2 and "Traceback" not in r.stderr
+    assert "project.sqlite" in r.stderr or "already exists" in r.stderr
+    assert (tmp_path / "r" / "p" / "project.sqlite").read_bytes() == before
+    assert sorted(p.name for p in (tmp_path / "r" / "p").iterdir()) == ["project.sqlite"]  # no -wal, no -shm

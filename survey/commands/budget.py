@@ -16,6 +16,7 @@ from typing import Annotated, Optional
 import typer
 
 from survey.atomicwrite import write_text_atomic, write_with
+from rich.markup import escape
 
 IMU_CHOICES = ("rlg", "fog", "mems", "custom")
 
@@ -305,7 +306,7 @@ def _print_table(rep: dict) -> None:
         con.print("[dim]* with the gyrocompassing heading error and the equivalent bias following the bias "
                   "instability (equivalent bias = 2 x bias instability)[/dim]", highlight=False)
     for k, msg in rep["limit_notes"].items():
-        con.print(f"[dim]{k}: {msg}[/dim]", highlight=False)
+        con.print(f"[dim]{escape(str(k))}: {escape(str(msg))}[/dim]", highlight=False)
     if "monte_carlo" in rep:
         mc = rep["monte_carlo"]
         m = Table(title=f"Monte Carlo, {mc['runs']} intervals (RMS relative sampling error "

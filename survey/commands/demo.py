@@ -85,7 +85,7 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     (folder / "project.toml").write_text(toml, encoding="utf-8")
     for name in ("alignment.xml", "cpiii.csv"):
         shutil.copy(project / name, folder / name)
-    err.print(f"1/3 project store {folder / 'project.sqlite'} from {project}", highlight=False)
+    err.print(f"1/3 project store {folder / 'project.sqlite'} from {project}", highlight=False, markup=False)
     new("demo", root=root, imu=None, latitude_deg=None, height=None, tolerance_set="default", use_toml=True)
     from survey.commands.survey import open_store, simulated_world
 
@@ -94,14 +94,14 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     script = out / "crew_script.txt"
     script.write_text(survey_script(n_stops, note_every=5, station_every=5), encoding="utf-8")
     err.print(f"2/3 field session with simulated devices on ptys, {speedup:g}x real time, crew script {script}",
-              highlight=False)
+              highlight=False, markup=False)
     outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False)
     err.print("3/3 comparing with the simulator's truth ...")
     if outcome.result is None:
         fail("the session produced no processed track")
     _accuracy_line(con, outcome.result, outcome.world.sim.truth)
     con.print(f"project store: {folder / 'project.sqlite'}\ndone in {time.perf_counter() - t_start:.1f} s",
-              highlight=False)
+              highlight=False, markup=False)
 
 
 def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int]) -> None:
@@ -132,7 +132,7 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     design = parse_landxml(xml)
     config = SimulationConfig(**kwargs)
     err.print(f"1/4 simulating {config.length_m:g} m of {project.resolve().name} with the {preset} IMU "
-              f"at {config.imu_rate_hz:g} Hz ...", highlight=False)
+              f"at {config.imu_rate_hz:g} Hz ...", highlight=False, markup=False)
     sim = simulate_survey(design, config)
     session_dir = out / "session"
     session = replace(sim.session, meta=replace(sim.session.meta, design_alignment="alignment.xml"))
@@ -147,9 +147,9 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     err.print("4/4 comparing with the simulator's truth ...")
     _accuracy_line(con, result, sim.truth)
     con.print(f"\nraw session:  {session_dir}\ntrack:        {written.track_csv}\n"
-              f"survey sheet: {exported.xlsx}", highlight=False)
+              f"survey sheet: {exported.xlsx}", highlight=False, markup=False)
     for i, png in enumerate(exported.plots):
-        con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
+        con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False, markup=False)
     con.print(f"done in {time.perf_counter() - t_start:.1f} s", highlight=False)
 
 

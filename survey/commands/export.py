@@ -11,6 +11,7 @@ from enum import Enum
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 
 
 class LateralSign(str, Enum):
@@ -57,7 +58,15 @@ def export(
     from survey.track_reader import ExportInputError
     from trolley.tolerances import ToleranceError
 
+    from survey.limits import check_finite
+
     console = Console(stderr=True)
+    for option, value in (("--twist-base", twist_base_m), ("--chord", chord_m), ("--gauge-rate-base", gauge_rate_base_m)):
+        try:
+            check_finite(value, option, positive=True)
+        except ValueError as e:
+            typer.echo(f"error: {e}", err=True)
+            raise typer.Exit(code=2)
     for out in (xlsx, csv):
         if out is not None and not Path(out).parent.is_dir():
             typer.echo(f"error: {out}: folder {Path(out).parent} does not exist", err=True)
@@ -77,7 +86,7 @@ def export(
         raise typer.Exit(code=2)
     rep = result.report
     verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
-    console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {rep.tolerances.name}: {verdict}")
+    console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {escape(rep.tolerances.name)}: {verdict}")
     typer.echo(json.dumps(result.as_dict()))
     if fail_on_defects and not result.passed:
         raise typer.Exit(code=1)

@@ -15,6 +15,8 @@ from typing import Annotated, Optional
 import typer
 
 from survey.limits import check_allocation
+from survey.names import inside
+from rich.markup import escape
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
@@ -115,10 +117,14 @@ def project_settings(project: Path):
     if not isinstance(design, str):
         raise ProjectFileError(f"{fname}: key design.alignment: missing (the LandXML design)")
     try:
-        xml = (project / design).read_text(encoding="utf-8")
+        xml = inside(project, design, f"{fname}: key design.alignment").read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ProjectFileError(f"{fname}: key design.alignment: {project / design} not found") \
             from None
+    except (UnicodeDecodeError, IsADirectoryError) as exc:
+        raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: {exc}") from None
+    except ValueError as exc:
+        raise ProjectFileError(str(exc)) from None
     return kwargs, preset, xml
 
 
@@ -240,7 +246,7 @@ def register(app: typer.Typer) -> None:
         except (OSError, ValueError) as exc:
             fail(f"{out}: {exc}")
         t2 = time.perf_counter()
-        err.print(f"wrote {out} (simulate {t1 - t0:.1f} s, write {t2 - t1:.1f} s)", highlight=False)
+        err.print(f"wrote {escape(str(out))} (simulate {t1 - t0:.1f} s, write {t2 - t1:.1f} s)", highlight=False)
         summary = {
             "out": str(out),
             "imu": preset,

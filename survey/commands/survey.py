@@ -13,6 +13,7 @@ from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 err = Console(stderr=True)
 survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True)
@@ -28,7 +29,7 @@ OutOption = Annotated[Optional[Path], typer.Option("--out", help="output folder 
 
 def fail(message: str, hint: str = "", code: int = 2) -> None:
     """One line on stderr (and what to try), exit code ``code``."""
-    err.print(f"[bold red]error:[/] {message}" + (f"\n  try: {hint}" if hint else ""), highlight=False,
+    err.print(f"[bold red]error:[/] {escape(str(message))}" + (f"\n  try: {escape(str(hint))}" if hint else ""), highlight=False,
               soft_wrap=True)
     raise typer.Exit(code=code)
 
@@ -201,12 +202,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             if keys is not None:
                 keys.stop()
     con = Console()
-    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False)
+    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False, markup=False)
     if outcome.xlsx is not None:
         con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
-                  f"survey sheet: {outcome.xlsx}", highlight=False)
+                  f"survey sheet: {outcome.xlsx}", highlight=False, markup=False)
         for i, png in enumerate(outcome.plots):
-            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
+            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False, markup=False)
     outcome.world = world
     return outcome
 

@@ -17,6 +17,7 @@ from rich.console import Console
 
 from survey.atomicwrite import (MARKER_NAME, OutputError, all_or_nothing, check_outputs, made_by, write_marker,
                                 write_text_atomic, write_with)
+from rich.markup import escape
 
 console = Console(stderr=True)
 
@@ -232,7 +233,7 @@ def process_cmd(
     except ValueError as exc:
         _fail(str(exc))
     if params.trajectory == "ekf" and orientation is not None:
-        console.print(f"[yellow]warning:[/yellow] --orientation {orientation} is ignored: the 12-state smoother "
+        console.print(f"[yellow]warning:[/yellow] --orientation {escape(orientation)} is ignored: the 12-state smoother "
                       "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
     try:
         rec = tgms_io.read_recording(folder)

@@ -31,6 +31,7 @@ from survey.session.stationsetup import StationSetupSteps
 from survey.session.screen import KEYS_HELP, ScreenState, render
 from survey.session.script import Action
 from survey.store import FixRecord, NoteRecord, ProjectStore, RecordWriter, SessionEvent, StopRecord
+from rich.markup import escape
 
 #: the trolley stands when the odometer moved less than this over ``STAND_WINDOW_S``
 STAND_TOLERANCE_M = 0.002
@@ -336,7 +337,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             rel, ver, sub = self.ts.sw_version()
             table.add_row("totalstation", self.ports["totalstation"], f"[green]ok[/] GeoCOM {rel}.{ver}.{sub}")
         except (GeoComError, DeviceError) as exc:
-            table.add_row("totalstation", self.ports["totalstation"], f"[red]{exc}[/]")
+            table.add_row("totalstation", escape(str(self.ports["totalstation"])), f"[red]{escape(str(exc))}[/]")
             problems.append(("totalstation", str(exc), "switch the instrument on, check GeoCOM on the serial port "
                                                        "and its baud rate"))
         deadline = time.monotonic() + self.config.device_wait_s
@@ -351,7 +352,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 problems.append((name, str(mismatch), "set the counter width in the devices file"))
             elif n == 0:
                 err = self.acq.links[name].last_error or "no data"
-                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({err})[/]")
+                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({escape(str(err))})[/]")
                 problems.append((name, f"no data from {port} in {self.config.device_wait_s:g} s",
                                  "check power, cable and baud rate; `trolley devices record` shows what arrives"))
             else:
@@ -365,7 +366,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         return dict(self.acq.samples)
 
     def _ask_key(self, prompt: str, allowed: str) -> str:
-        self.console.print(f"[bold]{prompt}[/]", highlight=False)
+        self.console.print(f"[bold]{escape(prompt)}[/]", highlight=False)
         while True:
             k = self.keys.get() if self.keys else None
             if k is not None and k.lower() in allowed:
