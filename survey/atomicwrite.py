@@ -33,6 +33,9 @@ from pathlib import Path
 RAW_FILES = frozenset({"imu.csv", "odometer.csv", "gauge.csv", "fixes.csv", "session.toml", "stats.json",
                        "tgms.toml", "encoder.csv", "lasers.csv", "track.csv"})
 
+#: Files that make a folder a raw session or a recording: no output folder may be one.
+RAW_FOLDER_MARKS = ("session.toml", "tgms.toml")
+
 _UMASK_LOCK = threading.Lock()
 # (temporary, target) pairs whose os.replace waits for the enclosing all_or_nothing() block
 _PENDING: contextvars.ContextVar[list[tuple[Path, Path]] | None] = contextvars.ContextVar("_PENDING", default=None)
@@ -229,6 +232,13 @@ def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[P
         folder = Path(folder)
         if folder.exists() and not folder.is_dir():
             raise OutputError(f"{option} {folder}: exists and is not a folder")
+        for src in inputs:
+            if _same_file(folder, src):
+                raise OutputError(f"{option} {folder}: is this command's input folder; choose another folder")
+        raw = [m for m in RAW_FOLDER_MARKS if (folder / m).exists()]
+        if raw:
+            raise OutputError(f"{option} {folder}: holds {raw[0]} (a recording or raw session, never written "
+                              "into); choose another folder")
         parent = folder if folder.is_dir() else folder.parent
         if not parent.is_dir():
             raise OutputError(f"{option} {folder}: folder {parent} does not exist")
@@ -256,7 +266,7 @@ def made_by(folder: Path, command: str) -> bool:
         return False
 
 
-def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out") -> None:
+def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out", *, reuse_own: bool = False) -> None:
     """Refuse to write the folder ``out`` when something is there that this command did not make.
 
     Parameters
@@ -265,6 +275,8 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out")
     command : name of the command, as written in the marker (``"simulate"``, ``"tgms simulate"``).
     force : the user's ``--force`` / ``--overwrite``.
     option : option name for the message.
+    reuse_own : a folder this command made may be written again without ``force`` (commands
+        that have no such option and replace their own files one by one).
 
     Raises
     ------
@@ -277,11 +289,14 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out")
         raise OutputError(f"{option} {out}: exists and is not a folder")
     if not out.is_dir() or not any(out.iterdir()):
         return
-    if not force:
+    if reuse_own and made_by(out, command):
+        return
+    if not force and not reuse_own:
         raise OutputError(f"{option} {out}: already exists and is not empty (use --force to replace it)")
     if not made_by(out, command):
-        raise OutputError(f"{option} {out}: not made by `trolley {command}` (no {MARKER_NAME} marker); "
-                          "--force replaces only such folders, choose another folder")
+        raise OutputError(f"{option} {out}: exists and was not made by `trolley {command}` (no {MARKER_NAME} "
+                          "marker); an existing session, recording or other folder is never replaced, "
+                          "choose another folder")
 
 
 def remove_own_folder(out: Path, command: str) -> None:

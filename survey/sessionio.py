@@ -505,7 +505,8 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
             raise _parser_error(path, exc) from None
         raise _locate_bad_cell(path, names, required) from None
     if len(df) < min_rows:
-        raise SessionFormatError(f"{path.name}: row 2: no data rows")
+        raise SessionFormatError(f"{path.name}: {len(df)} data row(s), at least {min_rows} needed"
+                                 if len(df) else f"{path.name}: row 2: no data rows")
     # one float block: a view, its rows being the file's rows
     m = df[[names[c] for c in required]].to_numpy(dtype=float)
     m.flags.writeable = False
@@ -614,8 +615,8 @@ def read_session(folder: Path) -> RawSession:
     if not folder.is_dir():
         raise SessionFormatError(f"{folder}: not a session folder (no such directory)")
     meta = read_session_meta(folder)
-    imu = _read_numeric(folder / "imu.csv", IMU_COLUMNS)
-    odo = _read_numeric(folder / "odometer.csv", ODOMETER_COLUMNS)
+    imu = _read_numeric(folder / "imu.csv", IMU_COLUMNS, min_rows=2)
+    odo = _read_numeric(folder / "odometer.csv", ODOMETER_COLUMNS, min_rows=2)
     fixes = _read_fixes(folder / "fixes.csv", meta.fix_sigma_m)
     gauge_t = gauge = None
     if (folder / "gauge.csv").exists():

@@ -1059,6 +1059,7 @@ class ProjectStore:
         The design alignment, if given, is stored (or reused when the same LandXML text is already
         stored) and linked to the session. Fixes are stored as accepted ("imported").
         """
+        _check_name("session name", name)
         with self._transaction() as c:
             if c.execute("SELECT 1 FROM session WHERE name = ?", (name,)).fetchone():
                 raise StoreError(f"session {name!r} already exists in project {self.info().name!r}")

@@ -25,6 +25,7 @@ from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import atomic_path, write_text_atomic
 from survey.names import inside
+from survey.sessionio import PLAUSIBLE_ABS
 
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
@@ -152,8 +153,14 @@ def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
 
 # ---------------------------------------------------------------------------------------------
 # CSV
+#: Largest plausible |value| of the TGMS columns that the raw-session reader does not know
+#: (sessionio.PLAUSIBLE_ABS has the IMU ones): an encoder count beyond 1e12 (a 1440-pulse wheel
+#: over 1.8 million km) or a pixel far outside any image is a corrupt cell, not a measurement.
+_TGMS_PLAUSIBLE_ABS = {"count": 1e12, "frame": 1e12, "u_px": 1e5, "v_px": 1e5, "s_m": 1e8}
+
+
 def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
-              monotonic: str | None = "t_s", strict: bool = False) -> dict[str, np.ndarray]:
+              monotonic: str | None = "t_s", strict: bool = False, min_rows: int = 1) -> dict[str, np.ndarray]:
     name = path.name
     if not path.exists():
         raise TgmsFormatError(f"{name}: file not found in {path.parent}")
@@ -165,8 +172,8 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise TgmsFormatError(f"{name}: missing column {missing[0]}")
-    if len(df) == 0:
-        raise TgmsFormatError(f"{name}: no data rows")
+    if len(df) < min_rows:
+        raise TgmsFormatError(f"{name}: {len(df)} data row(s), at least {min_rows} needed")
     out = {}
     for c in columns:
         col = df[c]
@@ -178,6 +185,12 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         if bad.any():
             i = int(np.argmax(bad))
             raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({col.iloc[i]!r})")
+        limit = PLAUSIBLE_ABS.get(c, _TGMS_PLAUSIBLE_ABS.get(c, np.inf))
+        far = np.abs(vals) > limit
+        if far.any():
+            i = int(np.argmax(far))
+            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: {float(vals[i]):g} is not a plausible value "
+                                  f"(|{c}| <= {limit:g})")
         if c in integer:
             if np.any(vals != np.round(vals)):
                 i = int(np.argmax(vals != np.round(vals)))
@@ -221,8 +234,13 @@ def read_recording(folder: str | os.PathLike) -> Recording:
         alignment = parse_landxml(al_path.read_text(encoding="utf-8"))
     except ValueError as exc:  # UnicodeDecodeError included
         raise TgmsFormatError(f"{al_path}: {exc}") from None
-    imu = _read_csv(folder / "imu.csv", ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"], strict=True)
-    enc = _read_csv(folder / "encoder.csv", ["t_s", "count"], integer=("count",))
+    s0 = cfg.track.start_station_m
+    if s0 is not None and not (alignment.start_chainage_m <= s0 <= alignment.end_chainage_m):
+        raise TgmsFormatError(f"{toml_path}: key track.start_station_m: {s0:g} m is outside the alignment "
+                              f"{al_path.name} ({alignment.start_chainage_m:g} .. {alignment.end_chainage_m:g} m)")
+    imu = _read_csv(folder / "imu.csv", ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
+                    strict=True, min_rows=2)
+    enc = _read_csv(folder / "encoder.csv", ["t_s", "count"], integer=("count",), min_rows=2)
     lasers = {}
     for side in ("left", "right"):
         d = _read_csv(folder / f"laser_{side}.csv", ["frame", "t_s", "u_px", "v_px"], integer=("frame",))

@@ -24,6 +24,7 @@ from trolley import units
 from trolley.trackgeometry import TrackInput
 
 from survey.names import inside
+from survey.sessionio import PLAUSIBLE_ABS
 from survey.sheet_text import csv_read_text
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
@@ -234,6 +235,24 @@ def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
     return out
 
 
+#: Largest plausible |value| of track.csv's mm columns (the SI ones: sessionio.PLAUSIBLE_ABS):
+#: a 1-sigma or deviation beyond 100 m, a gauge, cant or twist beyond 10 m is a corrupt cell.
+_TRACK_PLAUSIBLE_ABS_MM = {"sigma_E_mm": 1e5, "sigma_N_mm": 1e5, "sigma_H_mm": 1e5, "lateral_dev_mm": 1e5,
+                           "vertical_dev_mm": 1e5, "gauge_mm": 1e4, "cant_mm": 1e4, "twist_mm": 1e4}
+
+
+def _check_plausible_track(path: Path, cols: dict[str, np.ndarray]) -> None:
+    """Refuse finite but absurd values (1e308 in H_m): they would reach the sheet as inf."""
+    for name, v in cols.items():
+        limit = PLAUSIBLE_ABS.get(name, _TRACK_PLAUSIBLE_ABS_MM.get(name, math.inf))
+        with np.errstate(invalid="ignore"):
+            far = np.abs(v) > limit
+        if far.any():
+            i = int(np.argmax(far))
+            raise ExportInputError(f"{path}: row {i + 2}, column {name}: {float(v[i]):g} is not a plausible value "
+                                   f"(|{name}| <= {limit:g})")
+
+
 def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
     """Read a track.csv (FORMATS.md section 2).
 
@@ -249,6 +268,7 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
             raise ExportInputError(f"{path}: no stations (only a header row)")
         present_optional = [n for n in TRACK_OPTIONAL if n in header]
         cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
+    _check_plausible_track(path, cols)
     s = cols["chainage_m"]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1

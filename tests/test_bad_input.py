@@ -149,6 +149,15 @@ def _nonutf8(path: Path) -> None:
                      else b"\xff\xfe" + path.read_bytes())
 
 
+def _session_design_escape(t: Path, i: Inputs) -> bool:
+    """A processing output whose summary.json names a session whose session.toml names a design
+    outside its folder."""
+    s, p = _sess(t, i), _proc(t, i)
+    edit_text(s / "session.toml", 'alignment = "alignment.xml"', 'alignment = "../../../../etc/hostname"')
+    edit_text(p / "summary.json", f'"session_dir": "{i.session.resolve()}"', f'"session_dir": "{s.resolve()}"')
+    return True
+
+
 def _foreign_sqlite(root: Path) -> None:
     (root / "p").mkdir(parents=True)
     con = sqlite3.connect(root / "p" / "project.sqlite")
@@ -237,9 +246,8 @@ PROBES: list[Probe] = [
           ["export", str(_proc(t, i)), "--csv", str(t / "o.csv"), "--plots", str(t / "pl")], ("--plots", "pl")),
     Probe("export/same-file-twice", export_probe(lambda p: None, "--csv", "{t}/o.csv", "--xlsx", "{t}/o.csv"),
           ("o.csv",)),
-    Probe("export/summary-session-dir-escape",
-          export_probe(lambda p: edit_text(p / "summary.json", '"session_dir": "', '"session_dir": "/etc/../'),
-                       "--csv", "{t}/o.csv"), ("summary.json",)),
+    Probe("export/session-design-escape", lambda t, i: _session_design_escape(t, i) and
+          ["export", str(t / "proc"), "--csv", str(t / "o.csv")], ("session.toml", "design.alignment")),
     Probe("export/tolerances-not-utf8", lambda t, i: (t / "tol.toml").write_bytes(b"name = \"\xe9\"\n") and
           ["export", str(_proc(t, i)), "--tolerances", str(t / "tol.toml"), "--csv", str(t / "o.csv")],
           ("tol.toml",)),
@@ -305,7 +313,7 @@ PROBES: list[Probe] = [
     Probe("project-new/name-dotdot", lambda t, i: ["project", "new", "..", "--root", str(t / "r")], ("..",)),
     Probe("project-new/name-slash", lambda t, i: ["project", "new", "a/b", "--root", str(t / "r")], ("a/b",)),
     Probe("project-new/name-absolute", lambda t, i: ["project", "new", str(t / "abs"), "--root", str(t / "r")],
-          ("abs",)),
+          ("project name", "path separator")),
     Probe("project-new/name-too-long", lambda t, i: ["project", "new", "x" * 300, "--root", str(t / "r")],
           ("name",)),
     Probe("project-new/root-a-file", lambda t, i: (t / "r").write_text("x") and

@@ -37,6 +37,12 @@ def demo(
     speedup: Annotated[float, typer.Option(help="simulated seconds per wall-clock second in the field session")] = 40.0,
 ) -> None:
     """Survey the demo project end to end (field session with simulated devices); print where the results are."""
+    from survey.limits import check_finite
+
+    try:
+        check_finite(speedup, "--speedup", positive=True)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--speedup") from None
     project = _demo_project()
     out = out if out is not None else project / "out"
     if direct:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import typer
 
-from survey.atomicwrite import write_text_atomic
+from survey.atomicwrite import OutputError, guard_overwrite, write_marker, write_text_atomic
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
                           no_args_is_help=True)
@@ -108,7 +108,13 @@ def record_cmd(
     except (ValueError, KeyError) as e:
         _err(str(e).strip("'\""))
         raise typer.Exit(code=2)
+    try:
+        guard_overwrite(out, "devices record", force=False, reuse_own=True)
+    except OutputError as e:
+        _err(str(e))
+        raise typer.Exit(code=2)
     out.mkdir(parents=True, exist_ok=True)
+    write_marker(out, "devices record")
     cfg = RecordConfig(imu_port=imu, seconds=seconds, odometer_port=odometer, gauge_port=gauge, raw_dir=out,
                        imu_axes=imu_axes, imu_type=imu_type, imu_rate_hz=imu_rate_hz, odometer=odo,
                        imu_baud=imu_baud, odometer_baud=odometer_baud, gauge_baud=gauge_baud)

@@ -80,6 +80,10 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
             fail(f"{session_dir}: {exc}")
         prog.update(task, completed=_READ_SHARE)
+        duration_s = float(session.imu_t_s[-1] - session.imu_t_s[0])
+        if session.meta.static_s >= duration_s:
+            fail(f"{session_dir / 'session.toml'}: key alignment.static_s: {session.meta.static_s:g} s is not "
+                 f"shorter than the IMU data ({duration_s:g} s in imu.csv); nothing would be left to survey")
         span_m = float(np.ptp(session.odo_distance_m)) if session.odo_distance_m.size else 0.0
         try:
             # stations: a few dozen float columns each through resampling and writing

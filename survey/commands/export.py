@@ -67,10 +67,6 @@ def export(
         except ValueError as e:
             typer.echo(f"error: {e}", err=True)
             raise typer.Exit(code=2)
-    for out in (xlsx, csv):
-        if out is not None and not Path(out).parent.is_dir():
-            typer.echo(f"error: {out}: folder {Path(out).parent} does not exist", err=True)
-            raise typer.Exit(code=2)
     try:
         with console.status("computing track geometry and writing the survey sheet"):
             result = export_outputs(track, xlsx, csv, plots, tolerances=tolerances, design=design,

@@ -15,8 +15,9 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
-from survey.atomicwrite import (MARKER_NAME, OutputError, all_or_nothing, check_outputs, made_by, write_marker,
+from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guard_overwrite, write_marker,
                                 write_text_atomic, write_with)
+from survey.limits import check_finite
 from rich.markup import escape
 
 console = Console(stderr=True)
@@ -130,11 +131,11 @@ def simulate_cmd(
         _fail(f"--rail-profile must be 60E1 or 54E1, got {rail_profile!r}")
     st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
                             camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
-    if out.is_dir() and any(out.iterdir()) and not made_by(out, "tgms simulate"):
-        _fail(f"--out {out}: exists and was not written by `trolley tgms simulate` (no {MARKER_NAME} "
-              "marker); give a new folder, an existing recording or session is never overwritten")
-    if out.exists() and not out.is_dir():
-        _fail(f"--out {out}: exists and is not a folder")
+    try:
+        check_finite(length_m, "--length-m")
+        guard_overwrite(out, "tgms simulate", force=False, reuse_own=True)
+    except ValueError as exc:
+        _fail(str(exc))
     with console.status("simulating"):
         rec, truth = simulate(st)
     try:
@@ -214,6 +215,7 @@ def process_cmd(
 
     try:
         bounds = parse_band(band, step)
+        check_outputs([], inputs=[folder], folders=[("--out", out)])
     except ValueError as exc:
         _fail(str(exc))
     params = TgmsParams()
@@ -271,11 +273,12 @@ def process_cmd(
             truth_on_grid[f"{name}_mm"] = v
     try:
         out.mkdir(parents=True, exist_ok=True)
-        tgms_io.write_irregularities(out / "irregularities.csv", cols)
-        files = ["irregularities.csv"]
-        if plots:
-            label = "none" if bounds is None else f"{bounds[0]:g}-{bounds[1]:g} m"
-            files += _plots(out, cols, label, truth_on_grid)
+        with all_or_nothing():
+            tgms_io.write_irregularities(out / "irregularities.csv", cols)
+            files = ["irregularities.csv"]
+            if plots:
+                label = "none" if bounds is None else f"{bounds[0]:g}-{bounds[1]:g} m"
+                files += _plots(out, cols, label, truth_on_grid)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     summary = {
