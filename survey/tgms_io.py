@@ -173,7 +173,8 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
     if missing:
         raise TgmsFormatError(f"{name}: missing column {missing[0]}")
     if len(df) < min_rows:
-        raise TgmsFormatError(f"{name}: {len(df)} data row(s), at least {min_rows} needed")
+        raise TgmsFormatError(f"{name}: {len(df)} data row(s), at least {min_rows} needed" if len(df)
+                              else f"{name}: no data rows")
     out = {}
     for c in columns:
         col = df[c]
