@@ -251,14 +251,19 @@ class OdometerPoller:
     """Polls the counter module at ``cfg.rate_hz`` over a :class:`drivers.serialport.SerialLink`.
 
     One request at a time: the next poll is sent on schedule but never before the previous
-    one was answered (any complete reply line, good or bad) or timed out. A poll with no reply
-    within ``reply_timeout_s`` is counted in ``stats.timeouts``.
+    one was answered (any complete reply line, good or bad) or given up. A poll with no reply
+    within ``reply_timeout_s`` is counted in ``stats.timeouts``; the poller then still listens
+    for its late reply for up to ``late_window_s`` before the next poll, so that a busy module's
+    late reply is never taken for the answer to the next poll (which would leave every later
+    reply attributed one poll late, and a later unanswered poll uncounted).
     """
 
-    def __init__(self, link, cfg: OdometerConfig, reply_timeout_s: float | None = None) -> None:
+    def __init__(self, link, cfg: OdometerConfig, reply_timeout_s: float | None = None,
+                 late_window_s: float | None = None) -> None:
         self.link = link
         self.cfg = cfg
         self.reply_timeout_s = reply_timeout_s if reply_timeout_s is not None else max(0.05, 5.0 / cfg.rate_hz)
+        self.late_window_s = late_window_s if late_window_s is not None else 2.0 * self.reply_timeout_s
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.polls = 0
@@ -287,6 +292,8 @@ class OdometerPoller:
                 with link.fed:
                     if not link.fed.wait_for(lambda: self._lines() > before, self.reply_timeout_s):
                         link.stats.timeouts += 1
+                        # late or lost: a late reply still belongs to this poll
+                        link.fed.wait_for(lambda: self._lines() > before, self.late_window_s)
             except Exception:  # port gone: the link reconnects; keep the schedule
                 self._stop.wait(period)
             nxt += period

@@ -1,7 +1,8 @@
 """Export a processed track: geometry parameters, tolerance check, workbook, CSV and plots.
 
 ``export_outputs`` is the one entry point (the ``trolley export`` command and ``trolley demo``
-call it). It reads track.csv (and, beside it, fixes.csv and summary.json when present; the
+call it). It reads track.csv (and, beside it, fixes.csv, summary.json and the field session's
+field_record.json when present; the
 design LandXML named by the session's session.toml), computes every parameter
 (:mod:`trolley.trackgeometry`), checks them against a tolerance set
 (:mod:`trolley.tolerances`) and writes the requested outputs, each atomically.
@@ -13,6 +14,7 @@ import io
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -20,10 +22,11 @@ from trolley.tolerances import ToleranceSet, find_defects
 from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
 
 from survey.atomicwrite import all_or_nothing, check_outputs, write_text_atomic
+from survey.fieldrecord import FIELD_RECORD, read_field_record
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
-from survey.track_reader import (ExportInputError, add_design, design_alignment_path, read_fixes_csv,
-                                 read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
+from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
+                                 read_fixes_csv, read_summary_json, read_track_csv, resolve_track_csv, session_equipment,
                                  SurveyInfo)
 from survey.track_table import SurveyReport, column_values, sheet_columns
 
@@ -37,12 +40,13 @@ class ExportResult:
     Attributes
     ----------
     report : the survey report (geometry, defects, statistics).
-    xlsx, csv, plots : files written (None / empty when not requested).
+    xlsx, pdf, csv, plots : files written (None / empty when not requested).
     timings_s : seconds per stage ("read", "geometry", "check", "xlsx", "csv", "plots").
     """
 
     report: SurveyReport
     xlsx: Path | None = None
+    pdf: Path | None = None
     csv: Path | None = None
     plots: list[Path] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -63,7 +67,7 @@ class ExportResult:
             "step_m": rep.geometry.step_m, "tolerances": rep.tolerances.name,
             "design": str(rep.design_file) if rep.design_file else None,
             "defects": len(rep.defects), "passed": rep.passed,
-            "xlsx": str(self.xlsx) if self.xlsx else None, "csv": str(self.csv) if self.csv else None,
+            "xlsx": str(self.xlsx) if self.xlsx else None, "pdf": str(self.pdf) if self.pdf else None, "csv": str(self.csv) if self.csv else None,
             "plots": [str(p) for p in self.plots], "notes": rep.notes,
             "timings_s": {k: round(v, 4) for k, v in self.timings_s.items()},
         }
@@ -80,7 +84,7 @@ def geometry_config(tol: ToleranceSet, info: SurveyInfo, **overrides) -> Geometr
 
 
 #: The option that sets each geometry base (the tolerance set's key has the field's name).
-_BASE_OPTIONS = {"twist_base_m": "--twist-base", "versine_chord_m": "--chord", "gauge_rate_base_m": "--gauge-rate-base"}
+_BASE_OPTIONS = {"twist_base_m": "--twist-base-m", "versine_chord_m": "--chord-m", "gauge_rate_base_m": "--gauge-rate-base-m"}
 
 
 def _check_bases(cfg: GeometryConfig, chainage_m: np.ndarray, path: Path) -> None:
@@ -140,6 +144,10 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     notes: list[str] = []
     info = survey_info(folder, project_name, session_name)
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
+    record = read_field_record(folder / FIELD_RECORD) if (folder / FIELD_RECORD).is_file() else None
+    if record is not None:   # the field session's names, unless given explicitly
+        info.project = project_name or record.project or info.project
+        info.session = session_name or record.session or info.session
     tol = load_tolerances(tolerances)
     cfg = geometry_config(tol, info, **config_overrides)
     _check_bases(cfg, track.chainage_m, path)
@@ -147,7 +155,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     if design_file is not None:
         if not design_file.is_file():
             raise ExportInputError(f"{design_file}: design alignment file not found")
-        track = add_design(track, design_file, cfg.rail_spacing_m)
+        track = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info))
     else:
         notes.append("no design alignment (summary.json / session.toml [design]): design columns empty")
     if np.isnan(track.lateral_dev_m).all():
@@ -161,7 +169,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     t3 = time.perf_counter()
     rep = SurveyReport(track_csv=path, geometry=geometry, columns=sheet_columns(cfg), tolerances=tol,
                        defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
-                       notes=notes)
+                       notes=notes, record=record)
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
 
 
@@ -189,6 +197,7 @@ def write_track_csv(path: Path, rep: SurveyReport) -> Path:
 def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
                    tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
                    project_name: str | None = None, session_name: str | None = None,
+                   progress: Callable[[str, float], None] | None = None, pdf: Path | None = None,
                    **config_overrides) -> ExportResult:
     """Compute the survey sheet of a processed track and write the requested outputs.
 
@@ -205,6 +214,9 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     project_name, session_name : project and session names for the Summary sheet and the plot
         titles; they override summary.json's (which knows only what ``trolley process`` was
         told). The field session passes its project store's and session's names.
+    progress : optional ``progress(step, fraction)`` called before each stage (geometry, workbook,
+        CSV, plots, PDF) with the fraction of the export done (survey/commands/progress.py).
+    pdf : PDF report to write (survey/reportpdf.py; None: skip).
     config_overrides : :class:`trolley.trackgeometry.GeometryConfig` fields.
 
     Returns
@@ -216,11 +228,51 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     ExportInputError, trolley.tolerances.ToleranceError
         Unusable input (the message names file, row and column).
     """
-    check_export_outputs(track_csv, xlsx, csv, plots_dir, tolerances, design)
+    check_export_outputs(track_csv, xlsx, csv, plots_dir, tolerances, design, pdf)
+    # rough shares of the run time of each stage, for the progress bar only
+    shares = {"geometry": 0.3, "xlsx": 0.4 if xlsx is not None else 0.0, "csv": 0.05 if csv is not None else 0.0,
+              "plots": 0.25 if plots_dir is not None else 0.0, "pdf": 0.4 if pdf is not None else 0.0}
+    total = sum(shares.values())
+    done = 0.0
+
+    def report(step: str, stage: str) -> None:
+        nonlocal done
+        if progress is not None:
+            progress(step, done / total)
+        done += shares[stage]
+
+    report("computing the track geometry", "geometry")
     rep, timings = build_report(track_csv, tolerances, design, project_name, session_name, **config_overrides)
     result = ExportResult(report=rep, timings_s=timings)
-    with all_or_nothing():
-        _write_outputs(result, rep, xlsx, csv, plots_dir, timings)
+    with all_or_nothing():  # every output complete, then all renamed into place; or none
+        if xlsx is not None:
+            from survey.workbook import write_workbook
+
+            report("writing the survey sheet", "xlsx")
+            t = time.perf_counter()
+            stages: dict[str, float] = {}
+            result.xlsx = write_workbook(Path(xlsx), rep, stages)
+            timings["xlsx"] = time.perf_counter() - t
+            timings.update({f"xlsx_{k}": v for k, v in stages.items()})
+        if csv is not None:
+            report("writing the track CSV", "csv")
+            t = time.perf_counter()
+            result.csv = write_track_csv(Path(csv), rep)
+            timings["csv"] = time.perf_counter() - t
+        if plots_dir is not None:
+            from survey.plots import write_plots
+
+            report("drawing the plots", "plots")
+            t = time.perf_counter()
+            result.plots = write_plots(Path(plots_dir), rep)
+            timings["plots"] = time.perf_counter() - t
+        if pdf is not None:
+            from survey.reportpdf import write_pdf_report
+
+            report("writing the PDF report", "pdf")
+            t = time.perf_counter()
+            result.pdf = write_pdf_report(Path(pdf), rep).path
+            timings["pdf"] = time.perf_counter() - t
     return result
 
 
@@ -237,7 +289,8 @@ _EXPORT_CSV_HEAD = "chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,desi
 
 
 def check_export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_dir: Path | None,
-                         tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None) -> None:
+                         tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
+                         pdf: Path | None = None) -> None:
     """Check every output before any is written: folders exist and are writable, no output is one
     of the inputs (track.csv, fixes.csv, summary.json, design, tolerance file) or a raw session
     file, no two options name the same file.
@@ -249,27 +302,5 @@ def check_export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, p
     path = resolve_track_csv(Path(track_csv))
     inputs = [path, path.parent / "fixes.csv", path.parent / "summary.json", design,
               Path(tolerances) if Path(tolerances).suffix.lower() == ".toml" else None]
-    check_outputs([("--xlsx", xlsx), ("--csv", csv)], inputs=inputs, folders=[("--plots", plots_dir)],
+    check_outputs([("--xlsx", xlsx), ("--csv", csv), ("--pdf", pdf)], inputs=inputs, folders=[("--plots", plots_dir)],
                   made_before=_made_by_export)
-
-
-def _write_outputs(result: ExportResult, rep: SurveyReport, xlsx: Path | None, csv: Path | None,
-                   plots_dir: Path | None, timings: dict[str, float]) -> None:
-    if xlsx is not None:
-        from survey.workbook import write_workbook
-
-        t = time.perf_counter()
-        stages: dict[str, float] = {}
-        result.xlsx = write_workbook(Path(xlsx), rep, stages)
-        timings["xlsx"] = time.perf_counter() - t
-        timings.update({f"xlsx_{k}": v for k, v in stages.items()})
-    if csv is not None:
-        t = time.perf_counter()
-        result.csv = write_track_csv(Path(csv), rep)
-        timings["csv"] = time.perf_counter() - t
-    if plots_dir is not None:
-        from survey.plots import write_plots
-
-        t = time.perf_counter()
-        result.plots = write_plots(Path(plots_dir), rep)
-        timings["plots"] = time.perf_counter() - t

@@ -1,8 +1,16 @@
-"""PNG plots of the survey (matplotlib, Agg): deviations, gauge, cant, twist against chainage.
+"""PNG plots of the survey (matplotlib, Agg): deviations, gauge, cant, twist, chords and bands
+against chainage; the same panels are the strip charts of the PDF report (survey/reportpdf.py).
 
-Chainage axes are labelled in km+m (1+234.5); each quantity with a limit has its own panel, with
-the allowed band shaded green and beyond it red; defects are marked as red vertical bands; units
-are on every axis and in the legends.
+Chainage axes are labelled in km+m (1+234.5); each y axis names the quantity, its unit and sign
+convention (the Track sheet's column header); each quantity with a limit has its own panel, with
+the allowed band shaded green and beyond it red; defects are red vertical bands; the
+deviations carry their 1-sigma band (sigma lateral / vertical of the Track sheet); CPIII fixes
+are marked on the chainage axis (accepted: black triangles, rejected: red crosses) and the
+trolley's stops as thin grey lines; the band-pass edge zones, where a filtered value still
+carries the filter's start-up transient (within half the longest wavelength of the band from the
+end of the record, trolley/bands.py "NaN gaps"), are hatched grey; the long-chord checks are drawn
+as their magnitude (the value is the largest difference along the chord with its sign, which
+flips from one station to the next: drawn signed it reads as a comb).
 """
 from __future__ import annotations
 
@@ -12,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from survey.atomicwrite import write_with
+from trolley.bands import BANDS
+
 from survey.track_table import SurveyReport, limit_in_display
 
 #: file stem, title, panels (each a list of geometry columns sharing one y axis and unit)
@@ -27,6 +37,8 @@ PLOTS = [
     ("alignment_bands", "Alignment (lateral), EN 13848 bands", [["align_D1_m"], ["align_D2_m"], ["align_D3_m"]]),
     ("level_bands", "Longitudinal level, EN 13848 bands", [["level_D1_m"], ["level_D2_m"], ["level_D3_m"]]),
 ]
+#: columns drawn with a 1-sigma band: column -> its sigma column
+SIGMA_OF = {"lateral_dev_m": "sigma_lateral_m", "vertical_dev_m": "sigma_vertical_m"}
 
 
 def km_label(chainage_m: float, decimals: int = 1) -> str:
@@ -54,6 +66,142 @@ def _panel_limit(rep: SurveyReport, keys: list[str]) -> tuple[float, float, str]
     return None
 
 
+def is_chord(key: str) -> bool:
+    """A long-chord check column (drawn as its magnitude)."""
+    return key.startswith("chord")
+
+
+def edge_zones(chainage_m: np.ndarray, values: np.ndarray, key: str) -> list[tuple[float, float]]:
+    """Chainage intervals of a band-passed column where the filter's edge transient remains:
+    within half the band's longest wavelength of each end of a run of values ([] for other columns)."""
+    band = key.split("_")[1] if key.startswith(("align_D", "level_D")) else None
+    if band not in BANDS:
+        return []
+    half = 0.5 * BANDS[band][1]
+    ok = np.isfinite(values).astype(np.int8)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok, [0]))))
+    zones = []
+    for a, b in zip(edges[::2], edges[1::2] - 1):
+        s0, s1 = float(chainage_m[a]), float(chainage_m[b])
+        zones += [(s0, min(s0 + half, s1)), (max(s1 - half, s0), s1)]
+    return zones
+
+
+def fix_chainages(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray]:
+    """Chainage of the accepted and of the rejected prism fixes (the nearest station to each fix's
+    E, N; fixes more than 5 m off the surveyed track are left out)."""
+    g = rep.geometry
+    E, N = g.columns["E_m"], g.columns["N_m"]
+    fixes = list(rep.fixes or [])
+    if rep.record is not None:
+        seen = {f.point for f in fixes}
+        fixes += [f for f in rep.record.rejected if f.point not in seen]
+    if not fixes or E.size == 0:
+        return np.zeros(0), np.zeros(0)
+    fe = np.array([f.E_m for f in fixes])
+    fn = np.array([f.N_m for f in fixes])
+    d2 = (E[None, :] - fe[:, None]) ** 2 + (N[None, :] - fn[:, None]) ** 2
+    i = np.argmin(d2, axis=1)
+    near = d2[np.arange(i.size), i] < 25.0
+    acc = np.array([f.accepted for f in fixes])
+    s = g.chainage_m[i]
+    return s[near & acc], s[near & ~acc]
+
+
+def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, np.ndarray, np.ndarray],
+               xlim: tuple[float, float] | None = None) -> bool:
+    """Draw one panel (the columns ``keys`` on one y axis) into ``ax``.
+
+    Parameters
+    ----------
+    marks : (accepted fix chainages, rejected fix chainages, stop chainages).
+    xlim : chainage range shown (None: the whole survey); the y range follows the values in it.
+
+    Returns
+    -------
+    True if anything was drawn (False: no values in the range).
+    """
+    s = rep.geometry.chainage_m
+    by_key = {c.key: c for c in rep.columns}
+    sel = np.ones(s.size, bool) if xlim is None else (s >= xlim[0]) & (s <= xlim[1])
+    colours = ["tab:blue", "tab:orange", "tab:green"]
+    vals = []
+    for n, k in enumerate(keys):
+        col = by_key[k]
+        v = col.display(rep.geometry.columns[k])
+        label = col.header
+        if is_chord(k):
+            v = np.abs(v)
+            label = "|" + col.header.replace(" [mm]", "| [mm]", 1)
+        if not np.isfinite(v[sel]).any():
+            continue
+        vals.append(v[sel][np.isfinite(v[sel])])
+        ax.plot(s[sel], v[sel], lw=0.9, color=colours[n % 3], label=label)
+        if k in SIGMA_OF:
+            sig = by_key[SIGMA_OF[k]].display(rep.geometry.columns[SIGMA_OF[k]])
+            ax.fill_between(s[sel], (v - sig)[sel], (v + sig)[sel], color=colours[n % 3], alpha=0.25, lw=0,
+                            label="±1σ")
+        for a, b in edge_zones(s, rep.geometry.columns[k], k):
+            ax.axvspan(a, b, facecolor="none", edgecolor="0.5", hatch="///", lw=0, zorder=0,
+                       label="band-pass edge zone" if (a, b) == edge_zones(s, rep.geometry.columns[k], k)[0] else None)
+    if not vals:
+        return False
+    allv = np.concatenate(vals)
+    peak = float(np.max(np.abs(allv))) if allv.size else 1.0
+    lim = _panel_limit(rep, keys)
+    chord = any(is_chord(k) for k in keys)
+    if lim is not None:
+        lo, hi, name = lim
+        edges = [abs(x) for x in (lo, hi) if math.isfinite(x)]
+        top = max([peak] + edges) * 1.25 or 1.0
+        bottom = -0.05 * top if chord else -top
+        ax.set_ylim(bottom, top)
+        ax.axhspan(max(lo, bottom) if math.isfinite(lo) else bottom, hi if math.isfinite(hi) else top,
+                   color="tab:green", alpha=0.12, lw=0, label=f"tolerance {name} ({rep.tolerances.name})")
+        if math.isfinite(hi):
+            ax.axhspan(hi, max(hi, top), color="tab:red", alpha=0.10, lw=0)
+        if math.isfinite(lo) and not chord:
+            ax.axhspan(min(lo, bottom), lo, color="tab:red", alpha=0.10, lw=0)
+    for d in rep.defects:
+        if d.column in keys:
+            ax.axvspan(d.start_chainage_m, d.end_chainage_m + rep.geometry.step_m, color="tab:red", alpha=0.3, lw=0)
+    acc, rej, stops = marks
+    in_x = (lambda x: x) if xlim is None else (lambda x: x[(x >= xlim[0]) & (x <= xlim[1])])
+    for p in in_x(stops):
+        ax.axvline(p, color="0.6", lw=0.5, zorder=0)
+    tr = ax.get_xaxis_transform()
+    if in_x(acc).size:
+        ax.plot(in_x(acc), np.zeros(in_x(acc).size), "^", color="black", ms=5, transform=tr, clip_on=False,
+                label="CPIII fix")
+    if in_x(rej).size:
+        ax.plot(in_x(rej), np.zeros(in_x(rej).size), "x", color="tab:red", ms=6, mew=1.5, transform=tr,
+                clip_on=False, label="rejected / undone fix")
+    head = by_key[keys[0]].header
+    head = ("|" + head.replace(" [mm]", "| [mm]", 1)) if chord else head
+    ax.set_ylabel(head.replace("] ", "]\n", 1), fontsize=8)   # quantity [unit] / sign convention
+    ax.grid(True, lw=0.4, alpha=0.6)
+    ax.legend(loc="upper right", fontsize=7, ncol=3)
+    if xlim is not None:
+        ax.set_xlim(*xlim)
+    return True
+
+
+def panel_marks(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(accepted fix, rejected fix, stop) chainages for :func:`draw_panel`."""
+    acc, rej = fix_chainages(rep)
+    stops = np.array([p.chainage_m for p in rep.record.stops if math.isfinite(p.chainage_m)]) \
+        if rep.record is not None else np.zeros(0)
+    return acc, rej, stops
+
+
+def km_axis(ax) -> None:
+    """Label a chainage x axis in km+m."""
+    from matplotlib.ticker import FuncFormatter
+
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(x, 1)))
+    ax.set_xlabel("chainage [km+m]")
+
+
 def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
     """Write the PNG plots into ``folder`` (created); returns the files written.
 
@@ -64,12 +212,10 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import FuncFormatter
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    s = rep.geometry.chainage_m
-    by_key = {c.key: c for c in rep.columns}
+    marks = panel_marks(rep)
     written = []
     for stem, title, panels in PLOTS:
         panels = [[k for k in p if k in rep.geometry.columns and rep.stats[k].count > 0] for p in panels]
@@ -79,38 +225,9 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
         fig, axes = plt.subplots(len(panels), 1, figsize=(11, 1.2 + 2.6 * len(panels)), dpi=110,
                                  sharex=True, squeeze=False)
         for ax, keys in zip(axes[:, 0], panels):
-            unit = by_key[keys[0]].unit
-            vals = []
-            for k in keys:
-                v = by_key[k].display(rep.geometry.columns[k])
-                vals.append(v[np.isfinite(v)])
-                ax.plot(s, v, lw=0.9, label=by_key[k].header)
-            vals = np.concatenate(vals)
-            peak = float(np.max(np.abs(vals))) if vals.size else 1.0
-            lim = _panel_limit(rep, keys)
-            if lim is not None:
-                lo, hi, name = lim
-                edges = [abs(x) for x in (lo, hi) if math.isfinite(x)]
-                top = max([peak] + edges) * 1.25 or 1.0
-                ax.set_ylim(-top, top)
-                ax.axhspan(lo if math.isfinite(lo) else -top, hi if math.isfinite(hi) else top,
-                           color="tab:green", alpha=0.12, lw=0,
-                           label=f"tolerance {name} ({rep.tolerances.name})")
-                if math.isfinite(hi):
-                    ax.axhspan(hi, max(hi, top), color="tab:red", alpha=0.10, lw=0)
-                if math.isfinite(lo):
-                    ax.axhspan(min(lo, -top), lo, color="tab:red", alpha=0.10, lw=0)
-            for d in rep.defects:
-                if d.column in keys:
-                    ax.axvspan(d.start_chainage_m, d.end_chainage_m + rep.geometry.step_m,
-                               color="tab:red", alpha=0.3, lw=0)
-            ax.set_ylabel(f"[{unit}]")
-            ax.grid(True, lw=0.4, alpha=0.6)
-            ax.legend(loc="upper right", fontsize=8)
-        ax = axes[-1, 0]
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(x, 1)))
-        ax.set_xlabel("chainage [km+m]")
-        names = " / ".join(x for x in (rep.info.project, rep.info.session) if x) or str(rep.track_csv)
+            draw_panel(ax, rep, keys, marks)
+        km_axis(axes[-1, 0])
+        names = " / ".join(x for x in (rep.info.project, rep.info.session) if x) or rep.track_csv.name
         axes[0, 0].set_title(f"{title} - {names}")
         fig.tight_layout()
         out = folder / f"{stem}.png"

@@ -164,7 +164,16 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
         raise t.error("format", f"unsupported format {fmt!r}, expected {FORMAT_ID!r}")
     for tab in ("site", "trolley", "imu", "odometer", "totalstation", "alignment", "design"):
         t.table(tab)
-    latitude_deg = t.float("site.latitude_deg")
+    crs = t.string("site.crs", None)
+    if crs is not None:
+        from trolley.projection import CrsError, crs_info
+        try:
+            crs = crs_info(crs).text
+        except CrsError as exc:
+            raise t.error("site.crs", str(exc)) from None
+    vertical_datum = t.string("site.vertical_datum", None)
+    # with a CRS the latitude comes from it and the fixes (trolley.projection.session_site)
+    latitude_deg = t.float("site.latitude_deg", float("nan") if crs else _MISSING)
     if abs(latitude_deg) > 90.0:
         raise t.error("site.latitude_deg", f"must be within -90..90, got {latitude_deg!r}")
     dflt = TrolleyGeometry()
@@ -214,6 +223,10 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
         static_s=t.float("alignment.static_s", 900.0, min_value=0.0),
         initial_heading_rad=float(units.deg_to_rad(heading_deg)),
         design_alignment=design,
+        design_alignment_name=(t.string("design.name", None)
+                               if t.raw("design.name") is not _MISSING else None),
+        crs=crs,
+        vertical_datum=vertical_datum,
     )
 
 
@@ -240,7 +253,8 @@ def session_toml_text(meta: SessionMeta) -> str:
     """The ``session.toml`` text of ``meta`` (all keys of FORMATS.md sec. 1, plus extensions).
 
     Extensions (optional keys this project adds; readers that do not know them ignore them):
-    ``[imu] accel_vrw_ug_sqrt_hz, gyro_scale_factor_ppm, name, gyrocompassing`` and
+    ``[site] crs, vertical_datum`` (with a crs, ``latitude_deg`` may be left out: it is derived
+    from the CRS and the fixes), ``[imu] accel_vrw_ug_sqrt_hz, gyro_scale_factor_ppm, name, gyrocompassing`` and
     ``[odometer] scale_error, resolution_m``.
     """
     tr = meta.trolley
@@ -248,8 +262,15 @@ def session_toml_text(meta: SessionMeta) -> str:
         f'format = "{FORMAT_ID}"',
         "",
         "[site]",
-        f"latitude_deg = {_toml_converted(units.rad_to_deg(meta.latitude_rad))}",
-        f"height_m = {_toml_float(meta.height_m)}",
+    ]
+    if math.isfinite(meta.latitude_rad) or not meta.crs:
+        lines.append(f"latitude_deg = {_toml_converted(units.rad_to_deg(meta.latitude_rad))}")
+    lines.append(f"height_m = {_toml_float(meta.height_m)}")
+    if meta.crs:
+        lines.append(f"crs = {json.dumps(meta.crs, ensure_ascii=False)}")
+    if meta.vertical_datum:
+        lines.append(f"vertical_datum = {json.dumps(meta.vertical_datum, ensure_ascii=False)}")
+    lines += [
         "",
         "[trolley]",
         f"prism_lever_arm_m = {_toml_vector(tr.prism_lever_arm_m)}",
@@ -289,8 +310,10 @@ def session_toml_text(meta: SessionMeta) -> str:
         "",
     ]
     if meta.design_alignment is not None:
-        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}",
-                  ""]
+        lines += ["[design]", f"alignment = {json.dumps(meta.design_alignment, ensure_ascii=False)}"]
+        if meta.design_alignment_name is not None:
+            lines.append(f"name = {json.dumps(meta.design_alignment_name, ensure_ascii=False)}")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -622,6 +645,12 @@ def read_session(folder: Path) -> RawSession:
     if (folder / "gauge.csv").exists():
         g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
         gauge_t, gauge = g[:, 0], g[:, 1]
+    if meta.crs and not math.isfinite(meta.latitude_rad):
+        from trolley.projection import CrsError, session_site
+        try:
+            meta, _ = session_site(meta, fixes.enh_m)
+        except CrsError as exc:
+            raise SessionFormatError(f"session.toml: key site.crs: {exc} (site placed at the fixes' centroid)") from None
     return RawSession(
         meta=meta, imu_t_s=imu[:, 0], imu_w_rad_s=imu[:, 1:4], imu_f_m_s2=imu[:, 4:7],
         odo_t_s=odo[:, 0], odo_distance_m=odo[:, 1], fixes=fixes,
@@ -629,8 +658,10 @@ def read_session(folder: Path) -> RawSession:
     )
 
 
-def read_design(folder: Path, meta: SessionMeta):
-    """The design alignment named by ``[design] alignment``, or None.
+def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None):
+    """The design alignment named by ``[design] alignment`` (and ``[design] name`` in a file that
+    holds several), or None. The reader's notes (skipped or tolerated elements) are appended to
+    ``notes`` when it is given, each prefixed with the file name.
 
     Returns
     -------
@@ -643,7 +674,7 @@ def read_design(folder: Path, meta: SessionMeta):
     """
     if meta.design_alignment is None:
         return None
-    from trolley.landxml import parse_landxml
+    from trolley.landxml import read_landxml
 
     path = Path(folder) / meta.design_alignment
     try:
@@ -654,9 +685,12 @@ def read_design(folder: Path, meta: SessionMeta):
     except UnicodeDecodeError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: not UTF-8 ({exc.reason})") from None
     try:
-        return parse_landxml(text)
+        design = read_landxml(text, meta.design_alignment_name)
     except ValueError as exc:
         raise SessionFormatError(f"{meta.design_alignment}: {exc}") from None
+    if notes is not None:
+        notes.extend(f"{meta.design_alignment}: {n}" for n in design.notes)
+    return design.alignment
 
 
 # ------------------------------------------------------------------------------------------

@@ -88,7 +88,10 @@ class ProjectSettings:
     max_point_residual_m : resection metric tolerance per point.
     overlap_tolerance_m : tolerance of the overlap check after a station change.
     polar_model : curvature, refraction and grid scale of the total-station observations
-        (``docs/conventions.md``, "Total station").
+        (``docs/conventions.md``, "Total station"); with a ``crs`` the grid scale is the CRS's
+        combined scale at the CPIII centroid instead (:meth:`ProjectStore.site_grid`).
+    crs : coordinate reference system of the grid (EPSG code or PROJ string), or None.
+    vertical_datum : name of the height datum, or None.
     """
 
     latitude_rad: float = 0.4886921905584123  # 28 deg
@@ -105,10 +108,15 @@ class ProjectSettings:
     max_point_residual_m: float = 0.002
     overlap_tolerance_m: float = 0.002
     polar_model: PolarModel = field(default_factory=PolarModel)
+    crs: str | None = None
+    vertical_datum: str | None = None
 
-    def resection_config(self) -> ResectionConfig:
-        """Resection weights and tolerances of this project."""
-        return ResectionConfig(sigmas=self.instrument, model=self.polar_model,
+    def resection_config(self, grid_scale: float | None = None) -> ResectionConfig:
+        """Resection weights and tolerances of this project (``grid_scale``: the CRS's combined
+        scale at the site, replacing the polar model's)."""
+        model = self.polar_model if grid_scale is None else dataclasses.replace(self.polar_model,
+                                                                                grid_scale=float(grid_scale))
+        return ResectionConfig(sigmas=self.instrument, model=model,
                                max_standardized_residual=self.max_standardized_residual,
                                max_point_residual_m=self.max_point_residual_m)
 
@@ -116,7 +124,8 @@ class ProjectSettings:
         """Metadata of a new session recorded with these settings."""
         return SessionMeta(latitude_rad=self.latitude_rad, height_m=self.height_m, trolley=self.trolley,
                            imu=self.imu, odometer=self.odometer, fix_sigma_m=self.fix_sigma_m,
-                           static_s=self.static_s, design_alignment=design_alignment)
+                           static_s=self.static_s, design_alignment=design_alignment, crs=self.crs,
+                           vertical_datum=self.vertical_datum)
 
 
 @dataclass(frozen=True)
@@ -143,7 +152,11 @@ class ControlPoint:
 
 @dataclass(frozen=True)
 class AlignmentRecord:
-    """A design alignment: the LandXML text verbatim plus what was parsed from it."""
+    """A design alignment: the LandXML text verbatim plus what was parsed from it.
+
+    ``name`` is the ``Alignment/@name`` chosen in a file that holds several. ``notes`` are what
+    the reader reported at import (not stored: reading the text again gives them again).
+    """
 
     file_name: str
     landxml_text: str
@@ -153,6 +166,21 @@ class AlignmentRecord:
     chainage_end_m: float
     imported_utc: str = ""
     alignment_id: int | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def alignment_name(self) -> str | None:
+        """The name to pass to the LandXML reader: None when the file holds one alignment."""
+        from trolley.landxml import alignment_names
+
+        return self.name if len(alignment_names(self.landxml_text)) > 1 else None
+
+    def design(self, rail_spacing_m: float | None = None):
+        """The ``trolley.alignment.Alignment`` this record holds (its text read again)."""
+        from trolley.landxml import parse_landxml
+
+        kwargs = {} if rail_spacing_m is None else {"rail_spacing_m": rail_spacing_m}
+        return parse_landxml(self.landxml_text, self.alignment_name, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -755,6 +783,28 @@ class ProjectStore:
             c.execute("INSERT OR REPLACE INTO setting (key, value_json) VALUES ('project', ?)",
                       (settings_to_json(settings),))
 
+    # -- survey header (`trolley project set`) ---------------------------------------------------
+    def header(self) -> dict[str, str]:
+        """The survey header fields the crew gave (survey.surveyheader.HEADER_FIELDS keys)."""
+        row = self._conn.execute("SELECT value_json FROM setting WHERE key = 'header'").fetchone()
+        return dict(json.loads(row[0])) if row else {}
+
+    def set_header(self, key: str, value: str) -> str:
+        """Set (or with an empty value clear) one header field after checking it
+        (:func:`survey.surveyheader.check_header_value`; ValueError when bad). Returns the value stored."""
+        from survey.surveyheader import check_header_value
+
+        text = check_header_value(key, value)
+        with self._transaction() as c:
+            row = c.execute("SELECT value_json FROM setting WHERE key = 'header'").fetchone()
+            doc = dict(json.loads(row[0])) if row else {}
+            if text:
+                doc[key] = text
+            else:
+                doc.pop(key, None)
+            c.execute("INSERT OR REPLACE INTO setting (key, value_json) VALUES ('header', ?)", (json.dumps(doc),))
+        return text
+
     # -- CPIII -----------------------------------------------------------------------------------
     def add_cpiii_points(self, points: Sequence[ControlPoint]) -> int:
         """Add control points in one transaction.
@@ -793,6 +843,16 @@ class ProjectStore:
         rows = self._conn.execute("SELECT point_id, e_m, n_m, h_m, source, line FROM cpiii_point ORDER BY point_id")
         return [ControlPoint(*r) for r in rows]
 
+    def site_grid(self):
+        """The project CRS's factors at the CPIII centroid (``trolley.projection.GridFactors``), or
+        None without a CRS or without CPIII points."""
+        crs = self.settings().crs
+        pts = self.cpiii_points()
+        if not crs or not pts:
+            return None
+        from trolley.projection import site_factors
+        return site_factors(crs, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
+
     def cpiii_point(self, point_id: str) -> ControlPoint | None:
         """One control point, or None."""
         r = self._conn.execute("SELECT point_id, e_m, n_m, h_m, source, line FROM cpiii_point WHERE point_id = ?",
@@ -820,6 +880,9 @@ class ProjectStore:
         _check_name("session name", name)
         if meta is None:
             meta = self.settings().session_meta()
+            grid = self.site_grid()
+            if grid is not None:  # the latitude of the site, from the CRS at the CPIII
+                meta = dataclasses.replace(meta, latitude_rad=grid.latitude_rad)
         state = "open" if source == "live" else "imported"
         with self._transaction() as c:
             if c.execute("SELECT 1 FROM session WHERE name = ?", (name,)).fetchone():
@@ -956,6 +1019,16 @@ class ProjectStore:
         rows = self._conn.execute("SELECT t_s, kind, detail, id FROM session_event WHERE session_id = ? ORDER BY id",
                                   (session_id,))
         return [SessionEvent(*r) for r in rows]
+
+    def session_time_span_utc(self, session_id: int) -> tuple[str, str] | None:
+        """First and last wall-clock time (UTC, ISO 8601) at which the session stored a setup,
+        a fix decision, a note or an event; None when it stored none of them."""
+        r = self._conn.execute(
+            "SELECT MIN(u), MAX(u) FROM (SELECT created_utc AS u FROM session_event WHERE session_id = ?1 "
+            "UNION ALL SELECT created_utc FROM station_setup WHERE session_id = ?1 "
+            "UNION ALL SELECT d.created_utc FROM fix_decision d JOIN fix f ON f.id = d.fix_id WHERE f.session_id = ?1 "
+            "UNION ALL SELECT created_utc FROM note WHERE session_id = ?1)", (session_id,)).fetchone()
+        return None if r is None or r[0] is None else (str(r[0]), str(r[1]))
 
     # -- raw and decoded data --------------------------------------------------------------------
     def raw_chunks(self, session_id: int, device: str | None = None) -> list[RawChunk]:
@@ -1117,6 +1190,9 @@ class ProjectStore:
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)
         design = self.alignment(rec.alignment_id) if rec.alignment_id is not None else None
+        if design is not None and design.alignment_name is not None:
+            # the file holds several alignments: session.toml [design] names the one surveyed
+            raw = replace(raw, meta=replace(raw.meta, design_alignment_name=design.alignment_name))
         return crop_session(raw, self.survey_start_s(sid)), (design.landxml_text if design else None)
 
 
@@ -1145,20 +1221,34 @@ def _insert_alignment(c: sqlite3.Connection, rec: AlignmentRecord) -> int:
     return int(cur.lastrowid)
 
 
-def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float | None = None) -> AlignmentRecord:
-    """Parse a LandXML design (``trolley.landxml.parse_landxml``) into a record that keeps the text verbatim.
+def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float | None = None,
+                               alignment_name: str | None = None) -> AlignmentRecord:
+    """Read a LandXML design (``trolley.landxml.read_landxml``) into a record that keeps the text verbatim.
+
+    Parameters
+    ----------
+    file_name, text : the file's name and its text.
+    rail_spacing_m : rail spacing for the cant (None: the file's ``gauge``).
+    alignment_name : the ``Alignment/@name`` to take from a file holding several.
+
+    Returns
+    -------
+    AlignmentRecord
+        With the reader's notes (skipped elements, tolerated mismatches) in ``notes``.
 
     Raises
     ------
+    trolley.landxml.AlignmentChoiceError : several alignments and no (or an unknown) name.
     trolley.landxml.LandXmlError : the file is not a usable LandXML 1.2 alignment.
     """
-    from trolley.landxml import parse_landxml
+    from trolley.landxml import read_landxml
 
     kwargs = {} if rail_spacing_m is None else {"rail_spacing_m": rail_spacing_m}
-    al = parse_landxml(text, **kwargs)
+    d = read_landxml(text, alignment_name, **kwargs)
+    al = d.alignment
     return AlignmentRecord(file_name=file_name, landxml_text=text, name=al.name or Path(file_name).stem,
                            element_count=len(al.horizontal.elements), chainage_start_m=al.start_chainage_m,
-                           chainage_end_m=al.end_chainage_m)
+                           chainage_end_m=al.end_chainage_m, notes=d.notes)
 
 
 def _insert_fix(c: sqlite3.Connection, session_id: int, fix: FixRecord) -> int:

@@ -7,7 +7,8 @@ the column.
 
 Missing values: in track.csv the columns lateral_dev_mm, vertical_dev_mm, gauge_mm, cant_mm and
 twist_mm may be empty (no design / not measured); an empty cell or the text ``nan`` there is
-"not available". Every other cell must be a finite number; chainage must increase strictly.
+"not available". Every other cell must be a finite number; chainage (distance_m when present) must increase
+strictly.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from survey.sessionio import PLAUSIBLE_ABS
 from survey.sheet_text import csv_read_text
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
-TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm"]
+TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
 FIX_NUMERIC = ["t_s", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"]
 
 
@@ -269,10 +270,12 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
         present_optional = [n for n in TRACK_OPTIONAL if n in header]
         cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
     _check_plausible_track(path, cols)
-    s = cols["chainage_m"]
+    # distance_m (the internal station) increases even where station equations make chainage_m jump
+    along = "distance_m" if "distance_m" in cols and np.all(np.isfinite(cols["distance_m"])) else "chainage_m"
+    s = cols[along]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
-        raise ExportInputError(f"{path}: row {i + 2}, column chainage_m: chainage {s[i]!r} does not increase")
+        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {s[i]!r} does not increase")
     nan = np.full(s.size, np.nan)
     mm = units.mm_to_m
     track = TrackInput(
@@ -381,18 +384,23 @@ def session_equipment(session_dir: Path) -> tuple[dict, str]:
         return {}, f"equipment figures not read: {e}"
 
 
-def design_alignment_path(info: SurveyInfo) -> Path | None:
-    """The LandXML file named by the session's session.toml [design] alignment, if any."""
+def _design_table(info: SurveyInfo) -> dict:
+    """session.toml's [design] table of the survey's session folder ({} when there is none)."""
     if not info.session_dir:
-        return None
+        return {}
     toml_path = Path(info.session_dir) / "session.toml"
     if not toml_path.is_file():
-        return None
+        return {}
     try:
         doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{toml_path}: not valid TOML ({e})") from None
-    name = doc.get("design", {}).get("alignment") if isinstance(doc.get("design"), dict) else None
+    return doc["design"] if isinstance(doc.get("design"), dict) else {}
+
+
+def design_alignment_path(info: SurveyInfo) -> Path | None:
+    """The LandXML file named by the session's session.toml [design] alignment, if any."""
+    name = _design_table(info).get("alignment")
     if not name:
         return None
     try:
@@ -401,8 +409,16 @@ def design_alignment_path(info: SurveyInfo) -> Path | None:
         raise ExportInputError(str(e)) from None
 
 
-def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float) -> TrackInput:
-    """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages.
+def design_alignment_name(info: SurveyInfo) -> str | None:
+    """session.toml [design] name: the alignment to read from a LandXML file holding several."""
+    name = _design_table(info).get("name")
+    return str(name) if name else None
+
+
+def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
+               alignment_name: str | None = None) -> TrackInput:
+    """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
+    (internal stations: track.csv's ``distance_m`` when it has one).
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
     positive when the left rail is higher, like the measured cant.
@@ -410,7 +426,8 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float) -> 
     from trolley.landxml import LandXmlError, parse_landxml
 
     try:
-        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"), rail_spacing_m=rail_spacing_m)
+        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
+                                  rail_spacing_m=rail_spacing_m)
     except (OSError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
     except LandXmlError as e:

@@ -16,6 +16,7 @@ from trolley.bands import BANDS
 from trolley.tolerances import Defect, Limit, ToleranceSet
 from trolley.trackgeometry import ColumnStats, GeometryConfig, TrackGeometry
 
+from survey.fieldrecord import FieldRecord
 from survey.track_reader import FixRow, SurveyInfo
 
 #: display unit -> (converter from SI, number format, digits kept in files)
@@ -175,6 +176,7 @@ class SurveyReport:
     fixes : fixes, or None when fixes.csv is absent.
     design_file : LandXML used, or None.
     notes : messages for the Summary sheet (e.g. why no design).
+    record : the field session's record (field_record.json beside track.csv), or None.
     """
 
     track_csv: Path
@@ -187,6 +189,7 @@ class SurveyReport:
     fixes: list[FixRow] | None
     design_file: Path | None = None
     notes: list[str] = field(default_factory=list)
+    record: FieldRecord | None = None
 
     @property
     def passed(self) -> bool:

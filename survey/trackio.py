@@ -17,13 +17,14 @@ import pandas as pd
 from trolley import units
 from trolley.engine import ProcessResult
 from trolley.session import RawSession
+from trolley.stationing import Stationing
 
 from survey.sessionio import move_into_place, write_csv_columns
 from survey.sheet_text import csv_safe_text
 from survey.track_reader import equipment_figures
 
 TRACK_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm",
-                 "lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm"]
+                 "lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
 FIX_COLUMNS = ["t_s", "point", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm",
                "nis", "accepted", "reason"]
 
@@ -37,22 +38,29 @@ class WrittenOutputs:
     summary_json: Path
 
 
-def track_frame(result: ProcessResult) -> pd.DataFrame:
-    """The stations as the ``track.csv`` table (mm at the edge)."""
+def track_frame(result: ProcessResult, stationing: Stationing | None = None) -> pd.DataFrame:
+    """The stations as the ``track.csv`` table (mm at the edge).
+
+    ``chainage_m`` is the drawing stationing (after the design's station equations, when
+    ``stationing`` is given); ``distance_m`` the internal station (start station plus the
+    distance along the design) that the engine works in.
+    """
     s = result.stations
     mm = units.m_to_mm
+    chainage = s.chainage_m if stationing is None else stationing.station(s.chainage_m)
     return pd.DataFrame({
-        "chainage_m": s.chainage_m, "E_m": s.E_m, "N_m": s.N_m, "H_m": s.H_m,
+        "chainage_m": chainage, "E_m": s.E_m, "N_m": s.N_m, "H_m": s.H_m,
         "sigma_E_mm": mm(s.sigma_E_m), "sigma_N_mm": mm(s.sigma_N_m), "sigma_H_mm": mm(s.sigma_H_m),
         "lateral_dev_mm": mm(s.lateral_dev_m), "vertical_dev_mm": mm(s.vertical_dev_m),
         "gauge_mm": mm(s.gauge_m), "cant_mm": mm(s.cant_m), "twist_mm": mm(s.twist_m),
+        "distance_m": s.chainage_m,
     }, columns=TRACK_COLUMNS)
 
 
-def write_track_csv(path: Path, result: ProcessResult) -> None:
-    """``track.csv`` (FORMATS.md section 2): the bytes of ``track_frame(result).to_csv(path,
+def write_track_csv(path: Path, result: ProcessResult, stationing: Stationing | None = None) -> None:
+    """``track.csv`` (FORMATS.md section 2): the bytes of ``track_frame(result, stationing).to_csv(path,
     index=False, float_format="%.6f", na_rep="")``, written four times faster (one % per row)."""
-    frame = track_frame(result)
+    frame = track_frame(result, stationing)
     write_csv_columns(path, list(frame.columns), [frame[c].to_numpy(dtype=float) for c in frame.columns],
                       ["%.6f"] * frame.shape[1], nan_as_empty=True)
 
@@ -121,8 +129,11 @@ class OutputFolderError(ValueError):
     """The output folder cannot be (re)placed: it is a file, or it holds files of something else."""
 
 
-def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, session_dir: Path) -> WrittenOutputs:
+def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, session_dir: Path,
+                  stationing: Stationing | None = None) -> WrittenOutputs:
     """Write track.csv, fixes.csv and summary.json as the folder ``out_dir``, all or nothing.
+
+    ``stationing`` (the design's station equations) gives track.csv its drawing chainage.
 
     The files are written into a new hidden folder beside ``out_dir`` and that folder is renamed
     to ``out_dir`` when all three are complete. An existing ``out_dir`` (from an earlier run)
@@ -152,7 +163,7 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
     tmp = parent / f".{out_dir.name}.partial-{token}"
     tmp.mkdir()  # plain mkdir: the folder keeps the user's umask once it is renamed to out_dir
     try:
-        write_track_csv(tmp / "track.csv", result)
+        write_track_csv(tmp / "track.csv", result, stationing)
         fixes_frame(result).to_csv(tmp / "fixes.csv", index=False, float_format="%.6f", na_rep="")
         (tmp / "summary.json").write_text(json.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
                                           encoding="utf-8")

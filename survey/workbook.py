@@ -30,6 +30,7 @@ import numpy as np
 
 from survey.atomicwrite import atomic_path
 from survey.sheet_text import put_text
+from survey.surveyheader import NOT_GIVEN, header_rows
 from survey.track_reader import EQUIPMENT
 from survey.track_table import KM_FORMAT, SurveyReport, column_values, conventions, limit_in_display
 
@@ -38,6 +39,8 @@ _NS_REL = "http://schemas.openxmlformats.org/officeDocument/2006/relationships"
 _NS_PKG_REL = "http://schemas.openxmlformats.org/package/2006/relationships"
 
 TRACK_SHEET = "Track"
+#: the printable view of the Track sheet
+TRACK_PRINT_SHEET = "Track print"
 #: freeze the header row and the chainage + station columns
 TRACK_FREEZE = "C2"
 
@@ -66,6 +69,8 @@ def _header(ws, row: int, names: list[str]) -> None:
         c = put_text(ws, row, j, name)
         c.font, c.fill = bold, fill
         c.alignment = Alignment(wrap_text=True, vertical="top")
+    if ws.row_dimensions[row].height is None and any(len(n) > 12 for n in names):
+        ws.row_dimensions[row].height = 30
 
 
 def _summary_sheet(ws, rep: SurveyReport) -> None:
@@ -89,10 +94,9 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             put_text(ws, r, 2, "" if value is None else value)
         r += 1
 
-    kv("Project", info.project or "(not given)")
-    kv("Session", info.session or "(not given)")
-    kv("Session folder", info.session_dir or "(not given)")
-    kv("Track file", str(rep.track_csv))
+    for label, text in header_rows(rep):
+        kv(label, text)
+    kv("Track file", rep.track_csv.name)
     kv("Written (UTC)", datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S"))
     kv("Stations", int(g.chainage_m.size))
     kv("Chainage from [m]", float(g.chainage_m[0]), KM_FORMAT)
@@ -104,7 +108,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     put_text(ws, r, 1, "Equipment").font = Font(bold=True, size=12)
     r += 1
     eq = info.equipment
-    kv("IMU", eq.get("imu_name") or info.imu_name or "(not given)")
+    kv("IMU", eq.get("imu_name") or info.imu_name or NOT_GIVEN)
     legacy = {"gyro_bias_instability_deg_h": info.gyro_bias_instability_deg_h,
               "gyro_arw_deg_sqrt_h": info.gyro_arw_deg_sqrt_h}
     for key, (label, fmt) in EQUIPMENT.items():
@@ -114,21 +118,30 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             kv(label, cfg.nominal_gauge_m * 1e3, fmt)
         elif key == "prism_lever_arm_m":
             v = eq.get(key)
-            kv(label, ", ".join(f"{x:.3f}" for x in v) if v else "(not given)")
+            kv(label, ", ".join(f"{x:.3f}" for x in v) if v else NOT_GIVEN)
         else:
             v = eq.get(key, legacy.get(key, math.nan))
-            kv(label, v if math.isfinite(v) else "(not given)", fmt)
-    kv("Equipment figures from", info.equipment_source or "(not given: summary.json and session.toml lack them)")
-    kv("Smoother", info.smoother or "(not given)")
+            kv(label, v if math.isfinite(v) else NOT_GIVEN, fmt)
+    kv("Equipment figures from", _source_name(info.equipment_source))
+    kv("Smoother", info.smoother or NOT_GIVEN)
     r += 1
     put_text(ws, r, 1, "Control-point fixes").font = Font(bold=True, size=12)
     r += 1
-    kv("Fixes used", info.fixes_used if info.fixes_used is not None else "(not given)")
-    kv("Fixes rejected", info.fixes_rejected if info.fixes_rejected is not None else "(not given)")
+    field_rejected = len(_field_only_rejections(rep))
+    kv("Fixes used", info.fixes_used if info.fixes_used is not None else NOT_GIVEN)
+    kv("Fixes rejected by the filter", info.fixes_rejected if info.fixes_rejected is not None else NOT_GIVEN)
+    kv("Fixes rejected or undone in the field",
+       field_rejected if rep.record is not None else "not known (no field record beside track.csv)")
+    kv("Fixes rejected", (info.fixes_rejected or 0) + field_rejected
+       if info.fixes_rejected is not None or rep.record is not None else NOT_GIVEN)
+    if rep.record is not None:
+        bad = [o for o in rep.record.overlaps if not o.within]
+        kv("Overlap checks", f"{len(rep.record.overlaps)} ({len(bad)} outside the tolerance"
+                             + (": " + ", ".join(o.new_point for o in bad) if bad else "") + "); see Free stations")
     kv("RMS innovation [mm]", info.rms_innovation_mm, "0.00")
     kv("Max position sigma [mm]", info.max_sigma_mm, "0.00")
     if not info.present:
-        kv("Note", "summary.json not found next to track.csv: equipment and fix figures unknown")
+        kv("Note", "no processing summary beside track.csv: equipment and fix figures not given")
     r += 1
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
@@ -146,7 +159,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     put_text(ws, r, 1, "Tolerances").font = Font(bold=True, size=12)
     r += 1
     kv("Tolerance set", f"{rep.tolerances.name}: {rep.tolerances.title}")
-    kv("Tolerance file", rep.tolerances.origin)
+    kv("Tolerance file", _source_name(rep.tolerances.origin))
     kv("Defects", len(rep.defects))
     res = put_text(ws, r, 1, "Result")
     res.font = bold
@@ -196,15 +209,73 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             ws.column_dimensions[_col_letter(j)].width = w
 
 
+#: rows 1-6 of every sheet but Track: the header block (title and five lines); the table starts at TABLE_ROW
+HEADER_ROWS = 6
+TABLE_ROW = HEADER_ROWS + 2
+
+
+def _source_name(origin: str) -> str:
+    """A source for the sheet: a built-in set's name or a file's name, never a folder of this machine."""
+    if not origin:
+        return NOT_GIVEN
+    if origin.startswith("built-in:"):
+        return f"built-in set {origin.split(':', 1)[1]}"
+    text = origin.split(" (", 1)
+    return Path(text[0]).name + (f" ({text[1]}" if len(text) > 1 else "")
+
+
+def header_lines(rep: SurveyReport) -> list[str]:
+    """The header block as five lines of text (every sheet but Summary, which has one row per field)."""
+    h = dict(header_rows(rep))
+
+    def join(*labels: str) -> str:
+        return "   |   ".join(f"{lab}: {h[lab]}" for lab in labels)
+
+    def device(name: str, key: str) -> str:
+        from survey.surveyheader import HEADER_FIELDS
+
+        return (f"{name}: {h[HEADER_FIELDS[key].label]}, serial {h[HEADER_FIELDS[key + '_serial'].label]}, "
+                f"calibrated {h[HEADER_FIELDS[key + '_calibrated'].label]}")
+
+    return [
+        join("Project", "Session", "Line", "Track", "Client"),
+        join("Chainage", "Survey date and time", "Crew / operator"),
+        "   |   ".join([device("Total station", "totalstation"), device("IMU", "imu")]),
+        "   |   ".join([device("Trolley", "trolley"), f"Rail temperature [°C]: {h['Rail temperature [°C]']}",
+                        join("Coordinate system", "Height datum", "Grid convergence and scale")]),
+        f"Software: {h['Software']}   |   Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
+    ]
+
+
+def _sheet_header(ws, rep: SurveyReport, title: str) -> int:
+    """Title and header block in rows 1-6 (text overflowing to the right). Returns :data:`TABLE_ROW`."""
+    from openpyxl.styles import Font
+
+    put_text(ws, 1, 1, title).font = Font(bold=True, size=13)
+    for i, line in enumerate(header_lines(rep), start=2):
+        put_text(ws, i, 1, line).font = Font(size=8)
+    return TABLE_ROW
+
+
+def _field_only_rejections(rep: SurveyReport):
+    """Fixes the field session rejected or the crew undid that the processing never saw (not in
+    fixes.csv), from the field record."""
+    if rep.record is None:
+        return []
+    seen = {f.point for f in rep.fixes} if rep.fixes is not None else set()
+    return [f for f in rep.record.rejected if f.point not in seen]
+
+
 def _defects_sheet(ws, rep: SurveyReport) -> None:
+    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section")
     heads = ["#", "Parameter", "From [m]", "To [m]", "From [km+m]", "To [km+m]", "Length [m]", "Peak",
              "Limit", "Unit", "Stations", "Limit source"]
-    _header(ws, 1, heads)
-    ws.freeze_panes = "A2"
+    _header(ws, r0, heads)
+    ws.freeze_panes = f"A{r0 + 1}"
     limits = {lim.column: lim for lim in rep.tolerances.limits}
     by_key = {c.key: c for c in rep.columns}
     for i, d in enumerate(rep.defects, start=1):
-        r = i + 1
+        r = r0 + i
         lim = limits[d.column]
         col = by_key.get(d.column)
         fmt = col.number_format if col else "0.000"
@@ -221,85 +292,317 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
         put_text(ws, r, 10, col.unit if col else "")
         _num(ws, r, 11, d.stations)
         put_text(ws, r, 12, "example value" if lim.example else lim.source)
+    last = r0 + max(len(rep.defects), 1)
     if not rep.defects:
-        put_text(ws, 2, 2, "no value beyond tolerance")
+        put_text(ws, r0 + 1, 2, "no value beyond tolerance")
     else:
-        ws.auto_filter.ref = f"A1:L{len(rep.defects) + 1}"
+        ws.auto_filter.ref = f"A{r0}:L{last}"
     for j, w in enumerate((6, 34, 11, 11, 12, 12, 10, 10, 10, 7, 9, 60), start=1):
         ws.column_dimensions[_col_letter(j)].width = w
+    _quality_table(ws, rep, last + 3)
+
+
+#: parameters of the section-quality table (EN 13848-6 style SD): geometry column, label
+QUALITY_COLUMNS = [("level_D1_m", "Longitudinal level D1"), ("align_D1_m", "Alignment D1"),
+                   ("cant_dev_m", "Cross level (cant dev)"), ("gauge_dev_m", "Gauge dev"), ("twist_m", "Twist")]
+
+
+def section_table(rep: SurveyReport):
+    """(columns used, list of SectionQuality) of the section-quality table."""
+    from trolley.sectionquality import section_quality
+
+    keys = [(k, lab) for k, lab in QUALITY_COLUMNS if k in rep.stats and rep.stats[k].count > 0]
+    g = rep.geometry
+    return keys, [section_quality(g.chainage_m, g.columns[k], step_m=g.step_m) for k, _ in keys]
+
+
+def _quality_table(ws, rep: SurveyReport, r: int) -> None:
+    """Standard deviation per 200 m section of the band-passed level and alignment, cross level,
+    gauge and twist (trolley.sectionquality), under the single defects."""
+    from openpyxl.styles import Font
+
+    from trolley.sectionquality import SECTION_LENGTH_M
+
+    keys, quals = section_table(rep)
+    put_text(ws, r, 1, f"Track quality per {SECTION_LENGTH_M:g} m section: standard deviation "
+                       "(EN 13848-6 style, 1/n), of stations with a value; empty where fewer than half have one"
+             ).font = Font(bold=True, size=11)
+    r += 1
+    if not keys:
+        put_text(ws, r, 1, "no parameter has values")
+        return
+    heads = ["#", "From [km+m]", "To [km+m]", "Stations"] + [f"SD {lab} [mm]" for _, lab in keys]
+    _header(ws, r, heads)
+    ws.row_dimensions[r].height = 42
+    q0 = quals[0]
+    for i in range(q0.start_m.size):
+        rr = r + 1 + i
+        _num(ws, rr, 1, i + 1)
+        _num(ws, rr, 2, max(q0.start_m[i], float(rep.geometry.chainage_m[0])), KM_FORMAT)
+        _num(ws, rr, 3, min(q0.end_m[i], float(rep.geometry.chainage_m[-1])), KM_FORMAT)
+        _num(ws, rr, 4, int(q0.count[i]))
+        for j, q in enumerate(quals, start=5):
+            _num(ws, rr, j, float(q.std[i]) * 1e3, "0.00")
 
 
 def _fixes_sheet(ws, rep: SurveyReport) -> None:
-    if rep.fixes is None:
-        put_text(ws, 1, 1, "fixes.csv not found next to track.csv: no per-stop fix information")
+    from openpyxl.styles import PatternFill
+
+    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason")
+    if rep.fixes is None and rep.record is None:
+        put_text(ws, r0, 1, "fixes.csv not found next to track.csv: no per-stop fix information")
         ws.column_dimensions["A"].width = 70
         return
     heads = ["t [s]", "Point", "E [m]", "N [m]", "H [m]", "Innovation E [mm]", "Innovation N [mm]",
-             "Innovation H [mm]", "NIS", "Accepted", "Reason"]
-    _header(ws, 1, heads)
-    ws.freeze_panes = "C2"
-    for i, f in enumerate(rep.fixes, start=2):
+             "Innovation H [mm]", "NIS", "Accepted", "Reason", "Station", "Decided in"]
+    _header(ws, r0, heads)
+    ws.freeze_panes = f"C{r0 + 1}"
+    station = {f.point: f.station for f in rep.record.fixes} if rep.record is not None else {}
+    rows = [("filter", f) for f in (rep.fixes or [])] + [("field", f) for f in _field_only_rejections(rep)]
+    rows.sort(key=lambda x: x[1].t_s)
+    red = PatternFill("solid", fgColor="FFC7CE")
+    for i, (who, f) in enumerate(rows, start=r0 + 1):
         _num(ws, i, 1, f.t_s, "0.000")
         put_text(ws, i, 2, f.point)
         for j, v in enumerate((f.E_m, f.N_m, f.H_m), start=3):
             _num(ws, i, j, v, "0.0000")
-        for j, v in enumerate((f.innov_E_m, f.innov_N_m, f.innov_H_m), start=6):
-            _num(ws, i, j, v * 1e3 if math.isfinite(v) else v, "0.00")
-        _num(ws, i, 9, f.nis, "0.00")
+        if who == "filter":
+            for j, v in enumerate((f.innov_E_m, f.innov_N_m, f.innov_H_m), start=6):
+                _num(ws, i, j, v * 1e3 if math.isfinite(v) else v, "0.00")
+            _num(ws, i, 9, f.nis, "0.00")
         put_text(ws, i, 10, "yes" if f.accepted else "no")
-        put_text(ws, i, 11, f.reason)
-    ws.auto_filter.ref = f"A1:K{len(rep.fixes) + 1}"
-    for j, w in enumerate((10, 16, 14, 14, 10, 11, 11, 11, 8, 9, 40), start=1):
+        put_text(ws, i, 11, f.reason or ("" if f.accepted else "rejected"))
+        if f.point in station and station[f.point]:
+            _num(ws, i, 12, station[f.point])
+        put_text(ws, i, 13, "processing (innovation test)" if who == "filter" else "field session / crew")
+        if not f.accepted:
+            for j in range(1, 14):
+                ws.cell(row=i, column=j).fill = red
+    ws.auto_filter.ref = f"A{r0}:M{r0 + max(len(rows), 1)}"
+    for j, w in enumerate((10, 16, 14, 14, 10, 11, 11, 11, 8, 9, 52, 8, 26), start=1):
         ws.column_dimensions[_col_letter(j)].width = w
 
 
-#: charts on the Charts sheet: title, y-axis title, geometry columns
+def _stations_sheet(ws, rep: SurveyReport) -> None:
+    """Every free-station setup with its residual table, the points used and dropped, and the
+    overlap checks with their verdict (from the field record)."""
+    from openpyxl.styles import Font, PatternFill
+
+    from trolley import units
+
+    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks")
+    for j, w in enumerate((12, 10, 12, 12, 12, 10, 10, 11, 9, 44), start=1):
+        ws.column_dimensions[_col_letter(j)].width = w
+    rec = rep.record
+    if rec is None:
+        put_text(ws, r, 1, "no field record beside track.csv (a track processed outside a field session): "
+                           "station setups and overlap checks not given")
+        return
+    bold = Font(bold=True)
+    red = PatternFill("solid", fgColor="FFC7CE")
+    arcsec = units.arcsec_to_rad(1.0)
+    for st in rec.setups:
+        dropped = [p.point for p in st.pointings if not p.used]
+        put_text(ws, r, 1, f"Station {st.station}: E {st.E_m:.4f}  N {st.N_m:.4f}  H {st.H_m:.4f} m, "
+                           f"orientation {units.rad_to_deg(st.orientation_rad):.6f} deg, sigma0 {st.sigma0:.2f} "
+                           f"({st.dof} dof), {'accepted' if st.accepted else 'NOT accepted'}; "
+                           f"{sum(p.used for p in st.pointings)} points used"
+                           + (f", dropped: {', '.join(dropped)}" if dropped else ", none dropped")).font = bold
+        r += 1
+        _header(ws, r, ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]',
+                        "Distance [mm]", "|w| max", "Flag / reason"])
+        r += 1
+        for p in st.pointings:
+            put_text(ws, r, 1, p.point)
+            put_text(ws, r, 2, "yes" if p.used else "dropped")
+            for j, (v, sc) in enumerate(((p.across_m, 1e3), (p.along_m, 1e3), (p.height_m, 1e3),
+                                         (p.hz_rad, 1 / arcsec), (p.zenith_rad, 1 / arcsec),
+                                         (p.distance_m, 1e3)), start=3):
+                _num(ws, r, j, v * sc, "0.00" if sc == 1e3 else "0.0")
+            _num(ws, r, 9, p.max_standardized, "0.0")
+            put_text(ws, r, 10, p.reason if (p.flagged or not p.used) else "ok")
+            if p.flagged or not p.used:
+                for j in range(1, 11):
+                    ws.cell(row=r, column=j).fill = red
+            r += 1
+        r += 1
+    put_text(ws, r, 1, "Overlap checks: the trolley prism at one stop measured from the old and the new station "
+                       "(new minus old)").font = bold
+    r += 1
+    _header(ws, r, ["Old fix", "New fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "Tolerance [mm]",
+                    "Verdict", "Accepted", "Reason"])
+    r += 1
+    if not rec.overlaps:
+        put_text(ws, r, 1, "no station change with an overlap check")
+    for o in rec.overlaps:
+        put_text(ws, r, 1, o.old_point)
+        put_text(ws, r, 2, o.new_point)
+        put_text(ws, r, 3, f"{o.from_station} -> {o.to_station}")
+        for j, v in enumerate((o.dE_m, o.dN_m, o.dH_m, o.tolerance_m), start=4):
+            _num(ws, r, j, v * 1e3, "0.00")
+        put_text(ws, r, 8, "within" if o.within else "OUTSIDE")
+        put_text(ws, r, 9, "yes" if o.accepted else "no")
+        put_text(ws, r, 10, o.reason)
+        if not o.within:
+            for j in range(1, 11):
+                ws.cell(row=r, column=j).fill = red
+        r += 1
+
+
+#: the printable Track view: one row every PRINT_STEP_M, these columns (per-rail values beside the centre line)
+PRINT_STEP_M = 5.0
+
+
+def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
+    """(header, number format, display values) of the printable Track view, all stations."""
+    from trolley.trackgeometry import rail_values
+
+    g = rep.geometry
+    by_key = {c.key: c for c in rep.columns}
+    rails = rail_values(g)
+    lat, cant = by_key["lateral_dev_m"].header.split("]")[-1].strip(), by_key["cant_m"].header.split("]")[-1].strip()
+
+    def col(key):
+        c = by_key[key]
+        return (c.header, c.number_format, column_values(c, g))
+
+    def mm(header, x):
+        return (header, "0.00", np.round(x * 1e3, 4))
+
+    return [col("station_km"), col("lateral_dev_m"),
+            mm(f"Left rail alignment [mm] {lat}", rails.left_alignment_m),
+            mm(f"Right rail alignment [mm] {lat}", rails.right_alignment_m),
+            col("vertical_dev_m"),
+            mm("Left rail level [mm] +up", rails.left_level_m),
+            mm("Right rail level [mm] +up", rails.right_level_m),
+            col("gauge_dev_m"), col("cant_m"), col("cant_dev_m"), col("twist_m"),
+            col("sigma_lateral_m"), col("sigma_vertical_m")]
+
+
+def _track_print_sheet(ws, rep: SurveyReport) -> None:
+    """The Track table for paper: a row every :data:`PRINT_STEP_M`, the centre line and each rail."""
+    r0 = _sheet_header(ws, rep, f"Track (printable view, every {PRINT_STEP_M:g} m; all stations on the "
+                                "Track sheet): centre line and each rail")
+    g = rep.geometry
+    k = max(1, int(round(PRINT_STEP_M / g.step_m)))
+    # stations on multiples of PRINT_STEP_M when the grid holds them, else every k-th
+    on_grid = np.isclose(np.mod(g.chainage_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
+    idx = np.flatnonzero(on_grid) if on_grid.sum() >= g.chainage_m.size // k else np.arange(0, g.chainage_m.size, k)
+    cols = print_columns(rep)
+    _header(ws, r0, [h for h, _, _ in cols])
+    ws.row_dimensions[r0].height = 58
+    for j, (_, fmt, v) in enumerate(cols, start=1):
+        vals = v[idx].tolist()
+        for i, x in enumerate(vals, start=r0 + 1):
+            _num(ws, i, j, x, fmt)
+        ws.column_dimensions[_col_letter(j)].width = 13 if j == 1 else 10.5
+    ws.freeze_panes = f"B{r0 + 1}"
+    if not (np.isfinite(rep.geometry.columns["gauge_dev_m"]).any()):
+        put_text(ws, r0 + len(idx) + 2, 1, "gauge not measured: rail alignment values not available")
+
+
+#: charts on the Charts sheet: title, y-axis title, geometry columns (cant and its deviation apart:
+#: each chart has its own y axis)
 CHARTS = [
     ("Deviation from design", "deviation [mm]", ["lateral_dev_m", "vertical_dev_m"]),
     ("Gauge deviation", "gauge - nominal [mm]", ["gauge_dev_m"]),
-    ("Cant", "cant [mm]", ["cant_m", "design_cant_m", "cant_dev_m"]),
+    ("Cant", "cant [mm]", ["cant_m", "design_cant_m"]),
+    ("Cant deviation", "cant deviation [mm]", ["cant_dev_m"]),
     ("Twist", "twist [mm]", ["twist_m", "twist_dev_m"]),
 ]
-
+#: series colours (distinct, print well): blue, orange, green, purple, brown; tolerance lines red dashed
+CHART_COLOURS = ["1F77B4", "FF7F0E", "2CA02C", "9467BD", "8C564B"]
+TOLERANCE_COLOUR = "C00000"
+#: chart size (cm) and the rows each takes: two charts per A4 landscape page below the header block
+CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 6.0, 25.0, 12
+CHARTS_PER_PAGE = 2
 
 #: x-axis tick labels of the charts: km+m without decimals (1+234)
 CHART_KM_FORMAT = '0"+"000'
 
 
+def _chart_limits(rep: SurveyReport, keys: list[str]) -> list[tuple[str, list[float]]]:
+    """(label, limit values in display units) of the tolerance lines of a chart's parameters."""
+    out = []
+    for lim in rep.tolerances.limits:
+        if lim.column in keys:
+            lo, hi, unit = limit_in_display(lim)
+            vals = [v for v in (lo, hi) if math.isfinite(v)]
+            if vals:
+                text = (f"±{hi:g}" if len(vals) == 2 and lo == -hi else " / ".join(f"{v:+g}" for v in vals))
+                out.append((f"tolerance {lim.parameter} {text} {unit}", vals))
+    return out
+
+
 def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     """Scatter charts with straight lines (``scatterStyle`` "line", which Excel and LibreOffice
     draw as line charts): x = the Track sheet's chainage column (numeric, so the axis is scaled
-    in metres, unlike a LineChart's category axis), labelled km+m; y = one column per series."""
+    in metres, unlike a LineChart's category axis), labelled km+m at the bottom of the chart
+    (``tickLblPos="low"``) whatever the sign of the values; y = one column per series, each in
+    its own colour; tolerance lines as two-point series (red, dashed) whose points stand on the
+    hidden sheet ChartData. Two charts per printed page, with a page break between pages."""
     from openpyxl.chart import Reference, ScatterChart, Series
+    from openpyxl.chart.shapes import GraphicalProperties
+    from openpyxl.drawing.line import LineProperties
+    from openpyxl.worksheet.pagebreak import Break
 
     index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
     track = ws.parent[track_ws_title]
+    data = ws.parent["ChartData"]
+    put_text(data, 1, 1, "tolerance lines of the Charts sheet: chainage [m], value")
     xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
     s0, s1 = float(rep.geometry.chainage_m[0]), float(rep.geometry.chainage_m[-1])
-    put_text(ws, 1, 1, "Charts of the Track sheet against chainage [km+m]")
-    row = 3
+    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]")
+    drow = 2
+    slot = 0
     for title, ytitle, keys in CHARTS:
         keys = [k for k in keys if rep.stats[k].count > 0]
         if not keys:
             continue
         ch = ScatterChart(scatterStyle="line")
         ch.title = title
-        ch.style = 13
+        ch.style = 2
         ch.x_axis.title = "chainage [km+m]"
         ch.y_axis.title = ytitle
         ch.x_axis.number_format = CHART_KM_FORMAT
         ch.x_axis.scaling.min, ch.x_axis.scaling.max = s0, s1
         ch.x_axis.delete = False      # openpyxl 3.1 omits <delete val=0>: Excel would hide the axes
         ch.y_axis.delete = False
-        ch.height, ch.width = 8.5, 26.0
-        for k in keys:
+        ch.x_axis.tickLblPos = "low"  # labels at the bottom, not where y = 0 crosses the plot
+        ch.y_axis.tickLblPos = "low"
+        ch.legend.position = "b"
+        ch.height, ch.width = CHART_HEIGHT_CM, CHART_WIDTH_CM
+        for i, k in enumerate(keys):
             yref = Reference(track, min_col=index[k], min_row=1, max_row=n + 1)
-            s = Series(yref, xref, title_from_data=True)
-            s.marker.symbol = "none"
-            s.smooth = False
-            ch.series.append(s)
+            ser = Series(yref, xref, title_from_data=True)
+            ser.marker.symbol = "none"
+            ser.smooth = False
+            ser.graphicalProperties = GraphicalProperties(ln=LineProperties(solidFill=CHART_COLOURS[i % 5], w=12700))
+            ch.series.append(ser)
+        for label, values in _chart_limits(rep, keys):
+            first = drow
+            for v in values:   # each line from s0 to s1, an empty row between lines (a gap)
+                _num(data, drow, 1, s0)
+                _num(data, drow, 2, v)
+                _num(data, drow + 1, 1, s1)
+                _num(data, drow + 1, 2, v)
+                drow += 3
+            put_text(data, first, 3, label)
+            ser = Series(Reference(data, min_col=2, min_row=first, max_row=drow - 2),
+                         Reference(data, min_col=1, min_row=first, max_row=drow - 2), title=label)
+            ser.marker.symbol = "none"
+            ser.smooth = False
+            ser.graphicalProperties = GraphicalProperties(
+                ln=LineProperties(solidFill=TOLERANCE_COLOUR, prstDash="dash", w=12700))
+            ch.series.append(ser)
+        page, k_on_page = divmod(slot, CHARTS_PER_PAGE)
+        row = r0 + page * CHARTS_PER_PAGE * CHART_ROWS + k_on_page * CHART_ROWS
+        if k_on_page == 0 and page > 0:
+            ws.row_breaks.append(Break(id=row - 1))
         ws.add_chart(ch, f"A{row}")
-        row += 18
+        slot += 1
+    pages = -(-slot // CHARTS_PER_PAGE)
+    ws.print_area = f"A1:P{r0 + max(pages, 1) * CHARTS_PER_PAGE * CHART_ROWS - 1}"
 
 
 def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
@@ -401,15 +704,58 @@ def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float])
     timings["zip"] = time.perf_counter() - t1
 
 
-def _print_setup(ws, landscape: bool) -> None:
-    """Print every sheet one page wide (the client prints the sheet), header row repeated."""
-    ws.page_setup.orientation = "landscape" if landscape else "portrait"
+#: column groups of the printed Track sheet (a page break before each; chainage and station repeat
+#: on every page): the geometry column that starts each group after the first
+TRACK_PRINT_GROUPS = ["lateral_dev_m", "gauge_m", "versine_h_m", "chord30_5_lat_m"]
+
+
+def _print_setup(ws, rep: SurveyReport, title_rows: str | None, fit_width: bool = True) -> None:
+    """Page setup of a sheet: A4 landscape, margins, one page wide (``fit_width``), repeated
+    title rows, page header (project, line, track; sheet; chainage) and footer (software,
+    page N of M, tolerance set)."""
+    h = dict(header_rows(rep))
+    ws.page_setup.orientation = "landscape"
     ws.page_setup.paperSize = ws.PAPERSIZE_A4
-    ws.page_setup.fitToWidth = 1
-    ws.page_setup.fitToHeight = 0  # as many pages down as needed
-    ws.sheet_properties.pageSetUpPr.fitToPage = True
-    if ws.title != "Summary" and ws.title != "Charts":
-        ws.print_title_rows = "1:1"
+    ws.page_margins.left = ws.page_margins.right = 0.4
+    ws.page_margins.top = ws.page_margins.bottom = 0.7
+    ws.page_margins.header = ws.page_margins.footer = 0.3
+    if fit_width:
+        ws.page_setup.fitToWidth = 1
+        ws.page_setup.fitToHeight = 0  # as many pages down as needed
+        ws.sheet_properties.pageSetUpPr.fitToPage = True
+    if title_rows:
+        ws.print_title_rows = title_rows
+
+    def short(text: str) -> str:   # page headers hold at most 255 characters in all
+        return text.replace("&", "&&")[:70]
+
+    ws.oddHeader.left.text = short(f"{h['Project']} | line {h['Line']} | track {h['Track']}")
+    ws.oddHeader.left.size = 8
+    ws.oddHeader.center.text = short(ws.title)
+    ws.oddHeader.center.size = 9
+    ws.oddHeader.right.text = short(h["Chainage"].split(" (")[0])
+    ws.oddHeader.right.size = 8
+    ws.oddFooter.left.text = short(h["Software"])
+    ws.oddFooter.left.size = 8
+    ws.oddFooter.center.text = "Page &P of &N"
+    ws.oddFooter.center.size = 8
+    ws.oddFooter.right.text = short(f"tolerances {rep.tolerances.name}")
+    ws.oddFooter.right.size = 8
+
+
+def _track_print_setup(ws, rep: SurveyReport) -> None:
+    """The full Track sheet on paper: column groups, one group per page across, chainage and
+    station repeated on each (print title columns), header row on each page."""
+    from openpyxl.worksheet.pagebreak import Break
+
+    _print_setup(ws, rep, "1:1", fit_width=False)
+    ws.print_title_cols = "A:B"
+    ws.page_setup.scale = 80
+    ws.page_setup.pageOrder = "overThenDown"
+    index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
+    for key in TRACK_PRINT_GROUPS:
+        if key in index:
+            ws.col_breaks.append(Break(id=index[key] - 1))
 
 
 def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | None = None) -> Path:
@@ -439,16 +785,27 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     summary = wb.active
     summary.title = "Summary"
     track = wb.create_sheet(TRACK_SHEET)
+    printable = wb.create_sheet(TRACK_PRINT_SHEET)
     defects = wb.create_sheet("Defects")
     fixes = wb.create_sheet("Fixes")
+    stations = wb.create_sheet("Free stations")
     charts = wb.create_sheet("Charts")
+    chart_data = wb.create_sheet("ChartData")
+    chart_data.sheet_state = "hidden"
     _summary_sheet(summary, rep)
     _track_sheet_head(track, rep, n)
+    _track_print_sheet(printable, rep)
     _defects_sheet(defects, rep)
     _fixes_sheet(fixes, rep)
+    _stations_sheet(stations, rep)
     _charts_sheet(charts, TRACK_SHEET, rep, n)
-    for ws, landscape in ((summary, True), (track, True), (defects, True), (fixes, True), (charts, True)):
-        _print_setup(ws, landscape)
+    _print_setup(summary, rep, None)
+    _track_print_setup(track, rep)
+    titles = f"1:{TABLE_ROW}"
+    for ws in (printable, defects, fixes):
+        _print_setup(ws, rep, titles)
+    _print_setup(stations, rep, f"1:{HEADER_ROWS}")
+    _print_setup(charts, rep, f"1:{HEADER_ROWS}", fit_width=False)
     with atomic_path(path) as tmp:
         t1 = time.perf_counter()
         timings["openpyxl_build"] = t1 - t0

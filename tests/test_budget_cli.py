@@ -78,7 +78,6 @@ def test_table_output_has_verdicts_and_limits():
     (["--fix-spacing-m", "-5"], "--fix-spacing-m must be"),
     (["--target-mm", "0.3"], "cannot be met by any IMU"),
     (["--gyro-bias-deg-h", "0.1", "--gyro-bias-instability-deg-h", "0.1"], "not both"),
-    (["--imu", "gyroscope"], "--imu must be one of"),
     (["--imu", "mems"], "heading error"),
     (["--imu", "custom", "--gyro-arw-deg-sqrt-h", "0.005"], "--imu custom needs"),
     (["--latitude-deg", "90"], "--latitude-deg"),
@@ -93,6 +92,13 @@ def test_bad_input_exits_2_with_one_line_and_no_output(args, message):
     assert message in res.stderr
     assert "Traceback" not in res.output
     assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_unknown_imu_is_refused_by_the_choices():
+    res = _run("--imu", "gyroscope", "--json")
+    assert res.exit_code == 2 and res.stdout == ""
+    assert "'gyroscope' is not one of 'rlg', 'fog', 'mems', 'custom'" in res.stderr
+    assert "Traceback" not in res.output
 
 
 def test_non_numeric_figure_is_a_usage_error_not_a_traceback():

@@ -9,7 +9,7 @@ from survey.cli import app
 
 runner = CliRunner()
 TRACK_COLUMNS = ("chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,"
-                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm").split(",")
+                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm,distance_m").split(",")
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,8 @@ def session(tmp_path_factory):
 
 def test_process_writes_track_csv_as_formats_says(session, tmp_path):
     out = tmp_path / "processed"
-    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--smoother", "tfs"])
+    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--smoother", "tfs",
+                             "--observability"])
     assert r.exit_code == 0, r.output
     track = pd.read_csv(out / "track.csv")
     assert list(track.columns) == TRACK_COLUMNS

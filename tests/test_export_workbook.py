@@ -77,7 +77,9 @@ def test_workbook_structure(exported):
 
     base, res = exported
     wb = load_workbook(base / "survey.xlsx")
-    assert wb.sheetnames == ["Summary", "Track", "Defects", "Fixes", "Charts"]
+    assert wb.sheetnames == ["Summary", "Track", "Track print", "Defects", "Fixes", "Free stations", "Charts",
+                             "ChartData"]
+    assert wb["ChartData"].sheet_state == "hidden"
     ws = wb["Track"]
     heads = [c.value for c in ws[1]]
     assert heads[:3] == ["Chainage [m]", "Station [km+m]", "E [m]"]
@@ -114,20 +116,78 @@ def test_workbook_structure(exported):
 
     charts = wb["Charts"]._charts
     assert [ch.title.tx.rich.p[0].r[0].t for ch in charts] == ["Deviation from design", "Gauge deviation",
-                                                               "Cant", "Twist"]
+                                                               "Cant", "Cant deviation", "Twist"]
     want = [["Lateral dev [mm] +right", "Vertical dev [mm] +up"], ["Gauge dev [mm] (nominal 1435)"],
-            ["Cant [mm] +left high", "Design cant [mm] +left high", "Cant dev [mm] +left high"],
+            ["Cant [mm] +left high", "Design cant [mm] +left high"], ["Cant dev [mm] +left high"],
             ["Twist 3 m [mm] +left high", "Twist less design 3 m [mm] +left high"]]
+    limited = {lim.column for lim in res.report.tolerances.limits}
+    by_header = {c.header: c.key for c in res.report.columns}
+    colours = []
     for ch, names in zip(charts, want):
         assert isinstance(ch, ScatterChart) and ch.scatterStyle == "line"
         assert ch.x_axis.delete is False and ch.y_axis.delete is False
+        assert ch.x_axis.tickLblPos == "low"                 # km labels at the bottom of the plot
         assert ch.x_axis.numFmt.formatCode == '0"+"000' and ch.x_axis.scaling.max == pytest.approx(g.chainage_m[-1])
-        assert len(ch.series) == len(names)
+        # the data series, then one dashed red tolerance series per limited parameter
+        n_tol = sum(by_header[nm] in limited for nm in names)
+        assert len(ch.series) == len(names) + n_tol
         for ser, name in zip(ch.series, names):
             L = ws.cell(1, heads.index(name) + 1).column_letter
             assert ser.xVal.numRef.f == f"'Track'!$A$2:$A${N + 1}"
             assert ser.yVal.numRef.f == f"'Track'!${L}$2:${L}${N + 1}"
             assert ser.tx.strRef.f == f"'Track'!{L}1"
+        colours.append([str(ser.graphicalProperties.line.solidFill.srgbClr) for ser in ch.series[:len(names)]])
+        for ser in ch.series[len(names):]:
+            assert ser.graphicalProperties.line.prstDash == "dash" and "ChartData" in ser.yVal.numRef.f
+    assert all(len(set(c)) == len(c) for c in colours)       # distinct colours within a chart
+    # the gauge chart's tolerance lines stand at -1 and +1 mm on the hidden sheet
+    tol = charts[1].series[1]
+    ref = tol.yVal.numRef.f.split("!")[1].replace("$", "")
+    vals = [c.value for row in wb["ChartData"][ref] for c in row]
+    assert [v for v in vals if v is not None] == [-1.0, -1.0, 1.0, 1.0]
+
+
+def test_print_settings_and_header_block(exported):
+    """Every sheet: A4 landscape, page numbers in the footer, the header block (rows 1-6 or the
+    Summary's rows) with "not given" for what nobody gave; the Track sheet prints in column
+    groups with chainage and station on every page."""
+    from openpyxl import load_workbook
+
+    from survey.workbook import HEADER_ROWS, TABLE_ROW
+
+    base, res = exported
+    wb = load_workbook(base / "survey.xlsx")
+    for ws in wb.worksheets:
+        if ws.title == "ChartData":
+            continue
+        assert ws.page_setup.orientation == "landscape" and int(ws.page_setup.paperSize) == 9, ws.title
+        assert ws.oddFooter.center.text == "Page &P of &N", ws.title
+        assert ws.oddHeader.center.text == ws.title
+        assert "=1+1" in ws.oddHeader.left.text
+    for title in ("Track print", "Defects", "Fixes"):
+        assert wb[title].print_title_rows == f"$1:${TABLE_ROW}"
+        assert wb[title].sheet_properties.pageSetUpPr.fitToPage and wb[title].page_setup.fitToWidth == 1
+        lines = [wb[title].cell(r, 1).value for r in range(2, HEADER_ROWS + 1)]
+        assert lines[0].startswith("Project: =1+1") and "Line: not given" in lines[0]
+        assert "IMU: not given" in lines[2] and "Software: trolley-survey" in lines[4]
+        assert not any("/tmp" in x or "pytest" in x for x in lines)     # no path of this machine
+    track = wb["Track"]
+    assert track.print_title_cols == "$A:$B" and track.print_title_rows == "$1:$1"
+    assert [b.id for b in track.col_breaks.brk] == [11, 17, 26, 32]    # positions | deviations | gauge, cant | ...
+    summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
+    assert summary["Line"] == "not given" and summary["Total station serial number"] == "not given"
+    assert summary["Tolerance set"].startswith("hsr_ballastless_static")
+    assert summary["Software"].startswith("trolley-survey ")
+    # the Charts sheet: two charts per page, a manual break between pages, no chart across one
+    from survey.workbook import CHART_ROWS, CHARTS_PER_PAGE
+
+    charts = wb["Charts"]
+    rows = [ch.anchor._from.row + 1 for ch in charts._charts]
+    breaks = [b.id for b in charts.row_breaks.brk]
+    assert breaks == [TABLE_ROW + k * CHARTS_PER_PAGE * CHART_ROWS - 1 for k in range(1, len(breaks) + 1)]
+    for r in rows:
+        page_end = min([b for b in breaks if b >= r], default=10 ** 6)
+        assert r + CHART_ROWS - 1 <= page_end
 
 
 def test_defects_summary_and_hostile_text(exported):
@@ -141,11 +201,13 @@ def test_defects_summary_and_hostile_text(exported):
     assert len(gdef) == 1 and gdef[0].peak == pytest.approx(0.0025, abs=1e-9)
     assert 420.0 <= gdef[0].start_chainage_m <= gdef[0].end_chainage_m <= 421.0
     wb = load_workbook(base / "survey.xlsx")
+    from survey.workbook import TABLE_ROW
+
     dws = wb["Defects"]
-    assert dws.max_row == len(rep.defects) + 1
-    dh = [c.value for c in dws[1]]
+    dh = [c.value for c in dws[TABLE_ROW]]
     assert dh[2:6] == ["From [m]", "To [m]", "From [km+m]", "To [km+m]"]
-    for r, d in enumerate(rep.defects, start=2):
+    assert dws.cell(TABLE_ROW + len(rep.defects) + 1, 1).value is None      # the list ends there
+    for r, d in enumerate(rep.defects, start=TABLE_ROW + 1):
         assert (dws.cell(r, 4).value, dws.cell(r, 6).value) == (pytest.approx(d.end_chainage_m),) * 2
         assert dws.cell(r, 5).value == pytest.approx(d.start_chainage_m)
         assert dws.cell(r, 6).number_format == '0"+"000.000'
@@ -154,11 +216,12 @@ def test_defects_summary_and_hostile_text(exported):
     assert summary["Result"] == "FAIL" and summary["Defects"] == len(rep.defects)
     assert summary["Project"] == "=1+1" and wb["Summary"]["B3"].data_type == "s"
     fx = wb["Fixes"]
-    cell = fx["B3"]
+    r = TABLE_ROW + 2
+    cell = fx[f"B{r}"]
     assert cell.value == HOSTILE and cell.data_type == "s" and cell.quotePrefix
-    assert fx["B4"].value == "-12" and fx["B4"].data_type == "s"
-    assert fx["B5"].value == "CP\\x014"                   # control character escaped, no crash
-    assert fx["J4"].value == "no" and fx["K4"].value == "@NIS 40.0 > 11.3" and fx["K4"].quotePrefix
+    assert fx[f"B{r + 1}"].value == "-12" and fx[f"B{r + 1}"].data_type == "s"
+    assert fx[f"B{r + 2}"].value == "CP\\x014"                   # control character escaped, no crash
+    assert fx[f"J{r + 1}"].value == "no" and fx[f"K{r + 1}"].value == "@NIS 40.0 > 11.3" and fx[f"K{r + 1}"].quotePrefix
 
 
 def test_csv_is_numeric_and_injection_safe(exported):
@@ -201,7 +264,10 @@ def test_without_design_fixes_or_summary(tmp_path):
     out = _write_outputs(tmp_path / "o", with_design=False, with_fixes=False, with_summary=False)
     res = export_outputs(out / "track.csv", tmp_path / "a.xlsx", None, None, tolerances="en13848_5_alert")
     wb = load_workbook(tmp_path / "a.xlsx")
-    assert "not found" in wb["Fixes"]["A1"].value
+    from survey.workbook import TABLE_ROW
+
+    assert "not found" in wb["Fixes"][f"A{TABLE_ROW}"].value
+    assert "no field record" in wb["Free stations"][f"A{TABLE_ROW}"].value
     heads = [c.value for c in wb["Track"][1]]
     j = heads.index("Design E [m]") + 1
     assert all(wb["Track"].cell(r, j).value is None for r in (2, 100, N + 1))
@@ -257,16 +323,18 @@ def test_libreoffice_opens_workbook(exported, tmp_path):
     np.testing.assert_allclose(vals, g.columns["cant_m"] * 1e3, atol=1e-4)
     with open(tmp_path / "survey-Fixes.csv", newline="", encoding="utf-8") as f:
         fixes = list(csv.reader(f))
-    assert fixes[2][1] == HOSTILE                # stayed text: not evaluated to "y"
-    assert fixes[3][1] == "-12" and fixes[4][1] == "CP\\x014"
+    from survey.workbook import TABLE_ROW
+
+    assert fixes[TABLE_ROW + 1][1] == HOSTILE                # stayed text: not evaluated to "y"
+    assert fixes[TABLE_ROW + 2][1] == "-12" and fixes[TABLE_ROW + 3][1] == "CP\\x014"
     with open(tmp_path / "survey-Summary.csv", newline="", encoding="utf-8") as f:
         summ = {r[0]: r[1] for r in csv.reader(f) if len(r) > 1}
     assert summ["Project"] == "=1+1" and summ["Result"] == "FAIL"
     with open(tmp_path / "survey-Defects.csv", newline="", encoding="utf-8") as f:
         drows = list(csv.reader(f))
     d0 = res.report.defects[0]
-    assert drows[0][4:6] == ["From [km+m]", "To [km+m]"] and len(drows) == len(res.report.defects) + 1
-    assert float(drows[1][5]) == pytest.approx(d0.end_chainage_m)     # raw values (not "as shown")
+    assert drows[TABLE_ROW - 1][4:6] == ["From [km+m]", "To [km+m]"]
+    assert float(drows[TABLE_ROW][5]) == pytest.approx(d0.end_chainage_m)     # raw values (not "as shown")
 
 
 @needs_soffice
@@ -286,7 +354,9 @@ def test_libreoffice_round_trip_keeps_values_formats_and_charts(exported, tmp_pa
                  dtype=float)
     np.testing.assert_array_equal(a, b)                   # bit-identical numbers, same empty cells
     assert [c.value for c in lo["Track"][1]] == [c.value for c in ours["Track"][1]]
-    for ref in ("B3", "B4", "B5"):
+    from survey.workbook import TABLE_ROW
+
+    for ref in (f"B{TABLE_ROW + k}" for k in (2, 3, 4)):
         assert lo["Fixes"][ref].value == ours["Fixes"][ref].value and lo["Fixes"][ref].data_type == "s"
     assert lo["Summary"]["B3"].value == "=1+1" and lo["Summary"]["B3"].data_type == "s"
     assert lo["Track"]["B2"].number_format.replace("\\", "").replace('"', "") == "0+000.000"
@@ -300,7 +370,7 @@ def test_libreoffice_round_trip_keeps_values_formats_and_charts(exported, tmp_pa
         return [[(s.xVal.numRef.f.replace("'", ""), s.yVal.numRef.f.replace("'", "")) for s in ch.series]
                 for ch in ws._charts]
 
-    assert series(lo["Charts"]) == series(ours["Charts"]) and len(series(ours["Charts"])) == 4
+    assert series(lo["Charts"]) == series(ours["Charts"]) and len(series(ours["Charts"])) == 5
     assert all(ch.scatterStyle == "line" for ch in lo["Charts"]._charts)
 
 

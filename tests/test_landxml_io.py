@@ -12,7 +12,7 @@ from hypothesis import given, settings, strategies as st
 
 from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line,
                                VerticalProfile)
-from trolley.landxml import LandXmlError, landxml_text, parse_landxml
+from trolley.landxml import LandXmlError, landxml_text, parse_landxml, read_landxml
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -199,25 +199,37 @@ def _expect(text: str, *fragments: str) -> str:
     return msg
 
 
-def test_gap_between_elements_names_the_element():
-    bad = EXAMPLE.replace("<Start>4999.0002 1159.9850</Start>\n          <Center>",
-                          "<Start>4999.0002 1159.9870</Start>\n          <Center>")
-    _expect(bad, "<Curve> no. 3", 'staStart="160.0"', "mm", "do not join")
+def _notes(text: str) -> tuple[str, ...]:
+    return read_landxml(text).notes
 
 
-def test_kinks_and_bad_arcs_are_refused():
-    # the last straight turned by 5 mm over 100 m at its End: a kink at its Start
-    _expect(EXAMPLE.replace("<End>4966.2411 1367.2468</End>", "<End>4966.2461 1367.2468</End>"),
-            "<Line> no. 5", 'staStart="270.0"', "kink")
-    # a PI that says the spiral leaves in another direction
-    _expect(EXAMPLE.replace("<PI>4991.7652 1229.5879</PI>", "<PI>4991.7552 1229.5879</PI>"),
-            "<Spiral> no. 4", "kink")
-    # a Curve End off the circle
-    _expect(EXAMPLE.replace("<End>4994.4246 1209.7607</End>", "<End>4994.4266 1209.7607</End>"),
+def test_gap_between_elements_is_noted_where_it_is_and_refused_when_gross():
+    # 2 mm: noted at the curve that starts away from the spiral's end; 150 mm: refused there
+    notes = _notes(EXAMPLE.replace("<Start>4999.0002 1159.9850</Start>\n          <Center>",
+                                   "<Start>4999.0002 1159.9870</Start>\n          <Center>"))
+    gap = [n for n in notes if "from where" in n]
+    assert len(gap) == 1 and "<Curve> no. 3" in gap[0] and "2.00 mm" in gap[0], notes
+    shifted = EXAMPLE.replace("<Start>4984.4719 1268.9227</Start>\n          <End>4966.2411 1367.2468",
+                              "<Start>4984.4719 1269.0727</Start>\n          <End>4966.2411 1367.3968")
+    _expect(shifted, "<Line> no. 5", 'staStart="270.0"', "149.9", "do not join")
+
+
+def test_kinks_and_bad_arcs_are_noted_or_refused():
+    # the last straight turned by 5e-5 rad at its Start: below the direction tolerance, and no
+    # longer moving anything else (each element from its own Start and direction)
+    assert _notes(EXAMPLE.replace("<End>4966.2411 1367.2468</End>", "<End>4966.2461 1367.2468</End>")) == ()
+    # a PI that says the spiral leaves in another direction: the break is named at that spiral
+    notes = _notes(EXAMPLE.replace("<PI>4991.7652 1229.5879</PI>", "<PI>4991.7552 1229.5879</PI>"))
+    assert "<Spiral> no. 4" in notes[0] and "4.95e-04 rad" in notes[0], notes
+    # a Curve End 2 mm off the circle: noted; 200 mm off: refused
+    notes = _notes(EXAMPLE.replace("<End>4994.4246 1209.7607</End>", "<End>4994.4266 1209.7607</End>"))
+    assert "<Curve> no. 3" in notes[0] and "+1.98 mm" in notes[0], notes
+    _expect(EXAMPLE.replace("<End>4994.4246 1209.7607</End>", "<End>4994.6246 1209.7607</End>"),
             "<Curve> no. 3", "not a circular arc")
-    # an End the geometry does not reach (spiral too long for its End point)
-    _expect(EXAMPLE.replace('<Spiral staStart="100.0" length="60.0"', '<Spiral staStart="100.0" length="60.01"'),
-            "<Spiral> no. 2", "mm away")
+    # a spiral 10 mm longer than its End point: the gap shows at the next element's Start
+    notes = _notes(EXAMPLE.replace('<Spiral staStart="100.0" length="60.0"',
+                                   '<Spiral staStart="100.0" length="60.01"'))
+    assert any("<Curve> no. 3" in n and "10.00 mm from where <Spiral> no. 2" in n for n in notes), notes
 
 
 def test_unsupported_spiral_type():
@@ -243,7 +255,7 @@ def test_missing_and_malformed_attributes():
             "<CantStation> no. 2", "appliedCant")
     _expect(EXAMPLE.replace('<PVI>370.0 50.555</PVI>', '<PVI>370.0</PVI>'), "<PVI> no. 3",
             "station elevation")
-    _expect(EXAMPLE.replace('length="370.0"', 'length="371.0"'), "length", "370.0")
+    assert "+1000.0 mm" in _notes(EXAMPLE.replace('length="370.0"', 'length="371.0"'))[0]
     _expect(EXAMPLE.replace("<Units>", "<Unitz>").replace("</Units>", "</Unitz>"), "Units")
     _expect(EXAMPLE.replace('linearUnit="meter"', 'linearUnit="foot"'), "linearUnit", "foot")
     _expect(EXAMPLE.replace("</LandXML>", ""), "not well-formed")

@@ -161,3 +161,54 @@ def test_live_screen_sigma_grows_past_the_planned_spacing():
     assert here[1] == pytest.approx(1e3 * max(worst_sigma(c90, "lateral"), worst_sigma(c90, "vertical")), rel=1e-12)
     # a slower trolley (more time for the gyro errors) is predicted worse at the same distance
     assert predicted_sigma_mm(meta, 60.0, 240.0) > predicted_sigma_mm(meta, 60.0, 60.0)
+
+
+@pytest.mark.parametrize("length_m", [240.0, 480.0])
+def test_live_interval_summaries_agree_with_the_final_track_on_short_surveys(length_m):
+    """Each interval's live track, its summary and its geometry agree with the final track within
+    2 mm, also in the first and last metres of the interval where the trolley starts and stops
+    (the error states are interpolated in odometer distance between the filter nodes, as the final
+    processing does: linear in time they put 5-10 mm false deviations at the ends of each
+    interval). No defect is found live that the final track does not have."""
+    from survey.export import geometry_config
+    from survey.session.interval import interval_check, tolerance_set
+    from survey.track_reader import SurveyInfo
+    from trolley.tolerances import find_defects
+    from trolley.trackgeometry import TrackInput, track_geometry
+
+    from survey.commands.simulate import project_settings
+    from trolley.sensors import IMU_PRESETS
+
+    kwargs, preset, xml = project_settings(DEMO.parent)  # the demo project: RLG, 1 m/s, 60 m intervals
+    design = parse_landxml(xml)
+    s = simulate_survey(design, SimulationConfig(**{**kwargs, "imu": IMU_PRESETS[preset], "length_m": length_m,
+                                                    "imu_rate_hz": 100.0}))
+    _, verdicts, intervals = _feed(design, s, ProcessConfig())
+    final = process_session(s.session, design, ProcessConfig(), with_observability=False).stations
+    tol = tolerance_set("default")
+    tr = s.session.meta.trolley
+    track = TrackInput(final.chainage_m, final.E_m, final.N_m, final.H_m, final.sigma_E_m, final.sigma_N_m,
+                       final.sigma_H_m, final.lateral_dev_m, final.vertical_dev_m, final.gauge_m, final.cant_m)
+    d = design.evaluate(track.chainage_m)
+    track.design_E_m, track.design_N_m, track.design_H_m = d.E_m, d.N_m, d.H_m
+    track.design_cant_m = tr.rail_spacing_m * np.sin(d.cant_rad)
+    geo = track_geometry(track, geometry_config(tol, SurveyInfo(rail_spacing_m=tr.rail_spacing_m,
+                                                                nominal_gauge_m=tr.nominal_gauge_m)))
+    final_defects = find_defects(geo.chainage_m, geo.columns, tol)
+    assert all(v.accepted for v in verdicts) and len(intervals) == round(length_m / 60.0)
+    for r in intervals:
+        st = r.stations
+        i = np.searchsorted(np.round(final.chainage_m, 6), np.round(st.chainage_m, 6))
+        assert np.array_equal(np.round(final.chainage_m[i], 6), np.round(st.chainage_m, 6))
+        for col in ("lateral_dev_m", "vertical_dev_m", "cant_m"):
+            assert np.nanmax(np.abs(getattr(st, col) - getattr(final, col)[i])) < 2e-3, col
+        assert abs(r.max_abs_lateral_dev_m - np.nanmax(np.abs(final.lateral_dev_m[i]))) < 2e-3
+        assert abs(r.max_abs_vertical_dev_m - np.nanmax(np.abs(final.vertical_dev_m[i]))) < 2e-3
+        chk = interval_check(st, design, tol, tr.rail_spacing_m, tr.nominal_gauge_m)
+        g = np.searchsorted(np.round(geo.chainage_m, 6), np.round(chk.geometry.chainage_m, 6))
+        for name in ("versine_h_dev_m", "versine_v_dev_m", "twist_m", "gauge_dev_m", "cant_dev_m"):
+            dd = np.abs(chk.geometry.columns[name] - geo.columns[name][g])
+            assert not np.any(dd > 2e-3), name
+        for x in chk.defects:  # a live defect is one of the final track's
+            assert any(y.parameter == x.parameter and y.start_chainage_m <= x.end_chainage_m + 0.7
+                       and x.start_chainage_m <= y.end_chainage_m + 0.7 for y in final_defects), x

@@ -6,8 +6,10 @@ is written.
 """
 from __future__ import annotations
 
+import io
 import os
 import sys
+import time
 
 import pexpect
 
@@ -48,6 +50,8 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         child.send("p")
         child.expect("resumed")
         child.send("e")
+        child.expect("end the session\\? y = end it")
+        child.send("y")
         child.expect("survey sheet:", timeout=90)
         child.expect(pexpect.EOF)
     finally:
@@ -68,3 +72,83 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         assert len(setup.excluded) == 1
         assert [o.used for o in st.setup_observations(setup.setup_id)].count(False) == 1
     assert (tmp_path / "projects" / "t1" / "sessions" / "kb" / "survey.xlsx").is_file()
+
+
+def test_at_40x_the_world_waits_at_a_stop_f_while_moving_is_answered_and_e_asks_first(tmp_path):
+    """8 s stops at 40x last 0.2 s of wall-clock time: the simulated world waits at the stop until
+    the crew has taken its fix. ``f`` while the trolley moves says why nothing happens; ``e`` asks
+    before it ends the session."""
+    make_project(tmp_path / "projects", static_s="20.0")  # 8 s stops (tests/session_project.py)
+    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
+    child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                                           "--session", "fast", "--simulate", "--speedup", "40"],
+                          cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+    try:
+        child.expect("a accept")
+        child.send("a")
+        child.expect("station accepted")
+        child.send("f")
+        child.expect("FIX001 accepted")
+        child.expect("static alignment done")
+        child.expect("moving")
+        child.send("f")
+        child.expect("f ignored: the trolley is moving")
+        child.expect("standing at 60")
+        time.sleep(2.0)  # 80 s of simulated time at 40x: ten times the stop, had the world not waited
+        child.send("f")
+        child.expect("FIX002 accepted")
+        child.send("e")
+        child.expect("end the session\\? y = end it")
+        child.send("x")
+        child.expect("the session goes on")
+        child.send("e")
+        child.expect("end the session\\? y = end it")
+        child.send("y")
+        child.expect("survey sheet:", timeout=90)
+        child.expect(pexpect.EOF)
+    finally:
+        child.close()
+    assert child.exitstatus == 0
+    from survey.commands.survey import simulated_world
+    from survey.session.simworld import stop_index_at
+    from survey.store import ProjectStore
+
+    with ProjectStore.open(tmp_path / "projects" / "t1") as st:
+        fixes = st.fixes(st.session("fast").session_id)
+        sim = simulated_world(st, 1.0).sim
+    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True)]
+    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1]  # the second one at the 60 m stop
+
+
+def test_one_set_of_keys_on_the_screen(tmp_path):
+    """The screen shows the keys of what the crew is doing now, and only those."""
+    from rich.console import Console
+
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.screen import KEYS_HELP, render
+    from survey.store import FixRecord, ProjectStore
+
+    make_project(tmp_path)
+    with ProjectStore.open(tmp_path / "t1") as st:
+        fs = FieldSession(st, "keys", SessionConfig(), console=Console(file=io.StringIO()))
+
+        def shown():
+            fs.screen.prompt = fs.keys_prompt()
+            out = io.StringIO()
+            Console(file=out, width=200).print(render(fs.screen))
+            text = out.getvalue()
+            return [p for p in ("f fix |", "a accept | d drop", "r measure again", "end the session?",
+                                "p resume", "note:") if p in text]
+
+        assert fs.keys_prompt() == KEYS_HELP and shown() == ["f fix |"]
+        fs._key_prompt = "a accept | d drop CP0003L | m measure again"
+        assert shown() == ["a accept | d drop"]
+        fs._key_prompt = ""
+        fs.pending = (1, FixRecord(0.0, "FIX002", 0.0, 0.0, 0.0, 1e-3, 1e-3, 1e-3), None)
+        assert shown() == ["r measure again"]
+        fs.pending, fs.paused = None, True
+        assert shown() == ["p resume"]
+        fs.paused, fs._confirm_end = False, True
+        assert shown() == ["end the session?"]
+        fs._confirm_end, fs.note_buffer = False, "rail"
+        assert shown() == ["note:"]

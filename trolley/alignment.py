@@ -39,6 +39,8 @@ from typing import Sequence, Union
 import numpy as np
 from scipy.special import fresnel
 
+from trolley.stationing import Stationing
+
 __all__ = [
     "Line",
     "Arc",
@@ -215,20 +217,29 @@ class HorizontalSample:
 class HorizontalAlignment:
     """A chain of :class:`Line`, :class:`Arc` and :class:`Clothoid` elements.
 
-    Build with :meth:`from_elements`. Each element starts where the previous ends, with the
-    same heading (G1 continuity by construction).
+    Build with :meth:`from_elements` (each element starts where the previous ends, with the
+    same heading: G1 continuity by construction) or :meth:`from_anchored_elements` (each element
+    starts at its own start point and heading, as a design file gives them, so that a small
+    direction break at one join does not move every later element; the gap and the direction
+    break at each join are kept in ``join_gap_m`` and ``join_turn_rad``).
 
     Attributes
     ----------
     elements : tuple of the elements.
     start_E_m, start_N_m, start_heading_rad, start_chainage_m : start of the first element.
     element_chainage_m : (n+1,) chainage of each element start, and of the end.
-    element_E_m, element_N_m, element_heading_rad : (n+1,) position and heading at the same
-        stations (heading not wrapped).
+    element_E_m, element_N_m, element_heading_rad : (n+1,) position and heading at the start of
+        each element and at the end of the last one (heading not wrapped).
+    element_end_E_m, element_end_N_m, element_end_heading_rad : (n,) where each element's own
+        geometry ends (equal to the next element's start when chained).
+    join_gap_m, join_turn_rad : (n-1,) distance and heading change from the end of element i to
+        the start of element i+1 (zero when chained).
     """
 
     def __init__(self, start_E_m: float, start_N_m: float, start_heading_rad: float,
-                 elements: Sequence[Element], start_chainage_m: float = 0.0) -> None:
+                 elements: Sequence[Element], start_chainage_m: float = 0.0,
+                 anchors: tuple[Sequence[float], Sequence[float], Sequence[float]] | None = None
+                 ) -> None:
         elements = tuple(elements)
         if not elements:
             raise ValueError("a horizontal alignment needs at least one element")
@@ -256,12 +267,34 @@ class HorizontalAlignment:
         s[1:] = self.start_chainage_m + np.cumsum(lengths)
         h = np.empty(n + 1)
         z = np.empty(n + 1, dtype=complex)  # N + iE relative to the start point (keeps digits)
-        h[0] = self.start_heading_rad
-        z[0] = 0.0
-        for i in range(n):  # a handful of elements: chain their end states
-            L = lengths[i]
-            z[i + 1] = z[i] + _displacement(L, h[i], self._k0[i], self._c[i])
-            h[i + 1] = h[i] + self._k0[i] * L + 0.5 * self._c[i] * L * L
+        turn = self._k0 * lengths + 0.5 * self._c * lengths * lengths
+        if anchors is None:
+            h[0] = self.start_heading_rad
+            z[0] = 0.0
+            for i in range(n):  # a handful of elements: chain their end states
+                z[i + 1] = z[i] + _displacement(lengths[i], h[i], self._k0[i], self._c[i])
+                h[i + 1] = h[i] + turn[i]
+            end_z, end_h = z[1:].copy(), h[1:].copy()
+        else:
+            a_E, a_N, a_h = (np.asarray(a, dtype=float).ravel() for a in anchors)
+            if not (a_E.shape == a_N.shape == a_h.shape == (n,)):
+                raise ValueError(f"anchors must hold {n} start points and headings, one per element")
+            if not all(np.all(np.isfinite(a)) for a in (a_E, a_N, a_h)):
+                raise ValueError("anchor start points and headings must be finite")
+            if a_E[0] != self.start_E_m or a_N[0] != self.start_N_m or a_h[0] != self.start_heading_rad:
+                raise ValueError("the first anchor must be the start point and heading")
+            z[:n] = (a_N - self.start_N_m) + 1j * (a_E - self.start_E_m)
+            # unwrap so that headings change continuously across joins
+            h[:n] = a_h[0] + np.concatenate(([0.0], np.cumsum(
+                np.remainder(np.diff(a_h) - turn[:-1] + np.pi, _TWO_PI) - np.pi + turn[:-1])))
+            end_z = z[:n] + _displacement(lengths, h[:n], self._k0, self._c)
+            end_h = h[:n] + turn
+            z[n], h[n] = end_z[-1], end_h[-1]
+        self.element_end_E_m = end_z.imag + self.start_E_m
+        self.element_end_N_m = end_z.real + self.start_N_m
+        self.element_end_heading_rad = end_h
+        self.join_gap_m = np.abs(z[1:n] - end_z[:-1])
+        self.join_turn_rad = h[1:n] - end_h[:-1]
         self.element_chainage_m = s
         self.element_heading_rad = h
         self._origin = complex(self.start_N_m, self.start_E_m)
@@ -287,6 +320,29 @@ class HorizontalAlignment:
         HorizontalAlignment
         """
         return cls(start_E_m, start_N_m, start_heading_rad, elements, start_chainage_m)
+
+    @classmethod
+    def from_anchored_elements(cls, start_E_m, start_N_m, start_heading_rad,
+                               elements: Sequence[Element], start_chainage_m: float = 0.0
+                               ) -> "HorizontalAlignment":
+        """Elements each starting at its own point and grid bearing (no chaining).
+
+        Parameters
+        ----------
+        start_E_m, start_N_m, start_heading_rad : (n,) start point (m) and grid bearing (rad,
+            clockwise from north) of each element, as the design file gives them.
+        elements : n :class:`Line`, :class:`Arc`, :class:`Clothoid`.
+        start_chainage_m : chainage of the first start, m; each element then takes the chainage
+            of the lengths before it (gaps at joins add none).
+
+        Returns
+        -------
+        HorizontalAlignment
+        """
+        E, N, h = (np.asarray(a, dtype=float).ravel() for a in (start_E_m, start_N_m, start_heading_rad))
+        if E.size == 0:
+            raise ValueError("a horizontal alignment needs at least one element")
+        return cls(E[0], N[0], h[0], elements, start_chainage_m, anchors=(E, N, h))
 
     @property
     def end_chainage_m(self) -> float:
@@ -469,7 +525,8 @@ class VerticalProfile:
     grade : (n-1,) grades dH/ds between PVIs.
     """
 
-    def __init__(self, chainage_m, height_m, curve_length_m, vertical_radius_m=None) -> None:
+    def __init__(self, chainage_m, height_m, curve_length_m, vertical_radius_m=None, *,
+                 overlap_tolerance_m: float = 0.0) -> None:
         s = np.asarray(chainage_m, dtype=float).ravel()
         H = np.asarray(height_m, dtype=float).ravel()
         L = np.array(curve_length_m, dtype=float).ravel()
@@ -512,7 +569,7 @@ class VerticalProfile:
             self._r_cos_in[i] = R[i] * np.cos(a_in)
             self._sigma[i] = sigma
             L[i] = R[i] * abs(turn)
-        tol = 1e-9 * max(1.0, float(np.max(np.abs(s))))
+        tol = max(1e-9 * max(1.0, float(np.max(np.abs(s)))), overlap_tolerance_m)
         overlap = evc[:-1] > bvc[1:] + tol
         if np.any(overlap):
             i = int(np.argmax(overlap))
@@ -525,8 +582,8 @@ class VerticalProfile:
         self._circle = circle
 
     @classmethod
-    def from_pvis(cls, chainage_m, height_m, curve_length_m, vertical_radius_m=None
-                  ) -> "VerticalProfile":
+    def from_pvis(cls, chainage_m, height_m, curve_length_m, vertical_radius_m=None, *,
+                  overlap_tolerance_m: float = 0.0) -> "VerticalProfile":
         """Profile from PVI chainages, heights and vertical-curve lengths (first/last 0).
 
         Parameters
@@ -535,12 +592,15 @@ class VerticalProfile:
         curve_length_m : length of the parabolic curve centred on each PVI, m.
         vertical_radius_m : optional; where > 0 the curve at that PVI is instead the circle of
             this radius tangent to both grades (its ``curve_length_m`` entry is then ignored).
+        overlap_tolerance_m : adjacent curves may overlap by up to this (a design file's
+            rounding); in the overlap the later curve holds.
 
         Returns
         -------
         VerticalProfile
         """
-        return cls(chainage_m, height_m, curve_length_m, vertical_radius_m)
+        return cls(chainage_m, height_m, curve_length_m, vertical_radius_m,
+                   overlap_tolerance_m=overlap_tolerance_m)
 
     def evaluate(self, s):
         """Height H, dH/ds and d2H/ds2 at chainages ``s``.
@@ -704,16 +764,25 @@ class Alignment:
     profile : VerticalProfile, optional; without it H = 0 and the slope is 0.
     cant : CantProfile, optional; without it the cant is 0.
     name : alignment name (LandXML ``Alignment/@name``).
+    stationing : the drawing stationing (station equations), optional; chainage everywhere
+        else is the internal station (start station plus distance along the alignment).
     """
 
     def __init__(self, horizontal: HorizontalAlignment, profile: VerticalProfile | None = None,
-                 cant: CantProfile | None = None, name: str = "") -> None:
+                 cant: CantProfile | None = None, name: str = "",
+                 stationing: Stationing | None = None) -> None:
         if not isinstance(horizontal, HorizontalAlignment):
             raise TypeError("horizontal must be a HorizontalAlignment")
         self.horizontal = horizontal
         self.profile = profile
         self.cant = cant
         self.name = name
+        self.stationing = stationing
+
+    def station(self, chainage_m) -> np.ndarray:
+        """Drawing station (after the station equations) at internal chainages, m."""
+        s = np.asarray(chainage_m, dtype=float)
+        return s.copy() if self.stationing is None else self.stationing.station(s)
 
     @property
     def start_chainage_m(self) -> float:
@@ -755,6 +824,13 @@ class Alignment:
                                heading_rad=hz.heading_rad, slope_rad=slope, cant_rad=cant,
                                rho_h_1_m=hz.rho_h_1_m, drho_h_ds_1_m2=hz.drho_h_ds_1_m2,
                                rho_v_1_m=rho_v, rho_tw_1_m=rho_tw)
+
+    def translated(self, dE_m: float, dN_m: float) -> "Alignment":
+        """The same alignment moved by (dE, dN) in the grid (same elements, bearings, profile, cant)."""
+        h = self.horizontal
+        moved = HorizontalAlignment(h.start_E_m + float(dE_m), h.start_N_m + float(dN_m), h.start_heading_rad,
+                                    h.elements, h.start_chainage_m)
+        return Alignment(moved, self.profile, self.cant, self.name)
 
     def project(self, E_m, N_m, H_m=None) -> Projection:
         """Project grid points onto the alignment.

@@ -630,7 +630,8 @@ def monte_carlo_block_runs(nodes: int, memory_bytes: int = MONTE_CARLO_MEMORY_BY
 
 def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: float = 0.3,
                 seed: int | None = None, memory_bytes: int = MONTE_CARLO_MEMORY_BYTES,
-                prior_position_m: float | None = None) -> MonteCarloResult:
+                prior_position_m: float | None = None,
+                progress: Callable[[str, float], None] | None = None) -> MonteCarloResult:
     """Monte Carlo of the budget: simulate ``runs`` intervals of the linear error models.
 
     Both channels of :mod:`trolley.error_models` (vertical, and level at heading ``heading_rad``)
@@ -647,6 +648,10 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     sigma and a fix arrives at t = 0 as well; the case's ``initial.position_m`` must then be the
     sigma after that fix, ``sqrt(p s^2 / (p + s^2))`` (see ``docs/budget_derivation.md``), for
     the analytic sigma to apply. This checks the reading of P(0) by simulation.
+
+    ``progress(step, fraction)``, when given, is called after each pass (truth, filter, smoother)
+    of each channel of each block with the fraction of the work done (the CLI's progress bar);
+    it does not change the random draws.
 
     Returns
     -------
@@ -680,8 +685,15 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
     done = 0
     while done < runs:
         n = min(block, runs - done)
-        ev = vert.errors(rng, n)
-        el = level.errors(rng, n)
+        if progress is None:
+            ev = vert.errors(rng, n)
+            el = level.errors(rng, n)
+        else:
+            def tick(channel: int, f: float, done=done, n=n) -> None:
+                progress(f"Monte Carlo, runs {done + 1}-{done + n} of {runs}", (done + n * (channel + f) / 2) / runs)
+
+            ev = vert.errors(rng, n, lambda f: tick(0, f))
+            el = level.errors(rng, n, lambda f: tick(1, f))
         err = {"vertical": ev[..., 0],
                "longitudinal": c * el[..., 0] + s * el[..., 1],
                "lateral": -s * el[..., 0] + c * el[..., 1]}
@@ -711,13 +723,15 @@ class _Channel:
         self.Kg, self.C = _gains(F, Q, P0, H, R, self.fix_nodes, _safe_scale(P0, Q1))
         self.L0, self.LQ, self.LR = _sqrt_psd(P0), _sqrt_psd(Q1), _sqrt_psd(R)
 
-    def errors(self, rng, runs: int) -> np.ndarray:
+    def errors(self, rng, runs: int, tick: Callable[[float], None] | None = None) -> np.ndarray:
         """Smoothed minus true states, (K, runs, n), for ``runs`` fresh intervals.
 
         Truth: x0 ~ N(0, P0), x[k+1] = F x[k] + w, fixes z = H x[k] + n at the fix nodes. The
         loops run over the nodes; the runs are a batch axis of matrix products with the gains
-        computed once.
+        computed once. ``tick(fraction)``, when given, is called after the truth, the filter and
+        the smoother pass (1/3, 2/3, 1).
         """
+        tick = tick if tick is not None else (lambda f: None)
         K, F1, H = self.K, self.F1, self.H
         n = self.P0.shape[0]
         m = H.shape[0]
@@ -727,6 +741,7 @@ class _Channel:
         for k in range(K - 1):
             x[k + 1] = x[k] @ F1.T + w[k]
         z = {k: x[k] @ H.T + rng.standard_normal((runs, m)) @ self.LR.T for k in self.fix_nodes}
+        tick(1 / 3)
         # forward filter (prior mean zero) and RTS: x_s[k] = x_f[k] + C_k (x_s[k+1] - x_pred[k+1])
         x_pred = np.empty_like(x)
         x_filt = np.empty_like(x)
@@ -735,10 +750,12 @@ class _Channel:
             x_filt[k] = x_pred[k]
             if k in z:
                 x_filt[k] = x_pred[k] + (z[k] - x_pred[k] @ H.T) @ self.Kg[k].T
+        tick(2 / 3)
         xs = np.empty_like(x)
         xs[-1] = x_filt[-1]
         for k in range(K - 2, -1, -1):
             xs[k] = x_filt[k] + (xs[k + 1] - x_pred[k + 1]) @ self.C[k].T
+        tick(1.0)
         return xs - x
 
 

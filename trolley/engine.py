@@ -18,13 +18,14 @@ Jiang 2017 Sec. 2-4 end to end:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 from scipy.linalg import block_diag
 
 from trolley import error_models as em
+from trolley.projection import GridFactors, session_site
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
                                    quat_multiply, static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
@@ -164,6 +165,105 @@ def _ned(enh: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
 
 def _enh(ned: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
     return np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]]) + origin_enh
+
+
+def _grid_to_local(enh: np.ndarray, origin_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
+    """Grid E, N, H to the local true-north ground frame about ``origin_enh`` (identity without a grid)."""
+    if grid is None:
+        return enh
+    return origin_enh + grid.grid_to_local(enh - origin_enh)
+
+
+def _local_to_grid(enh: np.ndarray, origin_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
+    """The inverse of :func:`_grid_to_local`."""
+    if grid is None:
+        return enh
+    return origin_enh + grid.local_to_grid(enh - origin_enh)
+
+
+def _sigmas_to_grid(sigma_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
+    """1-sigmas along true east / north to grid E / N (the E-N correlation is dropped)."""
+    if grid is None:
+        return sigma_enh
+    c, s, k = np.cos(grid.convergence_rad), np.sin(grid.convergence_rad), grid.combined_scale
+    out = sigma_enh.copy()
+    out[:, 0] = k * np.hypot(c * sigma_enh[:, 0], s * sigma_enh[:, 1])
+    out[:, 1] = k * np.hypot(s * sigma_enh[:, 0], c * sigma_enh[:, 1])
+    return out
+
+
+class GridRotationError(ValueError):
+    """Most fixes were rejected and they are turned, consistently, against the dead reckoning."""
+
+
+#: :func:`check_rotation` refuses a session when more than this share of the fixes after the
+#: first is rejected and a rotation explains the rest.
+ROTATION_REJECTED_SHARE = 0.5
+
+
+def fix_rotation(dr: DeadReckoning, fix_blocks: np.ndarray, fix_ned: np.ndarray, lever: np.ndarray
+                 ) -> tuple[float, float, float, float]:
+    """The rotation and scale that best turn the dead-reckoned prism path onto the fixes.
+
+    With z = N + iE the horizontal displacements from the first fix (dead reckoning a, fixes b),
+    the least-squares similarity b ~ s e^{i theta} a has e^{i theta} along sum(conj(a) b) and
+    s = |sum(conj(a) b)| / sum(|a|^2) (the 2-D Procrustes solution; Umeyama 1991, Eq. 40-42).
+    theta is the azimuth of the fixes minus that of the dead reckoning: a grid of convergence
+    gamma, taken as true north, gives theta = -gamma.
+
+    Returns
+    -------
+    (theta_rad, scale, rms before, rms after): the rotation, the scale, and the RMS horizontal
+    misclosure of the fixes before and after the similarity, m.
+    """
+    pos = dr.position_ned_m[fix_blocks] + dr.trolley_to_nav[fix_blocks].apply(lever)
+    a = (pos[:, 0] - pos[0, 0]) + 1j * (pos[:, 1] - pos[0, 1])
+    b = (fix_ned[:, 0] - fix_ned[0, 0]) + 1j * (fix_ned[:, 1] - fix_ned[0, 1])
+    c = np.sum(np.conj(a) * b)
+    aa = float(np.sum(np.abs(a) ** 2))
+    if aa == 0.0 or c == 0:
+        return 0.0, 1.0, 0.0, 0.0
+    theta = float(np.angle(c))
+    scale = float(abs(c) / aa)
+    before = float(np.sqrt(np.mean(np.abs(b - a) ** 2)))
+    after = float(np.sqrt(np.mean(np.abs(b - scale * np.exp(1j * theta) * a) ** 2)))
+    return theta, scale, before, after
+
+
+def check_rotation(dr: DeadReckoning, fix_blocks: np.ndarray, fix_ned: np.ndarray, lever: np.ndarray,
+                   accepted: np.ndarray, heading_sigma_rad: float, grid: GridFactors | None) -> None:
+    """Refuse a session whose fixes were mostly rejected because they are turned against true north.
+
+    The dead reckoning's heading is true (gyrocompassing, or a given true heading); fixes in a
+    projected grid are turned by the grid convergence. A convergence far beyond the heading's
+    1-sigma makes the gate reject the fixes one after another, and the track drifts off by the
+    angle times the distance. When more than :data:`ROTATION_REJECTED_SHARE` of the fixes after
+    the first are rejected and one rotation (:func:`fix_rotation`) larger than 5 heading sigmas
+    explains at least 90 % of their misclosure, this raises with the angle and what to do.
+
+    Raises
+    ------
+    GridRotationError
+    """
+    later = accepted[1:]
+    if later.size < 2 or np.mean(~later) <= ROTATION_REJECTED_SHARE:
+        return
+    theta, scale, before, after = fix_rotation(dr, fix_blocks, fix_ned, lever)
+    if abs(theta) <= max(5.0 * heading_sigma_rad, 1e-4) or after > 0.1 * before:
+        return
+    n_rej, n = int((~later).sum()), int(later.size)
+    deg = float(np.rad2deg(theta))
+    what = (f"{n_rej} of the {n} fixes after the first were rejected: the fixes are turned by {deg:+.4f} deg "
+            f"against the dead reckoning's true north, consistently (misclosure {before:.3f} m rms, "
+            f"{after:.3f} m after turning them back; scale {scale:.6f})")
+    if grid is None:
+        raise GridRotationError(
+            f"{what}. That is the grid convergence of a map projection ({-deg:+.4f} deg): give the "
+            "project's coordinate reference system ([site] crs = \"EPSG:...\" in session.toml, or "
+            "`trolley project set-crs`), and the engine turns true north into grid north")
+    raise GridRotationError(
+        f"{what}, after the convergence of {grid.convergence_rad * 180 / np.pi:+.4f} deg of the CRS given was "
+        "applied: check the CRS (its zone) and the initial heading")
 
 
 #: The fixes observe the position errors N, E, D of the 8-state vector.
@@ -429,7 +529,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
             return None
         return lambda f: report(step, start + (end - start) * f)
 
-    meta = session.meta
+    meta, grid = session_site(session.meta, session.fixes.enh_m)
+    if meta is not session.meta:  # the latitude derived from the CRS at the fixes
+        session = replace(session, meta=meta)
     imu = meta.imu
     if imu is None:
         raise ValueError("session.toml has no [imu] figures: the filter needs them for Q and P0")
@@ -454,7 +556,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     fix_enh = session.fixes.enh_m[order]
     fix_sig = session.fixes.sigma_m[order]
     origin = fix_enh[0].copy()
-    fix_ned = _ned(fix_enh, origin)
+    # the filter works in a local true-north ground frame (the dead reckoning's); a projected
+    # grid is turned by its convergence and scaled by its combined scale factor about the first fix
+    fix_ned = _ned(_grid_to_local(fix_enh, origin, grid), origin)
     fix_blocks = np.clip(np.searchsorted(dr.t_s, fix_t), 0, dr.t_s.shape[0] - 1)
 
     if align.heading_source == "fixes":
@@ -535,9 +639,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     # smoothed errors at every DR block, subtracted from the dead-reckoned trajectory
     Pdiag = np.diagonal(Ps, axis1=1, axis2=2)[:, _POS]
     var_blocks = _interp_nodes(dr, nodes, Pdiag)
-    enh = _enh(ned, origin)
+    enh = _local_to_grid(_enh(ned, origin), origin, grid)
     sig = np.sqrt(np.maximum(var_blocks, 0.0))
-    sigma_enh = np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]])
+    sigma_enh = _sigmas_to_grid(np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), grid)
     roll = dr_used.euler_rad()[:, 0]
     traj = Trajectory(dr.t_s, dr.travel_m, enh, sigma_enh, roll, x_blocks, odometer_m=dr.distance_m)
 
@@ -546,6 +650,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     fwd = gated
     y = fwd.innovation
     innov_enh = np.column_stack([y[:, 1], y[:, 0], -y[:, 2]])
+    if grid is not None:
+        innov_enh = grid.local_to_grid(innov_enh)
+    check_rotation(dr, fix_blocks, fix_ned, lever, fwd.accepted, heading_sigma, grid)
     reasons = []
     thr = None
     if config.gate_probability is not None:

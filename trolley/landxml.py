@@ -3,31 +3,49 @@ and write one back.
 
 What is read (schema LandXML-1.2.xsd; see ``docs/conventions.md``, "Design geometry"):
 
+- ``<Units>``: ``<Metric>`` (metre, millimetre, centimetre, kilometre) or ``<Imperial>``
+  (``foot`` = international foot 0.3048 m, ``USSurveyFoot`` = 1200/3937 m, ``inch``, ``mile``),
+  converted to metres here; cant values are mm (inches in an imperial file).
+- A file may hold several ``<Alignment>``: one is chosen by name (:func:`alignment_names` lists
+  them; :class:`AlignmentChoiceError` when the choice is missing or unknown).
 - ``<CoordGeom>``: ``<Line>``, ``<Curve>`` (circular arc, Start/Center/End) and ``<Spiral>``
   with ``spiType="clothoid"``. Point text is "Northing Easting [Elevation]" (the elevation is
   ignored). Directions (``dir``, ``dirStart``, ...) are NOT trusted: every heading is recomputed
   from coordinates (Line: Start->End; Curve: the radius Center->Start and ``rot``; Spiral:
   Start->PI). Line and arc lengths and the arc radius come from the coordinates too; the
   clothoid takes ``length``, ``radiusStart``, ``radiusEnd`` (``INF`` = straight) and ``rot``.
-  The elements are chained from the first one's start point and heading, and every Start and
-  End in the file must lie within 1 mm of the chained geometry.
+  Each element starts at its own Start point and direction (no chaining: a direction break of
+  2e-5 rad at one join does not move every later element); the gap and direction break at
+  each join are reported above :data:`JOIN_TOLERANCE_M` / :data:`DIRECTION_TOLERANCE_RAD` and
+  refused above :data:`GAP_REFUSE_M` / :data:`DIRECTION_REFUSE_RAD`. Elements shorter than
+  :data:`ZERO_LENGTH_M` are skipped. A declared ``Alignment/@length`` that disagrees with the
+  elements is reported; the elements are used.
+- ``<StaEquation>``: the drawing stationing (:class:`~trolley.stationing.Stationing`), kept on
+  the alignment; chainage inside stays the internal station (staStart + distance).
 - ``<Profile>/<ProfAlign>`` (the first one): ``<PVI>`` and ``<ParaCurve length>`` ("station
   elevation"); ``<CircCurve length radius>`` is an exact circle of that radius tangent to both
   grades (crest or sag from the grades, whatever the sign of the radius); its ``length`` must
-  agree with the circle's arc length within max(0.1 m, 1 %).
-- ``<Cant>/<CantStation>``: ``appliedCant`` (mm, a rail height difference) is converted to the
+  agree with the circle's arc length within max(0.1 m, 1 %). Curves overlapping by less than
+  :data:`PROFILE_OVERLAP_TOLERANCE_M` are accepted with a note.
+- ``<Cant>/<CantStation>``: ``appliedCant`` (a rail height difference) is converted to the
   cant angle asin(appliedCant / rail_spacing); its sign follows ``curvature`` (``cw``, a
   right-hand curve, raises the left rail: positive), flipped when ``adverse="true"``. Ramps
-  between stations are linear (``transitionType`` absent, ``linear`` or ``clothoid``).
+  between stations are linear (``transitionType`` absent, ``linear`` or ``clothoid``). A cant
+  station off the alignment is refused with its station.
+- Cant and PVI stations are internal stations by the schema; with station equations, files
+  that give them as drawing stations are recognised (their cant stations fall on element joins
+  that way) and converted, with a note.
 
-Anything else that changes the geometry (other spiral types, ``UnsymParaCurve``, imperial units,
-point references) is refused with :class:`LandXmlError` naming the element. Station equations
-(``<StaEquation>``) are not applied: chainages are internal stations (staStart + distance).
+``<Feature>`` anywhere, vendor extensions (other namespaces) and other schema elements the
+import does not use are skipped with a note. Anything else that changes the geometry (other
+spiral types, ``UnsymParaCurve``, ``IrregularLine``, ``Chain``, point references) is refused
+with :class:`LandXmlError` naming the element.
 
 References
 ----------
 LandXML-1.2 schema, http://www.landxml.org/schema/LandXML-1.2/LandXML-1.2.xsd (Alignment,
-Spiral, Curve, Profile, Cant and CantStation documentation pages).
+Spiral, Curve, Profile, Cant, CantStation, StaEquation, Units: metLinear, impLinear,
+elevationType documentation).
 """
 from __future__ import annotations
 
@@ -42,18 +60,34 @@ import numpy as np
 from trolley import units
 from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line,
                                VerticalProfile)
+from trolley.stationing import StationEquation, StationNotFound, Stationing
 
-__all__ = ["LandXmlError", "parse_landxml", "landxml_text", "JOIN_TOLERANCE_M",
-           "DEFAULT_RAIL_SPACING_M"]
+__all__ = ["LandXmlError", "AlignmentChoiceError", "LandXmlDesign", "read_landxml", "parse_landxml",
+           "alignment_names", "landxml_text", "JOIN_TOLERANCE_M", "DIRECTION_TOLERANCE_RAD",
+           "GAP_REFUSE_M", "DIRECTION_REFUSE_RAD", "ZERO_LENGTH_M", "PROFILE_OVERLAP_TOLERANCE_M",
+           "DEFAULT_RAIL_SPACING_M", "CoordinateSystemInfo", "coordinate_system"]
 
 LANDXML_NS = "http://www.landxml.org/schema/LandXML-1.2"
-#: Largest gap allowed between consecutive elements, or between the coordinates in the file and
-#: the geometry recomputed from them.
+#: A gap above this between where an element's geometry ends and the next element's Start (or
+#: the last element's End in the file), or between an element's coordinates and its attributes,
+#: is reported (joins) or refused (within one element).
 JOIN_TOLERANCE_M = 1e-3
+#: A direction break above this at a join is reported: 1e-4 rad is a 0.25 mm versine on a 10 m
+#: chord across the join; real files carry up to 2e-5 rad from rounded coordinates.
+DIRECTION_TOLERANCE_RAD = 1e-4
+#: Joins farther apart than this, or breaking by more than DIRECTION_REFUSE_RAD, are not one
+#: alignment: refused.
+GAP_REFUSE_M = 0.1
+DIRECTION_REFUSE_RAD = 1e-2
+#: Elements shorter than this are skipped with a note (the neighbours join across them).
+ZERO_LENGTH_M = 1e-3
+#: Vertical curves overlapping by less than this are accepted with a note.
+PROFILE_OVERLAP_TOLERANCE_M = 1e-3
+#: Distance within which a cant station counts as lying on an element join (station basis).
+_BASIS_MATCH_M = 5e-3
 #: Distance between rail centre lines used to turn appliedCant (a height) into an angle.
 DEFAULT_RAIL_SPACING_M = 1.5
 
-_LINEAR_UNIT_M = {"meter": 1.0, "millimeter": 1e-3, "centimeter": 1e-2, "kilometer": 1e3}
 _LINEAR_CANT_TRANSITIONS = {"linear", "clothoid"}
 
 
@@ -166,51 +200,62 @@ class _ParsedElement:
     heading: float
     sta_start: float | None
     where: str
+    label: str
 
 
-def _parse_line(el, where, scale) -> _ParsedElement:
+def _zero_length_note(where: str, length_m: float, notes: list[str]) -> None:
+    notes.append(f"{where}: skipped, zero length ({units.m_to_mm(length_m):.3f} mm)")
+
+
+def _parse_line(el, where, scale, label, notes) -> _ParsedElement | None:
     start = _point(el, "Start", where, scale)
     end = _point(el, "End", where, scale)
     length = abs(end - start)
-    if length <= 0.0:
-        raise LandXmlError(f"{where}: Start and End coincide")
-    _check_attr_length(el, where, scale, length)
+    if length < ZERO_LENGTH_M:
+        _zero_length_note(where, length, notes)
+        return None
+    _check_attr_length(el, where, scale, length, notes)
     return _ParsedElement(Line(length), start, end, _bearing(end - start), _sta(el, where, scale),
-                          where)
+                          where, label)
 
 
-def _parse_curve(el, where, scale) -> _ParsedElement:
+def _parse_curve(el, where, scale, label, notes) -> _ParsedElement | None:
     sign = _rot_sign(el, where)
     if el.get("crvType") not in (None, "arc", "chord"):
         raise LandXmlError(f"{where}: crvType={el.get('crvType')!r} is not supported")
     start = _point(el, "Start", where, scale)
-    centre = _point(el, "Center", where, scale)
     end = _point(el, "End", where, scale)
+    attr_length = (None if el.get("length") is None
+                   else _finite(el.get("length"), where, "length") * scale)
+    if abs(end - start) < ZERO_LENGTH_M and (attr_length is None or attr_length < ZERO_LENGTH_M):
+        _zero_length_note(where, abs(end - start) if attr_length is None else attr_length, notes)
+        return None
+    centre = _point(el, "Center", where, scale)
     radius = abs(start - centre)
     if radius <= 0.0:
         raise LandXmlError(f"{where}: Center coincides with Start")
-    if abs(abs(end - centre) - radius) > JOIN_TOLERANCE_M:
-        raise LandXmlError(f"{where}: End is {abs(end - centre):.4f} m from Center but Start is "
-                           f"{radius:.4f} m: not a circular arc")
+    off = abs(end - centre) - radius
+    _tolerate(f"{where}: End is {abs(end - centre):.4f} m from Center but Start is {radius:.4f} m "
+              f"({units.m_to_mm(off):+.2f} mm)", abs(off), 0.0, notes,
+              used="the arc of radius |Start - Center| is used", refused="not a circular arc")
     if el.get("radius") is not None:
         r_attr = abs(_finite(el.get("radius"), where, "radius")) * scale
-        if abs(r_attr - radius) > JOIN_TOLERANCE_M:
-            raise LandXmlError(f"{where}: radius={el.get('radius')} disagrees with the coordinates "
-                               f"(|Start - Center| = {radius:.4f} m)")
+        _tolerate(f"{where}: radius={el.get('radius')} disagrees with the coordinates "
+                  f"(|Start - Center| = {radius:.4f} m, {units.m_to_mm(r_attr - radius):+.2f} mm)",
+                  abs(r_attr - radius), 0.0, notes, used="the coordinates are used",
+                  refused="not one element")
     # multiplying N + iE by exp(i a) turns clockwise: the swept angle in the rot direction
-    swept = (sign * math.atan2(((end - centre) / (start - centre)).imag,
-                               ((end - centre) / (start - centre)).real)) % (2.0 * math.pi)
+    ratio = (end - centre) / (start - centre)
+    swept = (sign * math.atan2(ratio.imag, ratio.real)) % (2.0 * math.pi)
     length = radius * swept
-    if length <= 0.0:
-        raise LandXmlError(f"{where}: Start and End coincide")
-    _check_attr_length(el, where, scale, length)
+    _check_attr_length(el, where, scale, length, notes)
     # the centre lies to the right of the direction of travel for cw, to the left for ccw
     tangent = (centre - start) / (1j * sign * radius)
     return _ParsedElement(Arc(length, sign / radius), start, end, _bearing(tangent),
-                          _sta(el, where, scale), where)
+                          _sta(el, where, scale), where, label)
 
 
-def _parse_spiral(el, where, scale) -> _ParsedElement:
+def _parse_spiral(el, where, scale, label, notes) -> _ParsedElement | None:
     spi = el.get("spiType")
     if spi is None:
         raise LandXmlError(f"{where}: missing attribute 'spiType'")
@@ -218,8 +263,11 @@ def _parse_spiral(el, where, scale) -> _ParsedElement:
         raise LandXmlError(f"{where}: spiType={spi!r} is not supported (only 'clothoid')")
     sign = _rot_sign(el, where)
     length = _finite(el.get("length"), where, "length") * scale
-    if length <= 0.0:
-        raise LandXmlError(f"{where}: length={el.get('length')!r} must be > 0")
+    if length < 0.0:
+        raise LandXmlError(f"{where}: length={el.get('length')!r} must be >= 0")
+    if length < ZERO_LENGTH_M:
+        _zero_length_note(where, length, notes)
+        return None
     k0 = _radius_curvature(el.get("radiusStart"), where, "radiusStart") / scale
     k1 = _radius_curvature(el.get("radiusEnd"), where, "radiusEnd") / scale
     if k0 == k1:
@@ -230,7 +278,7 @@ def _parse_spiral(el, where, scale) -> _ParsedElement:
     if abs(pi - start) <= 0.0:
         raise LandXmlError(f"{where}: PI coincides with Start")
     return _ParsedElement(Clothoid(length, sign * k0, sign * k1), start, end, _bearing(pi - start),
-                          _sta(el, where, scale), where)
+                          _sta(el, where, scale), where, label)
 
 
 def _sta(el, where, scale) -> float | None:
@@ -238,165 +286,325 @@ def _sta(el, where, scale) -> float | None:
     return None if text is None else _finite(text, where, "staStart") * scale
 
 
-def _check_attr_length(el, where, scale, length) -> None:
+def _check_attr_length(el, where, scale, length, notes) -> None:
     if el.get("length") is not None:
         l_attr = _finite(el.get("length"), where, "length") * scale
-        if abs(l_attr - length) > JOIN_TOLERANCE_M:
-            raise LandXmlError(f"{where}: length={el.get('length')} disagrees with the coordinates "
-                               f"({length:.4f} m)")
+        _tolerate(f"{where}: length={el.get('length')} disagrees with the coordinates by "
+                  f"{units.m_to_mm(l_attr - length):+.2f} mm", abs(l_attr - length), 0.0, notes,
+                  used="the coordinates are used", refused="not one element")
 
 
 _PARSERS = {"Line": _parse_line, "Curve": _parse_curve, "Spiral": _parse_spiral}
 
 
-def _horizontal(al: ET.Element, aname: str, scale: float, sta_start: float) -> HorizontalAlignment:
+def _namespace(tag: str) -> str:
+    return tag[1:].split("}", 1)[0] if isinstance(tag, str) and tag.startswith("{") else ""
+
+
+def _skippable(el: ET.Element, parent: ET.Element) -> bool:
+    """``<Feature>`` (user data) and elements of another namespace (vendor extensions)."""
+    return _local(el.tag) == "Feature" or _namespace(el.tag) != _namespace(parent.tag)
+
+
+def _tolerate(text: str, miss_m: float, turn_rad: float, notes: list[str], *, used: str,
+              refused: str) -> None:
+    """Refuse a disagreement above GAP_REFUSE_M or DIRECTION_REFUSE_RAD; note one above
+    JOIN_TOLERANCE_M or DIRECTION_TOLERANCE_RAD. ``text`` says where and how much."""
+    if miss_m > GAP_REFUSE_M or abs(turn_rad) > DIRECTION_REFUSE_RAD:
+        raise LandXmlError(f"{text}: {refused} (refused above {units.m_to_mm(GAP_REFUSE_M):.0f} mm "
+                           f"or {DIRECTION_REFUSE_RAD} rad)")
+    if miss_m > JOIN_TOLERANCE_M or abs(turn_rad) > DIRECTION_TOLERANCE_RAD:
+        notes.append(f"{text} ({used})")
+
+
+def _join_check(text: str, gap_m: float, turn_rad: float, notes: list[str]) -> None:
+    _tolerate(text, gap_m, turn_rad, notes, used="each element is used from its own Start and direction",
+              refused="the elements do not join")
+
+
+def _horizontal(al: ET.Element, aname: str, scale: float, sta_start: float,
+                notes: list[str]) -> tuple[HorizontalAlignment, list[_ParsedElement]]:
     geoms = _children(al, "CoordGeom")
     if not geoms:
         raise LandXmlError(f"{aname}: no <CoordGeom>")
+    if len(geoms) > 1:
+        notes.append(f"{aname}: {len(geoms)} <CoordGeom>; the first one is used")
     parsed: list[_ParsedElement] = []
     for i, el in enumerate(geoms[0]):
         tag = _local(el.tag)
-        if not tag:  # comments, processing instructions
+        if not tag or _skippable(el, geoms[0]):  # comments; Feature and extensions (noted later)
             continue
         where = f"{aname}, CoordGeom {_describe(el, i)}"
         if tag not in _PARSERS:
             raise LandXmlError(f"{where}: element type <{tag}> is not supported "
                                f"(Line, Curve, Spiral)")
-        if parsed:  # a gap is the first thing to report, before any disagreement it causes
-            gap = abs(_point(el, "Start", where, scale) - parsed[-1].end)
-            if gap > JOIN_TOLERANCE_M:
-                raise LandXmlError(f"{where}: Start is {units.m_to_mm(gap):.1f} mm from the End of the "
-                                   f"previous element: the elements do not join")
-        parsed.append(_PARSERS[tag](el, where, scale))
+        p = _PARSERS[tag](el, where, scale, _describe(el, i), notes)
+        if p is not None:
+            parsed.append(p)
     if not parsed:
         raise LandXmlError(f"{aname}: <CoordGeom> holds no Line, Curve or Spiral")
-    first = parsed[0]
     try:
-        hz = HorizontalAlignment.from_elements(first.start.imag, first.start.real, first.heading,
-                                               [p.element for p in parsed], sta_start)
+        hz = HorizontalAlignment.from_anchored_elements(
+            [p.start.imag for p in parsed], [p.start.real for p in parsed],
+            [p.heading for p in parsed], [p.element for p in parsed], sta_start)
     except ValueError as exc:
         raise LandXmlError(f"{aname}: {exc}") from None
-    for i, p in enumerate(parsed):
-        # the element's own direction (from its coordinates) against the chained tangent: a
-        # kink moves the far end of the element by about angle * length
-        turn = math.remainder(p.heading - hz.element_heading_rad[i], 2.0 * math.pi)
-        if abs(turn) * max(p.element.length_m, 1.0) > JOIN_TOLERANCE_M:
-            raise LandXmlError(f"{p.where}: its start direction from the coordinates differs from "
-                               f"the tangent of the previous element by {turn:.3g} rad, moving its "
-                               f"far end by {units.m_to_mm(abs(turn) * p.element.length_m):.1f} mm "
-                               f"(a kink)")
-        start = complex(hz.element_N_m[i], hz.element_E_m[i])
-        end = complex(hz.element_N_m[i + 1], hz.element_E_m[i + 1])
-        for label, file_pt, geom_pt in (("Start", p.start, start), ("End", p.end, end)):
-            miss = abs(file_pt - geom_pt)
-            if miss > JOIN_TOLERANCE_M:
-                raise LandXmlError(f"{p.where}: the geometry chained from the previous elements "
-                                   f"reaches its {label} {units.m_to_mm(miss):.1f} mm away from the "
-                                   f"coordinates in the file (a kink or a gap)")
-        if p.sta_start is not None and abs(p.sta_start - hz.element_chainage_m[i]) > JOIN_TOLERANCE_M:
-            raise LandXmlError(f"{p.where}: staStart does not follow the previous element "
-                               f"(expected {hz.element_chainage_m[i]:.4f})")
-    return hz
+    for i in range(len(parsed) - 1):
+        gap, turn = float(hz.join_gap_m[i]), float(hz.join_turn_rad[i])
+        _join_check(f"{parsed[i + 1].where}: its Start is {units.m_to_mm(gap):.2f} mm from where "
+                    f"{parsed[i].label} ends and its direction breaks by {turn:.2e} rad there",
+                    gap, turn, notes)
+    last = parsed[-1]
+    miss = abs(complex(hz.element_end_N_m[-1], hz.element_end_E_m[-1]) - last.end)
+    _join_check(f"{last.where}: its geometry ends {units.m_to_mm(miss):.2f} mm from its End in the "
+                f"file", miss, 0.0, notes)
+    return hz, parsed
 
 
-def _profile(al: ET.Element, aname: str, scale: float) -> VerticalProfile | None:
-    for prof in _children(al, "Profile"):
-        aligns = _children(prof, "ProfAlign")
-        if not aligns:
+def _check_sta_starts(parsed: list[_ParsedElement], hz: HorizontalAlignment,
+                      stationing: Stationing | None, notes: list[str]) -> None:
+    """``staStart`` of each element against the lengths before it (internal or drawing station)."""
+    internal = hz.element_chainage_m[:-1]
+    drawing = internal if stationing is None else stationing.station(internal)
+    before = 0.0  # a disagreement is reported where it begins, not at every later element
+    for p, s_int, s_dr in zip(parsed, internal, drawing):
+        if p.sta_start is None:
             continue
-        pa = aligns[0]
-        pwhere = f"{aname}, {_describe(prof)} {_describe(pa)}"
-        sta, elev, length, radius, wheres = [], [], [], [], []
-        for i, el in enumerate(pa):
-            tag = _local(el.tag)
-            if not tag:
-                continue
-            where = f"{pwhere} {_describe(el, i)}"
-            curve, r = 0.0, 0.0
-            if tag in ("ParaCurve", "CircCurve"):
-                curve = _finite(el.get("length"), where, "length") * scale
-                if curve < 0.0:
-                    raise LandXmlError(f"{where}: length={el.get('length')!r} must be >= 0")
-                if tag == "CircCurve":
-                    # the sign convention of the radius varies: crest/sag come from the grades
-                    r = abs(_finite(el.get("radius"), where, "radius")) * scale
-                    if r == 0.0:
-                        raise LandXmlError(f"{where}: radius must not be 0")
-            elif tag != "PVI":
-                raise LandXmlError(f"{where}: <{tag}> is not supported (PVI, ParaCurve, CircCurve)")
-            s, h = _values(el, where, (2,), "'station elevation'")
-            sta.append(s * scale)
-            elev.append(h * scale)
-            length.append(curve)
-            radius.append(r)
-            wheres.append(where)
-        if len(sta) < 2:
-            raise LandXmlError(f"{pwhere}: needs at least two PVIs")
-        for k in (0, len(sta) - 1):
-            if length[k] != 0.0 or radius[k] != 0.0:
-                raise LandXmlError(f"{wheres[k]}: the first and last PVI cannot carry a curve")
-        try:
-            profile = VerticalProfile.from_pvis(sta, elev, length, radius)
-        except ValueError as exc:
-            raise LandXmlError(f"{pwhere}: {exc}") from None
-        for k in np.flatnonzero(np.asarray(radius) > 0):
-            # the circle is fixed by the radius and the grades; its length is only a check
-            # (PVI heights rounded to the mm move it by centimetres on long curves)
-            if abs(profile.curve_length_m[k] - length[k]) > max(0.1, 0.01 * length[k]):
-                raise LandXmlError(f"{wheres[k]}: length={length[k]!r} but a circle of radius "
-                                   f"{radius[k]!r} between the adjacent grades is "
-                                   f"{profile.curve_length_m[k]:.3f} m long")
-        return profile
-    return None
+        miss = p.sta_start - (s_dr if abs(p.sta_start - s_dr) < abs(p.sta_start - s_int) else s_int)
+        if abs(miss - before) > JOIN_TOLERANCE_M:
+            notes.append(f"{p.where}: staStart is {units.m_to_mm(miss):+.1f} mm from the lengths of "
+                         f"the elements before it ({s_int:.4f}); the lengths are used")
+        before = miss
 
 
-def _cant(al: ET.Element, aname: str, hz: HorizontalAlignment, scale: float,
-          rail_spacing_m: float | None) -> CantProfile | None:
+def _station_equations(al: ET.Element, aname: str, scale: float, hz: HorizontalAlignment,
+                       notes: list[str]) -> Stationing | None:
+    els = _children(al, "StaEquation")
+    if not els:
+        return None
+    eqs = []
+    for i, el in enumerate(els):
+        where = f"{aname}, <StaEquation> no. {i + 1} (staInternal=\"{el.get('staInternal')}\")"
+        internal = _finite(el.get("staInternal"), where, "staInternal") * scale
+        ahead = _finite(el.get("staAhead"), where, "staAhead") * scale
+        back = None if el.get("staBack") is None else _finite(el.get("staBack"), where, "staBack") * scale
+        inc = el.get("staIncrement", "increasing")
+        if inc not in ("increasing", "decreasing"):
+            raise LandXmlError(f"{where}: staIncrement={inc!r}, expected 'increasing' or 'decreasing'")
+        eqs.append((internal, StationEquation(internal, ahead, back, inc == "increasing"), where))
+    eqs.sort(key=lambda e: e[0])
+    try:
+        st = Stationing(hz.start_chainage_m, hz.end_chainage_m, [e[1] for e in eqs])
+    except ValueError as exc:
+        raise LandXmlError(f"{aname}: {exc}") from None
+    for k, (_, eq, where) in enumerate(eqs):
+        if eq.back_m is not None and k + 1 < len(st.region_start_m) and \
+                st.region_start_m[k + 1] > st.region_start_m[k]:
+            reached = st.back_station(k)
+            if abs(reached - eq.back_m) > JOIN_TOLERANCE_M:
+                notes.append(f"{where}: staBack is {eq.back_m:.4f} but the stationing behind it "
+                             f"reaches {reached:.4f} ({units.m_to_mm(eq.back_m - reached):.1f} mm); "
+                             f"staAhead is used")
+    return st
+
+
+def _near_joins(s: np.ndarray, hz: HorizontalAlignment) -> int:
+    """How many of the internal stations ``s`` fall on element joins (cant ramps start and end there)."""
+    d = np.abs(np.asarray(s, dtype=float)[:, None] - hz.element_chainage_m[None, :])
+    return int(np.sum(np.min(d, axis=1) <= _BASIS_MATCH_M)) if d.size else 0
+
+
+def _station_basis(aname: str, hz: HorizontalAlignment, stationing: Stationing | None,
+                   cant_raw: list[float], pvi_raw: list[float], notes: list[str]) -> bool:
+    """True when the cant and PVI stations of the file are drawing stations (after the station
+    equations) rather than internal ones (the schema's ``station`` type).
+
+    Only a file with station equations can differ. The reading in which more cant stations fall
+    on element joins (cant ramps run along the transitions), and the last PVI on the alignment
+    end, wins; a reading that puts a cant station off the alignment loses; a tie is internal.
+    """
+    if stationing is None or not stationing.equations or not (cant_raw or pvi_raw):
+        return False
+    lo, hi = hz.start_chainage_m - JOIN_TOLERANCE_M, hz.end_chainage_m + JOIN_TOLERANCE_M
+
+    def score(cant_internal, last_pvi_internal) -> tuple[int, int]:
+        """(- cant stations off the alignment, stations on joins or the end)."""
+        c = np.asarray(cant_internal, dtype=float)
+        off = int(np.sum((c < lo) | (c > hi)))
+        hit = _near_joins(c, hz)
+        if last_pvi_internal is not None and abs(last_pvi_internal - hz.end_chainage_m) <= _BASIS_MATCH_M:
+            hit += 1
+        return -off, hit
+
+    s_int = score(cant_raw, pvi_raw[-1] if pvi_raw else None)
+    try:
+        cant_dr = stationing.internal_of(cant_raw) if cant_raw else np.empty(0)
+        pvi_dr = stationing.internal_of(pvi_raw[-1:]) if pvi_raw else None
+        s_dr = score(cant_dr, None if pvi_dr is None else float(pvi_dr[0]))
+    except StationNotFound:
+        s_dr = (-len(cant_raw) - 1, 0)
+    drawing = s_dr > s_int
+    kind = ("drawing stations (after the station equations)" if drawing
+            else "internal stations (the schema's 'station' type)")
+    notes.append(f"{aname}: the alignment has {len(stationing.equations)} station equation(s); cant "
+                 f"and PVI stations read as {kind}: as drawing stations {s_dr[1]} fall on element "
+                 f"joins or the end and {-s_dr[0]} cant stations off the alignment, as internal "
+                 f"stations {s_int[1]} and {-s_int[0]}")
+    return drawing
+
+
+def _to_internal(values: list[float], wheres: list[str], drawing: bool,
+                 stationing: Stationing | None) -> np.ndarray:
+    if not drawing:
+        return np.asarray(values, dtype=float)
+    try:
+        return stationing.internal_of(values)
+    except StationNotFound as exc:
+        raise LandXmlError(f"{wheres[exc.index]}: station {values[exc.index]!r} is in no part of the "
+                           f"drawing stationing (a gap left by a station equation)") from None
+
+
+def _prof_align(al: ET.Element, aname: str, notes: list[str]) -> tuple[ET.Element, str] | None:
+    found = [(prof, pa) for prof in _children(al, "Profile") for pa in _children(prof, "ProfAlign")]
+    if not found:
+        return None
+    prof, pa = found[0]
+    if len(found) > 1:
+        others = ", ".join(repr(p.get("name")) for _, p in found[1:])
+        notes.append(f"{aname}: {len(found)} <ProfAlign>; {pa.get('name')!r} is used, not {others}")
+    return pa, f"{aname}, {_describe(prof)} {_describe(pa)}"
+
+
+def _pvis(pa: ET.Element, pwhere: str, scale: float, elev_scale: float):
+    sta, elev, length, radius, wheres = [], [], [], [], []
+    for i, el in enumerate(pa):
+        tag = _local(el.tag)
+        if not tag or _skippable(el, pa):
+            continue
+        where = f"{pwhere} {_describe(el, i)}"
+        curve, r = 0.0, 0.0
+        if tag in ("ParaCurve", "CircCurve"):
+            curve = _finite(el.get("length"), where, "length") * scale
+            if curve < 0.0:
+                raise LandXmlError(f"{where}: length={el.get('length')!r} must be >= 0")
+            if tag == "CircCurve":
+                # the sign convention of the radius varies: crest/sag come from the grades
+                r = abs(_finite(el.get("radius"), where, "radius")) * scale
+                if r == 0.0:
+                    raise LandXmlError(f"{where}: radius must not be 0")
+        elif tag != "PVI":
+            raise LandXmlError(f"{where}: <{tag}> is not supported (PVI, ParaCurve, CircCurve)")
+        s, h = _values(el, where, (2,), "'station elevation'")
+        sta.append(s * scale)
+        elev.append(h * elev_scale)
+        length.append(curve)
+        radius.append(r)
+        wheres.append(where)
+    return sta, elev, length, radius, wheres
+
+
+def _profile(pa: ET.Element, pwhere: str, pvis, sta_internal: np.ndarray,
+             notes: list[str]) -> VerticalProfile:
+    _, elev, length, radius, wheres = pvis
+    sta = sta_internal
+    if len(sta) < 2:
+        raise LandXmlError(f"{pwhere}: needs at least two PVIs")
+    for k in (0, len(sta) - 1):
+        if length[k] != 0.0 or radius[k] != 0.0:
+            raise LandXmlError(f"{wheres[k]}: the first and last PVI cannot carry a curve")
+    try:
+        # overlaps are checked below, where the elements can be named
+        profile = VerticalProfile.from_pvis(sta, elev, length, radius, overlap_tolerance_m=math.inf)
+    except ValueError as exc:
+        raise LandXmlError(f"{pwhere}: {exc}") from None
+    for k in np.flatnonzero(np.asarray(radius) > 0):
+        # the circle is fixed by the radius and the grades; its length is only a check
+        # (PVI heights rounded to the mm move it by centimetres on long curves)
+        if abs(profile.curve_length_m[k] - length[k]) > max(0.1, 0.01 * length[k]):
+            raise LandXmlError(f"{wheres[k]}: length={length[k]!r} but a circle of radius "
+                               f"{radius[k]!r} between the adjacent grades is "
+                               f"{profile.curve_length_m[k]:.3f} m long")
+    overlap = profile.curve_end_m[:-1] - profile.curve_start_m[1:]
+    for k in np.flatnonzero(overlap > 1e-9 * max(1.0, float(np.max(np.abs(sta))))):
+        text = (f"{wheres[k]}: its vertical curve (ends at {profile.curve_end_m[k]:.4f}) and the next "
+                f"one (begins at {profile.curve_start_m[k + 1]:.4f}) overlap by "
+                f"{units.m_to_mm(overlap[k]):.3f} mm")
+        if overlap[k] > PROFILE_OVERLAP_TOLERANCE_M:
+            raise LandXmlError(f"{text} (refused above {units.m_to_mm(PROFILE_OVERLAP_TOLERANCE_M):.0f} mm)")
+        notes.append(f"{text} (accepted below {units.m_to_mm(PROFILE_OVERLAP_TOLERANCE_M):.0f} mm)")
+    return profile
+
+
+def _cant(al: ET.Element, aname: str, hz: HorizontalAlignment, u: "_Units",
+          rail_spacing_m: float | None, stationing: Stationing | None, drawing: bool,
+          notes: list[str]) -> CantProfile | None:
     cants = _children(al, "Cant")
     if not cants:
         return None
     cant_el = cants[0]
     cwhere = f"{aname}, {_describe(cant_el)}"
     if rail_spacing_m is None:
-        # the schema gives gauge in metres whatever the linear unit
-        rail_spacing_m = _finite(cant_el.get("gauge"), cwhere, "gauge")
+        # the schema gives gauge in metres (feet in an imperial file)
+        rail_spacing_m = _finite(cant_el.get("gauge"), cwhere, "gauge") * u.gauge
     if not rail_spacing_m > 0:
         raise LandXmlError(f"{cwhere}: rail spacing {rail_spacing_m!r} must be > 0")
-    sta, ang = [], []
-    for i, el in enumerate(_children(cant_el, "CantStation")):
-        where = f"{cwhere} {_describe(el, i)}"
-        s = _finite(el.get("station"), where, "station") * scale
-        height_m = units.mm_to_m(_finite(el.get("appliedCant"), where, "appliedCant"))
-        if abs(height_m) >= rail_spacing_m:
-            raise LandXmlError(f"{where}: appliedCant={el.get('appliedCant')} mm exceeds the rail "
-                               f"spacing {rail_spacing_m} m")
-        trans = el.get("transitionType")
-        if trans is not None and trans not in _LINEAR_CANT_TRANSITIONS:
-            raise LandXmlError(f"{where}: transitionType={trans!r} is not supported (linear ramps)")
-        curv = el.get("curvature")
+    raw, heights, curvs, flips, wheres = _cant_stations(cant_el, cwhere, u)
+    if not raw:
+        raise LandXmlError(f"{cwhere}: no <CantStation>")
+    sta = _to_internal(raw, wheres, drawing, stationing)
+    lo, hi = hz.start_chainage_m, hz.end_chainage_m
+    for s, r, where in zip(sta, raw, wheres):
+        if s > hi + JOIN_TOLERANCE_M or s < lo - JOIN_TOLERANCE_M:
+            side = "beyond the alignment end" if s > hi else "before the alignment start"
+            ends = (f"{lo:.4f} .. {hi:.4f}" if stationing is None else
+                    f"{lo:.4f} .. {hi:.4f} internal, {stationing.station(lo):.4f} .. "
+                    f"{stationing.station(hi):.4f} drawing")
+            raise LandXmlError(f"{where}: station {r / u.linear:.4f} lies {side} by "
+                               f"{(s - hi if s > hi else lo - s):.4f} m (the alignment runs {ends})")
+    ang = []
+    for s, height_m, curv, flip, where in zip(sta, heights, curvs, flips, wheres):
+        sign = curv
         if curv is None:
             sign = _side_of_curve(hz, s)
             if sign == 0.0 and height_m != 0.0:
                 raise LandXmlError(f"{where}: missing attribute 'curvature' and no horizontal curve "
                                    f"at this station to take the side from")
+        sign *= flip
+        if abs(height_m) >= rail_spacing_m:
+            raise LandXmlError(f"{where}: appliedCant {units.m_to_mm(height_m):.1f} mm exceeds the "
+                               f"rail spacing {rail_spacing_m} m")
+        ang.append(sign * math.asin(height_m / rail_spacing_m))
+    try:
+        return CantProfile.from_stations(sta, ang)
+    except ValueError as exc:
+        raise LandXmlError(f"{cwhere}: {exc}") from None
+
+
+def _cant_stations(cant_el: ET.Element, cwhere: str, u: "_Units"):
+    """Raw stations (m, as in the file), rail height differences (m), sides (``cw`` +1, ``ccw``
+    -1, None: from the curve), ``adverse`` flips (-1) and element names."""
+    raw, heights, curvs, flips, wheres = [], [], [], [], []
+    for i, el in enumerate(_children(cant_el, "CantStation")):
+        where = f"{cwhere} {_describe(el, i)}"
+        raw.append(_finite(el.get("station"), where, "station") * u.linear)
+        heights.append(_finite(el.get("appliedCant"), where, "appliedCant") * u.cant)
+        trans = el.get("transitionType")
+        if trans is not None and trans not in _LINEAR_CANT_TRANSITIONS:
+            raise LandXmlError(f"{where}: transitionType={trans!r} is not supported (linear ramps)")
+        curv = el.get("curvature")
+        if curv is None:
+            sign = None
         elif curv in ("cw", "ccw"):
             sign = 1.0 if curv == "cw" else -1.0
         else:
             raise LandXmlError(f"{where}: curvature={curv!r}, expected 'cw' or 'ccw'")
         adverse = el.get("adverse")
-        if adverse is not None:
-            if adverse not in ("true", "false", "1", "0"):
-                raise LandXmlError(f"{where}: adverse={adverse!r} is not a boolean")
-            if adverse in ("true", "1"):
-                sign = -sign
-        sta.append(s)
-        ang.append(sign * math.asin(height_m / rail_spacing_m))
-    if not sta:
-        raise LandXmlError(f"{cwhere}: no <CantStation>")
-    try:
-        return CantProfile.from_stations(sta, ang)
-    except ValueError as exc:
-        raise LandXmlError(f"{cwhere}: {exc}") from None
+        if adverse is not None and adverse not in ("true", "false", "1", "0"):
+            raise LandXmlError(f"{where}: adverse={adverse!r} is not a boolean")
+        curvs.append(sign)
+        flips.append(-1.0 if adverse in ("true", "1") else 1.0)
+        wheres.append(where)
+    return raw, heights, curvs, flips, wheres
 
 
 def _side_of_curve(hz: HorizontalAlignment, s: float) -> float:
@@ -406,79 +614,320 @@ def _side_of_curve(hz: HorizontalAlignment, s: float) -> float:
     return float(np.sign(nz[0])) if nz.size else 0.0
 
 
-def parse_landxml(text: str, alignment_name: str | None = None, *,
-                  rail_spacing_m: float | None = DEFAULT_RAIL_SPACING_M) -> Alignment:
-    """Read one ``<Alignment>`` of a LandXML 1.2 document.
+#: Children each element uses; anything else in it is skipped with a note.
+_USED_CHILDREN = {"Alignment": {"CoordGeom", "Profile", "Cant", "StaEquation", "Start"},
+                  "Profile": {"ProfAlign"}, "Cant": {"CantStation"}}
 
-    Parameters
+
+def _skipped_notes(al: ET.Element, aname: str, notes: list[str]) -> None:
+    """One note per kind of element the import does not use (Feature, vendor extensions, ...)."""
+    counts: dict[tuple[str, str], int] = {}
+
+    def walk(el: ET.Element, path: str) -> None:
+        used = _USED_CHILDREN.get(_local(el.tag))
+        for c in el:
+            tag = _local(c.tag)
+            if not tag:
+                continue
+            if _skippable(c, el) or (used is not None and tag not in used):
+                ns = _namespace(c.tag)
+                what = f"<{tag}>" + (f" ({ns} extension)" if ns != _namespace(el.tag) else "")
+                counts[(path, what)] = counts.get((path, what), 0) + 1
+                continue
+            walk(c, f"{path}/{tag}")
+
+    walk(al, "")
+    for (path, what), n in counts.items():
+        place = f"in {path.lstrip('/')}" if path else "in the alignment"
+        notes.append(f"{aname}: skipped {n} {what} {place} (not used by the import)")
+
+
+@dataclass(frozen=True)
+class CoordinateSystemInfo:
+    """The ``<CoordinateSystem>`` element of a LandXML 1.2 file (all attributes optional).
+
+    Attributes
     ----------
-    text : the XML document.
-    alignment_name : ``Alignment/@name`` to read; may be omitted when the file holds one.
-    rail_spacing_m : distance between the rail centre lines that turns ``appliedCant`` (mm)
-        into the cant angle asin(appliedCant / rail_spacing); ``None`` uses the ``gauge``
-        attribute of ``<Cant>``.
-
-    Returns
-    -------
-    Alignment
-        Horizontal alignment, the first ``<ProfAlign>`` (if any) and ``<Cant>`` (if any).
-
-    Raises
-    ------
-    LandXmlError
-        Malformed XML, missing or malformed attributes, unsupported element types, or elements
-        that do not join within :data:`JOIN_TOLERANCE_M`. The message names the element.
+    name : ``name`` (e.g. "ETRS89 / UTM zone 32N").
+    epsg_code : ``epsgCode`` as an integer ("25832", "EPSG:25832" and "urn:ogc:def:crs:EPSG::25832"
+        all give 25832).
+    ogc_wkt : ``ogcWktCode`` when it holds WKT.
+    proj4 : a PROJ string (``+proj=...``) when ``ogcWktCode`` holds one instead of WKT (some
+        exporters write it there; the schema has no attribute of its own for it).
+    horizontal_datum, vertical_datum : ``horizontalDatum``, ``verticalDatum`` (e.g. "DHHN2016").
+    horizontal_crs_name, vertical_crs_name : ``horizontalCoordinateSystemName``,
+        ``verticalCoordinateSystemName``.
     """
+
+    name: str | None = None
+    epsg_code: int | None = None
+    ogc_wkt: str | None = None
+    proj4: str | None = None
+    horizontal_datum: str | None = None
+    vertical_datum: str | None = None
+    horizontal_crs_name: str | None = None
+    vertical_crs_name: str | None = None
+
+    @property
+    def crs_text(self) -> str | None:
+        """What ``pyproj.CRS.from_user_input`` takes: "EPSG:n", else the WKT, else the PROJ string."""
+        if self.epsg_code is not None:
+            return f"EPSG:{self.epsg_code}"
+        return self.ogc_wkt or self.proj4
+
+
+def _parse_root(text: str) -> ET.Element:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
         raise LandXmlError(f"not well-formed XML: {exc}") from None
     if _local(root.tag) != "LandXML":
         raise LandXmlError(f"root element is <{_local(root.tag)}>, expected <LandXML>")
-    scale = _linear_scale(root)
-    found = [el for el in root.iter() if _local(el.tag) == "Alignment"]
+    return root
+
+
+def coordinate_system(text: str) -> CoordinateSystemInfo | None:
+    """The ``<CoordinateSystem>`` of a LandXML document, or None when it has none.
+
+    Parameters
+    ----------
+    text : the XML document.
+
+    Returns
+    -------
+    CoordinateSystemInfo or None
+
+    Raises
+    ------
+    LandXmlError
+        Malformed XML, or an ``epsgCode`` that is not a number.
+    """
+    return _coordinate_system(_parse_root(text))
+
+
+def _coordinate_system(root: ET.Element) -> CoordinateSystemInfo | None:
+    found = _children(root, "CoordinateSystem")
+    if not found:
+        return None
+    cs = found[0]
+
+    def attr(name: str) -> str | None:
+        value = cs.get(name)
+        return value.strip() if value is not None and value.strip() else None
+
+    epsg = attr("epsgCode")
+    code = None
+    if epsg is not None:
+        digits = epsg.rsplit(":", 1)[-1].strip()
+        if not digits.isdigit():
+            raise LandXmlError(f"<CoordinateSystem>: epsgCode={epsg!r} is not an EPSG number")
+        code = int(digits)
+    wkt = attr("ogcWktCode")
+    proj4 = None
+    if wkt is not None and wkt.startswith("+"):
+        wkt, proj4 = None, wkt
+    return CoordinateSystemInfo(name=attr("name"), epsg_code=code, ogc_wkt=wkt, proj4=proj4,
+                                horizontal_datum=attr("horizontalDatum"),
+                                vertical_datum=attr("verticalDatum"),
+                                horizontal_crs_name=attr("horizontalCoordinateSystemName"),
+                                vertical_crs_name=attr("verticalCoordinateSystemName"))
+
+
+class AlignmentChoiceError(LandXmlError):
+    """The file holds several alignments and none (or an unknown one) was named.
+
+    Attributes
+    ----------
+    names : the ``Alignment/@name`` values in the file, in file order.
+    """
+
+    def __init__(self, message: str, names: list[str]) -> None:
+        super().__init__(message)
+        self.names = names
+
+
+@dataclass(frozen=True)
+class LandXmlDesign:
+    """One alignment read from a LandXML file, with what the reader has to tell about it.
+
+    Attributes
+    ----------
+    alignment : the design geometry (SI; chainage = internal station).
+    notes : what was skipped, tolerated or reported (element named in each), in file order.
+    names : every ``Alignment/@name`` in the file.
+    coordinate_system : the file's ``<CoordinateSystem>``, if any.
+    """
+
+    alignment: Alignment
+    notes: tuple[str, ...]
+    names: tuple[str, ...]
+    coordinate_system: CoordinateSystemInfo | None
+
+
+def _alignments(root: ET.Element) -> list[ET.Element]:
+    return [el for el in root.iter() if _local(el.tag) == "Alignment"]
+
+
+def alignment_names(text: str) -> list[str]:
+    """``Alignment/@name`` of every alignment in a LandXML document, in file order.
+
+    Raises
+    ------
+    LandXmlError
+        Malformed XML or not a LandXML document.
+    """
+    return [a.get("name") or "" for a in _alignments(_parse_root(text))]
+
+
+def read_landxml(text: str, alignment_name: str | None = None, *,
+                 rail_spacing_m: float | None = DEFAULT_RAIL_SPACING_M) -> LandXmlDesign:
+    """Read one ``<Alignment>`` of a LandXML 1.2 document, with notes on what was tolerated.
+
+    Parameters
+    ----------
+    text : the XML document.
+    alignment_name : ``Alignment/@name`` to read; may be omitted when the file holds one.
+    rail_spacing_m : distance between the rail centre lines that turns ``appliedCant`` into the
+        cant angle asin(appliedCant / rail_spacing); ``None`` uses the ``gauge`` attribute of
+        ``<Cant>``.
+
+    Returns
+    -------
+    LandXmlDesign
+        The alignment (horizontal, first ``<ProfAlign>``, ``<Cant>``, station equations) and
+        the notes: skipped elements (``Feature``, extensions, zero-length elements), joins with a
+        gap above :data:`JOIN_TOLERANCE_M` or a direction break above
+        :data:`DIRECTION_TOLERANCE_RAD`, vertical curves overlapping by less than
+        :data:`PROFILE_OVERLAP_TOLERANCE_M`, a declared length that disagrees with the elements,
+        how cant stations were read against station equations.
+
+    Raises
+    ------
+    AlignmentChoiceError
+        Several alignments and no ``alignment_name``, or no alignment of that name.
+    LandXmlError
+        Malformed XML, missing or malformed attributes, unsupported element types, elements
+        that do not join (gap above :data:`GAP_REFUSE_M` or a break above
+        :data:`DIRECTION_REFUSE_RAD`), a cant station off the alignment. The message names the
+        element.
+    """
+    root = _parse_root(text)
+    u = _units(root)
+    found = _alignments(root)
     if not found:
         raise LandXmlError("no <Alignment> in the file")
+    names = [a.get("name") or "" for a in found]
+    listing = ", ".join(repr(n) for n in names)
     if alignment_name is None:
         if len(found) > 1:
-            names = ", ".join(repr(a.get("name")) for a in found)
-            raise LandXmlError(f"the file holds {len(found)} alignments ({names}); choose one by name")
+            raise AlignmentChoiceError(f"the file holds {len(found)} alignments ({listing}); choose "
+                                       f"one by name", names)
         al = found[0]
     else:
         chosen = [a for a in found if a.get("name") == alignment_name]
         if not chosen:
-            names = ", ".join(repr(a.get("name")) for a in found)
-            raise LandXmlError(f"no <Alignment name={alignment_name!r}> (found {names})")
+            raise AlignmentChoiceError(f"no <Alignment name={alignment_name!r}> (found {listing})",
+                                       names)
         al = chosen[0]
     aname = f"<Alignment name={al.get('name')!r}>"
     for attr in ("name", "staStart", "length"):
         if al.get(attr) is None:
             raise LandXmlError(f"{aname}: missing attribute {attr!r}")
-    sta_start = _finite(al.get("staStart"), aname, "staStart") * scale
-    length = _finite(al.get("length"), aname, "length") * scale
-    hz = _horizontal(al, aname, scale, sta_start)
+    notes: list[str] = []
+    if u.note:
+        notes.append(u.note)
+    sta_start = _finite(al.get("staStart"), aname, "staStart") * u.linear
+    length = _finite(al.get("length"), aname, "length") * u.linear
+    hz, parsed = _horizontal(al, aname, u.linear, sta_start, notes)
     if abs(hz.length_m - length) > JOIN_TOLERANCE_M:
-        raise LandXmlError(f"{aname}: length={al.get('length')} but its elements add up to "
-                           f"{hz.length_m:.4f} m")
-    profile = _profile(al, aname, scale)
-    cant = _cant(al, aname, hz, scale, rail_spacing_m)
-    return Alignment(hz, profile, cant, name=al.get("name") or "")
+        notes.append(f"{aname}: length={al.get('length')} but its elements add up to "
+                     f"{hz.length_m / u.linear:.4f} ({units.m_to_mm(length - hz.length_m):+.1f} mm); "
+                     f"the elements are used")
+    stationing = _station_equations(al, aname, u.linear, hz, notes)
+    _check_sta_starts(parsed, hz, stationing, notes)
+    prof = _prof_align(al, aname, notes)
+    pvis = None if prof is None else _pvis(prof[0], prof[1], u.linear, u.elevation)
+    cant_raw: list[float] = []
+    if _children(al, "Cant"):
+        cant_raw = _cant_stations(_children(al, "Cant")[0], aname, u)[0]
+    drawing = _station_basis(aname, hz, stationing, cant_raw, [] if pvis is None else pvis[0], notes)
+    profile = None
+    if prof is not None:
+        profile = _profile(prof[0], prof[1], pvis, _to_internal(pvis[0], pvis[4], drawing, stationing),
+                           notes)
+    cant = _cant(al, aname, hz, u, rail_spacing_m, stationing, drawing, notes)
+    _skipped_notes(al, aname, notes)
+    alignment = Alignment(hz, profile, cant, name=al.get("name") or "", stationing=stationing)
+    return LandXmlDesign(alignment, tuple(notes), tuple(names), _coordinate_system(root))
 
 
-def _linear_scale(root: ET.Element) -> float:
+def parse_landxml(text: str, alignment_name: str | None = None, *,
+                  rail_spacing_m: float | None = DEFAULT_RAIL_SPACING_M) -> Alignment:
+    """The alignment of :func:`read_landxml` (its notes dropped: for files imported before).
+
+    Parameters and exceptions as :func:`read_landxml`.
+
+    Returns
+    -------
+    Alignment
+    """
+    return read_landxml(text, alignment_name, rail_spacing_m=rail_spacing_m).alignment
+
+
+@dataclass(frozen=True)
+class _Units:
+    """Metres per file unit: lengths/coordinates/stations, elevations, cant values, gauge."""
+
+    linear: float
+    elevation: float
+    cant: float
+    gauge: float
+    note: str | None = None
+
+
+_METRIC_M = {"meter": 1.0, "millimeter": 1e-3, "centimeter": 1e-2, "kilometer": 1e3}
+_IMPERIAL_M = {"foot": units.INTERNATIONAL_FOOT_M, "USSurveyFoot": units.US_SURVEY_FOOT_M,
+               "inch": units.INCH_M, "mile": units.INTERNATIONAL_MILE_M}
+
+
+def _units(root: ET.Element) -> _Units:
+    """``<Units>``: ``<Metric>`` or ``<Imperial>`` (schema types metLinear, impLinear and
+    elevationType; cant values are mm, or inches in an imperial file)."""
     units_el = [el for el in root if _local(el.tag) == "Units"]
     if not units_el:
         raise LandXmlError("missing <Units>")
-    metric = _children(units_el[0], "Metric")
-    if not metric:
-        kinds = ", ".join(f"<{_local(c.tag)}>" for c in units_el[0]) or "nothing"
-        raise LandXmlError(f"<Units> holds {kinds}; only <Metric> is supported")
-    lin = metric[0].get("linearUnit")
+    kinds = _children(units_el[0], "Metric") + _children(units_el[0], "Imperial")
+    if not kinds:
+        found = ", ".join(f"<{_local(c.tag)}>" for c in units_el[0]) or "nothing"
+        raise LandXmlError(f"<Units> holds {found}; expected <Metric> or <Imperial>")
+    el = kinds[0]
+    kind = _local(el.tag)
+    table = _METRIC_M if kind == "Metric" else _IMPERIAL_M
+    lin = el.get("linearUnit")
     if lin is None:
-        raise LandXmlError("<Units><Metric>: missing attribute 'linearUnit'")
-    if lin not in _LINEAR_UNIT_M:
-        raise LandXmlError(f"<Units><Metric>: linearUnit={lin!r} is not supported")
-    return _LINEAR_UNIT_M[lin]
+        raise LandXmlError(f"<Units><{kind}>: missing attribute 'linearUnit'")
+    if lin not in table:
+        raise LandXmlError(f"<Units><{kind}>: linearUnit={lin!r} is not supported "
+                           f"({', '.join(table)})")
+    linear = table[lin]
+    elev_name = el.get("elevationUnit")
+    if elev_name is None:
+        elevation = linear
+    else:
+        # elevationType: meter, kilometer, feet, miles; "feet" is the file's own foot
+        foot = units.US_SURVEY_FOOT_M if lin == "USSurveyFoot" else units.INTERNATIONAL_FOOT_M
+        table_h = {"meter": 1.0, "kilometer": 1e3, "feet": foot, "miles": units.INTERNATIONAL_MILE_M}
+        if elev_name not in table_h:
+            raise LandXmlError(f"<Units><{kind}>: elevationUnit={elev_name!r} is not supported "
+                               f"({', '.join(table_h)})")
+        elevation = table_h[elev_name]
+    note = None
+    if kind == "Imperial":
+        note = (f"<Units><Imperial linearUnit={lin!r}>: lengths converted at {linear!r} m, "
+                f"elevations at {elevation!r} m, cant values from inches")
+    return _Units(linear=linear, elevation=elevation,
+                  cant=units.INCH_M if kind == "Imperial" else 1e-3,
+                  gauge=linear if kind == "Imperial" else 1.0, note=note)
 
 
 # --------------------------------------------------------------------------------------------
@@ -558,8 +1007,8 @@ def landxml_text(alignment: Alignment, *, rail_spacing_m: float = DEFAULT_RAIL_S
     for i, el in enumerate(hz.elements):
         s0 = hz.element_chainage_m[i]
         n0, e0 = hz.element_N_m[i], hz.element_E_m[i]
-        n1, e1 = hz.element_N_m[i + 1], hz.element_E_m[i + 1]
-        h0, h1 = hz.element_heading_rad[i], hz.element_heading_rad[i + 1]
+        n1, e1 = hz.element_end_N_m[i], hz.element_end_E_m[i]
+        h0, h1 = hz.element_heading_rad[i], hz.element_end_heading_rad[i]
         common = f'staStart="{_f(s0)}" length="{_f(el.length_m)}"'
         if isinstance(el, Line):
             w(f'        <Line {common}>')
@@ -594,6 +1043,12 @@ def landxml_text(alignment: Alignment, *, rail_spacing_m: float = DEFAULT_RAIL_S
             w(f'          <End>{_pt(n1, e1)}</End>')
             w('        </Spiral>')
     w('      </CoordGeom>')
+    if alignment.stationing is not None:
+        for eq in alignment.stationing.equations:
+            back = "" if eq.back_m is None else f' staBack="{_f(eq.back_m)}"'
+            inc = "increasing" if eq.increasing else "decreasing"
+            w(f'      <StaEquation staInternal="{_f(eq.internal_m)}" staAhead="{_f(eq.ahead_m)}"'
+              f'{back} staIncrement="{inc}"/>')
     if alignment.profile is not None:
         pr = alignment.profile
         w(f'      <Profile name={quoteattr(name + "-V")}>')

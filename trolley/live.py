@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation,
                                    static_alignment, stop_levels)
-from trolley.engine import (ProcessConfig, Stations, Trajectory, _enh, _interp_rows, _ned, _POS,
+from trolley.engine import (ProcessConfig, Stations, Trajectory, _enh, _interp_nodes, _ned, _POS,
                             error_model, filter_noise, filter_nodes, fix_covariances, fix_matrices,
                             initial_covariance, make_stations, turn_sigmas)
 from trolley.session import Fixes, RawSession, SessionMeta
@@ -277,8 +277,8 @@ class LiveProcessor:
         last, prev = self._fixes[-1], self._fixes[-2]
         sm = rts_smooth(last.F, last.Q, last.forward, scale=np.sqrt(np.diag(self._P0)))
         sub = _slice(self._dr, last.block_start, last.block + 1)
-        xb = _interp_rows(sub.t_s, sub.t_s[last.nodes], sm.x)
-        var = _interp_rows(sub.t_s, sub.t_s[last.nodes], np.diagonal(sm.P, axis1=1, axis2=2)[:, _POS])
+        xb = _interp_nodes(sub, last.nodes, sm.x)
+        var = _interp_nodes(sub, last.nodes, np.diagonal(sm.P, axis1=1, axis2=2)[:, _POS])
         ned = self._p0 + sub.position_ned_m - xb[:, _POS]
         sig = np.sqrt(np.maximum(var, 0.0))
         roll_err = np.interp(sub.t_s, [sub.t_s[0], last.t_s], [prev.roll_error_rad, last.roll_error_rad])

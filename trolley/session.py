@@ -35,7 +35,9 @@ class SessionMeta:
 
     Attributes
     ----------
-    latitude_rad, height_m : site, for the Earth-rate terms.
+    latitude_rad, height_m : site, for the Earth-rate terms; the latitude may be NaN when a
+        ``crs`` is given: it is then derived from the CRS and the fixes
+        (:func:`trolley.projection.session_site`).
     trolley : trolley geometry.
     imu : IMU datasheet figures (the filters' Q and P0 come from these).
     odometer : odometer figures.
@@ -43,6 +45,10 @@ class SessionMeta:
     static_s : length of the initial static period.
     initial_heading_rad : heading to use instead of gyrocompassing, or NaN.
     design_alignment : path of the LandXML design, relative to the session folder, or None.
+    design_alignment_name : ``Alignment/@name`` to read from a design file holding several.
+    crs : the project grid's coordinate reference system (EPSG code, PROJ string), or None: the
+        grid is then taken as a local map with true north and ground scale.
+    vertical_datum : name of the height datum of H, or None.
     """
 
     latitude_rad: float
@@ -54,6 +60,9 @@ class SessionMeta:
     static_s: float = 900.0
     initial_heading_rad: float = float("nan")
     design_alignment: str | None = None
+    design_alignment_name: str | None = None
+    crs: str | None = None
+    vertical_datum: str | None = None
 
 
 @dataclass

@@ -410,6 +410,60 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
 
 
 @dataclass(frozen=True)
+class RailValues:
+    """Deviations of each rail from its design position (SI, in the sheet's sign conventions).
+
+    Attributes
+    ----------
+    left_alignment_m, right_alignment_m : lateral deviation of the left / right rail.
+    left_level_m, right_level_m : vertical deviation of the left / right rail (+ up).
+    """
+
+    left_alignment_m: np.ndarray
+    right_alignment_m: np.ndarray
+    left_level_m: np.ndarray
+    right_level_m: np.ndarray
+
+
+def rail_values(geometry: TrackGeometry) -> RailValues:
+    """Left and right rail alignment and level from the centre line, the gauge and the cant.
+
+    The centre line lies midway between the rails: a gauge wider by ``g`` puts each rail ``g/2``
+    further out, and a cant deviation ``c`` (left rail higher by ``c`` than designed) raises the
+    left rail by ``c/2`` and lowers the right one by ``c/2``:
+
+        left alignment  = lateral dev - sL g/2      right alignment = lateral dev + sL g/2
+        left level      = vertical dev + sC c/2     right level     = vertical dev - sC c/2
+
+    with sL = +1 when lateral values are + to the right, -1 when + to the left, and sC = +1 when
+    cant is + with the left rail high, -1 otherwise (``geometry.config``). NaN where the gauge
+    (alignment) or the cant deviation (level) is not measured.
+
+    Parameters
+    ----------
+    geometry : computed geometry (columns lateral_dev_m, vertical_dev_m, gauge_dev_m, cant_dev_m).
+
+    Returns
+    -------
+    RailValues
+
+    References
+    ----------
+    EN 13848-1 (alignment and longitudinal level are defined per rail); the centre-line
+    deviations of this module; docs/track_geometry.md.
+    """
+    c = geometry.columns
+    sl = _LATERAL_SIGNS[geometry.config.lateral_sign]
+    sc = _CANT_SIGNS[geometry.config.cant_sign]
+    half_g = 0.5 * c["gauge_dev_m"]
+    half_c = 0.5 * c["cant_dev_m"]
+    return RailValues(left_alignment_m=c["lateral_dev_m"] - sl * half_g,
+                      right_alignment_m=c["lateral_dev_m"] + sl * half_g,
+                      left_level_m=c["vertical_dev_m"] + sc * half_c,
+                      right_level_m=c["vertical_dev_m"] - sc * half_c)
+
+
+@dataclass(frozen=True)
 class ColumnStats:
     """Statistics of one parameter over the valid stations (SI)."""
 
@@ -432,7 +486,7 @@ def column_stats(name: str, x: np.ndarray) -> ColumnStats:
                        float(v.min()), float(v.max()), float(np.sqrt(np.mean(v * v))))
 
 
-__all__ = ["GeometryConfig", "TrackInput", "TrackGeometry", "ColumnStats", "track_geometry",
+__all__ = ["GeometryConfig", "TrackInput", "TrackGeometry", "ColumnStats", "RailValues", "rail_values", "track_geometry",
            "column_names", "column_stats", "long_chord_name", "versine", "horizontal_versine",
            "long_chord_check", "backward_difference", "shifted", "lateral_sigma",
            "heading_from_positions", "uniform_grid"]

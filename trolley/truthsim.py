@@ -36,8 +36,14 @@ This is the validation model of the project, deliberately NOT the filters' reduc
    transport rate w_en^n = [v_E, -v_N, -v_E tan L] / (R + h); f^b = C_n^b (a^n + (2 w_ie^n +
    w_en^n) x v^n - g^n) with g^n = [0, 0, normal gravity(L, h)], a^n = P'' sdot^2 + P' sddot the
    acceleration of the reference point (centripetal included); both evaluated at the interval
-   midpoint. The latitude follows the path, L = L0 + (N - N0) / (R + h). The grid is taken as a
-   local tangent map: grid north = true north, grid scale 1 (documented in docs/simulator.md).
+   midpoint. The latitude follows the path, L = L0 + (N - N0) / (R + h). Without a CRS the grid
+   is taken as a local tangent map: grid north = true north, grid scale 1 (documented in
+   docs/simulator.md). With ``crs`` the design and the CPIII are in that projected grid and the
+   truth moves in a local true-north ground frame: the design's grid offsets from the first stop
+   are turned by the grid convergence gamma and divided by the combined scale k R / (R + h)
+   (``trolley.projection``, both taken at the centroid of the stops, as the engine takes them
+   at the centroid of the fixes), so the IMU sees true headings and
+   the odometer ground distances, while the fixes, truth.csv and the chainage stay in the grid.
    The IMU sits at the reference point with mounting C_b^bt = Rz Ry Rx(nominal + residual)
    (Jiang 2017 Eq. 10: C_bt^b = I - [eps x] for small angles), the residual being a seeded
    N(0, imu_residual_misalignment_rad) per axis that the processing does not know.
@@ -70,6 +76,7 @@ from scipy.interpolate import BSpline, make_interp_spline
 from trolley import units
 from trolley.earth import (EARTH_RADIUS_M, earth_rate_n, normal_gravity_m_s2,
                            transport_rate_n)
+from trolley.projection import GridFactors, site_factors
 from trolley.sensors import IMU_PRESETS, ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
@@ -135,6 +142,11 @@ class SimulationConfig:
         misalignment, quantisation stays); the track irregularities are kept.
     initial_heading : write ``initial_heading_deg`` (the true trolley yaw at the start) to the
         session; None = only when the IMU preset cannot gyrocompass.
+    crs : project CRS of the design's grid (EPSG code, PROJ string), or None for a local
+        true-north, ground-scale grid. With it the site latitude is the CRS's at the stops' centroid
+        (``latitude_rad`` is ignored) and session.toml carries ``[site] crs`` unless
+        ``crs_in_session`` is False (a crew that forgot to give it).
+    crs_in_session : write the CRS to the session metadata.
     seed : seed of ``np.random.default_rng``.
     """
 
@@ -166,6 +178,8 @@ class SimulationConfig:
     placement_offset_m: float = 0.0
     errors: bool = True
     initial_heading: bool | None = None
+    crs: str | None = None
+    crs_in_session: bool = True
     seed: int = 0
 
 
@@ -296,6 +310,8 @@ class TruthGeometry:
     arclength : spline of the 3-D path length from ``start_chainage_m``.
     start_chainage_m, end_chainage_m : the simulated stretch.
     rail_spacing_m : for cant = rail_spacing * sin(roll).
+    grid : the projection at the site (``position`` is then in the local true-north ground
+        frame, see :meth:`grid_enh`), or None (grid = local frame).
     """
 
     origin_E_m: float
@@ -306,6 +322,14 @@ class TruthGeometry:
     start_chainage_m: float
     end_chainage_m: float
     rail_spacing_m: float
+    grid: GridFactors | None = None
+
+    def grid_enh(self, p) -> np.ndarray:
+        """Grid E, N, H (..., 3) of positions (..., 3) in the frame of ``position``."""
+        p = np.asarray(p, dtype=float)
+        if self.grid is not None:
+            p = self.grid.local_to_grid(p)
+        return np.stack([p[..., 0] + self.origin_E_m, p[..., 1] + self.origin_N_m, p[..., 2]], axis=-1)
 
     def attitude(self, s, dp=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Trolley roll, pitch, yaw (ZYX, NED, yaw in [0, 2 pi)) at chainages ``s``."""
@@ -319,7 +343,8 @@ class TruthGeometry:
 
 def truth_geometry(alignment, start_chainage_m: float, length_m: float,
                    irregularity_rms_m: float, rail_spacing_m: float, nominal_gauge_m: float,
-                   rng: np.random.Generator, step_m: float = TRUTH_GRID_STEP_M) -> TruthGeometry:
+                   rng: np.random.Generator, step_m: float = TRUTH_GRID_STEP_M,
+                   grid: GridFactors | None = None) -> TruthGeometry:
     """Design plus random irregularities, as splines of the chainage.
 
     Parameters
@@ -330,6 +355,8 @@ def truth_geometry(alignment, start_chainage_m: float, length_m: float,
     rail_spacing_m, nominal_gauge_m : trolley/track geometry.
     rng : random generator (the irregularities are drawn from it).
     step_m : knot spacing, m.
+    grid : projection factors at the site: the positions are turned into the local true-north
+        ground frame (module docstring, item 4); None keeps the grid.
 
     Returns
     -------
@@ -349,6 +376,8 @@ def truth_geometry(alignment, start_chainage_m: float, length_m: float,
     de = (d.E_m - e0) + lat * np.cos(heading)
     dn = (d.N_m - n0) - lat * np.sin(heading)
     h = d.H_m + vert
+    if grid is not None:
+        de, dn, h = grid.grid_to_local(np.column_stack([de, dn, h])).T
     sin_roll = np.sin(d.cant_rad) + xlevel / rail_spacing_m
     if np.any(np.abs(sin_roll) >= 1.0):
         raise ValueError("cant plus cross-level exceeds the rail spacing")
@@ -363,7 +392,7 @@ def truth_geometry(alignment, start_chainage_m: float, length_m: float,
     return TruthGeometry(origin_E_m=e0, origin_N_m=n0, position=position, extras=extras,
                          arclength=arclength, start_chainage_m=float(start_chainage_m),
                          end_chainage_m=float(start_chainage_m + length_m),
-                         rail_spacing_m=float(rail_spacing_m))
+                         rail_spacing_m=float(rail_spacing_m), grid=grid)
 
 
 # ------------------------------------------------------------------------------------------
@@ -641,8 +670,9 @@ class TruthTrack:
         dp = g.position(s, 1)
         ex = g.extras(s)
         roll, pitch, yaw = g.attitude(s, dp)
-        return TruthProfile(chainage_m=s, E_m=p[..., 0] + g.origin_E_m,
-                            N_m=p[..., 1] + g.origin_N_m, H_m=p[..., 2], roll_rad=roll,
+        enh = g.grid_enh(p)
+        return TruthProfile(chainage_m=s, E_m=enh[..., 0],
+                            N_m=enh[..., 1], H_m=enh[..., 2], roll_rad=roll,
                             pitch_rad=pitch, yaw_rad=yaw, gauge_m=ex[..., 1],
                             cant_m=g.rail_spacing_m * np.sin(roll), lateral_m=ex[..., 2],
                             vertical_m=ex[..., 3])
@@ -733,8 +763,14 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     if s0 < a_start - 1e-9 or s0 + cfg.length_m > a_end + 1e-9:
         raise ValueError(f"survey {s0:.3f}..{s0 + cfg.length_m:.3f} m leaves the alignment "
                          f"({a_start:.3f}..{a_end:.3f} m)")
+    grid = None
+    if cfg.crs:
+        # the site where the engine takes it: the centroid of the stops (of the fixes)
+        stops = alignment.evaluate(np.arange(s0, s0 + cfg.length_m + 1e-9, cfg.fix_spacing_m))
+        grid = site_factors(cfg.crs, np.column_stack([stops.E_m, stops.N_m, stops.H_m]))
+        cfg = replace(cfg, latitude_rad=grid.latitude_rad)
     geo = truth_geometry(alignment, s0, cfg.length_m, cfg.irregularity_rms_m,
-                         cfg.trolley.rail_spacing_m, cfg.trolley.nominal_gauge_m, rng)
+                         cfg.trolley.rail_spacing_m, cfg.trolley.nominal_gauge_m, rng, grid=grid)
     motion = motion_profile(s0, cfg.length_m, cfg.fix_spacing_m, cfg.static_s, cfg.stop_s,
                             cfg.speed_m_s, cfg.accel_time_s, cfg.turn_at_stops, cfg.turn_s,
                             cfg.lift_at_stops, cfg.lift_tilt_rad, cfg.placement_offset_m)
@@ -779,8 +815,9 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
         f_b[i0:i1] = f_bt @ c_b_bt
         end = slice(2, None, 2)
         tr["s"][i0:i1] = kin["s"][end]
-        tr["E"][i0:i1] = kin["p"][end, 0] + geo.origin_E_m
-        tr["N"][i0:i1] = kin["p"][end, 1] + geo.origin_N_m
+        enh_end = geo.grid_enh(kin["p"][end])
+        tr["E"][i0:i1] = enh_end[:, 0]
+        tr["N"][i0:i1] = enh_end[:, 1]
         tr["H"][i0:i1] = kin["p"][end, 2]
         tr["roll"][i0:i1] = kin["roll"][end]
         tr["pitch"][i0:i1] = kin["pitch"][end]
@@ -843,9 +880,8 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     lever_n = _quat_rotate(q_fix,
                            np.broadcast_to(np.asarray(cfg.trolley.prism_lever_arm_m, float),
                                            (s_fix.size, 3)))
-    enh = np.column_stack([p_fix[:, 0] + geo.origin_E_m + lever_n[:, 1],
-                           p_fix[:, 1] + geo.origin_N_m + lever_n[:, 0],
-                           p_fix[:, 2] - lever_n[:, 2]])
+    enh = geo.grid_enh(np.column_stack([p_fix[:, 0] + lever_n[:, 1], p_fix[:, 1] + lever_n[:, 0],
+                                        p_fix[:, 2] - lever_n[:, 2]]))
     if cfg.errors:
         enh = enh + rng.standard_normal(enh.shape) * cfg.fix_sigma_m
     # a stop is labelled by the CPIII pair it stands beside (pairs every fix_spacing_m from
@@ -871,7 +907,8 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     meta = SessionMeta(latitude_rad=float(cfg.latitude_rad), height_m=float(cfg.height_m),
                        trolley=cfg.trolley, imu=imu, odometer=odo,
                        fix_sigma_m=float(cfg.fix_sigma_m), static_s=float(cfg.static_s),
-                       initial_heading_rad=initial_heading, design_alignment=None)
+                       initial_heading_rad=initial_heading, design_alignment=None,
+                       crs=cfg.crs if cfg.crs_in_session else None)
     session = RawSession(meta=meta, imu_t_s=t_imu, imu_w_rad_s=w_meas, imu_f_m_s2=f_meas,
                          odo_t_s=t_odo, odo_distance_m=dist, fixes=fixes,
                          gauge_t_s=t_g, gauge_m=gauge)

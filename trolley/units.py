@@ -85,3 +85,13 @@ def ratio_to_mm_per_m(x):
 def mm_per_m_to_ratio(x):
     """Rate in mm/m (per mille) to a dimensionless ratio (m/m)."""
     return np.asarray(x, dtype=float) * 1e-3 if np.ndim(x) else float(x) * 1e-3
+
+
+#: US survey foot, m (1200/3937 exactly; the foot of the US State Plane grids in feet).
+US_SURVEY_FOOT_M = 1200.0 / 3937.0
+#: International foot, m (0.3048 exactly).
+INTERNATIONAL_FOOT_M = 0.3048
+#: International inch, m (the unit of LandXML cant values in imperial files).
+INCH_M = 0.0254
+#: International mile, m.
+INTERNATIONAL_MILE_M = 1609.344

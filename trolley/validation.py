@@ -40,7 +40,8 @@ def track_errors(t_s, distance_m, enh_m, sigma_enh_m, truth) -> TrackErrors:
     ----------
     t_s, distance_m : (K,) times and odometer distance of the trajectory samples.
     enh_m, sigma_enh_m : (K, 3) estimated E, N, H and their 1-sigmas.
-    truth : an object with arrays ``t_s, E_m, N_m, H_m, yaw_rad`` (``trolley.truthsim.TruthTrack``).
+    truth : an object with arrays ``t_s, E_m, N_m, H_m, yaw_rad`` (``trolley.truthsim.TruthTrack``;
+        with a projected grid, ``truth.geometry.grid``, the true yaw is turned to the grid bearing).
 
     Returns
     -------
@@ -52,6 +53,9 @@ def track_errors(t_s, distance_m, enh_m, sigma_enh_m, truth) -> TrackErrors:
     tn = np.interp(t, truth.t_s, truth.N_m)
     th = np.interp(t, truth.t_s, truth.H_m)
     yaw = np.interp(t, truth.t_s, np.unwrap(truth.yaw_rad))
+    grid = getattr(getattr(truth, "geometry", None), "grid", None)
+    if grid is not None:  # the truth's yaw is true; the errors are split along the grid bearing
+        yaw = yaw - grid.convergence_rad
     dE, dN, dH = enh_m[moving, 0] - te, enh_m[moving, 1] - tn, enh_m[moving, 2] - th
     c, s = np.cos(yaw), np.sin(yaw)
     sE, sN = sigma_enh_m[moving, 0], sigma_enh_m[moving, 1]

@@ -84,6 +84,12 @@ class TotalStationTwin(PtyTwin):
             self.atr_locked = False
             self.distance = None
 
+    def seed_noise(self, seed) -> None:
+        """Restart the reading noise from ``seed`` (an int or a sequence of ints): readings that
+        depend on what is measured, not on how many readings came before."""
+        with self._lock:
+            self._rng = np.random.default_rng(seed)
+
     def inject_rc(self, rc: int, rpc: int | None = None, times: int = 1) -> None:
         """Answer the next ``times`` requests (of ``rpc``, or any) with return code ``rc``."""
         with self._lock:

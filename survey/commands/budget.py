@@ -8,14 +8,15 @@ Exit codes: 0 every direction within the target, 1 at least one direction over i
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
+from survey import jsonout
 from survey.atomicwrite import write_text_atomic, write_with
+from survey.commands.options import BudgetImu, old_name, renamed
 from rich.markup import escape
 
 IMU_CHOICES = ("rlg", "fog", "mems", "custom")
@@ -107,8 +108,12 @@ def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_d
     return imu, figs
 
 
-def compute_report(imu: str, figs, target_mm: float, monte_carlo_runs: int, seed: int) -> dict:
-    """Everything the command prints, as one JSON-ready dict (schema in docs/budget.md)."""
+def compute_report(imu: str, figs, target_mm: float, monte_carlo_runs: int, seed: int,
+                   progress=None) -> dict:
+    """Everything the command prints, as one JSON-ready dict (schema in docs/budget.md).
+
+    ``progress(step, fraction)`` follows the Monte Carlo block by block (survey/commands/progress.py).
+    """
     from trolley import budget as B
     from trolley import units
 
@@ -171,7 +176,7 @@ def compute_report(imu: str, figs, target_mm: float, monte_carlo_runs: int, seed
         "target_m": target,
     }
     if monte_carlo_runs:
-        mc = B.monte_carlo(case, monte_carlo_runs, seed=seed)
+        mc = B.monte_carlo(case, monte_carlo_runs, seed=seed, progress=progress)
         out["monte_carlo"] = {
             "runs": mc.runs, "seed": seed, "dt_s": float(mc.times_s[1] - mc.times_s[0]), "block_runs": mc.block_runs,
             "relative_sampling_error": mc.relative_sampling_error(),
@@ -420,8 +425,9 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
 
 
 def budget_command(
-    imu: Annotated[Optional[str], typer.Option("--imu", help="IMU preset: rlg, fog, mems or custom "
-                                               "(default rlg; custom when a bias and the ARW are given)")] = None,
+    imu: Annotated[Optional[BudgetImu], typer.Option("--imu", case_sensitive=False,
+                                                     help="IMU preset, or custom figures (default rlg; custom "
+                                                          "when a bias and the ARW are given)")] = None,
     gyro_bias_deg_h: Annotated[Optional[float], typer.Option(
         "--gyro-bias-deg-h", help="equivalent gyro bias, used as given (Jiang 2017 Eq. 15-16)")] = None,
     gyro_bias_instability_deg_h: Annotated[Optional[float], typer.Option(
@@ -445,8 +451,9 @@ def budget_command(
     target_mm: Annotated[float, typer.Option("--target-mm", help="1-sigma target at the worst point")] = 0.67,
     monte_carlo: Annotated[int, typer.Option("--monte-carlo", help="also simulate N intervals (0: no)")] = 0,
     seed: Annotated[int, typer.Option("--seed", help="random seed of the Monte Carlo")] = 0,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="write PNG figures and CSV data to this folder")] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plots", help="write PNG figures and CSV data to this folder")] = None,
     json_output: Annotated[bool, typer.Option("--json", help="print one JSON object on stdout, nothing else")] = False,
+    plot_old: Annotated[Optional[Path], typer.Option("--plot", hidden=True, help=old_name("--plots"))] = None,
 ) -> None:
     """Accuracy budget of one fix interval and IMU/odometer sizing (Jiang 2017 Sec. 5).
 
@@ -455,6 +462,7 @@ def budget_command(
     """
     from trolley.budget import TargetNotReachableError
 
+    plot = renamed(plot, plot_old, "--plots", "--plot")
     try:
         if monte_carlo < 0:
             raise BudgetInputError(f"--monte-carlo must be >= 0, got {monte_carlo}")
@@ -466,7 +474,13 @@ def budget_command(
         imu_name, figs = sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,
                                         heading_error_deg, level_error_deg, odo_scale_noise, odo_scale_error,
                                         fix_spacing_m, speed_m_s, fix_sigma_mm, latitude_deg)
-        rep = compute_report(imu_name, figs, target_mm, monte_carlo, seed)
+        if monte_carlo:
+            from survey.commands.progress import progress_bar
+
+            with progress_bar("Monte Carlo") as report:
+                rep = compute_report(imu_name, figs, target_mm, monte_carlo, seed, report)
+        else:
+            rep = compute_report(imu_name, figs, target_mm, monte_carlo, seed)
     except (BudgetInputError, TargetNotReachableError, ValueError) as exc:
         _fail(str(exc))
         return
@@ -476,32 +490,20 @@ def budget_command(
         return
     if plot is not None:
         if plot.exists() and not plot.is_dir():
-            _fail(f"--plot {plot}: exists and is not a folder")
+            _fail(f"--plots {plot}: exists and is not a folder")
         try:
             files = write_plots(plot, imu_name, figs, rep)
         except OSError as exc:
-            _fail(f"--plot {plot}: cannot write ({exc.strerror or exc})")
+            _fail(f"--plots {plot}: cannot write ({exc.strerror or exc})")
             return
         rep["plots"] = [str(f) for f in files]
     if json_output:
-        typer.echo(json.dumps(_json_safe(rep), indent=2, allow_nan=False))
+        jsonout.echo(rep, indent=2)
     else:
         _print_table(rep)
         if plot is not None:
             typer.echo("wrote " + ", ".join(rep["plots"]), err=True)
     raise typer.Exit(code=0 if rep["pass"] else 1)
-
-
-def _json_safe(x):
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, bool) or x is None or isinstance(x, str):
-        return x
-    if isinstance(x, int):
-        return x
-    return _num(x)
 
 
 def register(app: typer.Typer) -> None:

@@ -21,6 +21,9 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
+from survey.commands.options import ImuPreset
+from survey.commands.survey import session_outcome_dict
+
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
 
@@ -31,12 +34,15 @@ def _demo_project() -> Path:
 
 def demo(
     out: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: projects/demo/out)")] = None,
-    imu: Annotated[Optional[str], typer.Option(help="IMU grade: rlg, fog or mems (default: the project's)")] = None,
+    imu: Annotated[Optional[ImuPreset], typer.Option(help="IMU grade (default: the project's)")] = None,
     seed: Annotated[Optional[int], typer.Option(help="random seed of the simulation")] = None,
     direct: Annotated[bool, typer.Option("--direct", help="skip the field session: simulate, process, export")] = False,
     speedup: Annotated[float, typer.Option(help="simulated seconds per wall-clock second in the field session")] = 40.0,
+    json_output: Annotated[bool, typer.Option("--json", help="print where the results are and the accuracy "
+                                                             "against the truth as one JSON object on stdout")] = False,
 ) -> None:
     """Survey the demo project end to end (field session with simulated devices); print where the results are."""
+    from survey import jsonout
     from survey.limits import check_finite
 
     try:
@@ -45,13 +51,17 @@ def demo(
         raise typer.BadParameter(str(exc), param_hint="--speedup") from None
     project = _demo_project()
     out = out if out is not None else project / "out"
+    con = Console(stderr=True) if json_output else Console()
     if direct:
-        demo_direct(project, out, imu, seed)
+        doc = demo_direct(project, out, imu, seed, con)
     else:
-        demo_session(project, out, imu, seed, speedup)
+        doc = demo_session(project, out, imu, seed, speedup, con)
+    if json_output:
+        jsonout.echo(doc)
 
 
-def _accuracy_line(con: Console, result, truth) -> None:
+def _accuracy_line(con: Console, result, truth) -> dict:
+    """Print the accuracy against the truth; returns it for ``--json`` (mm and error/sigma)."""
     import numpy as np
 
     from trolley.validation import track_errors
@@ -63,17 +73,20 @@ def _accuracy_line(con: Console, result, truth) -> None:
     con.print(f"accuracy against the truth: RMS lateral {rms[0]:.3f} mm, vertical {rms[2]:.3f} mm, "
               f"longitudinal {rms[1]:.3f} mm; RMS error/sigma lateral {nr[0]:.2f}, vertical {nr[2]:.2f} "
               f"(1 = honest sigmas)", highlight=False)
+    return {"rms_lateral_mm": rms[0], "rms_vertical_mm": rms[2], "rms_longitudinal_mm": rms[1],
+            "normalised_rms_lateral": nr[0], "normalised_rms_vertical": nr[2]}
 
 
-def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[int], speedup: float) -> None:
-    """The demo through a scripted field session with the twins over ptys."""
+def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[int], speedup: float,
+                 con: Console | None = None) -> dict:
+    """The demo through a scripted field session with the twins over ptys; returns what ``--json`` prints."""
     from survey.commands.engine import fail
     from survey.commands.project import new
     from survey.commands.survey import run_session
     from survey.session.script import survey_script
     from trolley.sensors import IMU_PRESETS
 
-    con = Console()
+    con = con if con is not None else Console()
     err = Console(stderr=True)
     t_start = time.perf_counter()
     if imu is not None and imu not in IMU_PRESETS:
@@ -101,17 +114,22 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     script.write_text(survey_script(n_stops, note_every=5, station_every=5), encoding="utf-8")
     err.print(f"2/3 field session with simulated devices on ptys, {speedup:g}x real time, crew script {script}",
               highlight=False, markup=False)
-    outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False)
+    outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False, con=con)
     err.print("3/3 comparing with the simulator's truth ...")
     if outcome.result is None:
         fail("the session produced no processed track")
-    _accuracy_line(con, outcome.result, outcome.world.sim.truth)
-    con.print(f"project store: {folder / 'project.sqlite'}\ndone in {time.perf_counter() - t_start:.1f} s",
-              highlight=False, markup=False)
+    accuracy = _accuracy_line(con, outcome.result, outcome.world.sim.truth)
+    elapsed = time.perf_counter() - t_start
+    con.print(f"project store: {folder / 'project.sqlite'}\ndone in {elapsed:.1f} s", highlight=False, markup=False)
+    return {"mode": "field session", "project_store": folder / "project.sqlite",
+            **session_outcome_dict(session_name="demo", outcome=outcome), "accuracy": accuracy,
+            "elapsed_s": elapsed}
 
 
-def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int]) -> None:
-    """Simulate, write the raw session folder, process, export and compare with the truth."""
+def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int],
+                con: Console | None = None) -> dict:
+    """Simulate, write the raw session folder, process, export and compare with the truth; returns
+    what ``--json`` prints."""
     from dataclasses import replace
 
     from survey.commands.engine import fail, print_summary, run_process
@@ -122,7 +140,7 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     from trolley.sensors import IMU_PRESETS
     from trolley.truthsim import SimulationConfig, simulate_survey
 
-    con = Console()
+    con = con if con is not None else Console()
     err = Console(stderr=True)
     t_start = time.perf_counter()
     try:
@@ -146,17 +164,21 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
                   extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, 0.1)})
     err.print("2/4 processing (dead reckoning, filtering, RTS smoothing) ...")
     result, _, written = run_process(session_dir, out / "processed")
-    print_summary(result, written)
+    print_summary(result, written, con)
     err.print("3/4 survey sheet and plots ...")
     exported = export_outputs(out / "processed", out / "survey.xlsx", None, out / "plots",
                               project_name=project.resolve().name, session_name="simulated (direct)")
     err.print("4/4 comparing with the simulator's truth ...")
-    _accuracy_line(con, result, sim.truth)
+    accuracy = _accuracy_line(con, result, sim.truth)
     con.print(f"\nraw session:  {session_dir}\ntrack:        {written.track_csv}\n"
               f"survey sheet: {exported.xlsx}", highlight=False, markup=False)
     for i, png in enumerate(exported.plots):
         con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False, markup=False)
-    con.print(f"done in {time.perf_counter() - t_start:.1f} s", highlight=False)
+    elapsed = time.perf_counter() - t_start
+    con.print(f"done in {elapsed:.1f} s", highlight=False)
+    return {"mode": "direct", "raw_session": session_dir, "track_csv": written.track_csv,
+            "summary_json": written.summary_json, "xlsx": exported.xlsx, "plots": list(exported.plots),
+            "accuracy": accuracy, "elapsed_s": elapsed}
 
 
 def register(app: typer.Typer) -> None:

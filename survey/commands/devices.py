@@ -13,10 +13,12 @@ from pathlib import Path
 
 import typer
 
+from survey import jsonout
 from survey.atomicwrite import OutputError, guard_overwrite, write_marker, write_text_atomic
+from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
-                          no_args_is_help=True)
+                          no_args_is_help=True, rich_markup_mode=None)
 
 
 def _err(msg: str) -> None:
@@ -33,14 +35,21 @@ def _csv(header: list[str], cols: list) -> str:
 
 @devices_app.command("probe")
 def probe(
-    totalstation: str = typer.Option(..., "--totalstation", help="Serial port of the total station."),
+    totalstation: str | None = typer.Option(None, "--totalstation-port", help="Serial port of the total station "
+                                                                          "(required)."),
     baud: int = typer.Option(19200, "--baud", help="Baud rate (9600 and 19200 are both common)."),
     crc: bool | None = typer.Option(None, "--crc/--no-crc",
                                     help="GeoCOM CRC-16 field on/off (default: on if the instrument answers with it)."),
     timeout_s: float = typer.Option(3.0, "--timeout-s", help="Reply timeout of quick calls."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout."),
+    as_json: JsonFlag = False,
+    totalstation_old: str | None = typer.Option(None, "--totalstation", hidden=True,
+                                                help=old_name("--totalstation-port")),
 ) -> None:
     """Connection check, software version, ATR fine-adjust and one measurement."""
+    totalstation = renamed(totalstation, totalstation_old, "--totalstation-port", "--totalstation")
+    if totalstation is None:
+        raise typer.BadParameter("the serial port of the total station is required",
+                                 param_hint="--totalstation-port")
     from drivers import geocom
     from drivers.serialport import DeviceError
     from drivers.totalstation import TotalStation
@@ -65,7 +74,7 @@ def probe(
     finally:
         ts.close()
     if as_json:
-        typer.echo(json.dumps(out))
+        jsonout.echo(out)
     elif out["ok"]:
         typer.echo(f"E={out['E_m']:.4f} N={out['N_m']:.4f} H={out['H_m']:.4f} m  "
                    f"Hz={out['hz_rad']:.6f} V={out['v_rad']:.6f} rad  SD={out['slope_m']:.4f} m  rc={out['rc']}")
@@ -76,9 +85,10 @@ def probe(
 
 @devices_app.command("record")
 def record_cmd(
-    imu: str = typer.Option(..., "--imu", help="Serial port of the IMU (NovAtel RAWIMUSXB)."),
-    odometer: str | None = typer.Option(None, "--odometer", help="Serial port of the encoder counter."),
-    gauge: str | None = typer.Option(None, "--gauge", help="Serial port of the gauge sensor."),
+    imu: str | None = typer.Option(None, "--imu-port", help="Serial port of the IMU (NovAtel RAWIMUSXB; "
+                                                             "required)."),
+    odometer: str | None = typer.Option(None, "--odometer-port", help="Serial port of the encoder counter."),
+    gauge: str | None = typer.Option(None, "--gauge-port", help="Serial port of the gauge sensor."),
     seconds: float = typer.Option(..., "--seconds", min=0.0, help="How long to record."),
     out: Path = typer.Option(..., "--out", help="Output folder."),
     imu_axes: str = typer.Option("x,y,z", "--imu-axes", help="IMU axes to trolley FRD, e.g. 'x,-y,-z'."),
@@ -93,8 +103,17 @@ def record_cmd(
     imu_baud: int = typer.Option(460800, "--imu-baud", min=1, help="IMU line speed."),
     odometer_baud: int = typer.Option(115200, "--odometer-baud", min=1, help="Counter module line speed."),
     gauge_baud: int = typer.Option(115200, "--gauge-baud", min=1, help="Gauge sensor line speed."),
+    as_json: JsonFlag = False,
+    imu_old: str | None = typer.Option(None, "--imu", hidden=True, help=old_name("--imu-port")),
+    odometer_old: str | None = typer.Option(None, "--odometer", hidden=True, help=old_name("--odometer-port")),
+    gauge_old: str | None = typer.Option(None, "--gauge", hidden=True, help=old_name("--gauge-port")),
 ) -> None:
     """Record imu.csv, odometer.csv, gauge.csv (FORMATS.md section 1), raw logs and stats.json."""
+    imu = renamed(imu, imu_old, "--imu-port", "--imu")
+    odometer = renamed(odometer, odometer_old, "--odometer-port", "--odometer")
+    gauge = renamed(gauge, gauge_old, "--gauge-port", "--gauge")
+    if imu is None:
+        raise typer.BadParameter("the serial port of the IMU is required", param_hint="--imu-port")
     from drivers import encoder, novatel
     from drivers.recorder import RecordConfig, record
     from drivers.serialport import DeviceError
@@ -144,6 +163,10 @@ def record_cmd(
         write_text_atomic(out / "gauge.csv", _csv(["t_s", "gauge_m"], [rec.gauge_t_s, rec.gauge_m]))
     from rich.console import Console
 
+    if as_json:
+        jsonout.echo({"out": out, "imu_samples": len(rec.imu_t_s),
+                      "odometer_reads": None if rec.odo_t_s is None else len(rec.odo_t_s),
+                      "gauge_readings": None if rec.gauge_t_s is None else len(rec.gauge_t_s), "stats": stats})
     Console(stderr=True).print(
         f"recorded {len(rec.imu_t_s)} IMU samples"
         + (f", {len(rec.odo_t_s)} odometer reads" if rec.odo_t_s is not None else "")
@@ -184,8 +207,8 @@ def _session_feed(folder: Path, station: str | None):
 def simulate(
     out: Path | None = typer.Option(None, "--out", help="Write the devices file (PORTS.json) here."),
     session: Path | None = typer.Option(None, "--session", help="Feed the twins from this raw session folder."),
-    device: list[str] = typer.Option(list(("imu", "odometer", "gauge", "totalstation")), "--device",
-                                     help="Twin to start (repeat the option; default: all four)."),
+    device: list[Device] = typer.Option(list(Device), "--device",
+                                        help="Twin to start (repeat the option; default: all four)."),
     seconds: float | None = typer.Option(None, "--seconds", min=0.0,
                                          help="Stop after this long (default: run until interrupted)."),
     link_dir: Path | None = typer.Option(None, "--link-dir", help="Also make stable symlinks DIR/<device>."),
@@ -196,17 +219,18 @@ def simulate(
     station: str | None = typer.Option(None, "--station", help="Total station E0,N0,H0,Hi "
                                        "(default 0,0,0,1.5; with --session: beside the fixes)."),
     target: str = typer.Option("10,20,0.5", "--target", help="Synthetic prism E,N,H."),
-    noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad", min=0.0),
-    noise_dist_m: float = typer.Option(0.0, "--noise-dist-m", min=0.0),
+    noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad", min=0.0, help="Total station angle noise, 1-sigma."),
+    noise_dist_m: float = typer.Option(0.0, "--noise-dist-m", min=0.0, help="Total station distance noise, 1-sigma."),
     corrupt_rate: float = typer.Option(0.0, "--corrupt-rate", min=0.0, max=1.0, help="Per byte: corrupted."),
     drop_rate: float = typer.Option(0.0, "--drop-rate", min=0.0, max=1.0, help="Per byte: dropped."),
     garbage_rate: float = typer.Option(0.0, "--garbage-rate", min=0.0, max=1.0, help="Per write: garbage burst."),
     delay_rate: float = typer.Option(0.0, "--delay-rate", min=0.0, max=1.0, help="Per reply: late (odometer, total station)."),
     delay_s: float = typer.Option(0.5, "--delay-s", min=0.0, help="How late a delayed reply is."),
     missing_rate: float = typer.Option(0.0, "--missing-rate", min=0.0, max=1.0, help="Per reply: never sent."),
-    fault_device: list[str] = typer.Option(list(("imu", "odometer", "gauge", "totalstation")), "--fault-device",
-                                           help="Devices the faults apply to (repeat; default: all)."),
-    seed: int = typer.Option(0, "--seed"),
+    fault_device: list[Device] = typer.Option(list(Device), "--fault-device",
+                                              help="Devices the faults apply to (repeat; default: all)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the faults' random draws."),
+    as_json: JsonAlways = False,
 ) -> None:
     """Start the device twins on pseudo-terminals, write which port each listens on, run until
     interrupted (SIGINT/SIGTERM: ptys closed, the devices file removed, exit code 0)."""
@@ -214,12 +238,10 @@ def simulate(
     import threading
 
     from drivers.twins.base import Faults
-    from drivers.twins.fleet import DEVICES, Fleet, FleetConfig, synthetic_feed
+    from drivers.twins.fleet import Fleet, FleetConfig, synthetic_feed
 
-    for name in list(device) + list(fault_device):
-        if name not in DEVICES:
-            _err(f"unknown device {name!r}; use {', '.join(DEVICES)}")
-            raise typer.Exit(code=2)
+    device = [d.value for d in device]
+    fault_device = [d.value for d in fault_device]
     if out is not None and not out.parent.is_dir():
         _err(f"--out {out}: folder {out.parent} does not exist")
         raise typer.Exit(code=2)
@@ -253,7 +275,7 @@ def simulate(
         if out is not None:
             write_text_atomic(out, json.dumps(ports, indent=2) + "\n")
             wrote = True
-        typer.echo(json.dumps(ports))
+        jsonout.echo(ports)
         import sys
 
         sys.stdout.flush()

@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Optional
 
 import numpy as np
 import typer
 from rich.console import Console
 
+from survey.commands.options import Smoother, old_name, renamed
 from survey.limits import check_allocation
 
 err = Console(stderr=True)
@@ -29,12 +30,31 @@ def fail(message: str, code: int = 2) -> None:
 def process(
     session_dir: Annotated[Path, typer.Argument(help="raw session folder (FORMATS.md section 1)")],
     out: Annotated[Path, typer.Option("--out", help="output folder for track.csv, fixes.csv, summary.json")],
-    smoother: Annotated[str, typer.Option(help="rts (Rauch-Tung-Striebel) or tfs (two-filter); none = filtered only")] = "rts",
-    step: Annotated[float, typer.Option(help="chainage step of the output stations, m")] = 0.625,
+    smoother: Annotated[Smoother, typer.Option(help="rts (Rauch-Tung-Striebel) or tfs (two-filter); "
+                                                    "none = filtered only")] = "rts",
+    step_m: Annotated[float, typer.Option("--step-m", help="chainage step of the output stations, m")] = 0.625,
+    observability: Annotated[bool, typer.Option(
+        "--observability", help="also report the observability ranks of the session's interval models "
+                                "(Jiang 2017 Eq. 26; imports python-control, about 1 s more)")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="print the summary as one JSON object on "
+                                                             "stdout, nothing else")] = False,
+    step_old: Annotated[Optional[float], typer.Option("--step", hidden=True, help=old_name("--step-m"))] = None,
 ) -> None:
     """Filter and smooth a raw stop-and-go session into track.csv (Jiang 2017)."""
-    result, session, written = run_process(session_dir, out, smoother, step)
-    print_summary(result, written)
+    step_m = renamed(step_m, step_old, "--step-m", "--step", 0.625)
+    result, session, written = run_process(session_dir, out, smoother, step_m, observability=observability)
+    if json_output:
+        from survey import jsonout
+        from survey.trackio import summary_dict
+
+        doc = summary_dict(result, session, session_dir)
+        doc.update(track_csv=written.track_csv, fixes_csv=written.fixes_csv, summary_json=written.summary_json,
+                   rejected_fixes=[{"point": result.fixes.point[i], "t_s": result.fixes.t_s[i],
+                                    "reason": result.fixes.reason[i]}
+                                   for i in range(len(result.fixes.t_s)) if not result.fixes.accepted[i]])
+        jsonout.echo(doc)
+    else:
+        print_summary(result, written)
 
 
 #: Memory one output station needs through resampling and writing (about 60 float columns), bytes.
@@ -45,15 +65,15 @@ _READ_SHARE, _WRITE_SHARE = 0.15, 0.05
 
 
 def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float = 0.625,
-                force_accept: tuple[str, ...] = ()):
+                force_accept: tuple[str, ...] = (), observability: bool = False):
     """Read, process and write one session; exits with a clear message on bad input.
 
     The progress bar follows the engine's own sub-steps (dead reckoning, each filter and
     smoother pass node by node, stations) through the ``progress`` callback of
-    :func:`trolley.engine.process_session`.
+    :func:`trolley.engine.process_session`. The observability ranks (python-control, a slow
+    import) are computed only with ``observability=True``.
     """
-    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
-
+    from survey.commands.progress import progress_bar, share
     from survey.sessionio import SessionFormatError, read_design, read_session
     from survey.trackio import OutputFolderError, write_outputs
     from trolley.engine import ProcessConfig, process_session
@@ -61,25 +81,19 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
     if smoother not in ("rts", "tfs", "none"):
         fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
     if not (step > 0 and math.isfinite(step)):
-        fail(f"--step must be a positive finite number, not {step}")
+        fail(f"--step-m must be a positive finite number, not {step}")
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
-    with Progress(TextColumn("{task.description:<48}"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
-                  console=err, transient=True) as prog:
-        task = prog.add_task("reading the session", total=1.0)
-
-        def engine_progress(step_name: str, fraction: float) -> None:
-            done = _READ_SHARE + (1.0 - _READ_SHARE - _WRITE_SHARE) * fraction
-            prog.update(task, completed=done, description=step_name)
-
+    design_notes: list[str] = []
+    with progress_bar("reading the session", err) as report:
         try:
             session = read_session(session_dir)
-            design = read_design(session_dir, session.meta)
+            design = read_design(session_dir, session.meta, design_notes)
         except SessionFormatError as exc:
             fail(str(exc))
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
             fail(f"{session_dir}: {exc}")
-        prog.update(task, completed=_READ_SHARE)
+        report("processing", _READ_SHARE)
         duration_s = float(session.imu_t_s[-1] - session.imu_t_s[0])
         if session.meta.static_s >= duration_s:
             fail(f"{session_dir / 'session.toml'}: key alignment.static_s: {session.meta.static_s:g} s is not "
@@ -87,30 +101,34 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         span_m = float(np.ptp(session.odo_distance_m)) if session.odo_distance_m.size else 0.0
         try:
             # stations: a few dozen float columns each through resampling and writing
-            check_allocation(span_m / step + 1, _STATION_BYTES, f"--step {step:g} over {span_m:.1f} m")
+            check_allocation(span_m / step + 1, _STATION_BYTES, f"--step-m {step:g} over {span_m:.1f} m")
         except ValueError as exc:
             fail(str(exc))
         try:
             result = process_session(session, design, ProcessConfig(smoother=smoother, step_m=step,
                                                                    force_accept=force_accept),
-                                     progress=engine_progress)
+                                     with_observability=observability,
+                                     progress=share(report, _READ_SHARE, 1.0 - _WRITE_SHARE))
         except ValueError as exc:
             fail(f"{session_dir}: {exc}")
         if result.stations.chainage_m.size == 0:
             fail(f"{session_dir}: no track stations (the trolley did not move between two fixes); nothing written")
-        prog.update(task, completed=1.0 - _WRITE_SHARE, description="writing the outputs")
+        report("writing the outputs", 1.0 - _WRITE_SHARE)
         try:
-            written = write_outputs(out, result, session, session_dir)
+            written = write_outputs(out, result, session, session_dir,
+                                    None if design is None else design.stationing)
         except OutputFolderError as exc:
             fail(str(exc))
         except OSError as exc:
             fail(f"{out}: cannot write the outputs: {exc}")
-        prog.update(task, completed=1.0)
+        report("done", 1.0)
+    for note in design_notes:
+        err.print(f"note: {note}", highlight=False, soft_wrap=True, markup=False)
     return result, session, written
 
 
-def print_summary(result, written) -> None:
-    """A short summary of a processing run on the terminal."""
+def print_summary(result, written, con: Console | None = None) -> None:
+    """A short summary of a processing run on the terminal (``con``, default stdout)."""
     from rich.table import Table
     from rich.text import Text
 
@@ -133,13 +151,14 @@ def print_summary(result, written) -> None:
         t.add_row("observability ranks", f"vertical {result.observability_ranks[0]}/3, "
                                          f"level {result.observability_ranks[1]}/5")
     t.add_row("smoother", result.config.smoother)
-    Console().print(t)
+    con = con if con is not None else Console()
+    con.print(t)
     for i in range(len(result.fixes.t_s)):
         if not result.fixes.accepted[i]:
             err.print(Text.assemble(("rejected fix", "yellow"), f" {result.fixes.point[i]} at t="
                                     f"{result.fixes.t_s[i]:.1f} s: {result.fixes.reason[i]}"), highlight=False)
-    Console().print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
-                    markup=False, highlight=False)
+    con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
+              markup=False, highlight=False)
 
 
 def register(app: typer.Typer) -> None:

@@ -6,12 +6,13 @@ field-session output folder holding processed/track.csv), computes the geometry 
 """
 from __future__ import annotations
 
-import json
 from enum import Enum
 from pathlib import Path
 
 import typer
 from rich.markup import escape
+
+from survey.commands.options import JsonAlways, old_name, renamed
 
 
 class LateralSign(str, Enum):
@@ -36,41 +37,53 @@ def export(
                                       "output folder holding processed/track.csv. A raw session folder "
                                       "must be processed first."),
     xlsx: Path = typer.Option(None, "--xlsx", help="Excel survey sheet to write."),
+    pdf: Path = typer.Option(None, "--pdf", help="PDF report to write (cover with the survey header, summary, "
+                                                 "strip charts per km, defects, free-station QA)."),
     tolerances: str = typer.Option("hsr_ballastless_static", "--tolerances",
                                    help="Built-in tolerance set (hsr_ballastless_static, en13848_5_alert) or a TOML file."),
     csv: Path = typer.Option(None, "--csv", help="Track table as CSV (injection-safe)."),
     plots: Path = typer.Option(None, "--plots", help="Folder for PNG plots."),
     design: Path = typer.Option(None, "--design", help="LandXML design alignment (default: the one the session names)."),
-    twist_base_m: float = typer.Option(None, "--twist-base", help="Twist base, m (default from the tolerance set, else 3)."),
-    chord_m: float = typer.Option(None, "--chord", help="Versine chord, m (default from the tolerance set, else 10)."),
-    gauge_rate_base_m: float = typer.Option(None, "--gauge-rate-base", help="Gauge change-rate base, m."),
+    twist_base_m: float = typer.Option(None, "--twist-base-m", help="Twist base, m (default from the tolerance set, else 3)."),
+    chord_m: float = typer.Option(None, "--chord-m", help="Versine chord, m (default from the tolerance set, else 10)."),
+    gauge_rate_base_m: float = typer.Option(None, "--gauge-rate-base-m", help="Gauge change-rate base, m."),
     lateral_sign: LateralSign = typer.Option(LateralSign.right, "--lateral-sign", help="Side that is positive for lateral values."),
     cant_sign: CantSign = typer.Option(CantSign.left_high, "--cant-sign", help="Cant positive when this rail is higher."),
     versine_sign: VersineSign = typer.Option(VersineSign.centre_minus_chord, "--versine-sign", help="Versine sign convention."),
     project: str = typer.Option(None, "--project", help="Project name for the Summary sheet (default: summary.json's)."),
     session: str = typer.Option(None, "--session", help="Session name for the Summary sheet (default: summary.json's)."),
     fail_on_defects: bool = typer.Option(False, "--fail-on-defects", help="Exit with code 1 when any defect is found."),
+    json_output: JsonAlways = False,
+    twist_base_old: float = typer.Option(None, "--twist-base", hidden=True, help=old_name("--twist-base-m")),
+    chord_old: float = typer.Option(None, "--chord", hidden=True, help=old_name("--chord-m")),
+    gauge_rate_base_old: float = typer.Option(None, "--gauge-rate-base", hidden=True,
+                                              help=old_name("--gauge-rate-base-m")),
 ) -> None:
-    """Compute track geometry, check tolerances, write the Excel survey sheet / CSV / plots."""
+    """Compute track geometry, check tolerances, write the Excel survey sheet / PDF report / CSV / plots."""
     from rich.console import Console
 
+    from survey import jsonout
+    from survey.commands.progress import progress_bar
     from survey.export import export_outputs
+    from survey.limits import check_finite
     from survey.track_reader import ExportInputError
     from trolley.tolerances import ToleranceError
 
-    from survey.limits import check_finite
-
+    twist_base_m = renamed(twist_base_m, twist_base_old, "--twist-base-m", "--twist-base")
+    chord_m = renamed(chord_m, chord_old, "--chord-m", "--chord")
+    gauge_rate_base_m = renamed(gauge_rate_base_m, gauge_rate_base_old, "--gauge-rate-base-m", "--gauge-rate-base")
     console = Console(stderr=True)
-    for option, value in (("--twist-base", twist_base_m), ("--chord", chord_m), ("--gauge-rate-base", gauge_rate_base_m)):
+    for option, value in (("--twist-base-m", twist_base_m), ("--chord-m", chord_m),
+                          ("--gauge-rate-base-m", gauge_rate_base_m)):
         try:
             check_finite(value, option, positive=True)
         except ValueError as e:
             typer.echo(f"error: {e}", err=True)
             raise typer.Exit(code=2)
     try:
-        with console.status("computing track geometry and writing the survey sheet"):
+        with progress_bar("computing the track geometry", console) as report:
             result = export_outputs(track, xlsx, csv, plots, tolerances=tolerances, design=design,
-                                    project_name=project, session_name=session,
+                                    project_name=project, session_name=session, progress=report, pdf=pdf,
                                     twist_base_m=twist_base_m, versine_chord_m=chord_m,
                                     gauge_rate_base_m=gauge_rate_base_m, lateral_sign=lateral_sign.value,
                                     cant_sign=cant_sign.value, versine_sign=versine_sign.value)
@@ -83,7 +96,7 @@ def export(
     rep = result.report
     verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
     console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {escape(rep.tolerances.name)}: {verdict}")
-    typer.echo(json.dumps(result.as_dict()))
+    jsonout.echo(result.as_dict())
     if fail_on_defects and not result.passed:
         raise typer.Exit(code=1)
 

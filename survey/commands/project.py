@@ -1,5 +1,5 @@
 """``trolley project ...``: create a project store, import CPIII points, the design alignment and
-raw session folders, export sessions, and show what a project holds.
+raw session folders, export sessions, set the survey header fields, and show what a project holds.
 
 Every command opens ``<root>/<name>/project.sqlite`` (``--root``, default ``projects``, or the
 environment variable ``TROLLEY_PROJECTS``). Bad input is one line on stderr naming the file and
@@ -15,8 +15,12 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from survey import jsonout
+from survey.commands.options import ImuPreset, JsonFlag, old_name, renamed
+
 err = Console(stderr=True)
-project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True)
+project_app = typer.Typer(help="Project store: CPIII points, design alignment, sessions.", no_args_is_help=True,
+                          rich_markup_mode=None)
 
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS",
                                           help="folder holding the projects")]
@@ -49,13 +53,17 @@ def _open(root: Path, name: str):
 def new(
     name: Annotated[str, typer.Argument(help="project name (a folder under --root)")],
     root: RootOption = Path("projects"),
-    imu: Annotated[str | None, typer.Option(help="IMU preset: rlg, fog or mems [default: project.toml or rlg]")] = None,
+    imu: Annotated[ImuPreset | None, typer.Option(help="IMU preset [default: project.toml or rlg]")] = None,
     latitude_deg: Annotated[float | None, typer.Option(help="site latitude, degrees [default: project.toml or 28]")] = None,
-    height: Annotated[float | None, typer.Option(help="site height, m [default: project.toml or 50]")] = None,
-    tolerance_set: Annotated[str, typer.Option(help="tolerance set for defects: default, a built-in set name "
-                                                    "or a TOML file")] = "default",
+    height: Annotated[float | None, typer.Option("--height-m", help="site height, m [default: project.toml or 50]")] = None,
+    tolerance_set: Annotated[str, typer.Option("--tolerances", help="tolerance set for defects: default, a built-in "
+                                                                    "set name or a TOML file")] = "default",
     use_toml: Annotated[bool, typer.Option("--toml/--no-toml", help="take settings, design and CPIII from "
                                            "<root>/<name>/project.toml when it exists")] = True,
+    json_output: JsonFlag = False,
+    height_old: Annotated[float | None, typer.Option("--height", hidden=True, help=old_name("--height-m"))] = None,
+    tolerance_set_old: Annotated[str | None, typer.Option("--tolerance-set", hidden=True,
+                                                          help=old_name("--tolerances"))] = None,
 ) -> None:
     """Create a project store <root>/<name>/project.sqlite.
 
@@ -77,6 +85,9 @@ def new(
         fail(str(e))
     if Path(root).exists() and not Path(root).is_dir():
         fail(f"--root {root}: is a file, not a folder of projects")
+    height = renamed(height, height_old, "--height-m", "--height")
+    tolerance_option = "--tolerance-set" if tolerance_set_old is not None else "--tolerances"
+    tolerance_set = renamed(tolerance_set, tolerance_set_old, "--tolerances", "--tolerance-set", "default")
     settings = ProjectSettings()
     folder = Path(root) / name
     design = points = None
@@ -110,8 +121,6 @@ def new(
             except (CpiiiError, UnsafeNameError) as e:
                 fail(str(e))
     if imu is not None:
-        if imu not in IMU_PRESETS:
-            fail(f"--imu must be one of {', '.join(IMU_PRESETS)}, not {imu!r}")
         settings = dataclasses.replace(settings, imu=IMU_PRESETS[imu])
     if latitude_deg is not None:
         if not -90.0 <= latitude_deg <= 90.0:
@@ -125,7 +134,7 @@ def new(
     try:
         load_tolerance_set(tolerance_set)
     except ToleranceError as e:
-        fail(f"--tolerance-set: {e}")
+        fail(f"{tolerance_option}: {e}")
     settings = dataclasses.replace(settings, tolerance_set=tolerance_set)
     try:
         store = ProjectStore.create(root, name, settings)
@@ -142,6 +151,12 @@ def new(
             f"{design.chainage_start_m:.3f} .. {design.chainage_end_m:.3f} m")
     if points is not None:
         say(f"  {len(points)} CPIII points from {points[0].source}")
+    if json_output:
+        jsonout.echo({"project": name, "store": store.path,
+                      "design": None if design is None else {
+                          "name": design.name, "file": design.file_name, "elements": design.element_count,
+                          "chainage_start_m": design.chainage_start_m, "chainage_end_m": design.chainage_end_m},
+                      "cpiii_points": 0 if points is None else len(points)})
 
 
 @project_app.command("import-cpiii")
@@ -149,6 +164,7 @@ def import_cpiii(
     file: Annotated[Path, typer.Argument(help="CPIII file: CSV id,E_m,N_m,H_m or Leica GSI-8/16 (words 11, 81-83)")],
     project: ProjectOption,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Import CPIII control points (all or nothing)."""
     from survey.cpiii import CpiiiError, import_cpiii_file
@@ -161,16 +177,26 @@ def import_cpiii(
         total = len(store.cpiii_points())
     extra = f", {res.already_present} already present" if res.already_present else ""
     say(f"{file}: {res.added} CPIII points imported{extra}; the project has {total}")
+    if json_output:
+        jsonout.echo({"file": file, "added": res.added, "already_present": res.already_present, "total": total})
 
 
 @project_app.command("import-alignment")
 def import_alignment(
     file: Annotated[Path, typer.Argument(help="LandXML 1.2 design alignment")],
     project: ProjectOption,
+    name: Annotated[str | None, typer.Option("--name", help="Alignment/@name to import from a file that "
+                                                            "holds several")] = None,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
-    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design)."""
+    """Import the design alignment (LandXML kept verbatim; it becomes the project's current design).
+
+    A file with several alignments needs --name; without it their names are listed (exit 2). What
+    the reader skipped or tolerated (Feature elements, small gaps at joins, ...) is printed as notes.
+    """
     from survey.store import alignment_record_from_text
+    from trolley.landxml import AlignmentChoiceError
 
     try:
         text = file.read_bytes().decode("utf-8")
@@ -180,12 +206,23 @@ def import_alignment(
         fail(f"{file}: not UTF-8 ({e.reason} at byte {e.start})")
     with _open(root, project) as store:
         try:
-            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m)
+            rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m, name)
+        except AlignmentChoiceError as e:
+            listing = "\n".join(f"  {n}" for n in e.names)
+            fail(f"{file}: {e} (nothing imported); the alignments in the file:\n{listing}\n"
+                 f"import one with --name NAME")
         except ValueError as e:  # LandXmlError names the element
             fail(f"{file}: {e} (nothing imported)")
         store.add_alignment(rec)
+    for note in rec.notes:
+        say(f"{file}: note: {note}")
     say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
-              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m")
+              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
+        + (f", {len(rec.notes)} note(s)" if rec.notes else ""))
+    if json_output:
+        jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
+                      "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m,
+                      "notes": list(rec.notes)})
 
 
 @project_app.command("import-session")
@@ -194,6 +231,7 @@ def import_session(
     project: ProjectOption,
     session: Annotated[str | None, typer.Option("--session", help="session name (default: the folder name)")] = None,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Import a raw session folder into the project store (one transaction)."""
     from survey.sessionio import SessionFormatError, read_session
@@ -210,7 +248,7 @@ def import_session(
         path = folder / raw.meta.design_alignment
         try:
             design = alignment_record_from_text(raw.meta.design_alignment, path.read_bytes().decode("utf-8"),
-                                                raw.meta.trolley.rail_spacing_m)
+                                                raw.meta.trolley.rail_spacing_m, raw.meta.design_alignment_name)
         except OSError as e:
             fail(f"{path}: {e.strerror or e}")
         except ValueError as e:  # UnicodeDecodeError and LandXmlError
@@ -221,9 +259,13 @@ def import_session(
         except StoreError as e:
             fail(str(e))
         counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
+    for note in design.notes if design is not None else ():
+        say(f"{folder / raw.meta.design_alignment}: note: {note}")
     say(f"{folder}: session {name!r} imported: {counts['imu_sample']} IMU samples, "
               f"{counts['odometer_sample']} odometer readings, {counts['fix']} fixes, "
               f"{counts['gauge_sample']} gauge readings")
+    if json_output:
+        jsonout.echo({"folder": folder, "session": name, "records": counts})
 
 
 @project_app.command("export-session")
@@ -231,8 +273,9 @@ def export_session(
     project: ProjectOption,
     session: Annotated[str, typer.Option("--session", help="session name")],
     out: Annotated[Path, typer.Option("--out", help="raw session folder to write (must not exist)")],
-    overwrite: Annotated[bool, typer.Option(help="replace an existing folder")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing folder")] = False,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
     from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
@@ -254,13 +297,84 @@ def export_session(
     except (FileExistsError, ValueError) as e:
         fail(str(e))
     say(f"session {session!r} written to {out}")
+    if json_output:
+        jsonout.echo({"session": session, "out": out})
+
+
+@project_app.command("set-crs")
+def set_crs(
+    name: Annotated[str, typer.Argument(help="project name")],
+    crs: Annotated[str, typer.Argument(help="coordinate reference system of the grid E, N: an EPSG code "
+                                            "(EPSG:32650), a compound one (EPSG:25832+5783) or a PROJ string")],
+    vertical_datum: Annotated[str | None, typer.Option(
+        "--vertical-datum", help="name of the height datum of H [default: the vertical part of a compound CRS]")] = None,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Set the project's CRS and vertical datum. The site latitude, grid convergence and scale
+    factor follow from it at the CPIII centroid (trolley/projection.py)."""
+    import dataclasses
+
+    import numpy as np
+
+    from trolley import units
+    from trolley.projection import CrsError, crs_info, site_factors
+
+    try:
+        info = crs_info(crs)
+    except CrsError as e:
+        fail(f"CRS: {e}")
+    vd = vertical_datum if vertical_datum is not None else (info.vertical_datum or None)
+    if vd is not None and not vd.strip():
+        fail("--vertical-datum: empty name")
+    with _open(root, name) as store:
+        settings = dataclasses.replace(store.settings(), crs=info.text, vertical_datum=vd)
+        pts = store.cpiii_points()
+        grid = None
+        if pts:
+            try:
+                grid = site_factors(info.text, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
+            except CrsError as e:
+                fail(f"CRS {info.text} at the CPIII centroid: {e}")
+            settings = dataclasses.replace(settings, latitude_rad=grid.latitude_rad)
+        store.set_settings(settings)
+    say(f"project {name}: CRS {info.text} ({info.name}), vertical datum {vd or 'not given'}")
+    if grid is None:
+        say("  no CPIII points yet: the site latitude, convergence and scale follow from them once imported")
+    else:
+        say(f"  at the CPIII centroid: latitude {units.rad_to_deg(grid.latitude_rad):.6f} deg, longitude "
+            f"{units.rad_to_deg(grid.longitude_rad):.6f} deg, grid convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
+            f"point scale {grid.point_scale:.9f}, height reduction {grid.height_reduction:.9f}, "
+            f"combined scale {grid.combined_scale:.9f}")
+
+
+@project_app.command("set")
+def set_field(
+    key: Annotated[str, typer.Argument(help="header field: line, track, client, crew, totalstation, "
+                                            "totalstation_serial, totalstation_calibrated, imu, imu_serial, "
+                                            "imu_calibrated, trolley, trolley_serial, trolley_calibrated, "
+                                            "rail_temperature_c (the CRS: project set-crs)")],
+    value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
+                                              "\"\" clears the field")],
+    project: ProjectOption = ...,
+    root: RootOption = Path("projects"),
+) -> None:
+    """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them)."""
+    from survey.surveyheader import HEADER_FIELDS
+
+    with _open(root, project) as store:
+        try:
+            text = store.set_header(key, value)
+        except ValueError as e:
+            fail(str(e))
+    label = HEADER_FIELDS[key].label
+    say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
 
 
 @project_app.command("show")
 def show(
     name: Annotated[str, typer.Argument(help="project name")],
     root: RootOption = Path("projects"),
-    as_json: Annotated[bool, typer.Option("--json", help="machine-readable summary on stdout")] = False,
+    as_json: JsonFlag = False,
 ) -> None:
     """Show a project: settings, CPIII points, design alignment, sessions."""
     import numpy as np
@@ -274,6 +388,8 @@ def show(
         s = store.settings()
         pts = store.cpiii_points()
         al = store.alignment()
+        header = store.header()
+        grid = store.site_grid() if s.crs else None
         sessions = []
         for rec in store.sessions():
             counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
@@ -288,6 +404,11 @@ def show(
             "name": info.name, "path": str(info.path), "created_utc": info.created_utc,
             "schema_version": info.schema_version,
             "settings": json.loads(settings_to_json(s)),
+            "header": header,
+            "grid": None if grid is None else {
+                "latitude_deg": units.rad_to_deg(grid.latitude_rad), "longitude_deg": units.rad_to_deg(grid.longitude_rad),
+                "convergence_deg": units.rad_to_deg(grid.convergence_rad), "point_scale": grid.point_scale,
+                "height_reduction": grid.height_reduction, "combined_scale": grid.combined_scale},
             "cpiii": {"count": len(pts), "min_enh_m": enh.min(axis=0).tolist() if len(pts) else None,
                       "max_enh_m": enh.max(axis=0).tolist() if len(pts) else None},
             "alignment": None if al is None else {"name": al.name, "file": al.file_name, "elements": al.element_count,
@@ -297,7 +418,7 @@ def show(
                           "imu_samples": c["imu_sample"], "fixes_accepted": a, "fixes": n, "setups": k}
                          for r, c, a, n, k in sessions],
         }
-        typer.echo(json.dumps(doc, indent=2))
+        jsonout.echo(doc, indent=2)
         return
 
     out = Console()
@@ -306,6 +427,11 @@ def show(
     t.add_column("value")
     t.add_row("store", f"{escape(str(info.path))} (schema v{info.schema_version}, created {info.created_utc})")
     t.add_row("site", f"latitude {units.rad_to_deg(s.latitude_rad):.4f} deg, height {s.height_m:.1f} m")
+    if s.crs:
+        g = grid
+        t.add_row("CRS", f"{escape(str(s.crs))}, vertical datum {escape(str(s.vertical_datum or 'not given'))}" + (
+            f"; at the CPIII: convergence {units.rad_to_deg(g.convergence_rad):+.6f} deg, "
+            f"combined scale {g.combined_scale:.9f}" if g is not None else ""))
     t.add_row("IMU", f"{escape(s.imu.name)}: bias instability {units.rad_s_to_deg_h(s.imu.gyro_bias_instability_rad_s):.3g} deg/h, "
                      f"ARW {units.rad_sqrt_s_to_deg_sqrt_h(s.imu.gyro_arw_rad_sqrt_s):.3g} deg/sqrt(h), "
                      f"accel bias {units.m_s2_to_ug(s.imu.accel_bias_m_s2):.0f} ug")
@@ -336,6 +462,10 @@ def show(
                                f"{al.chainage_start_m:.3f} .. {al.chainage_end_m:.3f} m")
     else:
         t.add_row("alignment", "none (trolley project import-alignment FILE.xml --project NAME)")
+    from survey.surveyheader import HEADER_FIELDS, NOT_GIVEN
+
+    for key, fld in HEADER_FIELDS.items():
+        t.add_row(f"{fld.label} ({key})", header.get(key, NOT_GIVEN))
     out.print(t)
     st = Table(title="sessions")
     for col in ("name", "state", "source", "created (UTC)", "IMU samples", "fixes accepted/all", "setups"):

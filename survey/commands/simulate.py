@@ -7,13 +7,13 @@ progress and errors to stderr.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
+from survey.commands.options import ImuPreset, JsonAlways
 from survey.limits import check_allocation
 from survey.names import inside
 from rich.markup import escape
@@ -81,6 +81,10 @@ def project_settings(project: Path):
             _number(site, "site", "latitude_deg", fname)))
     if "height_m" in site:
         kwargs["height_m"] = _number(site, "site", "height_m", fname)
+    if "crs" in site:
+        if not isinstance(site["crs"], str):
+            raise ProjectFileError(f"{fname}: key site.crs: must be a string, got {site['crs']!r}")
+        kwargs["crs"] = site["crs"]
     sim = data.get("simulation", {})
     for key in sim:
         if key in _SIM_KEYS:
@@ -161,7 +165,7 @@ def register(app: typer.Typer) -> None:
         project: Annotated[Path, typer.Option(help="project folder with project.toml and the "
                                                    "design")] = Path("projects/demo"),
         length_m: Annotated[Optional[float], typer.Option("--length-m", help="surveyed length, m")] = None,
-        imu: Annotated[Optional[str], typer.Option(help="IMU grade: rlg, fog or mems")] = None,
+        imu: Annotated[Optional[ImuPreset], typer.Option(help="IMU grade (default: the project's)")] = None,
         seed: Annotated[Optional[int], typer.Option(help="random seed")] = None,
         fix_spacing_m: Annotated[Optional[float], typer.Option("--fix-spacing-m",
                                                                help="stop spacing, m")] = None,
@@ -172,13 +176,24 @@ def register(app: typer.Typer) -> None:
         turn_at_stop: Annotated[Optional[list[int]], typer.Option(
             "--turn-at-stop", help="the crew turns the trolley around at this stop (1 = the first "
                                    "after the static alignment); repeat for more")] = None,
+        crs: Annotated[Optional[str], typer.Option(
+            "--crs", help="project CRS of the design's grid (EPSG code or PROJ string): the IMU sees "
+                          "true north and ground distances, the fixes are in this grid")] = None,
+        site_east_m: Annotated[float, typer.Option(
+            "--site-east-m", help="move the design (and so the site) this far east in the grid, m "
+                                  "(e.g. 200000: 200 km off a UTM central meridian)")] = 0.0,
+        crs_in_session: Annotated[bool, typer.Option(
+            "--crs-in-session/--no-crs-in-session",
+            help="write [site] crs to session.toml (off: a crew that did not give it)")] = True,
         force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+        json_output: JsonAlways = False,
     ) -> None:
         """Simulate a stop-and-go survey (full 3-D truth, strapdown IMU) into a raw session folder."""
         from dataclasses import replace
 
         from rich.console import Console
 
+        from survey import jsonout
         from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
         from survey.limits import check_finite
         from survey.sessionio import write_session, write_truth_csv
@@ -228,6 +243,21 @@ def register(app: typer.Typer) -> None:
             fail(f"{proj}: design: {exc}")
         if turn_at_stop:
             kwargs["turn_at_stops"] = tuple(turn_at_stop)
+        if crs is not None:
+            kwargs["crs"] = crs
+        if kwargs.get("crs"):
+            from trolley.projection import CrsError, crs_info
+            try:
+                kwargs["crs"] = crs_info(kwargs["crs"]).text
+            except CrsError as exc:
+                fail(f"--crs: {exc}")
+        kwargs["crs_in_session"] = crs_in_session
+        if site_east_m:
+            from trolley.landxml import landxml_text
+
+            alignment = alignment.translated(site_east_m, 0.0)
+            rail = kwargs.get("trolley").rail_spacing_m if "trolley" in kwargs else None
+            xml = landxml_text(alignment, **({"rail_spacing_m": rail} if rail else {}))
         config = SimulationConfig(**kwargs)  # the turn stops are checked with the motion below
         t0 = time.perf_counter()
         err.print(f"simulating {config.length_m:g} m with the {preset} IMU at "
@@ -257,7 +287,9 @@ def register(app: typer.Typer) -> None:
             "fixes": int(len(session.fixes)),
             "stops": int(sim.truth.motion.stop_chainage_m.size),
             "seed": config.seed,
+            "crs": config.crs,
+            "site_east_m": site_east_m,
             "simulate_s": round(t1 - t0, 3),
             "write_s": round(t2 - t1, 3),
         }
-        typer.echo(json.dumps(summary))
+        jsonout.echo(summary)

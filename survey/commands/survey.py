@@ -16,7 +16,8 @@ from rich.console import Console
 from rich.markup import escape
 
 err = Console(stderr=True)
-survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True)
+survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True,
+                          rich_markup_mode=None)
 
 RootOption = Annotated[Path, typer.Option("--root", envvar="TROLLEY_PROJECTS", help="folder holding the projects")]
 SessionOption = Annotated[str, typer.Option("--session", "-s", help="session name")]
@@ -25,6 +26,8 @@ SimulateOption = Annotated[bool, typer.Option("--simulate", help="simulated devi
 ScriptOption = Annotated[Optional[Path], typer.Option("--script", help="the crew's actions as a script (no keyboard)")]
 SpeedupOption = Annotated[Optional[float], typer.Option("--speedup", help="simulated seconds per wall-clock second")]
 OutOption = Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <project>/sessions/<session>)")]
+JsonOption = Annotated[bool, typer.Option("--json", help="print the final summary as one JSON object on stdout "
+                                                         "(the crew's screen and messages go to stderr)")]
 
 
 def fail(message: str, hint: str = "", code: int = 2) -> None:
@@ -53,7 +56,6 @@ def simulated_world(store, speedup: float):
 
     from survey.commands.simulate import ProjectFileError, project_settings
     from survey.session.simworld import SimOptions, SimWorld
-    from trolley.landxml import parse_landxml
     from trolley.sensors import IMU_PRESETS
     from trolley.truthsim import SimulationConfig, simulate_survey
 
@@ -74,8 +76,8 @@ def simulated_world(store, speedup: float):
     kwargs = {k: v for k, v in kwargs.items() if k in names}
     kwargs.setdefault("imu", settings.imu)
     kwargs.update(latitude_rad=settings.latitude_rad, height_m=settings.height_m, trolley=settings.trolley,
-                  fix_sigma_m=settings.fix_sigma_m)
-    design = parse_landxml(a.landxml_text, rail_spacing_m=settings.trolley.rail_spacing_m)
+                  fix_sigma_m=settings.fix_sigma_m, crs=settings.crs)
+    design = a.design(settings.trolley.rail_spacing_m)
     try:
         sim = simulate_survey(design, SimulationConfig(**kwargs))
     except ValueError as exc:
@@ -128,8 +130,9 @@ def read_devices(path: Path) -> tuple[dict, dict]:
 
 def run_session(project: str, session: str, root: Path, devices: Optional[Path], simulate: bool,
                 script: Optional[Path], speedup: Optional[float], out: Optional[Path], resume: bool,
-                live: bool = True):
-    """Start or resume a session; prints where the results are. Returns the outcome."""
+                live: bool = True, con: Console | None = None):
+    """Start or resume a session; prints where the results are (on ``con``, default stdout).
+    Returns the outcome."""
     from survey.session.fieldsession import FieldSession, SessionAbort, SessionConfig
     from survey.session.screen import KeyReader
     from survey.session.script import ScriptError, read_script
@@ -201,7 +204,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
         finally:
             if keys is not None:
                 keys.stop()
-    con = Console()
+    con = con if con is not None else Console()
     con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False, markup=False)
     if outcome.xlsx is not None:
         con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
@@ -212,22 +215,41 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     return outcome
 
 
+def session_outcome_dict(session_name: str, outcome) -> dict:
+    """The final summary of a field session as ``--json`` prints it."""
+    return {"session": session_name, "fixes_accepted": outcome.fixes_accepted,
+            "raw_session": outcome.session_dir, "track_csv": outcome.track_csv, "xlsx": outcome.xlsx,
+            "plots": list(outcome.plots)}
+
+
+def _run_and_report(project, session, root, devices, simulate, script, speedup, out, resume: bool,
+                    json_output: bool) -> None:
+    if json_output:
+        from survey import jsonout
+
+        outcome = run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume,
+                              con=err)
+        jsonout.echo(session_outcome_dict(session, outcome))
+    else:
+        run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume)
+
+
 @survey_app.command("start")
 def start(project: Annotated[str, typer.Argument(help="project name (under --root) or project folder")],
           session: SessionOption, root: RootOption = Path("projects"), devices: DevicesOption = None,
           simulate: SimulateOption = False, script: ScriptOption = None, speedup: SpeedupOption = None,
-          out: OutOption = None) -> None:
+          out: OutOption = None, json_output: JsonOption = False) -> None:
     """Start a field session: device check, free station, static alignment, stop-and-go survey."""
-    run_session(project, session, root, devices, simulate, script, speedup, out, resume=False)
+    _run_and_report(project, session, root, devices, simulate, script, speedup, out, False, json_output)
 
 
 @survey_app.command("resume")
 def resume(project: Annotated[str, typer.Argument(help="project name (under --root) or project folder")],
            session: SessionOption, root: RootOption = Path("projects"), devices: DevicesOption = None,
            simulate: SimulateOption = False, script: ScriptOption = None, speedup: SpeedupOption = None,
-           out: OutOption = None) -> None:
+           out: OutOption = None, json_output: JsonOption = False) -> None:
     """Continue a session after a crash, a power loss or kill -9 (fixes taken are kept)."""
-    run_session(project, session, root, devices, simulate, script, speedup, out, resume=True)
+    _run_and_report(project, session, root, devices, simulate, script, speedup, out, True, json_output)
 
 
 def register(app: typer.Typer) -> None:

@@ -8,22 +8,24 @@
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
 
+from survey import jsonout
 from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guard_overwrite, write_marker,
                                 write_text_atomic, write_with)
+from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
+                                     old_name, renamed)
 from survey.limits import check_finite
 from rich.markup import escape
 
 console = Console(stderr=True)
 
 tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers + IMU + encoder -> track irregularities.",
-                       no_args_is_help=True)
+                       no_args_is_help=True, rich_markup_mode=None)
 
 
 def _fail(msg: str) -> None:
@@ -121,14 +123,14 @@ def simulate_cmd(
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
     length_m: Annotated[float, typer.Option("--length-m", min=60.0, help="track length ridden, m")] = 200.0,
     speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=1.0, max=40.0, help="nominal speed, m/s")] = 10.0,
-    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0)] = 100.0,
-    rail_profile: Annotated[str, typer.Option("--rail-profile", help="60E1 or 54E1")] = "60E1",
+    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0,
+                                                  help="camera frame rate, Hz")] = 100.0,
+    rail_profile: Annotated[RailProfile, typer.Option("--rail-profile", help="rail profile (EN 13674-1)")] = "60E1",
+    json_output: JsonAlways = False,
 ) -> None:
     """Write a synthetic TGMS recording folder plus truth.csv."""
     from survey import tgms_io
     from trolley.tgms.simulate import SimulationSettings, simulate
-    if rail_profile not in ("60E1", "54E1"):
-        _fail(f"--rail-profile must be 60E1 or 54E1, got {rail_profile!r}")
     st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
                             camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
     try:
@@ -147,9 +149,9 @@ def simulate_cmd(
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     n_frames = int(max(rec.lasers["left"].frame.max(), rec.lasers["right"].frame.max())) + 1
-    print(json.dumps({"out": str(out), "seed": seed, "length_m": length_m, "speed_m_s": speed_m_s,
-                      "duration_s": float(rec.imu_t_s[-1]), "frames": n_frames,
-                      "laser_points": int(len(rec.lasers["left"].frame) + len(rec.lasers["right"].frame))}))
+    jsonout.echo({"out": out, "seed": seed, "length_m": length_m, "speed_m_s": speed_m_s,
+                  "duration_s": rec.imu_t_s[-1], "frames": n_frames,
+                  "laser_points": len(rec.lasers["left"].frame) + len(rec.lasers["right"].frame)})
 
 
 def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[str]:
@@ -190,18 +192,21 @@ def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[
 def process_cmd(
     folder: Annotated[Path, typer.Argument(help="TGMS recording folder (FORMATS.md section 3)")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
-    step: Annotated[float, typer.Option("--step", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
+    step: Annotated[float, typer.Option("--step-m", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
     band: Annotated[str, typer.Option("--band", help="D1, D2, D3 (EN 13848 bands), none, SHORT-LONG in m (e.g. 3-25) "
                                                     "or a single number LONG in m (e.g. 3: keeps wavelengths from "
                                                     "2.5 steps up to LONG, i.e. removes the longer ones)")] = "none",
     params_file: Annotated[Optional[Path], typer.Option("--params", help="parameter file from 'tgms tune'")] = None,
-    orientation: Annotated[Optional[str], typer.Option(help="kf or madgwick (overrides --params; ignored with "
+    orientation: Annotated[Optional[TgmsOrientation], typer.Option(help="attitude estimator (overrides --params; ignored with "
                                                             "--trajectory ekf, which estimates the attitude itself). "
                                                             "madgwick gives no roll covariance and misses the "
                                                             "alignment target (1.25 mm against 0.7, docs/tgms.md)")] = None,
-    trajectory: Annotated[Optional[str], typer.Option(help="ltv or ekf (overrides --params)")] = None,
+    trajectory: Annotated[Optional[TgmsTrajectory], typer.Option(help="trajectory estimator (overrides --params)")] = None,
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
-    plots: Annotated[bool, typer.Option("--plots/--no-plots")] = True,
+    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="write PNG plots into --out")] = True,
+    json_output: JsonAlways = False,
+    step_old: Annotated[Optional[float], typer.Option("--step", min=0.01, max=5.0, hidden=True,
+                                                      help=old_name("--step-m"))] = None,
 ) -> None:
     """Process a recording into irregularities.csv (+ PNG plots)."""
     import dataclasses
@@ -211,8 +216,10 @@ def process_cmd(
     from survey import tgms_io
     from trolley.bands import bandpass_wavelength
     from trolley.tgms.params import TgmsParams
+    from survey.commands.progress import progress_bar, share
     from trolley.tgms.pipeline import process
 
+    step = renamed(step, step_old, "--step-m", "--step", 0.25)
     try:
         bounds = parse_band(band, step)
         check_outputs([], inputs=[folder], folders=[("--out", out)])
@@ -237,15 +244,17 @@ def process_cmd(
     if params.trajectory == "ekf" and orientation is not None:
         console.print(f"[yellow]warning:[/yellow] --orientation {escape(orientation)} is ignored: the 12-state smoother "
                       "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
-    try:
-        rec = tgms_io.read_recording(folder)
-    except tgms_io.TgmsFormatError as exc:
-        _fail(str(exc))
-    try:
-        with console.status("processing"):
-            res = process(rec, params, step_m=step, match_curves=not no_curve_matching)
-    except ValueError as exc:
-        _fail(f"{folder}: {exc}")
+    with progress_bar("reading the recording", console) as report:
+        try:
+            rec = tgms_io.read_recording(folder)
+        except tgms_io.TgmsFormatError as exc:
+            _fail(str(exc))
+        try:
+            res = process(rec, params, step_m=step, match_curves=not no_curve_matching,
+                          progress=share(report, 0.1, 1.0))
+        except ValueError as exc:
+            _fail(f"{folder}: {exc}")
+        report("done", 1.0)
     g = res.grid
     cols = {"s_m": g.s_m}
     for name in g.NAMES:
@@ -292,7 +301,7 @@ def process_cmd(
         from trolley.tgms.accuracy import accuracy
         acc = accuracy(res.frames, truth, res.vision.t_s, step, laser_offset_m=res.laser_offset_m)
         summary["accuracy_3_25m"] = dataclasses.asdict(acc)
-    print(json.dumps(summary))
+    jsonout.echo(summary)
 
 
 @tgms_app.command("tune")
@@ -301,11 +310,12 @@ def tune_cmd(
     out: Annotated[Path, typer.Option("--out", help="parameter file to write (TOML)")],
     evaluations: Annotated[int, typer.Option(min=10, max=2000, help="likelihood evaluations")] = 60,
     seed: Annotated[int, typer.Option(help="seed of the global optimiser")] = 0,
-    model: Annotated[str, typer.Option(help="kf (attitude filter), ltv (attitude filter, then the Eq. 46 "
+    model: Annotated[TgmsModel, typer.Option(help="kf (attitude filter), ltv (attitude filter, then the Eq. 46 "
                                              "trajectory under Eq. 19) or ekf (12-state smoother)")] = "kf",
-    box: Annotated[str, typer.Option(help="search box: relative (4 decades around the defaults) or absolute "
-                                          "(1e-4..1e4 in the paper's variances, Eq. 17; excludes a MEMS gyro's "
-                                          "true noise at 100 Hz)")] = "relative",
+    box: Annotated[TgmsBox, typer.Option(help="search box: relative (4 decades around the defaults) or absolute "
+                                              "(1e-4..1e4 in the paper's variances, Eq. 17; excludes a MEMS gyro's "
+                                              "true noise at 100 Hz)")] = "relative",
+    json_output: JsonAlways = False,
 ) -> None:
     """Constrained maximum-likelihood estimation of the noise parameters (Gonzalez-Carbajal 2023 Sec. 4.2).
     --evaluations is a hard limit on the filter runs."""
@@ -313,10 +323,6 @@ def tune_cmd(
 
     from survey import tgms_io
     from trolley.tgms.tuning import tune_cml
-    if model not in ("kf", "ltv", "ekf"):
-        _fail(f"--model must be kf, ltv or ekf, got {model!r}")
-    if box not in ("relative", "absolute"):
-        _fail(f"--box must be relative or absolute, got {box!r}")
     try:
         check_outputs([("--out", out)], inputs=[folder / "tgms.toml"], made_before=_params_file)
     except OutputError as exc:
@@ -336,7 +342,7 @@ def tune_cmd(
         write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    print(json.dumps({"out": str(out), "params": params.to_dict(), **info}))
+    jsonout.echo({"out": out, "params": params.to_dict(), **info})
 
 
 def register(app: typer.Typer) -> None:

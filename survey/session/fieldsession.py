@@ -144,6 +144,13 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._design = None
         self._tolerances = None
         self._world_held = False
+        #: resume: the setup number (1-based) of a station change the crash interrupted
+        self._station_resumed: int | None = None
+        self._fix_distance_pending = False
+        self._confirm_end = False
+        self._stop_held = False
+        self._key_prompt = ""  # a question of the station setup, shown instead of the loop's keys
+        self._live_display = None
         self.interval_seconds: list[float] = []
         self._intervals_to_store: list[tuple] = []
 
@@ -219,10 +226,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             except StoreError as exc:
                 raise SessionAbort(str(exc), "choose another --session name, or `trolley survey resume`") from None
         if self.rec.alignment_id is not None:
-            from trolley.landxml import parse_landxml
-
             a = self.store.alignment(self.rec.alignment_id)
-            self._design = parse_landxml(a.landxml_text, rail_spacing_m=self.rec.meta.trolley.rail_spacing_m)
+            self._design = a.design(self.rec.meta.trolley.rail_spacing_m)
         if self.rec.state != "ended":
             self.store.set_session_state(self.rec.session_id, "open")
 
@@ -262,6 +267,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             last = stored["last"]
             t_start = min(last.values()) if last else 0.0
             self.ports = self.world.start(t_start, last)
+            if self.config.script is not None:
+                # a scripted crew: the world never runs more than SIM_STEP_S ahead of the data, also
+                # before the loop (device check, and on resume the replay and the restored setup,
+                # which take wall-clock time in which the trolley would otherwise move on unseen)
+                self.world.clock.limit = t_start + SIM_STEP_S
             tb.imu_week, tb.imu_sow0_s = IMU_WEEK, IMU_SOW0
             tb.gauge_origin_s = self.world.gauge_t0_s
             if tb.odo_count0 is None:
@@ -366,13 +376,21 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         return dict(self.acq.samples)
 
     def _ask_key(self, prompt: str, allowed: str) -> str:
+        """Wait for one of the ``allowed`` keys; ``prompt`` is the one set of keys on the screen."""
         self.console.print(f"[bold]{escape(prompt)}[/]", highlight=False)
-        while True:
-            k = self.keys.get() if self.keys else None
-            if k is not None and k.lower() in allowed:
-                return k.lower()
-            self.acq.pump()
-            time.sleep(TICK_S)
+        self._key_prompt = prompt
+        try:
+            while True:
+                if self._live_display is not None:
+                    self.screen.prompt = prompt
+                    self._live_display.update(render(self.screen))
+                k = self.keys.get() if self.keys else None
+                if k is not None and k.lower() in allowed:
+                    return k.lower()
+                self.acq.pump()
+                time.sleep(TICK_S)
+        finally:
+            self._key_prompt = ""
 
     # ================================================================== static alignment
     def _alignment_step(self) -> None:
@@ -426,7 +444,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self._device_fault(f"total station: {exc}")
             return False
         label = f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}"
-        fix = FixRecord(t, label, m.E_m, m.N_m, m.H_m, sigma, sigma, sigma, setup_id=self.setup_id)
+        fix = FixRecord(t, label, *self.grid_coordinates(m), sigma, sigma, sigma, setup_id=self.setup_id)
         verdict = self._live_verdict(fix)
         accepted = verdict is None or bool(verdict.accepted)
         reason = "accepted" if accepted else f"{SUSPICIOUS}: {verdict.reason}"
@@ -452,9 +470,17 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if fix is None:
             self.last_fix_distance_m, self.last_fix_chainage_m = 0.0, float("nan")
             return
+        self._fix_distance_pending = False
         if distance_m is None:
             od = self._odometer()
-            distance_m = float(np.interp(fix.t_s, od[:, 0], od[:, 1])) if od.shape[0] else 0.0
+            if not od.shape[0] or od[-1, 0] < fix.t_s:
+                # after a resume the fix may be newer than the odometer data stored before the
+                # crash: the distance at the fix is taken when the data up to it have arrived
+                # (tick), and until then the chainage is not known
+                self._fix_distance_pending = True
+                distance_m = float(od[-1, 1]) if od.shape[0] else 0.0
+            else:
+                distance_m = float(np.interp(fix.t_s, od[:, 0], od[:, 1]))
         self.last_fix_distance_m = distance_m
         self.last_fix_chainage_m = float("nan")
         if self._design is not None:
@@ -553,6 +579,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._store_intervals()
         self._check_health()
         self._alignment_step()
+        self._settle_fix_distance()
         standing, speed, dist = self.motion()
         t = self.now()
         if standing and self.stop_started_s is None and self.aligned:
@@ -564,7 +591,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                                                                 self.chainage_now(dist)))
             self.stop_started_s = None
             self.stop_count += 1
+        self._hold_at_stop(standing, dist)
         s = self.screen
+        s.prompt = self.keys_prompt()
         s.t_s, s.standing, s.speed_m_s = t, standing, speed
         s.distance_since_fix_m = abs(dist - self.last_fix_distance_m) if self.last_fix else dist
         s.chainage_m = self.chainage_now(dist)
@@ -581,8 +610,46 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         elif self.aligned:
             s.phase = "surveying"
 
+    def _settle_fix_distance(self) -> None:
+        """The odometer distance at the last fix, once the data up to the fix have arrived."""
+        if self._fix_distance_pending and self.last_fix is not None:
+            od = self._odometer()
+            if od.shape[0] and od[-1, 0] >= self.last_fix.t_s:
+                self._set_last_fix(self.last_fix)
+
+    def keys_prompt(self) -> str:
+        """The one set of keys the crew can use now (shown at the bottom of the screen)."""
+        if self._key_prompt:
+            return self._key_prompt  # a question of the station setup
+        if self.note_buffer is not None:
+            return f"note: {self.note_buffer}_  (Enter to save)"
+        if self._confirm_end:
+            return "end the session? y end | any other key: go on"
+        if self.pending:
+            return f"suspicious fix {self.pending[1].point}: r measure again | a accept anyway"
+        if self.paused:
+            return "PAUSED: p resume | n note | e end"
+        return KEYS_HELP
+
+    def _hold_at_stop(self, standing: bool, dist: float) -> None:
+        """An interactive simulated session: the simulated world waits at a stop until the crew has
+        taken its fix (a real trolley waits for its crew; the simulator's motion is scripted in
+        time, and at 40x a stop would last a fraction of a second)."""
+        if self.world is None or self.config.script is not None:
+            return
+        hold = (standing and self.aligned and bool(self.accepted_fixes) and not self.ended
+                and abs(dist - self.last_fix_distance_m) > 1.0 and not self.world.finished(self.data_time()))
+        if hold != self._stop_held:
+            if hold:
+                self.world.clock.freeze()
+            else:
+                self.world.clock.thaw()
+            self._stop_held = hold
+
     def chainage_now(self, dist: float) -> float:
-        if not np.isfinite(self.last_fix_chainage_m):
+        """Chainage of the trolley at odometer distance ``dist``: the last fix's chainage on the
+        design plus the distance since it (NaN while either is unknown)."""
+        if not np.isfinite(self.last_fix_chainage_m) or self._fix_distance_pending:
             return float("nan")
         return self.last_fix_chainage_m + self.direction * (dist - self.last_fix_distance_m)
 
@@ -600,17 +667,24 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if self.note_buffer is not None:
             if k in "\r\n":
                 text, self.note_buffer = self.note_buffer.strip(), None
-                self.screen.prompt = KEYS_HELP
                 return Action("note", text=text) if text else None
             self.note_buffer = self.note_buffer[:-1] if k in "\x7f\b" else self.note_buffer + k
-            self.screen.prompt = f"note: {self.note_buffer}_  (Enter to save)"
             return None
-        mapping = {"f": "fix", "a": "accept", "r": "remeasure", "u": "undo", "p": "pause", "t": "turn", "e": "end",
+        mapping = {"f": "fix", "a": "accept", "r": "remeasure", "u": "undo", "p": "pause", "t": "turn",
                    "s": "station"}
         k = k.lower()
+        if self._confirm_end:
+            self._confirm_end = False
+            if k == "y":
+                return Action("end")
+            self.say("the session goes on")
+            return None
+        if k == "e":
+            self._confirm_end = True
+            self.say("end the session? y = end it and process, any other key = go on")
+            return None
         if k == "n":
             self.note_buffer = ""
-            self.screen.prompt = "note: _  (Enter to save)"
             return None
         if k == "p" and self.paused:
             return Action("resume")
@@ -624,6 +698,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             st.setdefault("until", self.now() + a.seconds)
             return self.now() >= st["until"]
         if a.name == "note":
+            if self._fix_distance_pending:
+                return False  # the chainage is known once the odometer data up to the last fix are in
             dist = self.motion()[2]
             self.store.add_note(self.rec.session_id, NoteRecord(self.now(), a.text, self.chainage_now(dist)))
             self.say(f"note at {self.chainage_now(dist):.3f} m: {a.text}")
@@ -681,7 +757,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return self.station_change() or self.config.script is None
         if a.name in ("fix", "remeasure"):
             if not standing:
-                return self.config.script is None  # a key press while moving is answered on the screen
+                if self.config.script is None:  # a key press while moving is answered, then dropped
+                    self.say(f"{'f' if a.name == 'fix' else 'r'} ignored: the trolley is moving; "
+                             "a fix is taken when it stands")
+                    return True
+                return False
             if self.world is not None and self.world.finished(self.now()):
                 return True
             ok = self.remeasure_pending() if a.name == "remeasure" else self.take_fix()
@@ -724,6 +804,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         current: Action | None = None
         with Live(render(self.screen), console=self.console, refresh_per_second=8, transient=True,
                   redirect_stderr=False, redirect_stdout=False) as live:
+            self._live_display = live
             while not self.ended:
                 self.tick()
                 if current is None:
@@ -742,9 +823,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                         self.script_index += 1
                         self._event("script", str(self.script_index))
                     current = None
+                self.screen.prompt = self.keys_prompt()
                 live.update(render(self.screen))
                 # a stepped simulated world advances at most SIM_STEP_S per look: look more often
                 time.sleep(TICK_S if self.world is None or self.config.script is None else TICK_S / 2)
+        self._live_display = None
 
     # ================================================================== resume
     def restore(self) -> None:
@@ -768,15 +851,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self.stop_count = len(self.store.stops(sid))
         self.accepted_fixes.extend(fixes)
         self._set_last_fix(fixes[-1] if fixes else None)
-        # a fix stored after the last script step was that step: do not take it twice
-        script_events = [e for e in self.store.events(sid) if e.kind == "script"]
         all_fixes = self.store.fixes(sid)
-        if self.config.script is not None and all_fixes and script_events:
-            last_step_t = script_events[-1].t_s
-            if all_fixes[-1].t_s > last_step_t and self.script_index < len(self.config.script) \
-                    and self.config.script[self.script_index].name in ("fix", "remeasure"):
-                self.script_index += 1
-                self._event("script", str(self.script_index))
+        if self.world is not None:
+            self.world.restore_fix_attempts([f.t_s for f in all_fixes])
+        self._resume_script_step(all_fixes)
         self.screen.fixes_accepted = len(self.accepted_fixes)
         if self.aligned and self.accepted_fixes and self.config.live:
             self._replay_live()
@@ -788,6 +866,30 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._event("resumed", f"data up to t = {self.data_time():.3f} s")
         self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
                  f"data up to t = {self.data_time():.1f} s")
+
+    def _resume_script_step(self, all_fixes: list[FixRecord]) -> None:
+        """The script step the crash interrupted: a fix or a note stored after the last ``script``
+        event was that step (not taken twice); a station change begun after it is continued from
+        its first step not stored (``_station_change``)."""
+        script = self.config.script
+        if script is None or self.script_index >= len(script):
+            return
+        events = self.store.events(self.rec.session_id)
+        last = max((i for i, e in enumerate(events) if e.kind == "script"), default=-1)
+        last_step_t = events[last].t_s if last >= 0 else -math.inf
+        a = script[self.script_index]
+        done = False
+        if a.name in ("fix", "remeasure"):
+            done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t
+        elif a.name == "note":
+            done = any(n.t_s >= last_step_t and n.text == a.text for n in self.store.notes(self.rec.session_id))
+        elif a.name == "station":
+            changes = [e for e in events[last + 1:] if e.kind == "station_change"]
+            if changes:
+                self._station_resumed = int(changes[-1].detail.split()[-1])
+        if done:
+            self.script_index += 1
+            self._event("script", str(self.script_index))
 
     # ================================================================== end
     def finish(self) -> SessionOutcome:

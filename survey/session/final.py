@@ -4,6 +4,9 @@ The stored session (accepted fixes only, cropped at the static alignment that su
 ``survey.store.ProjectStore.raw_session``, the same as ``trolley project export-session``) is
 exported to a raw session folder (FORMATS.md section 1), so the final track is exactly what
 ``trolley process`` gives on that folder; the track is stored as the session's "final" processing run.
+The store's record of the crew's decisions (every fix with its reason, the station setups, the
+overlap checks, the stops, the survey header) goes beside track.csv as ``field_record.json``
+(survey/fieldrecord.py), which the sheet reads.
 """
 from __future__ import annotations
 
@@ -44,6 +47,10 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     rec = store.session(name)
     st = result.stations
     store.add_track(rec.session_id, "final", float(raw.imu_t_s[0]), float(raw.imu_t_s[-1]), track_result(st))
+    from survey.fieldrecord import field_record, write_field_record
+
+    # the crew's rejected and undone fixes, the setups and the overlap checks, for the sheet
+    write_field_record(out_dir / "processed", field_record(store, name))
     exported = export_outputs(out_dir / "processed", out_dir / "survey.xlsx", None, out_dir / "plots",
                               tolerances=tolerances, project_name=store.info().name, session_name=name)
     outcome.session_dir = session_dir

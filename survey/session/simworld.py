@@ -168,7 +168,7 @@ def prism_position_enh(sim, t_s: float) -> np.ndarray:
     w, x, yq, z = handling_quat(motion, np.array([float(t_s)]))[0]
     turned = Rotation.from_euler("ZYX", [y, pch, r]) * Rotation.from_quat([x, yq, z, w])
     lever_n = turned.apply(np.asarray(sim.config.trolley.prism_lever_arm_m, float))
-    return np.array([p[0] + geo.origin_E_m + lever_n[1], p[1] + geo.origin_N_m + lever_n[0], p[2] - lever_n[2]])
+    return geo.grid_enh(np.array([p[0] + lever_n[1], p[1] + lever_n[0], p[2] - lever_n[2]]))
 
 
 def stop_index_at(sim, t_s: float) -> int:
@@ -193,6 +193,8 @@ class SimWorld:
         self.clock: SimClock | None = None
         self.twins: dict = {}
         self.fix_attempts: dict[int, int] = {}
+        self.setup_attempts: dict[tuple, int] = {}
+        self.setup_k = 0  # the station setup the instrument stands for (its circle orientation)
         raw = sim.session
         self.gauge_t0_s = 0.0
         # instrument beside the track, a little ahead of the first stop
@@ -202,9 +204,8 @@ class SimWorld:
         p = geo.position(np.array([s0]))[0]
         yaw = float(geo.attitude(np.array([s0]))[2][0])
         left = np.array([-math.cos(yaw), math.sin(yaw)])  # (E, N) to the left of the heading
-        self.station_enh_m = np.array([p[0] + geo.origin_E_m + options.station_offset_m * left[0],
-                                       p[1] + geo.origin_N_m + options.station_offset_m * left[1],
-                                       p[2] + 1.2])
+        self.station_enh_m = geo.grid_enh(np.array([p[0] + options.station_offset_m * left[0],
+                                                    p[1] + options.station_offset_m * left[1], p[2] + 1.2]))
         self.duration_s = float(max(raw.imu_t_s[-1], raw.odo_t_s[-1]))
 
     # ------------------------------------------------------------------ lifecycle
@@ -286,8 +287,18 @@ class SimWorld:
 
     # ------------------------------------------------------------------ total station
     def aim_at_point(self, enh_m) -> None:
-        """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims)."""
-        self.twins["totalstation"].set_target(tuple(float(x) for x in enh_m))
+        """Aim the instrument at a control point (the crew points the telescope, ATR fine-aims).
+
+        The reading noise of this pointing is seeded by (setup, point, attempt), like a fix's, so
+        that a station setup measured again after a resume reads the same values as it would
+        have in an uninterrupted session."""
+        ts = self.twins["totalstation"]
+        target = tuple(float(x) for x in enh_m)
+        key = (self.setup_k, *(int(round(1e3 * abs(x))) for x in target))
+        attempt = self.setup_attempts.get(key, 0)
+        self.setup_attempts[key] = attempt + 1
+        ts.seed_noise([self.options.seed, 1000, *key, attempt])
+        ts.set_target(target)
 
     def move_instrument(self, k: int, chainage_m: float) -> None:
         """Station change: the instrument is set up anew beside the track near ``chainage_m``
@@ -297,19 +308,27 @@ class SimWorld:
         s = float(np.clip(chainage_m + o.station_ahead_m, geo.start_chainage_m, geo.end_chainage_m))
         p = geo.position(np.array([s]))[0]
         yaw = float(geo.attitude(np.array([s]))[2][0])
-        self.place_instrument(np.array([p[0] + geo.origin_E_m - o.station_offset_m * math.cos(yaw),
-                                        p[1] + geo.origin_N_m + o.station_offset_m * math.sin(yaw),
-                                        p[2] + 1.2]), k)
+        self.place_instrument(geo.grid_enh(np.array([p[0] - o.station_offset_m * math.cos(yaw),
+                                                     p[1] + o.station_offset_m * math.sin(yaw), p[2] + 1.2])), k)
 
     def place_instrument(self, station_enh_m, k: int) -> None:
         """Put the instrument at ``station_enh_m`` with setup ``k``'s circle orientation (also on resume)."""
         ts = self.twins["totalstation"]
         self.station_enh_m = np.asarray(station_enh_m, float).copy()
+        self.setup_k = int(k)
         with ts._lock:
             ts.position = tuple(map(float, self.station_enh_m))  # where it physically stands
             ts.orientation = (self.options.orientation_rad + 0.37 * k) % (2 * math.pi)
         ts.noise_angle_rad = self.options.angle_sigma_rad
         ts.noise_dist_m = self.options.distance_sigma_m
+
+    def restore_fix_attempts(self, fix_times_s) -> None:
+        """On resume: count the fixes already measured at each stop (``fix_times_s``, every stored
+        fix), so that the next attempt at a stop gets the noise it would have had without the crash."""
+        self.fix_attempts = {}
+        for t in fix_times_s:
+            k = stop_index_at(self.sim, float(t))
+            self.fix_attempts[k] = self.fix_attempts.get(k, 0) + 1
 
     def quiet_instrument(self) -> None:
         """No reading noise from now on (the prism target carries the fix noise)."""

@@ -25,13 +25,24 @@ class StationSetupSteps:
         if setups:
             self.setup_id = setups[-1].setup_id
             if self.world is not None:
-                self.world.place_instrument(setups[-1].station_enh_m, len(setups) - 1)
-                self.world.quiet_instrument()
+                self._restore_simulated_instrument()
             self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
             self.say(f"station setup {self.setup_id} restored from the store")
             return
         with self.crew_busy():
             self.new_station("free station on CPIII")
+
+    def _restore_simulated_instrument(self) -> None:
+        """On resume: the simulated instrument stands where it physically stood before the crash
+        (the last ``simulated_instrument`` event; the first position otherwise), not at the
+        resected station, which carries the setup's errors that the fixes must keep."""
+        import json
+
+        moves = [json.loads(e.detail) for e in self.store.events(self.rec.session_id)
+                 if e.kind == "simulated_instrument"]
+        if moves:
+            self.world.place_instrument(np.array(moves[-1]["station_enh_m"]), moves[-1]["setup"])
+        self.world.quiet_instrument()
 
     def new_station(self, title: str) -> None:
         """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
@@ -40,7 +51,7 @@ class StationSetupSteps:
 
         self.screen.phase = "station setup"
         points = self._setup_points()
-        config = self.settings.resection_config()
+        config = self.settings.resection_config(self._grid_scale())
         if self.world is not None:  # the twin has no curvature/refraction model
             config = replace(config, model=replace(config.model, curvature_refraction=False))
         first = not self.store.station_setups(self.rec.session_id)
@@ -141,8 +152,32 @@ class StationSetupSteps:
                                "(3 are needed)", "check the prisms and the lines of sight, then resume")
         return done, PolarObservations(np.array(hz), np.array(v), np.array(sd))
 
+    def _grid_scale(self) -> float | None:
+        """Grid distance / ground distance of the total station's measurements: the project CRS's
+        combined scale (point scale x height reduction) at the CPIII centroid, or None (the polar
+        model's own). The simulated twin measures in the grid itself: None."""
+        if self.world is not None:
+            return None
+        if not hasattr(self, "_grid_scale_value"):
+            grid = self.store.site_grid()
+            self._grid_scale_value = None if grid is None else grid.combined_scale
+        return self._grid_scale_value
+
+    def grid_coordinates(self, m) -> tuple[float, float, float]:
+        """E, N, H of a measurement reduced to the grid (:func:`trolley.resection.reduce_to_grid`):
+        the instrument computed them with the ground distance from the station it was given."""
+        from trolley.resection import reduce_to_grid
+
+        scale = self._grid_scale()
+        station = getattr(self, "_station_enh_m", None)
+        if scale is None or station is None:
+            return m.E_m, m.N_m, m.H_m
+        e, n, h = reduce_to_grid(station, [m.E_m, m.N_m, m.H_m], scale)
+        return float(e), float(n), float(h)
+
     def _give_station(self, station_enh_m, orientation_rad: float) -> None:
         """TMC_SetStation, then orient the circle so that it reads grid azimuths."""
+        self._station_enh_m = np.asarray(station_enh_m, dtype=float).copy()
         e, n, h = (float(x) for x in station_enh_m)
         self.ts.set_station(e, n, h, 0.0)
         hz, _ = self.ts.angle()
@@ -157,6 +192,10 @@ class StationSetupSteps:
             if self.config.script is None:
                 self.say("station change: stop the trolley first")
             return False
+        if self._fix_distance_pending:  # resumed: the odometer data up to the last fix are not in yet
+            if self.config.script is None:
+                self.say("station change: waiting for the odometer data up to the last fix; press s again")
+            return False
         with self.crew_busy():
             return self._station_change(dist)
 
@@ -165,18 +204,31 @@ class StationSetupSteps:
         from drivers.serialport import DeviceError
         from trolley.resection import overlap_check
 
-        k = sum(1 for s in self.store.station_setups(self.rec.session_id) if s.accepted)
-        if self.world is not None:
-            here = self.chainage_now(dist)
-            self.world.move_instrument(k, here if np.isfinite(here) else dist)
-            e, n, h = self.world.station_enh_m
-            self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
-        self.say(f"station change: setting up station {k + 1}")
-        self._event("station_change", f"setup {k + 1}")
-        self.new_station(f"station {k + 1} on CPIII")
+        import json
+
+        sid = self.rec.session_id
+        k = sum(1 for s in self.store.station_setups(sid) if s.accepted)
+        # a station change interrupted by a crash (resume): its steps already stored are not repeated
+        resumed, self._station_resumed = self._station_resumed, None
+        if resumed is not None and resumed == k:
+            k -= 1  # its new setup was stored: go on with the overlap check
+            self.say(f"station change: station {k + 1} was set up before the interruption")
+        else:
+            if self.world is not None:
+                here = self.chainage_now(dist)
+                self.world.move_instrument(k, here if np.isfinite(here) else dist)
+                e, n, h = self.world.station_enh_m
+                self._event("simulated_instrument", json.dumps({"setup": k, "station_enh_m": [e, n, h]}))
+                self.say(f"(simulation: the instrument now stands at E {e:.3f} N {n:.3f} H {h:.3f})")
+            self.say(f"station change: setting up station {k + 1}")
+            if resumed != k + 1:  # stored once, also when the crash came during the setup
+                self._event("station_change", f"setup {k + 1}")
+            self.new_station(f"station {k + 1} on CPIII")
         first = self.last_fix
         if first is None or abs(dist - self.last_fix_distance_m) > 0.01 or first.setup_id == self.setup_id:
             return True
+        if any(f.setup_id == self.setup_id and f.reason.startswith("overlap check") for f in self.store.fixes(sid)):
+            return True  # measured (and decided) before the interruption
         t = self.now()
         if self.world is not None:
             self.world.aim_at_prism(t, self.rec.meta.fix_sigma_m)
@@ -186,14 +238,15 @@ class StationSetupSteps:
         except (GeoComError, DeviceError) as exc:
             self.say(f"overlap check not measured: {exc}")
             return True
-        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], [m.E_m, m.N_m, m.H_m],
+        here = self.grid_coordinates(m)
+        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], list(here),
                            self.settings.overlap_tolerance_m)
         d = oc.difference_enh_mm
         verdict = "within" if oc.within_tolerance else "[bold red]OUTSIDE[/]"
         self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
                  f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
         sigma = self.rec.meta.fix_sigma_m
-        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", m.E_m, m.N_m, m.H_m,
+        fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", *here,
                         sigma, sigma, sigma, setup_id=self.setup_id)
         v = self._live_verdict(fix)
         ok = oc.within_tolerance and (v is None or bool(v.accepted))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -104,7 +105,8 @@ def average_to_grid(t: np.ndarray, x: np.ndarray, t_grid: np.ndarray) -> np.ndar
 
 
 def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0.25,
-            match_curves: bool = True, fit_options: FitOptions = FitOptions()) -> TgmsResult:
+            match_curves: bool = True, fit_options: FitOptions = FitOptions(),
+            progress: Callable[[str, float], None] | None = None) -> TgmsResult:
     """Irregularities of one recording.
 
     Parameters
@@ -114,6 +116,8 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     step_m : station step of the output grid.
     match_curves : correct the encoder station by curvature matching (Eq. 40-43).
     fit_options : profile-fit settings.
+    progress : optional ``progress(step, fraction)`` called before each stage with the fraction
+        of the run done, from the stage shares of a 1 km run (docs/tgms.md, timings).
 
     Returns
     -------
@@ -121,12 +125,19 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     """
     tim = {}
     cfg = rec.config
+
+    def report(step: str, fraction: float) -> None:
+        if progress is not None:
+            progress(step, fraction)
+
+    report("vision (profile fit of every frame)", 0.0)
     t0 = time.perf_counter()
     vis = run_vision(rec, fit_options)
     tim["vision"] = time.perf_counter() - t0
     if not vis.ok.any():
         raise ValueError("no camera frame could be used (every frame flagged by the profile fit)")
     # processing grid and IMU averaged onto it
+    report("odometry", 0.70)
     t1 = time.perf_counter()
     dt = 1.0 / params.process_rate_hz
     t_grid = np.arange(rec.imu_t_s[0] + dt / 2, rec.imu_t_s[-1] - dt / 2, dt)
@@ -140,16 +151,19 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     # nominal offset of the TGMS above the rails (Gonzalez-Carbajal 2023 Eq. 14's delta), from the vision
     Zv = 0.5 * (vis.left.z_m + vis.right.z_m)
     r0_z = -float(np.nanmedian(Zv))
+    report("track kinematics", 0.73)
     t2 = time.perf_counter()
     kin = track_kinematics(rec.alignment, t_grid, odo.s_m, np.array([0.0, 0.0, r0_z]))
     kin.v_m_s, kin.a_m_s2 = odo.v_m_s, odo.a_m_s2
     tim["track"] = time.perf_counter() - t2
+    report("orientation", 0.75)
     t3 = time.perf_counter()
     if params.orientation == "madgwick":
         att = attitude_madgwick(kin, w, f, params)
     else:
         att = attitude_kf(kin, w, f, params)
     tim["orientation"] = time.perf_counter() - t3
+    report("trajectory", 0.84)
     t4 = time.perf_counter()
     if params.trajectory == "ekf":
         from trolley.tgms.ekf import trajectory_ekf
@@ -159,6 +173,7 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
         traj = trajectory_ltv(kin, f, att.roll_rad, att.pitch_rad, params)
     tim["trajectory"] = time.perf_counter() - t4
     # irregularities at the camera frames
+    report("irregularities", 0.92)
     t5 = time.perf_counter()
     tf = vis.t_s
     inside = np.isfinite(tf) & (tf >= t_grid[0]) & (tf <= t_grid[-1])
@@ -194,5 +209,6 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     fr.s_m = np.where(use, s_las, np.nan)
     grid = resample_irregularities(fr, step_m)
     tim["irregularities"] = time.perf_counter() - t5
+    report("irregularities", 1.0)
     return TgmsResult(vision=vis, odometry=odo, kinematics=kin, attitude=att, trajectory=traj,
                       frames=fr, grid=grid, r0_z_m=r0_z, timings_s=tim, laser_offset_m=0.5 * (x_l + x_r))

@@ -1,0 +1,241 @@
+"""``trolley inservice ...``: lateral track alignment from inertial sensors on an in-service vehicle
+(Munoz 2021).
+
+* ``trolley inservice simulate --out DIR`` writes a synthetic recording and truth.csv
+  (survey/commands/inservice_simulate.py).
+* ``trolley inservice calibrate --out model.toml`` runs the full-vehicle truth simulator once (the
+  paper's reference simulation with the complete model), identifies the simplified model's
+  suspension (Eq. 6), estimates Q and R (Eq. 26-29) and tunes the filter (docs/inservice.md).
+* ``trolley inservice process RECORDING --out DIR [--truth FILE] [--model FILE] [--smoother rts|none]``
+  writes irregularities.csv (s_m, alignment_mm, sigma_alignment_mm; alignment positive to the
+  RIGHT as in every project file), summary.json (J/Jrel per EN 13848 band with --truth),
+  alignment.png and inservice.xlsx (one sheet in the survey workbook's style).
+
+Bad input: a message naming the file/row/column or key on stderr, exit 2, no output written.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+
+from survey.atomicwrite import write_with
+from survey.commands.inservice_simulate import simulate_cmd
+
+console = Console(stderr=True)
+
+inservice_app = typer.Typer(help="In-service vehicle: wheelset/bogie inertial sensors -> lateral alignment.",
+                            no_args_is_help=True)
+inservice_app.command("simulate")(simulate_cmd)
+
+#: output grid step of irregularities.csv, m
+OUTPUT_STEP_M = 0.25
+
+
+def _fail(msg: str) -> None:
+    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code=2)
+
+
+def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from trolley.bands import bandpass_wavelength
+
+    step = float(s_m[1] - s_m[0])
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6), dpi=110, sharex=True)
+    ax = axes[0]
+    ax.fill_between(s_m, est_mm - 2 * sig_mm, est_mm + 2 * sig_mm, color="tab:blue", alpha=0.2, lw=0,
+                    label="estimate +- 2 sigma")
+    ax.plot(s_m, est_mm, lw=0.9, color="tab:blue", label="estimate")
+    if truth_mm is not None:
+        ax.plot(s_m, truth_mm, lw=0.8, color="k", label="truth")
+    ax.set_ylabel("alignment, unfiltered [mm]")
+    ax.set_title(title)
+    ax = axes[1]
+    if len(s_m) * step > 200.0:
+        ax.plot(s_m, bandpass_wavelength(est_mm, step, 3.0, 200.0), lw=0.9, color="tab:blue", label="estimate 3-200 m")
+        if truth_mm is not None:
+            ax.plot(s_m, bandpass_wavelength(truth_mm, step, 3.0, 200.0), lw=0.8, color="k", label="truth 3-200 m")
+    ax.set_ylabel("alignment 3-200 m [mm]")
+    ax.set_xlabel("chainage [m]  (alignment positive to the right)")
+    for a in axes:
+        a.grid(True, lw=0.4, alpha=0.6)
+        a.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    try:
+        write_with(path, lambda tmp: fig.savefig(tmp))
+    finally:
+        plt.close(fig)
+
+
+def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) -> None:
+    """One sheet in the survey workbook's style: a header row, the summary row, then the profile."""
+    from openpyxl import Workbook
+
+    from survey.sheet_text import put_text
+    from survey.workbook import _header, _num, _print_setup
+
+    wb = Workbook()
+    ws = wb.active
+    ws.title = "Alignment"
+    head = ["recording", "length_m", "speed_m_s", "smoother", "cpu_s", "real_time_ratio"]
+    bands = list(summary.get("accuracy", {}))
+    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands]
+    _header(ws, 1, head)
+    put_text(ws, 2, 1, recording)
+    vals = [summary["length_m"], summary["speed_m_s"], None, summary["cpu_s"], summary["real_time_ratio"]]
+    vals += [summary["accuracy"][b]["J_mm"] for b in bands] + [summary["accuracy"][b]["Jrel"] for b in bands]
+    for j, v in enumerate(vals, start=2):
+        if j == 4:
+            put_text(ws, 2, j, summary["smoother"])
+        else:
+            _num(ws, 2, j, v, "0.000")
+    _header(ws, 4, ["s_m", "alignment_mm", "sigma_alignment_mm"])
+    for i, (s, a, g) in enumerate(zip(s_m, est_mm, sig_mm), start=5):
+        _num(ws, i, 1, s, "0.00")
+        _num(ws, i, 2, a, "0.000")
+        _num(ws, i, 3, g, "0.000")
+    ws.freeze_panes = "A5"
+    _print_setup(ws, landscape=False)
+    write_with(path, lambda tmp: wb.save(tmp))
+
+
+@inservice_app.command("process")
+def process_cmd(
+    recording: Annotated[Path, typer.Argument(help="recording folder (inservice.toml + sensors.csv)")],
+    out: Annotated[Path, typer.Option("--out", help="output folder")],
+    truth: Annotated[Optional[Path], typer.Option("--truth", help="truth.csv: adds J/Jrel per band to summary.json")] = None,
+    model: Annotated[Optional[Path], typer.Option(
+        "--model", help="model.toml from `trolley inservice calibrate` (default: the recording's nominal "
+                        "parameters with default noise)")] = None,
+    smoother: Annotated[str, typer.Option("--smoother", help="rts (forward filter + RTS smoother) or none")] = "rts",
+) -> None:
+    """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
+    import numpy as np
+    import pandas as pd
+
+    from survey.inservice_io import InserviceFormatError, read_recording, read_truth
+    from survey.inservice_model import ModelFileError, read_model
+    from survey.tgms_io import _atomic_write_csv, write_text_atomic
+    from trolley import units
+    from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
+    from trolley.inservice.estimator import NoiseDensities, estimate
+    from trolley.inservice.model import ModelParameters
+
+    if smoother not in ("rts", "none"):
+        _fail(f"--smoother must be rts or none, got {smoother!r}")
+    try:
+        rec = read_recording(recording)
+        tru = read_truth(truth) if truth is not None else None
+        mdl = read_model(model) if model is not None else None
+    except (InserviceFormatError, ModelFileError) as exc:
+        _fail(str(exc))
+    if len(rec.t_s) < 10:
+        _fail(f"{recording / 'sensors.csv'}: needs at least 10 rows, got {len(rec.t_s)}")
+    if not np.all(np.diff(rec.s_m) > 0):
+        i = int(np.argmax(np.diff(rec.s_m) <= 0))
+        _fail(f"sensors.csv: row {i + 3}, column s_m: chainage must increase (the vehicle must move)")
+    dt = float(np.median(np.diff(rec.t_s)))
+    if not np.allclose(np.diff(rec.t_s), dt, rtol=1e-3):
+        _fail("sensors.csv: column t_s: sample times must be uniform")
+    if tru is not None and (tru["s_m"][0] > rec.s_m[0] + 1e-6 or tru["s_m"][-1] < rec.s_m[-1] - 1e-6):
+        _fail(f"{truth}: column s_m covers {tru['s_m'][0]:.2f}-{tru['s_m'][-1]:.2f} m, "
+              f"the recording {rec.s_m[0]:.2f}-{rec.s_m[-1]:.2f} m")
+    z = np.column_stack([rec.wheelset_ay_m_s2, rec.wheelset_wz_rad_s, rec.frame_ay_m_s2])
+    import filterpy.kalman  # noqa: F401  (imported before the clock: the speed is the filter's)
+    import scipy.linalg  # noqa: F401
+    t0 = time.process_time()
+    if mdl is not None:
+        m = mdl.at_dt(dt)
+        est = estimate(m.params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, Q=m.Q, R=m.R,
+                       curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
+        scale = m.sigma_scale
+    else:
+        noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4),
+                               sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6))
+        est = estimate(ModelParameters(**rec.nominal), rec.t_s, rec.s_m, rec.speed_arr_m_s, z, noise=noise,
+                       curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
+        scale = 1.0
+    cpu = time.process_time() - t0
+    sig = est.sigma_alignment_m * scale
+    grid, (a_g, s_g) = uniform_grid(rec.s_m, est.alignment_m, sig, step_m=OUTPUT_STEP_M)
+    length = float(rec.s_m[-1] - rec.s_m[0])
+    duration = float(rec.t_s[-1] - rec.t_s[0])
+    summary = {"recording": str(recording), "samples": int(len(rec.t_s)), "length_m": length,
+               "speed_m_s": float(np.mean(rec.speed_arr_m_s)), "curvature_1_m_right_positive": -rec.curvature_1_m,
+               "smoother": smoother, "model": str(model) if model else "nominal (recording [vehicle])",
+               "cpu_s": round(cpu, 4), "duration_s": duration,
+               "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
+    truth_mm = None
+    if tru is not None:
+        xi_true = np.interp(rec.s_m, tru["s_m"], tru["alignment_m"])
+        acc = band_accuracy(rec.s_m, est.alignment_m, xi_true)
+        summary["accuracy"] = {b: {"J_mm": units.m_to_mm(a.J_m), "Jrel": a.Jrel, "rms_true_mm": units.m_to_mm(a.rms_true_m)}
+                               for b, a in acc.items()}
+        settle = rec.s_m >= rec.s_m[0] + 30.0
+        summary["honesty_rms_error_over_sigma"] = honesty(est.alignment_m[settle], sig[settle], xi_true[settle])
+        truth_mm = -units.m_to_mm(np.interp(grid, tru["s_m"], tru["alignment_m"]))
+    # files: alignment positive to the RIGHT (FRD, docs/conventions.md)
+    est_mm, sig_mm = -units.m_to_mm(a_g), units.m_to_mm(s_g)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        _atomic_write_csv(out / "irregularities.csv",
+                          pd.DataFrame({"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}), "%.6g")
+        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {recording.name}")
+        _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
+                    grid, est_mm, sig_mm)
+        write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    print(json.dumps(summary))
+
+
+@inservice_app.command("calibrate")
+def calibrate_cmd(
+    out: Annotated[Path, typer.Option("--out", help="model.toml to write")],
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=2.0, max=60.0, help="speed of the reference run, m/s")] = 20.0,
+    length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
+    seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
+    rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+) -> None:
+    """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
+    import numpy as np
+
+    from survey.inservice_model import write_model
+    from trolley.inservice.identification import calibrate
+    from trolley.inservice.irregularity import irregularity_from_psd
+    from trolley.inservice.model import ModelParameters
+    from trolley.inservice.vehicle import VehicleParameters, simulate_run
+
+    t0 = time.process_time()
+    vp = VehicleParameters()
+    with console.status("simulating the reference run"):
+        run = simulate_run(vp, irregularity_from_psd(length_m, seed=seed), speed_m_s, length_m, rate_hz=rate_hz,
+                           seed=seed + 1)
+    X = np.column_stack([run.wheelset_y_m, run.wheelset_psi_rad, run.frame_y_m, run.wheelset_vy_m_s,
+                         run.wheelset_wz_rad_s_true, run.frame_vy_m_s, run.alignment_m])
+    Z = np.column_stack([run.wheelset_ay_m_s2, run.wheelset_wz_rad_s, run.frame_ay_m_s2])
+    with console.status("identifying and tuning"):
+        mdl = calibrate(ModelParameters(**vp.nominal()), speed_m_s, run.t_s, run.s_m, X, Z)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_model(out, mdl)
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    print(json.dumps({"out": str(out), "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
+                      "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
+                      "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
+                      "cpu_s": round(time.process_time() - t0, 2)}))
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``inservice`` command group to the ``trolley`` app."""
+    app.add_typer(inservice_app, name="inservice")

@@ -1,0 +1,91 @@
+"""``trolley inservice simulate``: a synthetic in-service recording (docs/inservice.md) plus its truth.
+
+Runs the full-vehicle truth simulator (``trolley.inservice.vehicle``) over PSD irregularities
+(and/or a harmonic alignment, the resonance case of Munoz 2021 Sec. V-E) and writes
+``OUT/recording/`` (inservice.toml + sensors.csv) and ``OUT/truth.csv`` outside the recording.
+Command-line values are at the edge: curvature positive for a RIGHT turn (as in the files),
+harmonic amplitude in mm. A JSON summary goes to stdout, errors to stderr (exit 2).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+
+console = Console(stderr=True)
+
+
+def _fail(msg: str) -> None:
+    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code=2)
+
+
+def simulate_cmd(
+    out: Annotated[Path, typer.Option("--out", help="output folder: OUT/recording/ and OUT/truth.csv")],
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=2.0, max=60.0, help="constant speed, m/s")] = 20.0,
+    length_m: Annotated[float, typer.Option("--length-m", min=10.0, max=20000.0, help="recorded length, m")] = 400.0,
+    seed: Annotated[int, typer.Option(help="seed of the irregularities and the sensor noise")] = 0,
+    curvature_1_m: Annotated[float, typer.Option(
+        "--curvature-1-m", min=-0.01, max=0.01, help="constant design curvature, 1/m, positive = right turn")] = 0.0,
+    conicity_factor: Annotated[float, typer.Option(
+        "--conicity-factor", min=0.1, max=5.0, help="multiplies the truth's conicity (0.9: -10 %)")] = 1.0,
+    creep_factor: Annotated[float, typer.Option(
+        "--creep-factor", min=0.05, max=5.0, help="multiplies the truth's Kalker coefficients (0.5: 50 %)")] = 1.0,
+    no_noise: Annotated[bool, typer.Option("--no-noise", help="no sensor noise")] = False,
+    no_vertical: Annotated[bool, typer.Option("--no-vertical", help="no vertical irregularity")] = False,
+    no_random_lateral: Annotated[bool, typer.Option(
+        "--no-random-lateral", help="no random alignment (with a harmonic: Munoz 2021 Case 2)")] = False,
+    harmonic_wavelength_m: Annotated[Optional[float], typer.Option(
+        "--harmonic-wavelength-m", min=1.0, max=1000.0, help="add a harmonic alignment of this wavelength, m")] = None,
+    harmonic_amplitude_mm: Annotated[float, typer.Option(
+        "--harmonic-amplitude-mm", min=0.0, max=20.0, help="its amplitude, mm")] = 1.0,
+    resonance: Annotated[bool, typer.Option(
+        "--resonance", help="harmonic at the wavelength of the first lateral bogie mode at this speed")] = False,
+    rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    sensor_gravity: Annotated[bool, typer.Option(
+        "--sensor-gravity", help="accelerometers also sense g x their roll (not in the paper)")] = False,
+) -> None:
+    """Write a synthetic in-service recording (wheelset and bogie frame inertial sensors) plus truth.csv."""
+    from survey import inservice_io
+    from trolley import units
+    from trolley.inservice import irregularity as irr
+    from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, simulate_run
+
+    if harmonic_wavelength_m is not None and resonance:
+        _fail("give --harmonic-wavelength-m or --resonance, not both")
+    params = VehicleParameters(conicity_factor=conicity_factor, creep_factor=creep_factor,
+                               sensor_gravity=sensor_gravity)
+    mode = first_lateral_mode(params, speed_m_s)
+    wavelength = mode.wavelength_m if resonance else harmonic_wavelength_m
+    if no_random_lateral and wavelength is None:
+        _fail("--no-random-lateral needs a harmonic (--harmonic-wavelength-m or --resonance)")
+    kappa = -curvature_1_m  # right-turn positive at the edge -> left positive inside
+    t0 = time.process_time()
+    track = irr.irregularity_from_psd(length_m, seed=seed, lateral_scale=0.0 if no_random_lateral else 1.0,
+                                      vertical_scale=0.0 if no_vertical else 1.0)
+    if wavelength is not None:
+        track = track.plus(irr.harmonic_irregularity(length_m, wavelength, units.mm_to_m(harmonic_amplitude_mm)))
+    with console.status("simulating the vehicle"):
+        run = simulate_run(params, track, speed_m_s, length_m, rate_hz=rate_hz, sensor_noise=not no_noise,
+                           seed=seed + 1, curvature_1_m=kappa)
+    cpu = time.process_time() - t0
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        inservice_io.write_recording(out / "recording", inservice_io.recording_from_run(run, params))
+        inservice_io.write_truth(out / "truth.csv", run.s_m, run.alignment_m, run.vertical_m, run.curvature_1_m)
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    import numpy as np
+    print(json.dumps({
+        "out": str(out), "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m, "samples": int(len(run.t_s)),
+        "curvature_1_m": curvature_1_m, "conicity_factor": conicity_factor, "creep_factor": creep_factor,
+        "noise": not no_noise, "vertical": not no_vertical, "random_lateral": not no_random_lateral,
+        "harmonic_wavelength_m": wavelength, "harmonic_amplitude_mm": harmonic_amplitude_mm if wavelength else None,
+        "first_lateral_mode_hz": mode.frequency_hz, "first_lateral_mode_wavelength_m": mode.wavelength_m,
+        "alignment_rms_mm": float(units.m_to_mm(np.sqrt(np.mean(run.alignment_m ** 2)))),
+        "max_wheel_rail_shift_mm": float(units.m_to_mm(run.max_shift_m)),
+        "step_s": run.step_s, "cpu_s": round(cpu, 2)}))

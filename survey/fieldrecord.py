@@ -1,0 +1,276 @@
+"""The field record beside a processed track: what the crew decided, for the survey sheet.
+
+``trolley process`` sees only the accepted fixes (the raw session folder holds no others), so a
+fix the crew rejected, re-measured or undid, a station setup with its residuals and the overlap
+check after a station change would not reach the sheet. At the end of a field session the store's
+record of them is written next to ``track.csv`` as ``field_record.json``
+(:func:`write_field_record`; FORMATS.md section 2, "field_record.json"); ``trolley export`` reads
+it when present (:func:`read_field_record`).
+
+Nothing is recomputed except the overlap checks' differences, which the session computed from
+the same two stored fixes (``trolley.resection.overlap_check``: new minus old station) and did not
+keep apart from the fix's reason; :func:`overlap_checks` pairs each overlap fix with the fix
+taken just before it from the previous station, exactly as the session did.
+
+No paper section: record keeping (DESIGN.md, "nothing lost").
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from survey.track_reader import ExportInputError
+
+#: file name beside track.csv
+FIELD_RECORD = "field_record.json"
+#: ``format`` value of the file
+FORMAT = "trolley-field-record/1"
+#: reason prefix of a fix measured from a new station at the stop of the previous fix
+OVERLAP_PREFIX = "overlap check"
+
+
+@dataclass(frozen=True)
+class RecordFix:
+    """A prism fix as the crew took it, with its newest decision (SI)."""
+
+    t_s: float
+    point: str
+    E_m: float
+    N_m: float
+    H_m: float
+    station: int
+    accepted: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class RecordPointing:
+    """One CPIII pointing of a station setup with its residuals (SI; NaN where not used)."""
+
+    point: str
+    used: bool
+    across_m: float
+    along_m: float
+    height_m: float
+    hz_rad: float
+    zenith_rad: float
+    distance_m: float
+    max_standardized: float
+    flagged: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class RecordSetup:
+    """A free-station setup (station numbered from 1 in the order they were set up)."""
+
+    station: int
+    t_s: float
+    E_m: float
+    N_m: float
+    H_m: float
+    orientation_rad: float
+    sigma0: float
+    dof: int
+    accepted: bool
+    excluded: tuple[str, ...]
+    pointings: tuple[RecordPointing, ...]
+
+
+@dataclass(frozen=True)
+class RecordOverlap:
+    """An overlap check: the trolley prism at one stop measured from the old and the new station."""
+
+    t_s: float
+    old_point: str
+    new_point: str
+    from_station: int
+    to_station: int
+    dE_m: float
+    dN_m: float
+    dH_m: float
+    tolerance_m: float
+    within: bool
+    accepted: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class RecordStop:
+    """A stop of the trolley."""
+
+    t_start_s: float
+    t_end_s: float
+    label: str
+    chainage_m: float
+
+
+@dataclass
+class FieldRecord:
+    """Everything of :data:`FIELD_RECORD`."""
+
+    project: str = ""
+    session: str = ""
+    header: dict = field(default_factory=dict)
+    start_utc: str = ""
+    end_utc: str = ""
+    fixes: list[RecordFix] = field(default_factory=list)
+    setups: list[RecordSetup] = field(default_factory=list)
+    overlaps: list[RecordOverlap] = field(default_factory=list)
+    stops: list[RecordStop] = field(default_factory=list)
+
+    @property
+    def rejected(self) -> list[RecordFix]:
+        """Fixes the crew or the session rejected or undid (newest decision: not accepted)."""
+        return [f for f in self.fixes if not f.accepted]
+
+
+def overlap_checks(fixes: list[RecordFix], tolerance_m: float) -> list[RecordOverlap]:
+    """The overlap checks among ``fixes`` (time order): each fix whose reason starts with
+    :data:`OVERLAP_PREFIX`, against the last fix before it from another station (preferably an
+    accepted one, as the session's ``last_fix`` was)."""
+    from trolley.resection import overlap_check
+
+    out = []
+    for i, f in enumerate(fixes):
+        if not f.reason.startswith(OVERLAP_PREFIX):
+            continue
+        before = [g for g in fixes[:i] if g.station != f.station]
+        old = next((g for g in reversed(before) if g.accepted), before[-1] if before else None)
+        if old is None:
+            continue
+        oc = overlap_check(old.point, [old.E_m, old.N_m, old.H_m], [f.E_m, f.N_m, f.H_m], tolerance_m)
+        d = oc.difference_enh_m
+        out.append(RecordOverlap(f.t_s, old.point, f.point, old.station, f.station, float(d[0]), float(d[1]),
+                                 float(d[2]), tolerance_m, oc.within_tolerance, f.accepted, f.reason))
+    return out
+
+
+def field_record(store, session_name: str) -> FieldRecord:
+    """The field record of a stored session (survey.store.ProjectStore)."""
+    rec = store.session(session_name)
+    sid = rec.session_id
+    setups = store.station_setups(sid)
+    number = {s.setup_id: k for k, s in enumerate(setups, start=1)}
+    fixes = [RecordFix(float(f.t_s), f.point, float(f.e_m), float(f.n_m), float(f.h_m),
+                       number.get(f.setup_id, 0), bool(f.accepted), f.reason) for f in store.fixes(sid)]
+    out_setups = []
+    for k, s in enumerate(setups, start=1):
+        pts = tuple(RecordPointing(o.point_id, o.used, o.across_m, o.along_m, o.height_m, o.residual_hz_rad,
+                                   o.residual_zenith_rad, o.residual_distance_m, o.max_standardized, o.flagged,
+                                   o.reason) for o in store.setup_observations(s.setup_id))
+        e, n, h = (float(x) for x in s.station_enh_m)
+        out_setups.append(RecordSetup(k, float(s.t_s), e, n, h, float(s.orientation_rad), float(s.sigma0),
+                                      int(s.dof), bool(s.accepted), tuple(s.excluded), pts))
+    span = store.session_time_span_utc(sid)
+    return FieldRecord(
+        project=store.info().name, session=session_name, header={**store.header(), **crs_header(store, rec)},
+        start_utc=span[0] if span else "", end_utc=span[1] if span else "",
+        fixes=fixes, setups=out_setups, overlaps=overlap_checks(fixes, store.settings().overlap_tolerance_m),
+        stops=[RecordStop(float(p.t_start_s), float(p.t_end_s), p.label, float(p.chainage_m))
+               for p in store.stops(sid)])
+
+
+def crs_header(store, rec) -> dict[str, str]:
+    """The session's coordinate system, height datum and the grid convergence and scale at the
+    CPIII centroid (``trolley project set-crs``); {} entries left out when not set."""
+    from trolley import units
+    from trolley.projection import CrsError
+
+    meta = rec.meta
+    crs = getattr(meta, "crs", None) or store.settings().crs
+    datum = getattr(meta, "vertical_datum", None) or store.settings().vertical_datum
+    out = {}
+    if crs:
+        out["coordinate_system"] = str(crs)
+        try:
+            grid = store.site_grid()
+        except CrsError as e:          # the header names the problem instead of a figure
+            out["grid"] = f"not computed ({e})"
+        else:
+            if grid is not None:
+                out["grid"] = (f"convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
+                               f"combined scale {grid.combined_scale:.9f} at the CPIII centroid")
+    if datum:
+        out["height_datum"] = str(datum)
+    return out
+
+
+def _jsonable(x):
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+def record_json(record: FieldRecord) -> str:
+    """The JSON text of a field record (NaN written as null)."""
+    doc = {"format": FORMAT, **asdict(record)}
+    return json.dumps(_jsonable(doc), indent=1, ensure_ascii=False) + "\n"
+
+
+def write_field_record(folder: Path, record: FieldRecord) -> Path:
+    """Write ``folder/field_record.json`` atomically. Returns the path."""
+    from survey.tgms_io import write_text_atomic
+
+    path = Path(folder) / FIELD_RECORD
+    write_text_atomic(path, record_json(record))
+    return path
+
+
+def read_field_record(path: Path) -> FieldRecord:
+    """Read a field_record.json (ExportInputError naming the file and key when unusable)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ExportInputError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ExportInputError(f"{path}: key format must be {FORMAT!r}")
+
+    def num(v):
+        return math.nan if v is None else float(v)
+
+    def rows(key, build):
+        items = doc.get(key, [])
+        if not isinstance(items, list):
+            raise ExportInputError(f"{path}: key {key}: expected a list")
+        out = []
+        for i, d in enumerate(items):
+            try:
+                out.append(build(d))
+            except (TypeError, ValueError, KeyError, AttributeError) as e:
+                raise ExportInputError(f"{path}: key {key}[{i}]: {e}") from None
+        return out
+
+    fix = lambda d: RecordFix(num(d["t_s"]), str(d["point"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),  # noqa: E731
+                              int(d["station"]), bool(d["accepted"]), str(d["reason"]))
+    pointing = lambda d: RecordPointing(str(d["point"]), bool(d["used"]), *(num(d[k]) for k in (  # noqa: E731
+        "across_m", "along_m", "height_m", "hz_rad", "zenith_rad", "distance_m", "max_standardized")),
+        bool(d["flagged"]), str(d["reason"]))
+    setup = lambda d: RecordSetup(int(d["station"]), num(d["t_s"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),  # noqa: E731
+                                  num(d["orientation_rad"]), num(d["sigma0"]), int(d["dof"]), bool(d["accepted"]),
+                                  tuple(str(x) for x in d["excluded"]),
+                                  tuple(pointing(p) for p in d["pointings"]))
+    overlap = lambda d: RecordOverlap(num(d["t_s"]), str(d["old_point"]), str(d["new_point"]),  # noqa: E731
+                                      int(d["from_station"]), int(d["to_station"]), num(d["dE_m"]), num(d["dN_m"]),
+                                      num(d["dH_m"]), num(d["tolerance_m"]), bool(d["within"]),
+                                      bool(d["accepted"]), str(d["reason"]))
+    stop = lambda d: RecordStop(num(d["t_start_s"]), num(d["t_end_s"]), str(d["label"]), num(d["chainage_m"]))  # noqa: E731
+    header = doc.get("header", {})
+    if not isinstance(header, dict):
+        raise ExportInputError(f"{path}: key header: expected an object")
+    return FieldRecord(project=str(doc.get("project", "")), session=str(doc.get("session", "")),
+                       header={str(k): str(v) for k, v in header.items()},
+                       start_utc=str(doc.get("start_utc", "")), end_utc=str(doc.get("end_utc", "")),
+                       fixes=rows("fixes", fix), setups=rows("setups", setup), overlaps=rows("overlaps", overlap),
+                       stops=rows("stops", stop))
+
+
+__all__ = ["FIELD_RECORD", "FORMAT", "FieldRecord", "RecordFix", "RecordSetup", "RecordPointing", "RecordOverlap",
+           "RecordStop", "field_record", "overlap_checks", "read_field_record", "record_json", "write_field_record"]

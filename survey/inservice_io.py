@@ -1,0 +1,223 @@
+"""Reading and writing in-service recordings (docs/inservice.md "Recording format") and their truth.csv.
+
+A recording folder holds ``inservice.toml`` (vehicle nominal parameters, run, sensors) and
+``sensors.csv`` (wheelset lateral acceleration and yaw rate, bogie frame lateral acceleration:
+the measurements of Munoz 2021 Eq. 8). The true alignment is kept OUTSIDE the folder, in a
+``truth.csv`` next to it, so that processing cannot see it.
+
+Signs: the files follow the project's FRD convention (docs/conventions.md): lateral acceleration
+and alignment positive to the RIGHT, yaw rate positive clockwise seen from above (about z down),
+curvature positive for a right turn. Inside the code (``trolley.inservice``) the paper's track
+frame is used (y left, yaw counter-clockwise, curvature left positive); this module converts, once,
+and its readers return internal signs.
+
+Readers raise :class:`InserviceFormatError` naming the file, the row and the column (or the TOML
+key); writers write each file atomically (temporary file + os.replace, the helpers of
+``survey.tgms_io``), so an interrupted run never leaves a partial file.
+"""
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from survey.atomicwrite import write_text_atomic
+from survey.tgms_io import TgmsFormatError, _atomic_write_csv, _num, _read_csv
+
+FORMAT = "trolley-inservice/1"
+SENSOR_COLUMNS = ["t_s", "s_m", "speed_m_s", "wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2"]
+TRUTH_COLUMNS = ["s_m", "alignment_m", "vertical_m", "curvature_1_m"]
+#: [vehicle] keys of inservice.toml -> keys of VehicleParameters.nominal() (model.ModelParameters)
+VEHICLE_KEYS = {"m_wheelset_kg": "m", "izz_wheelset_kg_m2": "I", "half_contact_spacing_m": "l",
+                "half_primary_spacing_m": "ls", "conicity": "conicity", "r0_m": "r0",
+                "supported_mass_kg": "mf", "f11_n": "f11", "f22_n": "f22", "f23_n_m": "f23", "f33_n_m2": "f33",
+                "kx_primary_n_m": "kx", "cx_primary_n_s_m": "cx", "ky_primary_n_m": "ky",
+                "cy_primary_n_s_m": "cy"}
+#: further [vehicle] keys (geometry of the whole car)
+VEHICLE_EXTRA_KEYS = ("half_wheelbase_m", "half_bogie_spacing_m", "m_frame_kg", "m_body_kg")
+
+
+class InserviceFormatError(ValueError):
+    """A recording folder or truth file that does not follow docs/inservice.md."""
+
+
+@dataclass
+class InserviceRecording:
+    """A recording in internal signs (y left, yaw counter-clockwise, curvature left positive).
+
+    Attributes
+    ----------
+    nominal : nominal vehicle parameters, keys of ``VehicleParameters.nominal()`` (SI).
+    vehicle_extra : half_wheelbase_m, half_bogie_spacing_m, m_frame_kg, m_body_kg.
+    speed_m_s, rate_hz, start_chainage_m, curvature_1_m : run settings ([run]).
+    sigma_acc_m_s2, sigma_gyro_rad_s : sensor noise standard deviations ([sensors]).
+    wheelset_sensor_m, frame_sensor_m : sensor positions (x, y, z) from the car body centre, m.
+    t_s, s_m, speed_arr_m_s, wheelset_ay_m_s2, wheelset_wz_rad_s, frame_ay_m_s2 : sensors.csv.
+    """
+
+    nominal: dict
+    vehicle_extra: dict
+    speed_m_s: float
+    rate_hz: float
+    start_chainage_m: float
+    curvature_1_m: float
+    sigma_acc_m_s2: float
+    sigma_gyro_rad_s: float
+    wheelset_sensor_m: tuple
+    frame_sensor_m: tuple
+    t_s: np.ndarray
+    s_m: np.ndarray
+    speed_arr_m_s: np.ndarray
+    wheelset_ay_m_s2: np.ndarray
+    wheelset_wz_rad_s: np.ndarray
+    frame_ay_m_s2: np.ndarray
+
+
+def recording_from_run(run, params, start_chainage_m: float = 0.0) -> InserviceRecording:
+    """The recording of a simulated run (``trolley.inservice.vehicle.RunResult``) and its parameters."""
+    nom = params.nominal()
+    pos = params.sensor_positions()
+    return InserviceRecording(
+        nominal=nom,
+        vehicle_extra={"half_wheelbase_m": params.a_wheelset, "half_bogie_spacing_m": params.a_bogie,
+                       "m_frame_kg": params.m_frame, "m_body_kg": params.m_body},
+        speed_m_s=float(run.speed_m_s[0]), rate_hz=run.rate_hz, start_chainage_m=float(start_chainage_m),
+        curvature_1_m=run.curvature_1_m, sigma_acc_m_s2=run.sigma_acc_m_s2, sigma_gyro_rad_s=run.sigma_gyro_rad_s,
+        wheelset_sensor_m=tuple(pos["wheelset_accelerometer"]), frame_sensor_m=tuple(pos["frame_accelerometer"]),
+        t_s=run.t_s, s_m=run.s_m + start_chainage_m, speed_arr_m_s=run.speed_m_s,
+        wheelset_ay_m_s2=run.wheelset_ay_m_s2, wheelset_wz_rad_s=run.wheelset_wz_rad_s,
+        frame_ay_m_s2=run.frame_ay_m_s2)
+
+
+def _f(x) -> str:
+    return repr(float(x))
+
+
+def inservice_toml_text(rec: InserviceRecording) -> str:
+    """The ``inservice.toml`` text of a recording (FRD signs for the curvature)."""
+    inv = {v: k for k, v in VEHICLE_KEYS.items()}
+    lines = [f'format = "{FORMAT}"', "", "# nominal parameters of the vehicle (SI); see docs/inservice.md", "[vehicle]"]
+    lines += [f"{inv[k]} = {_f(rec.nominal[k])}" for k in VEHICLE_KEYS.values()]
+    lines += [f"{k} = {_f(rec.vehicle_extra[k])}" for k in VEHICLE_EXTRA_KEYS]
+    lines += ["", "[run]", f"speed_m_s = {_f(rec.speed_m_s)}", f"rate_hz = {_f(rec.rate_hz)}",
+              f"start_chainage_m = {_f(rec.start_chainage_m)}",
+              "# design curvature, constant; positive for a RIGHT turn", f"curvature_1_m = {_f(-rec.curvature_1_m)}",
+              "", "[sensors]", f"sigma_acc_m_s2 = {_f(rec.sigma_acc_m_s2)}",
+              f"sigma_gyro_rad_s = {_f(rec.sigma_gyro_rad_s)}",
+              "# positions from the car body centre: x forward, y LEFT, z above the rail top, m",
+              "wheelset_sensor_m = [" + ", ".join(_f(v) for v in rec.wheelset_sensor_m) + "]",
+              "frame_sensor_m = [" + ", ".join(_f(v) for v in rec.frame_sensor_m) + "]"]
+    return "\n".join(lines) + "\n"
+
+
+def write_recording(folder: str | os.PathLike, rec: InserviceRecording) -> None:
+    """Write ``folder/inservice.toml`` and ``folder/sensors.csv`` (the folder is created)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    df = pd.DataFrame({"t_s": rec.t_s, "s_m": rec.s_m, "speed_m_s": rec.speed_arr_m_s,
+                       "wheelset_ay_m_s2": -np.asarray(rec.wheelset_ay_m_s2),
+                       "wheelset_wz_rad_s": -np.asarray(rec.wheelset_wz_rad_s),
+                       "frame_ay_m_s2": -np.asarray(rec.frame_ay_m_s2)})
+    _atomic_write_csv(folder / "sensors.csv", df[SENSOR_COLUMNS], "%.9g")
+    write_text_atomic(folder / "inservice.toml", inservice_toml_text(rec))
+
+
+def _position(table: dict, key: str, fname: str) -> tuple:
+    v = table.get(key)
+    if v is None:
+        raise InserviceFormatError(f"{fname}: missing key sensors.{key}")
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise InserviceFormatError(f"{fname}: sensors.{key} must be 3 numbers [x, y, z], got {v!r}") from None
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise InserviceFormatError(f"{fname}: sensors.{key} must be 3 finite numbers [x, y, z], got {v!r}")
+    return tuple(float(x) for x in a)
+
+
+def _parse_toml(path: Path) -> dict:
+    fname = path.name
+    if not path.exists():
+        raise InserviceFormatError(f"{fname}: file not found in {path.parent}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InserviceFormatError(f"{fname}: not valid TOML ({exc})") from None
+    if data.get("format") != FORMAT:
+        raise InserviceFormatError(f"{fname}: format must be \"{FORMAT}\", got {data.get('format')!r}")
+    for t in ("vehicle", "run", "sensors"):
+        if not isinstance(data.get(t), dict):
+            raise InserviceFormatError(f"{fname}: missing table [{t}]")
+    return data
+
+
+def read_recording(folder: str | os.PathLike) -> InserviceRecording:
+    """Read a recording folder; returns internal signs (module docstring).
+
+    Raises
+    ------
+    InserviceFormatError
+        Missing folder/file/key/column, non-numeric or non-finite value (naming file, row, column),
+        time not increasing, speed or rate not positive.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InserviceFormatError(f"{folder}: not a folder")
+    toml_path = folder / "inservice.toml"
+    data = _parse_toml(toml_path)
+    fname = toml_path.name
+    veh, run, sen = data["vehicle"], data["run"], data["sensors"]
+    try:
+        nominal = {v: _num(veh, k, "vehicle", fname) for k, v in VEHICLE_KEYS.items()}
+        extra = {k: _num(veh, k, "vehicle", fname) for k in VEHICLE_EXTRA_KEYS}
+        speed = _num(run, "speed_m_s", "run", fname)
+        rate = _num(run, "rate_hz", "run", fname)
+        start = _num(run, "start_chainage_m", "run", fname, default=0.0, required=False)
+        curv = _num(run, "curvature_1_m", "run", fname, default=0.0, required=False)
+        sa = _num(sen, "sigma_acc_m_s2", "sensors", fname)
+        sg = _num(sen, "sigma_gyro_rad_s", "sensors", fname)
+        cols = _read_csv(folder / "sensors.csv", SENSOR_COLUMNS, monotonic="t_s", strict=True)
+    except TgmsFormatError as exc:
+        raise InserviceFormatError(str(exc)) from None
+    for key, val in (("run.speed_m_s", speed), ("run.rate_hz", rate)):
+        if val <= 0:
+            raise InserviceFormatError(f"{fname}: {key} must be > 0, got {val}")
+    for key, val in (("sensors.sigma_acc_m_s2", sa), ("sensors.sigma_gyro_rad_s", sg)):
+        if val < 0:
+            raise InserviceFormatError(f"{fname}: {key} must be >= 0, got {val}")
+    if np.any(cols["speed_m_s"] <= 0):
+        i = int(np.argmax(cols["speed_m_s"] <= 0))
+        raise InserviceFormatError(f"sensors.csv: row {i + 2}, column speed_m_s: must be > 0")
+    return InserviceRecording(
+        nominal=nominal, vehicle_extra=extra, speed_m_s=speed, rate_hz=rate, start_chainage_m=start,
+        curvature_1_m=-curv, sigma_acc_m_s2=sa, sigma_gyro_rad_s=sg,
+        wheelset_sensor_m=_position(sen, "wheelset_sensor_m", fname),
+        frame_sensor_m=_position(sen, "frame_sensor_m", fname),
+        t_s=cols["t_s"], s_m=cols["s_m"], speed_arr_m_s=cols["speed_m_s"],
+        wheelset_ay_m_s2=-cols["wheelset_ay_m_s2"], wheelset_wz_rad_s=-cols["wheelset_wz_rad_s"],
+        frame_ay_m_s2=-cols["frame_ay_m_s2"])
+
+
+def write_truth(path: str | os.PathLike, s_m, alignment_m, vertical_m, curvature_1_m) -> None:
+    """Write truth.csv from internal signs (alignment left +, curvature left +) as FRD (right +)."""
+    s = np.asarray(s_m, float)
+    df = pd.DataFrame({"s_m": s, "alignment_m": -np.asarray(alignment_m, float),
+                       "vertical_m": np.asarray(vertical_m, float),
+                       "curvature_1_m": -np.broadcast_to(np.asarray(curvature_1_m, float), s.shape)})
+    _atomic_write_csv(Path(path), df[TRUTH_COLUMNS], "%.9g")
+
+
+def read_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read truth.csv; returns internal signs (alignment and curvature positive to the LEFT)."""
+    path = Path(path)
+    try:
+        cols = _read_csv(path, TRUTH_COLUMNS, monotonic="s_m", strict=True)
+    except TgmsFormatError as exc:
+        raise InserviceFormatError(str(exc).replace("time goes backwards", "chainage not increasing")) from None
+    cols["alignment_m"] = -cols["alignment_m"]
+    cols["curvature_1_m"] = -cols["curvature_1_m"]
+    return cols

@@ -1,0 +1,95 @@
+"""The calibrated estimator model file of ``trolley inservice`` (model.toml; docs/inservice.md).
+
+Holds a :class:`trolley.inservice.identification.EstimatorModel`: the simplified model's
+parameters (Munoz 2021 Eq. 4, with p_opt identified by Eq. 6), the diagonals of Q (per step of
+``dt_s``) and R (Eq. 26-29, tuned), the sigma scale. SI units throughout. Written atomically;
+the reader names the file and the key of any bad value.
+"""
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import asdict, fields
+from pathlib import Path
+
+import numpy as np
+
+from survey.atomicwrite import write_text_atomic
+
+FORMAT = "trolley-inservice-model/1"
+
+
+class ModelFileError(ValueError):
+    """A model.toml that does not follow docs/inservice.md."""
+
+
+def model_toml_text(model) -> str:
+    """TOML text of an EstimatorModel."""
+    lines = [f'format = "{FORMAT}"', "", "# simplified model parameters (Munoz 2021 Eq. 4), SI", "[parameters]"]
+    lines += [f"{k} = {float(v)!r}" for k, v in asdict(model.params).items()]
+    lines += ["", "# filter noise (Munoz 2021 Eq. 26-29, tuned); Q per step of dt_s", "[noise]",
+              f"dt_s = {model.dt_s!r}", "q_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.Q)) + "]",
+              "r_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.R)) + "]",
+              f"sigma_scale = {model.sigma_scale!r}", f"q_dynamics_factor = {model.q_dynamics_factor!r}",
+              f"q_xi_factor = {model.q_xi_factor!r}", f"sigma_xi_virtual_m = {model.sigma_xi_virtual_m!r}"]
+    return "\n".join(lines) + "\n"
+
+
+def write_model(path: str | os.PathLike, model) -> None:
+    """Write model.toml atomically."""
+    write_text_atomic(Path(path), model_toml_text(model))
+
+
+def _number(table: dict, key: str, where: str, fname: str) -> float:
+    if key not in table:
+        raise ModelFileError(f"{fname}: missing key {where}.{key}")
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise ModelFileError(f"{fname}: {where}.{key} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _vector(table: dict, key: str, n: int, fname: str) -> np.ndarray:
+    v = table.get(key)
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise ModelFileError(f"{fname}: noise.{key} must be {n} finite numbers >= 0, got {v!r}")
+    return a
+
+
+def read_model(path: str | os.PathLike):
+    """Read model.toml into an EstimatorModel (raises ModelFileError naming file and key)."""
+    from trolley.inservice.identification import EstimatorModel
+    from trolley.inservice.model import ModelParameters
+
+    path = Path(path)
+    fname = path.name
+    if not path.is_file():
+        raise ModelFileError(f"{path}: file not found")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ModelFileError(f"{fname}: not valid TOML ({exc})") from None
+    if data.get("format") != FORMAT:
+        raise ModelFileError(f"{fname}: format must be \"{FORMAT}\", got {data.get('format')!r}")
+    par, noi = data.get("parameters"), data.get("noise")
+    if not isinstance(par, dict) or not isinstance(noi, dict):
+        raise ModelFileError(f"{fname}: needs tables [parameters] and [noise]")
+    try:
+        params = ModelParameters(**{f.name: _number(par, f.name, "parameters", fname) for f in fields(ModelParameters)})
+    except ValueError as exc:
+        if isinstance(exc, ModelFileError):
+            raise
+        raise ModelFileError(f"{fname}: {exc}") from None
+    dt = _number(noi, "dt_s", "noise", fname)
+    if dt <= 0:
+        raise ModelFileError(f"{fname}: noise.dt_s must be > 0, got {dt}")
+    return EstimatorModel(params, np.diag(_vector(noi, "q_diagonal", 7, fname)),
+                          np.diag(_vector(noi, "r_diagonal", 4, fname)), dt,
+                          _number(noi, "sigma_scale", "noise", fname),
+                          _number(noi, "q_dynamics_factor", "noise", fname),
+                          _number(noi, "q_xi_factor", "noise", fname),
+                          _number(noi, "sigma_xi_virtual_m", "noise", fname))

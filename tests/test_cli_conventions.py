@@ -1,0 +1,291 @@
+"""CLI conventions (issue 15): version, help at 80 columns, choices, flags, --json, old option
+names, progress shares, and python-control imported only for ``process --observability``."""
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import get_args
+
+import numpy as np
+import pytest
+import typer
+from hypothesis import given
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from survey import jsonout
+from survey.cli import app
+from survey.commands.options import Device, ImuPreset, renamed
+from survey.commands.progress import share
+
+runner = CliRunner()
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "projects" / "demo"
+
+
+def strict_json(text: str):
+    """json.loads that refuses NaN and Infinity (Python's json accepts them by default)."""
+    def refuse(name):
+        raise ValueError(f"not JSON: {name}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def all_commands():
+    """(path, click command) of every command and group of the app, the root first."""
+    def walk(cmd, path):
+        yield path, cmd
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from walk(sub, path + [name])
+    return list(walk(typer.main.get_command(app), []))
+
+
+def help_80(path):
+    r = runner.invoke(app, path + ["--help"], env={"COLUMNS": "80"}, terminal_width=80)
+    assert r.exit_code == 0, r.output
+    return r.output
+
+
+# ------------------------------------------------------------------------------------- version
+
+def test_version_is_the_installed_package_metadata():
+    r = runner.invoke(app, ["--version"])
+    assert r.exit_code == 0
+    assert r.stdout == f"trolley {metadata.version('trolley-survey')}\n"
+    from survey.version import version
+    assert version() == metadata.version("trolley-survey")
+
+
+def test_shell_completion_is_offered():
+    out = help_80([])
+    assert "--install-completion" in out and "--show-completion" in out
+
+
+# ---------------------------------------------------------------------------------------- help
+
+COMMANDS = all_commands()
+
+
+@pytest.mark.parametrize("path, cmd", COMMANDS, ids=[" ".join(p) or "trolley" for p, _ in COMMANDS])
+def test_help_at_80_columns_shows_every_option_unbroken(path, cmd):
+    out = help_80(path)
+    assert max(len(line) for line in out.splitlines()) <= 80
+    for p in cmd.params:
+        names = list(p.opts) + list(getattr(p, "secondary_opts", []))
+        for name in names:
+            if not name.startswith("-"):
+                continue
+            found = re.search(rf"(^|[\s,/]){re.escape(name)}($|[\s,/])", out, re.M)
+            if getattr(p, "hidden", False):
+                assert not found, f"hidden {name} shown in `trolley {' '.join(path)} --help`"
+            else:
+                assert found, f"{name} missing or cut in `trolley {' '.join(path)} --help`"
+
+
+def test_help_keeps_square_brackets_of_the_toml_tables():
+    out = help_80(["project", "new"])
+    assert "[site]" in out and "[imu]" in out and "[design]" in out
+
+
+def test_choices_are_listed_in_the_help():
+    assert "<rts|tfs|none>" in help_80(["process"])
+    assert "<rlg|fog|mems>" in help_80(["simulate"])
+    assert "<rlg|fog|mems|custom>" in help_80(["budget"])
+    assert "<kf|ltv|ekf>" in help_80(["tgms", "tune"])
+    assert "imu|odometer|gauge|totalstation" in help_80(["devices", "simulate"])
+
+
+@pytest.mark.parametrize("args", [
+    ["process", "nowhere", "--out", "x", "--smoother", "kalman"],
+    ["simulate", "--out", "x", "--imu", "laser"],
+    ["demo", "--imu", "laser"],
+    ["budget", "--imu", "gyroscope"],
+    ["project", "new", "p", "--root", "nowhere", "--imu", "laser"],
+    ["tgms", "simulate", "--out", "x", "--rail-profile", "UIC99"],
+    ["tgms", "process", "nowhere", "--out", "x", "--trajectory", "spline"],
+    ["tgms", "tune", "nowhere", "--out", "x", "--box", "huge"],
+    ["devices", "simulate", "--device", "radar"],
+])
+def test_a_value_outside_the_choices_is_refused_with_exit_2(args, tmp_path):
+    r = runner.invoke(app, args)
+    assert r.exit_code == 2
+    assert "is not one of" in r.stderr and "Traceback" not in r.output
+    assert not (Path.cwd() / "x").exists()
+
+
+def test_choice_types_agree_with_the_library():
+    from drivers.twins.fleet import DEVICES
+    from trolley.sensors import IMU_PRESETS
+    assert get_args(ImuPreset) == tuple(IMU_PRESETS)
+    assert tuple(d.value for d in Device) == DEVICES
+
+
+@pytest.mark.parametrize("path, cmd", COMMANDS, ids=[" ".join(p) or "trolley" for p, _ in COMMANDS])
+def test_booleans_are_flags(path, cmd):
+    for p in cmd.params:
+        if getattr(p, "is_flag", False) and p.default is False and not p.hidden:
+            assert not p.secondary_opts, f"{p.opts} of `trolley {' '.join(path)}` has an off switch"
+
+
+# ---------------------------------------------------------------------------------------- JSON
+
+def test_json_writer_hand_cases():
+    doc = {"a": float("nan"), "b": [1.5, float("inf"), -float("inf")], "c": np.array([1.0, np.nan]),
+           "d": np.float32(2.5), "e": np.int64(7), "f": np.bool_(True), "g": Path("x/y.csv"), 3: None}
+    assert strict_json(jsonout.dumps(doc)) == {"a": None, "b": [1.5, None, None], "c": [1.0, None],
+                                               "d": 2.5, "e": 7, "f": True, "g": "x/y.csv", "3": None}
+    with pytest.raises(TypeError):
+        jsonout.dumps({"x": object()})
+
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=True, allow_infinity=True) | st.text(),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
+    max_leaves=20)
+
+
+@given(json_values)
+def test_json_writer_is_always_valid_and_keeps_finite_values(x):
+    back = strict_json(jsonout.dumps(x))
+
+    def expected(v):
+        if isinstance(v, float):
+            return v if math.isfinite(v) else None
+        if isinstance(v, list):
+            return [expected(u) for u in v]
+        if isinstance(v, dict):
+            return {k: expected(u) for k, u in v.items()}
+        return v
+    assert back == expected(x)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "session"
+    r = runner.invoke(app, ["simulate", "--out", str(out), "--project", str(DEMO), "--length-m", "120",
+                            "--static-s", "60", "--rate-hz", "100", "--seed", "5", "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["out"] == str(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def processed(session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("proc") / "processed"
+    r = runner.invoke(app, ["process", str(session), "--out", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    return out, strict_json(r.stdout)
+
+
+def test_process_json_is_the_summary_and_nothing_else(processed):
+    out, doc = processed
+    assert Path(doc["track_csv"]) == out / "track.csv" and (out / "track.csv").is_file()
+    on_disk = json.loads((out / "summary.json").read_text())
+    for key in ("fixes_used", "fixes_rejected", "stations", "step_m", "smoother"):
+        assert doc[key] == on_disk[key]
+    assert doc["observability_ranks"] is None and doc["rejected_fixes"] == []
+
+
+def test_export_and_project_commands_print_strict_json(processed, tmp_path):
+    out, _ = processed
+    r = runner.invoke(app, ["export", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["stations"] > 0
+    root = tmp_path / "projects"
+    r = runner.invoke(app, ["project", "new", "p", "--root", str(root), "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["store"] == str(root / "p" / "project.sqlite")
+    r = runner.invoke(app, ["project", "import-cpiii", str(DEMO / "cpiii.csv"), "-p", "p", "--root", str(root),
+                            "--json"])
+    assert r.exit_code == 0, r.output
+    added = strict_json(r.stdout)["added"]
+    r = runner.invoke(app, ["project", "show", "p", "--root", str(root), "--json"])
+    assert strict_json(r.stdout)["cpiii"]["count"] == added > 0
+
+
+# --------------------------------------------------------------------------------- old names
+
+def test_old_option_names_still_work_and_are_the_same_option(session, processed, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    r1 = runner.invoke(app, ["process", str(session), "--out", str(a), "--step", "2.5", "--json"])
+    r2 = runner.invoke(app, ["process", str(session), "--out", str(b), "--step-m", "2.5", "--json"])
+    assert r1.exit_code == r2.exit_code == 0
+    assert strict_json(r1.stdout)["step_m"] == strict_json(r2.stdout)["step_m"] == 2.5
+    assert (a / "track.csv").read_bytes() == (b / "track.csv").read_bytes()
+    out, _ = processed
+    csvs = {}
+    for name, args in (("old", ["--chord", "20"]), ("new", ["--chord-m", "20"]), ("default", [])):
+        csvs[name] = tmp_path / f"{name}.csv"
+        r = runner.invoke(app, ["export", str(out), "--csv", str(csvs[name]), *args])
+        assert r.exit_code in (0, 1), r.output
+    assert csvs["old"].read_bytes() == csvs["new"].read_bytes() != csvs["default"].read_bytes()
+
+
+def test_old_and_new_name_with_different_values_is_refused(session, tmp_path):
+    r = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "o"), "--step", "1", "--step-m", "2"])
+    assert r.exit_code == 2 and "--step-m" in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_renamed_hand_cases():
+    assert renamed(0.625, None, "--step-m", "--step", 0.625) == 0.625
+    assert renamed(0.625, 2.0, "--step-m", "--step", 0.625) == 2.0
+    assert renamed(2.0, 2.0, "--step-m", "--step", 0.625) == 2.0
+    with pytest.raises(typer.BadParameter):
+        renamed(1.0, 2.0, "--step-m", "--step", 0.625)
+
+
+# ---------------------------------------------------------------------------------- progress
+
+def test_progress_share_maps_a_sub_step_onto_its_part_of_the_bar():
+    seen = []
+    sub = share(lambda step, f: seen.append((step, f)), 0.15, 0.95)
+    sub("filter", 0.0)
+    sub("filter", 0.5)
+    sub("filter", 1.0)
+    assert seen == [("filter", 0.15), ("filter", pytest.approx(0.55)), ("filter", pytest.approx(0.95))]
+    assert share(None, 0.0, 1.0) is None
+
+
+def test_monte_carlo_progress_rises_to_one_and_leaves_the_draws_alone():
+    from trolley import budget as B
+    from trolley.sensors import IMU_PRESETS
+    from trolley.budget import SensorFigures
+    figs = SensorFigures(gyro_bias_instability_rad_s=IMU_PRESETS["rlg"].gyro_bias_instability_rad_s,
+                         gyro_arw_rad_sqrt_s=IMU_PRESETS["rlg"].gyro_arw_rad_sqrt_s, heading_error_rad=None,
+                         level_error_rad=1e-4, fix_spacing_m=60.0, speed_m_s=1.0, fix_sigma_m=6e-4,
+                         latitude_rad=0.5, gyrocompassing=True)
+    case = B.resolve_case(figs).case
+    seen = []
+    memory = 8 * 61 * 40 * 7  # a few runs a block: several blocks
+    with_bar = B.monte_carlo(case, 50, seed=3, memory_bytes=memory, progress=lambda s, f: seen.append(f))
+    without = B.monte_carlo(case, 50, seed=3, memory_bytes=memory)
+    assert with_bar.block_runs < 50
+    for d in B.DIRECTIONS:
+        np.testing.assert_array_equal(with_bar.rms_m[d], without.rms_m[d])
+    assert np.all(np.diff(seen) >= 0) and seen[-1] == pytest.approx(1.0) and seen[0] < 0.5
+    assert len(seen) == 6 * int(np.ceil(50 / with_bar.block_runs))
+
+
+# ----------------------------------------------------------------------------- python-control
+
+CHECK = """
+import sys
+from typer.testing import CliRunner
+from survey.cli import app
+r = CliRunner().invoke(app, sys.argv[1:])
+assert r.exit_code == 0, r.output
+print("control" in sys.modules)
+"""
+
+
+@pytest.mark.parametrize("extra, imported", [([], "False"), (["--observability"], "True")])
+def test_control_is_imported_only_for_observability(session, tmp_path, extra, imported):
+    p = subprocess.run([sys.executable, "-c", CHECK, "process", str(session), "--out", str(tmp_path / "o"),
+                        "--json", *extra], capture_output=True, text=True, cwd=REPO)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip().splitlines()[-1] == imported

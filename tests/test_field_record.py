@@ -1,0 +1,128 @@
+"""The field record (survey/fieldrecord.py) and what the sheet makes of it: rejected and undone
+fixes with their reason, the overlap checks with their verdict, the station setups with their
+residuals, the survey header set with `trolley project set`."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from test_export_workbook import _write_outputs
+
+
+def _store(tmp_path):
+    """A project whose session has two station setups, an overlap check outside the tolerance
+    (FIX003, as FIX013 of the demo), a fix the crew undid and one re-measured."""
+    from survey.store import FixRecord, ProjectStore, SetupObservation, StationSetupRecord
+
+    st = ProjectStore.create(tmp_path / "projects", "p1")
+    sid = st.create_session("s1").session_id
+    ids = []
+    for k, e in enumerate((1000.0, 1060.0)):
+        setup = StationSetupRecord(t_s=10.0 + 100 * k, station_enh_m=np.array([e, 5000.0, 50.0]), orientation_rad=0.5,
+                                   covariance=np.eye(4) * 1e-8, sigma0=0.9, dof=5, excluded=("CP9",) if k else ())
+        obs = [SetupObservation("CP1", 0.1, 1.5, 30.0, True, 1e-6, 2e-6, 3e-4, 1e-4, -2e-4, 5e-4, 0.8, False, ""),
+               SetupObservation("CP2", 0.2, 1.5, 40.0, True, 1e-6, 2e-6, 3e-4, 1e-4, -2e-4, 5e-4, 3.9, True,
+                                "|w| 3.9 > 3.29")]
+        if k:
+            obs.append(SetupObservation("CP9", 0.3, 1.5, 50.0, used=False, reason="excluded by the crew"))
+        ids.append(st.add_station_setup(sid, setup, obs))
+    P = [1000.0, 5000.0, 50.0]
+    fixes = [FixRecord(20.0, "FIX001", *P, 6e-4, 6e-4, 6e-4, setup_id=ids[0]),
+             FixRecord(80.0, "FIX002", 1060.0, 5000.0, 50.0, 6e-4, 6e-4, 6e-4, setup_id=ids[0]),
+             # overlap: the same stop from station 2, 3 mm higher: outside the 2 mm tolerance
+             FixRecord(120.0, "FIX003", 1060.0005, 5000.0, 50.003, 6e-4, 6e-4, 6e-4, setup_id=ids[1], accepted=False,
+                       reason="overlap check from station 2: difference outside the tolerance"),
+             FixRecord(180.0, "FIX004", 1120.0, 5000.0, 50.0, 6e-4, 6e-4, 6e-4, setup_id=ids[1]),
+             FixRecord(240.0, "FIX005", 1180.0, 5000.0, 50.0, 6e-4, 6e-4, 6e-4, setup_id=ids[1], accepted=False,
+                       reason="rejected: measured again")]
+    fix_ids = [st.add_fix(sid, f) for f in fixes]
+    st.decide_fix(fix_ids[3], False, "undone by the crew")
+    st.set_header("line", "4711 Hannover-Würzburg")
+    st.set_header("totalstation_serial", "884512")
+    st.set_header("totalstation_calibrated", "2026-03-14")
+    return st
+
+
+def test_field_record_round_trip_and_overlap_difference(tmp_path):
+    from survey.fieldrecord import field_record, read_field_record, record_json, write_field_record
+
+    with _store(tmp_path) as st:
+        rec = field_record(st, "s1")
+    assert [(f.point, f.reason) for f in rec.rejected] == [
+        ("FIX003", "overlap check from station 2: difference outside the tolerance"),
+        ("FIX004", "undone by the crew"), ("FIX005", "rejected: measured again")]
+    (o,) = rec.overlaps
+    assert (o.old_point, o.new_point, o.from_station, o.to_station) == ("FIX002", "FIX003", 1, 2)
+    assert (o.dE_m, o.dN_m, o.dH_m) == pytest.approx((0.0005, 0.0, 0.003), abs=1e-9) and not o.within
+    assert [s.excluded for s in rec.setups] == [(), ("CP9",)] and rec.header["line"] == "4711 Hannover-Würzburg"
+    assert rec.start_utc <= rec.end_utc and rec.start_utc
+    path = write_field_record(tmp_path, rec)
+    back = read_field_record(path)
+    assert record_json(back) == record_json(rec) and back.fixes == rec.fixes and back.overlaps == rec.overlaps
+    assert np.isnan(back.setups[1].pointings[2].across_m)
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    assert doc["format"] == "trolley-field-record/1"
+    assert doc["setups"][1]["pointings"][2]["across_m"] is None     # NaN written as null, valid JSON
+
+
+def test_sheet_lists_rejected_fixes_overlaps_setups_and_header(tmp_path):
+    from openpyxl import load_workbook
+
+    from survey.export import export_outputs
+    from survey.fieldrecord import field_record, write_field_record
+    from survey.workbook import HEADER_ROWS, TABLE_ROW
+
+    out = _write_outputs(tmp_path / "o")
+    with _store(tmp_path) as st:
+        write_field_record(out, field_record(st, "s1"))
+    export_outputs(out, tmp_path / "s.xlsx", None, None)
+    wb = load_workbook(tmp_path / "s.xlsx")
+    fx = wb["Fixes"]
+    rows = {r[1]: r for r in fx.iter_rows(min_row=TABLE_ROW + 1, values_only=True) if r[1]}
+    # fixes.csv of the processing has CP1, ...; the field session's rejections are added with their reason
+    assert rows["FIX003"][9] == "no" and rows["FIX003"][10] == "overlap check from station 2: difference outside the tolerance"
+    assert rows["FIX003"][11] == 2 and rows["FIX003"][12] == "field session / crew"
+    assert rows["FIX004"][10] == "undone by the crew" and rows["FIX005"][10] == "rejected: measured again"
+    assert rows["-12"][10] == "@NIS 40.0 > 11.3"                    # the filter's own rejection stays
+    summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
+    assert summary["Fixes rejected by the filter"] == 1
+    assert summary["Fixes rejected or undone in the field"] == 3 and summary["Fixes rejected"] == 4
+    assert summary["Overlap checks"].startswith("1 (1 outside the tolerance: FIX003)")
+    assert summary["Line"] == "4711 Hannover-Würzburg" and summary["Total station serial number"] == "884512"
+    assert summary["Total station calibrated"] == "2026-03-14" and summary["Track"] == "not given"
+    assert summary["Project"] == "p1" and summary["Session"] == "s1"   # the field record's names
+    lines = [wb["Defects"].cell(r, 1).value for r in range(2, HEADER_ROWS + 1)]
+    assert "Line: 4711 Hannover-Würzburg" in lines[0] and "serial 884512, calibrated 2026-03-14" in lines[2]
+    fs = [[c for c in r] for r in wb["Free stations"].iter_rows(min_row=TABLE_ROW, values_only=True)]
+    text = [r[0] for r in fs if r[0]]
+    assert any(t.startswith("Station 2:") and "dropped: CP9" in t for t in text)
+    flagged = [r for r in fs if r[0] == "CP2"]
+    assert len(flagged) == 2 and flagged[0][9] == "|w| 3.9 > 3.29" and flagged[0][8] == pytest.approx(3.9)
+    (ov,) = [r for r in fs if r[0] == "FIX002"]
+    assert ov[1] == "FIX003" and ov[7] == "OUTSIDE" and ov[5] == pytest.approx(3.0) and ov[6] == pytest.approx(2.0)
+
+
+def test_project_set_validates_and_show_lists(tmp_path):
+    from typer.testing import CliRunner
+
+    from survey.cli import app
+
+    runner = CliRunner()
+    root = str(tmp_path / "projects")
+    assert runner.invoke(app, ["project", "new", "p", "--root", root, "--no-toml"]).exit_code == 0
+    r = runner.invoke(app, ["project", "set", "imu_serial", "RQH-2231", "--project", "p", "--root", root])
+    assert r.exit_code == 0, r.output
+    for key, value, msg in (("bogus", "x", "unknown key 'bogus'"),
+                            ("imu_calibrated", "14.03.2026", "not a date as YYYY-MM-DD"),
+                            ("rail_temperature_c", "hot", "not a temperature"),
+                            ("rail_temperature_c", "150", "outside -60..90"),
+                            ("crew", "a\nb", "control characters")):
+        r = runner.invoke(app, ["project", "set", key, value, "--project", "p", "--root", root])
+        assert r.exit_code == 2 and msg in r.output, (key, r.output)
+    r = runner.invoke(app, ["project", "show", "p", "--root", root, "--json"])
+    assert json.loads(r.stdout)["header"] == {"imu_serial": "RQH-2231"}
+    assert runner.invoke(app, ["project", "set", "imu_serial", "", "--project", "p", "--root", root]).exit_code == 0
+    r = runner.invoke(app, ["project", "show", "p", "--root", root, "--json"])
+    assert json.loads(r.stdout)["header"] == {}

@@ -1,0 +1,290 @@
+"""Kalman filter (and RTS smoother) for the lateral alignment from wheelset and frame sensors.
+
+Implements Munoz et al. 2021, Sec. IV: the state x = [y, psi, y_f, y', psi', y_f', xi] (Eq. 7) of
+the simplified model (:mod:`trolley.inservice.model`), the measurements z = [y''_meas, psi'_meas,
+y_f''_meas, xi_meas = 0] (Eq. 8; the last one a virtual sensor that keeps xi from drifting), the
+discrete model x_k = F x_(k-1) + v_k, z_k = H x_k + w_k (Eq. 16-17), the filter Eq. 18-24 and the
+observability test Eq. 25.
+
+Differences from the paper
+--------------------------
+* Discretisation: F = expm(Fc dt) (exact for the linear model) instead of the paper's modified Euler
+  step; the input matrix of the design curvature and, when Q is given as continuous spectral
+  densities, Q itself by Van Loan's method (one expm of the block matrix [[-Fc, Qc], [0, Fc^T]] dt).
+* An RTS smoother (filterpy.kalman.rts_smoother) after the forward filter: the alignment at each
+  point then uses the sensors after it as well (the paper filters only).
+* Variable speed: F and Q are rebuilt per speed bin of :data:`SPEED_BIN_M_S` (the SM depends on V
+  through the creep damping).
+* Curved track: the design curvature kappa is a known input (model.py); the RTS smoother runs on
+  the deviation from the deterministic curvature response so that filterpy's input-free smoother
+  stays exact.
+
+The per-sample loop is filterpy's predict/update (the filter is sequential); everything else is
+vectorised. filterpy 2.0 reshapes z only when H is None, so measurements are passed as (4, 1)
+column vectors (shared/research/deps.md section 2).
+
+References
+----------
+Munoz, Ros, Urda, Escalona, IEEE Access 9 (2021), Eq. 7-8, 11-25.
+C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE TAC 23 (1978).
+H. E. Rauch, F. Tung, C. T. Striebel, AIAA J. 3 (1965) (RTS smoother).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trolley.inservice.model import N_MEAS, N_STATE, ModelParameters, state_space
+
+#: speeds are grouped into bins of this width (m/s) for the speed-dependent F, Q
+SPEED_BIN_M_S = 0.1
+
+
+def discretize(Fc: np.ndarray, Bc: np.ndarray, dt: float, Qc: np.ndarray | None = None):
+    """Zero-order-hold discretisation of x' = Fc x + Bc u + v, v ~ N(0, Qc) (Eq. 16).
+
+    Parameters
+    ----------
+    Fc : (n, n) continuous state matrix.
+    Bc : (n, m) input matrix.
+    dt : sample interval, s.
+    Qc : (n, n) spectral density of the continuous process noise, or None.
+
+    Returns
+    -------
+    F : (n, n) expm(Fc dt).
+    G : (n, m) integral_0^dt expm(Fc s) ds Bc.
+    Qd : (n, n) integral_0^dt expm(Fc s) Qc expm(Fc s)^T ds (Van Loan), or None.
+    """
+    from scipy.linalg import expm
+
+    n, m = Bc.shape
+    blk = np.zeros((n + m, n + m))
+    blk[:n, :n] = Fc
+    blk[:n, n:] = Bc
+    E = expm(blk * dt)
+    F, G = E[:n, :n], E[:n, n:]
+    if Qc is None:
+        return F, G, None
+    vl = np.zeros((2 * n, 2 * n))
+    vl[:n, :n] = -Fc
+    vl[:n, n:] = Qc
+    vl[n:, n:] = Fc.T
+    V = expm(vl * dt)
+    Qd = F @ V[:n, n:]
+    return F, G, 0.5 * (Qd + Qd.T)
+
+
+@dataclass(frozen=True)
+class NoiseDensities:
+    """Continuous process-noise densities and measurement sigmas for a default (Q, R).
+
+    Attributes
+    ----------
+    force_m2_s3 : spectral density of the unmodelled accelerations of y, y_f (m^2/s^3).
+    yaw_rad2_s3 : spectral density of the unmodelled yaw acceleration (rad^2/s^3).
+    xi_m2_per_m : spectral density of the alignment's random walk per metre of track (m^2/m);
+        the time density is this times the speed.
+    sigma_acc_m_s2, sigma_gyro_rad_s : sensor noise (Munoz 2021 Sec. V: 0.01 m/s^2, 5e-4 rad/s).
+    sigma_xi_virtual_m : sigma of the virtual measurement xi = 0 (paper: 5 mm).
+    """
+
+    force_m2_s3: float = 2.0e-3
+    yaw_rad2_s3: float = 2.0e-4
+    xi_m2_per_m: float = 2.0e-8
+    sigma_acc_m_s2: float = 0.01
+    sigma_gyro_rad_s: float = 5.0e-4
+    sigma_xi_virtual_m: float = 5.0e-3
+
+    def qc(self, speed_m_s: float) -> np.ndarray:
+        """Continuous Qc (7x7) at a given speed."""
+        return np.diag([0, 0, 0, self.force_m2_s3, self.yaw_rad2_s3, self.force_m2_s3,
+                        self.xi_m2_per_m * speed_m_s])
+
+    def r(self) -> np.ndarray:
+        """Measurement covariance R (4x4, Eq. 17)."""
+        return np.diag([self.sigma_acc_m_s2, self.sigma_gyro_rad_s, self.sigma_acc_m_s2,
+                        self.sigma_xi_virtual_m]) ** 2
+
+
+@dataclass(frozen=True)
+class DiscreteModel:
+    """The discrete SM at one speed and sample interval (Eq. 16-17)."""
+
+    F: np.ndarray
+    G: np.ndarray
+    H: np.ndarray
+    D: np.ndarray
+    Q: np.ndarray
+
+
+def discrete_model(p: ModelParameters, speed_m_s: float, dt: float, Q=None,
+                   noise: NoiseDensities | None = None) -> DiscreteModel:
+    """F, G (curvature input), H, D and Q of the SM at one speed.
+
+    Parameters
+    ----------
+    p : model parameters.
+    speed_m_s : forward speed, m/s.
+    dt : sample interval, s.
+    Q : (7, 7) discrete process covariance per step (e.g. from Eq. 26-27), or None to build it
+        from ``noise`` by Van Loan.
+    noise : continuous densities used when Q is None (default NoiseDensities()).
+
+    Returns
+    -------
+    DiscreteModel
+    """
+    Fc, Bc, Hc, Dc = state_space(p, speed_m_s)
+    if Q is None:
+        F, G, Qd = discretize(Fc, Bc, dt, (noise or NoiseDensities()).qc(speed_m_s))
+    else:
+        F, G, _ = discretize(Fc, Bc, dt)
+        Qd = np.asarray(Q, float)
+    return DiscreteModel(F, G, Hc, Dc, Qd)
+
+
+def observability_matrix(F: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """O = [H; H F; ...; H F^(n-1)] (Munoz 2021 Eq. 25)."""
+    n = F.shape[0]
+    blocks, M = [], H.copy()
+    for _ in range(n):
+        blocks.append(M)
+        M = M @ F
+    return np.vstack(blocks)
+
+
+def observability_rank(F: np.ndarray, H: np.ndarray) -> int:
+    """Rank of the observability matrix (numpy.linalg.matrix_rank with scaled columns).
+
+    The columns are scaled to unit norm first: the states mix metres, radians and their rates.
+    """
+    O = observability_matrix(F, H)
+    O = O / np.maximum(np.linalg.norm(O, axis=0), 1e-300)
+    return int(np.linalg.matrix_rank(O))
+
+
+@dataclass
+class AlignmentEstimate:
+    """Result of :func:`estimate`: states, their sigmas and the alignment with its sigma.
+
+    Attributes
+    ----------
+    t_s, s_m : sample times (s) and chainages (m).
+    x : (N, 7) state estimates (smoothed when the smoother ran, else filtered).
+    sigma : (N, 7) square roots of the diagonal of the state covariance.
+    x_filtered : (N, 7) forward-filter estimates.
+    smoother : "rts" or "none".
+    """
+
+    t_s: np.ndarray
+    s_m: np.ndarray
+    x: np.ndarray
+    sigma: np.ndarray
+    x_filtered: np.ndarray
+    smoother: str
+
+    @property
+    def alignment_m(self) -> np.ndarray:
+        """Estimated alignment xi, m."""
+        return self.x[:, 6]
+
+    @property
+    def sigma_alignment_m(self) -> np.ndarray:
+        """1-sigma of the estimated alignment, m."""
+        return self.sigma[:, 6]
+
+
+def _initial_covariance() -> np.ndarray:
+    return np.diag([5e-3, 2e-3, 5e-3, 5e-2, 2e-2, 5e-2, 5e-3]) ** 2
+
+
+def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=None,
+             noise: NoiseDensities | None = None, curvature_1_m=None,
+             smoother: str = "rts", initial_covariance=None) -> AlignmentEstimate:
+    """Estimate the lateral alignment along a run (Munoz 2021 Sec. IV, plus an RTS smoother).
+
+    Parameters
+    ----------
+    p : SM parameters (nominal, or with p_opt identified by identification.py).
+    t_s : (N,) sample times, s (uniform).
+    s_m : (N,) chainage of the instrumented wheelset, m.
+    speed_m_s : (N,) or scalar forward speed, m/s.
+    measurements : (N, 3) [wheelset lateral acc (m/s^2), wheelset yaw rate (rad/s), frame lateral
+        acc (m/s^2)]; the virtual xi = 0 is appended here (Eq. 8).
+    R : (4, 4) measurement covariance (Eq. 29), default ``noise.r()``.
+    Q : (7, 7) discrete process covariance per step (Eq. 27), default from ``noise`` (Van Loan).
+    noise : continuous densities and sensor sigmas for the defaults.
+    curvature_1_m : (N,) or scalar design curvature (1/m, positive to the left) or None.
+    smoother : "rts" (filterpy.kalman.rts_smoother) or "none" (forward filter only, as the paper).
+    initial_covariance : (7, 7) P0 (Eq. 19) around x0 = 0 (Eq. 18); default: 5 mm, 2 mrad and their
+        rates of a few cm/s.
+
+    Returns
+    -------
+    AlignmentEstimate
+    """
+    from filterpy.kalman import KalmanFilter, rts_smoother
+
+    if smoother not in ("rts", "none"):
+        raise ValueError(f"smoother must be 'rts' or 'none', got {smoother!r}")
+    t = np.asarray(t_s, float)
+    n = len(t)
+    zm = np.asarray(measurements, float)
+    if zm.shape != (n, 3):
+        raise ValueError(f"measurements must have shape ({n}, 3), got {zm.shape}")
+    if n < 2:
+        raise ValueError("need at least two samples")
+    dts = np.diff(t)
+    dt = float(np.median(dts))
+    if not (dt > 0 and np.allclose(dts, dt, rtol=1e-3, atol=1e-9)):
+        raise ValueError("sample times must be uniform and increasing")
+    noise = noise or NoiseDensities()
+    R = noise.r() if R is None else np.asarray(R, float)
+    v = np.broadcast_to(np.asarray(speed_m_s, float), t.shape)
+    if not np.all(v > 0):
+        raise ValueError("speed must be > 0 m/s throughout (the SM's creep damping goes with 1/V)")
+    kap = np.zeros(n) if curvature_1_m is None else np.broadcast_to(np.asarray(curvature_1_m, float), t.shape)
+    curved = bool(np.any(kap != 0))
+
+    bins = np.round(v / SPEED_BIN_M_S).astype(np.int64)
+    ubins, which = np.unique(bins, return_inverse=True)
+    models = [discrete_model(p, b * SPEED_BIN_M_S, dt, Q=Q, noise=noise) for b in ubins]
+    H = models[0].H
+    # measurements with the known curvature feed removed, as (N, 4, 1) column vectors
+    Dk = np.stack([mdl.D[:, 0] for mdl in models])[which] * kap[:, None]
+    z = np.column_stack([zm, np.zeros(n)]) - Dk
+    zcol = z[:, :, None]
+
+    kf = KalmanFilter(dim_x=N_STATE, dim_z=N_MEAS, dim_u=1)
+    kf.H = H
+    kf.R = R
+    kf.x = np.zeros((N_STATE, 1))
+    kf.P = _initial_covariance() if initial_covariance is None else np.asarray(initial_covariance, float)
+    Xf = np.empty((n, N_STATE))
+    Pf = np.empty((n, N_STATE, N_STATE))
+    det = np.zeros((n, N_STATE))          # deterministic response to the curvature input
+    d = np.zeros(N_STATE)
+    u = np.zeros((1, 1))
+    for k in range(n):
+        if k:
+            mdl = models[which[k]]
+            kf.F, kf.Q, kf.B = mdl.F, mdl.Q, mdl.G
+            u[0, 0] = kap[k - 1]
+            kf.predict(u=u)
+            if curved:
+                d = mdl.F @ d + mdl.G[:, 0] * kap[k - 1]
+                det[k] = d
+        kf.update(zcol[k])
+        Xf[k] = kf.x[:, 0]
+        Pf[k] = kf.P
+    if smoother == "rts":
+        Fs = [models[w].F for w in which]
+        Qs = [models[w].Q for w in which]
+        Xs, Ps, _, _ = rts_smoother((Xf - det)[:, :, None], Pf, Fs, Qs)
+        X, P = Xs[:, :, 0] + det, Ps
+    else:
+        X, P = Xf, Pf
+    sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 0.0))
+    return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother)

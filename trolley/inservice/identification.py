@@ -1,0 +1,226 @@
+"""Identification of the SM's equivalent suspension and of the filter's Q and R.
+
+Implements Munoz et al. 2021:
+
+* Sec. III-D, Eq. 5-6: p_opt = [kx, cx, ky, cy] by least squares between the reference (complete
+  model, CM) response and the SM driven by the same alignment, ``scipy.optimize.least_squares``
+  on log-parameters. Eq. 6 sums squared state errors over the channels; as y (m) and psi (rad)
+  differ by orders of magnitude each channel is divided by its reference rms first.
+  Besides the paper's states y, psi any measured channel (the sensors) can be a target: the
+  output-error form needs only the recording and the true alignment of a surveyed track.
+* Sec. IV-B, Eq. 26-29: Q = mean of e_x e_x^T with e_x,k = x_k - F x_(k-1), R = mean of
+  e_z e_z^T with e_z,k = z_k - H x_k, from reference states and measurements.
+
+References
+----------
+Munoz, Ros, Urda, Escalona, IEEE Access 9 (2021), Eq. 5-6, 26-29.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trolley.inservice.estimator import DiscreteModel
+from trolley.inservice.model import MEASUREMENT_NAMES, STATE_NAMES, ModelParameters, simulate_response
+
+
+#: bounds of p_opt = [kx, cx, ky, cy] (N/m, N s/m per axle box): the dampers are capped at 1 MN s/m,
+#: beyond which the wheelset-frame pair is rigid anyway and Fc's eigenvalues (~ -2 c / m) too stiff
+#: for an accurate Van Loan discretisation at 200 Hz
+BOUNDS = (np.array([1e3, 1e2, 1e3, 1e2]), np.array([1e9, 1e6, 1e9, 1e6]))
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Identified parameters, the normalised Eq. 6 cost at the start and at the optimum."""
+
+    params: ModelParameters
+    cost_initial: float
+    cost: float
+    nfev: int
+    channels: tuple[str, ...]
+
+
+def sm_channels(p: ModelParameters, speed_m_s: float, t_s, xi_m, channels, curvature_1_m=None) -> np.ndarray:
+    """Chosen channels (names in STATE_NAMES or MEASUREMENT_NAMES[:3]) of the SM response, (N, C)."""
+    X, Z = simulate_response(p, speed_m_s, t_s, xi_m, curvature_1_m)
+    cols = []
+    for c in channels:
+        if c in STATE_NAMES:
+            cols.append(X[:, STATE_NAMES.index(c)])
+        elif c in MEASUREMENT_NAMES[:3]:
+            cols.append(Z[:, MEASUREMENT_NAMES.index(c)])
+        else:
+            raise ValueError(f"unknown channel {c!r}; known: {', '.join(STATE_NAMES + MEASUREMENT_NAMES[:3])}")
+    return np.column_stack(cols)
+
+
+def identify_suspension(p0: ModelParameters, speed_m_s: float, t_s, xi_m, reference: dict,
+                        skip_s: float = 2.0, curvature_1_m=None) -> IdentificationResult:
+    """Equivalent primary suspension p_opt = [kx, cx, ky, cy] by least squares (Eq. 6).
+
+    Parameters
+    ----------
+    p0 : starting parameters (p_fix is kept; p_opt is the starting point, clipped into
+        :data:`BOUNDS`).
+    speed_m_s : constant forward speed of the reference run, m/s.
+    t_s : (N,) uniform sample times, s.
+    xi_m : (N,) true alignment under the instrumented wheelset, m.
+    reference : channel name -> (N,) reference response, e.g. {"y_m": y, "psi_rad": psi} (the
+        paper) or the sensor channels.
+    skip_s : the first seconds (start-up transient from rest) are left out of the cost.
+    curvature_1_m : design curvature (1/m) of the reference run, or None.
+
+    Returns
+    -------
+    IdentificationResult
+    """
+    from scipy.optimize import least_squares
+
+    channels = tuple(reference)
+    t = np.asarray(t_s, float)
+    ref = np.column_stack([np.asarray(reference[c], float) for c in channels])
+    use = t >= t[0] + skip_s
+    scale = np.sqrt(np.mean(ref[use] ** 2, axis=0))
+    if np.any(scale == 0) or use.sum() < 10:
+        raise ValueError("reference channels must be non-zero over more than 10 samples after skip_s")
+
+    def resid(logp):
+        p = p0.with_opt(np.exp(logp))
+        r = (sm_channels(p, speed_m_s, t, xi_m, channels, curvature_1_m)[use] - ref[use]) / scale
+        return r.ravel() / np.sqrt(use.sum())
+
+    lo, hi = np.log(BOUNDS[0]), np.log(BOUNDS[1])
+    x0 = np.clip(np.log(np.maximum(p0.popt, 1.0)), lo + 1e-6, hi - 1e-6)
+    r0 = resid(x0)
+    sol = least_squares(resid, x0, bounds=(lo, hi), x_scale=1.0, diff_step=1e-3, xtol=1e-8, ftol=1e-10)
+    return IdentificationResult(p0.with_opt(np.exp(sol.x)), float(r0 @ r0), float(2 * sol.cost),
+                                int(sol.nfev), channels)
+
+
+def covariances_from_residuals(model: DiscreteModel, X, Z):
+    """Q and R from reference states and measurements (Munoz 2021 Eq. 26-29).
+
+    Parameters
+    ----------
+    model : discrete SM (F, H) at the reference run's speed and sample interval.
+    X : (N, 7) reference states [y, psi, y_f, y', psi', y_f', xi] (from the CM).
+    Z : (N, 4) measurements [y'', psi', y_f'', 0] (sensor data with noise, virtual xi = 0).
+
+    Returns
+    -------
+    Q : (7, 7) mean of e_x e_x^T, e_x,k = x_k - F x_(k-1) (Eq. 26-27).
+    R : (4, 4) mean of e_z e_z^T, e_z,k = z_k - H x_k (Eq. 28-29).
+    """
+    X = np.asarray(X, float)
+    Z = np.asarray(Z, float)
+    ex = X[1:] - X[:-1] @ model.F.T
+    ez = Z - X @ model.H.T
+    Q = ex.T @ ex / len(ex)
+    R = ez.T @ ez / len(ez)
+    return 0.5 * (Q + Q.T), 0.5 * (R + R.T)
+
+
+#: channels of the calibration fit: the paper's y, psi (Eq. 6), the frame's y_f and the three sensors
+#: (y and psi alone leave the frame free: the fit then makes the wheelset-frame link rigid, which
+#: predicts the frame accelerometer badly)
+CALIBRATION_CHANNELS = ("y_m", "psi_rad", "yf_m", "wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2")
+
+
+@dataclass(frozen=True)
+class EstimatorModel:
+    """Everything the estimator needs besides the sensors: the SM with identified p_opt, the
+    discrete Q (7x7, per step of ``dt_s``) and R (4x4), and the factor the reported sigmas are
+    multiplied by (``sigma_scale``, from the calibration run's error / sigma)."""
+
+    params: ModelParameters
+    Q: np.ndarray
+    R: np.ndarray
+    dt_s: float
+    sigma_scale: float = 1.0
+    #: tuning factors applied to the Eq. 27 Q (dynamics, xi) and the virtual sigma, m
+    q_dynamics_factor: float = 1.0
+    q_xi_factor: float = 1.0
+    sigma_xi_virtual_m: float = 5e-3
+
+    def at_dt(self, dt_s: float) -> "EstimatorModel":
+        """The same model for another sample interval: the per-step Q of white-noise driven states
+        grows with dt; the sensor sigmas per sample are kept; the virtual measurement's variance is
+        scaled by dt_cal / dt so that its pull per second (its spectral density) is unchanged."""
+        from dataclasses import replace
+
+        if dt_s == self.dt_s:
+            return self
+        f = dt_s / self.dt_s
+        R = self.R.copy()
+        R[3, 3] /= f
+        return replace(self, Q=self.Q * f, R=R, dt_s=float(dt_s), sigma_xi_virtual_m=float(np.sqrt(R[3, 3])))
+
+
+def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_xi_factor: float,
+                      sigma_xi_virtual_m: float):
+    """Diagonal Q, R from the Eq. 27/29 estimates with the three tuning factors applied."""
+    Qt = np.diag(np.diag(Q)).copy()
+    Qt[:6, :6] *= q_dynamics_factor
+    Qt[6, 6] *= q_xi_factor
+    Rt = np.diag(np.diag(R)).copy()
+    Rt[3, 3] = sigma_xi_virtual_m ** 2
+    return Qt, Rt
+
+
+def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measurements,
+              skip_m: float = 30.0) -> EstimatorModel:
+    """Identify the SM and tune the filter on one reference run of the complete model.
+
+    Steps: (1) p_opt by least squares (Eq. 6) on :data:`CALIBRATION_CHANNELS`; (2) Q and R from
+    the residuals (Eq. 26-29); (3) beyond the paper: the dynamics part of Q, the random-walk
+    density of xi and the virtual measurement's sigma are scaled to minimise J over 3-200 m on this
+    run (Nelder-Mead on their logarithms), because Eq. 27's Q for xi together with Eq. 29's R for
+    the virtual sensor pull the estimate towards 0 at the long (D3) wavelengths; (4) the sigmas are
+    scaled so that rms(error / sigma) = 1 on this run. Evaluate on a different run.
+
+    Parameters
+    ----------
+    p0 : nominal SM parameters (p_fix, and p_opt as a start).
+    speed_m_s : constant speed of the reference run, m/s.
+    t_s, s_m : (N,) times (uniform) and chainages.
+    states : (N, 7) CM states [y, psi, y_f, y', psi', y_f', xi] of the instrumented bodies.
+    measurements : (N, 3) sensor channels of the run (with noise).
+    skip_m : chainage at the start left out of the tuning (the filter's start-up).
+
+    Returns
+    -------
+    EstimatorModel
+    """
+    from scipy.optimize import minimize
+
+    from trolley.inservice.accuracy import ACCURACY_BANDS, band_accuracy, honesty
+    from trolley.inservice.estimator import discrete_model, estimate
+
+    t = np.asarray(t_s, float)
+    X = np.asarray(states, float)
+    Zm = np.asarray(measurements, float)
+    ref = {c: X[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[:3])}
+    ref.update({c: Zm[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[3:])})
+    p = identify_suspension(p0, speed_m_s, t, X[:, 6], ref).params
+    dt = float(np.median(np.diff(t)))
+    Q, R = covariances_from_residuals(discrete_model(p, speed_m_s, dt), X, np.column_stack([Zm, np.zeros(len(t))]))
+    use = np.asarray(s_m, float) >= s_m[0] + skip_m
+    whole = {"3-200": ACCURACY_BANDS["3-200"]}
+
+    def run(logf):
+        Qt, Rt = tuned_covariances(Q, R, *np.exp(logf))
+        return estimate(p, t[use], s_m[use], speed_m_s, Zm[use], Q=Qt, R=Rt)
+
+    def cost(logf):
+        e = run(logf)
+        return band_accuracy(e.s_m, e.alignment_m, X[use, 6], bands=whole)["3-200"].J_m
+
+    f0 = np.log([0.1, 30.0, 0.3])
+    sol = minimize(cost, f0, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-6, "maxfev": 60})
+    e = run(sol.x)
+    scale = honesty(e.alignment_m, e.sigma_alignment_m, X[use, 6])
+    Qt, Rt = tuned_covariances(Q, R, *np.exp(sol.x))
+    f = np.exp(sol.x)
+    return EstimatorModel(p, Qt, Rt, dt, scale, float(f[0]), float(f[1]), float(f[2]))
