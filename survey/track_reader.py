@@ -404,7 +404,8 @@ def design_alignment_path(info: SurveyInfo) -> Path | None:
     if not name:
         return None
     try:
-        return inside(Path(info.session_dir), str(name), f"{toml_path}: key design.alignment")
+        return inside(Path(info.session_dir), str(name),
+                      f"{Path(info.session_dir) / 'session.toml'}: key design.alignment")
     except ValueError as e:
         raise ExportInputError(str(e)) from None
 
