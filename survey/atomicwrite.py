@@ -105,14 +105,19 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.chmod(tmp, file_mode())
-        if pending is not None:
+        if pending is None:
+            os.replace(tmp, path)
+        else:
             pending.append((tmp, path))
-            return
-        os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is not None and \
+                Path(os.fsdecode(exc.filename)).name == tmp.name:
+            # name the user's file, not the hidden temporary one
+            raise OSError(exc.errno, exc.strerror, str(path)) from None
         raise
-    _fsync_dir(path.parent)
+    if pending is None:
+        _fsync_dir(path.parent)
 
 
 @contextlib.contextmanager

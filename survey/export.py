@@ -190,7 +190,7 @@ def write_track_csv(path: Path, rep: SurveyReport) -> Path:
     # repr of the rounded floats, NaN -> empty. Measured on 16 000 x 44 values: this comprehension
     # (0.17 s) is as fast as formatting per column and faster than numpy's astype(str) (0.28 s)
     # or pandas.to_csv (0.28 s), which give the same text.
-    lines = [",".join("" if v != v else repr(v) for v in row) for row in body.tolist()]
+    lines = [",".join("" if v - v != 0 else repr(v) for v in row) for row in body.tolist()]  # NaN, +-inf: empty
     return write_text_atomic(path, buf.getvalue() + "\n".join(lines) + "\n")
 
 

@@ -547,7 +547,7 @@ def _check_time(path: Path, t: np.ndarray) -> None:
     if np.any(back):
         i = int(np.argmax(back)) + 1
         raise SessionFormatError(f"{path.name}: row {_row(i)}, column t_s: time goes backwards "
-                                 f"({t[i]!r} after {t[i - 1]!r})")
+                                 f"({float(t[i])!r} after {float(t[i - 1])!r})")
 
 
 def _read_fixes(path: Path, default_sigma: float) -> Fixes:

@@ -671,7 +671,7 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
         vals = column_values(col, rep.geometry).tolist()
         pre = f'<c r="{L}'
         mid = f'" s="{s}"><v>'
-        per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v == v else ""   # v != v: NaN -> no cell
+        per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v - v == 0 else ""   # NaN, +-inf -> no cell
                         for r, v in zip(rows_num, vals)])
     return "".join(f'<row r="{r}">' + "".join(cells) + "</row>" for r, cells in zip(rows_num, zip(*per_col)))
 

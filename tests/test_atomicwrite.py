@@ -83,3 +83,32 @@ def test_guard_overwrite_only_replaces_own_marked_folders(tmp_path):
     f.write_text("x")
     with pytest.raises(OutputError, match="not a folder"):
         guard_overwrite(f, "simulate", force=True)
+
+
+def test_a_write_error_names_the_users_file_not_the_temporary(tmp_path):
+    import errno
+
+    target = tmp_path / "sheet.xlsx"
+    with pytest.raises(OSError) as info:
+        with atomic_path(target) as tmp:
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+    assert info.value.filename == str(target) and info.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_all_or_nothing_writes_every_output_or_none(tmp_path):
+    from survey.atomicwrite import all_or_nothing
+
+    a, b = tmp_path / "a.csv", tmp_path / "b.png"
+    a.write_text("old a")
+    with pytest.raises(RuntimeError):
+        with all_or_nothing():
+            write_text_atomic(a, "new a")
+            assert a.read_text() == "old a"  # not yet in place
+            raise RuntimeError("the plots failed")
+    assert a.read_text() == "old a" and not b.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv"]
+    with all_or_nothing():
+        write_text_atomic(a, "new a")
+        write_text_atomic(b, "new b")
+    assert a.read_text() == "new a" and b.read_text() == "new b"

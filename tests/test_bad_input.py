@@ -477,3 +477,43 @@ def test_foreign_sqlite_file_is_refused_unchanged(tmp_path, command):
     assert "project.sqlite" in r.stderr or "already exists" in r.stderr
     assert (tmp_path / "r" / "p" / "project.sqlite").read_bytes() == before
     assert sorted(p.name for p in (tmp_path / "r" / "p").iterdir()) == ["project.sqlite"]  # no -wal, no -shm
+
+
+# ------------------------------------------------------------------------------------------
+# export: all outputs or none; inf never reaches a cell
+# ------------------------------------------------------------------------------------------
+def test_export_writes_all_outputs_or_none(tmp_path, inputs, monkeypatch):
+    import survey.plots
+
+    old = tmp_path / "sheet.xlsx"
+    old.write_bytes(b"the sheet of last week")
+
+    def broken(folder, rep):
+        raise OSError(28, "No space left on device", str(folder / "plan.png"))
+
+    monkeypatch.setattr(survey.plots, "write_plots", broken)
+    r = CliRunner().invoke(app, ["export", str(inputs.processed), "--xlsx", str(old), "--csv", str(tmp_path / "t.csv"),
+                                 "--plots", str(tmp_path / "plots")])
+    assert r.exit_code == 2 and "No space left" in r.stderr and "Traceback" not in r.stderr
+    assert old.read_bytes() == b"the sheet of last week"
+    assert not (tmp_path / "t.csv").exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_inf_never_reaches_a_csv_or_workbook_cell(tmp_path, inputs):
+    import zipfile
+
+    import numpy as np
+
+    from survey.export import build_report, write_track_csv
+    from survey.workbook import write_workbook
+
+    rep, _ = build_report(inputs.processed)
+    key = next(k for k, v in rep.geometry.columns.items() if np.isfinite(v).sum() > 5)
+    rep.geometry.columns[key][3] = np.inf
+    rep.geometry.columns[key][4] = -np.inf
+    text = write_track_csv(tmp_path / "t.csv", rep).read_text()
+    assert "inf" not in text.lower()
+    with zipfile.ZipFile(write_workbook(tmp_path / "t.xlsx", rep)) as z:
+        xml = "".join(z.read(n).decode("utf-8", "replace") for n in z.namelist() if n.startswith("xl/worksheets/"))
+    assert "<v>inf</v>" not in xml and "<v>-inf</v>" not in xml
