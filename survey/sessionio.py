@@ -451,17 +451,125 @@ def _first_bad_text(path: Path, header: list[str], names: dict[str, str], numeri
     return SessionFormatError(f"{path.name}: row {_row(first + i)}, column {c}: {_cell_problem(value)}")
 
 
-def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> SessionFormatError:
+_BLOCK_BYTES = 1 << 24
+
+
+def _line_at(path: Path, line: int) -> bytes | None:
+    """The bytes of line ``line`` (0 = the header) without its end, None past the end.
+
+    Newlines are counted block by block (``bytes.count`` runs at memory speed), so finding one row
+    of a 500 MB file costs a fraction of a second and one block of memory, not a parse.
+    """
+    seen = 0
+    with open(path, "rb") as fh:
+        carry = b""
+        while True:
+            block = fh.read(_BLOCK_BYTES)
+            if not block:
+                return carry if seen == line and carry else None
+            block = carry + block
+            n = block.count(b"\n")
+            if seen + n > line:
+                start = 0
+                for _ in range(line - seen):
+                    start = block.index(b"\n", start) + 1
+                return block[start:block.index(b"\n", start)].rstrip(b"\r")
+            seen += n
+            carry = block[block.rfind(b"\n") + 1:]
+
+
+def _bad_row_text(path: Path, header: list[str], names: dict[str, str], numeric: list[str],
+                  row: int, raw: bytes | None = None) -> SessionFormatError | None:
+    """Describe the first non-numeric or non-finite cell of data row ``row`` (0-based), its text
+    ``raw`` or read by :func:`_line_at`; None if that row has none (or cannot be split)."""
+    import csv
+
+    raw = _line_at(path, row + 1) if raw is None else raw
+    if raw is None:
+        return None
+    try:
+        cells = next(csv.reader([raw.decode("utf-8")]))
+    except (UnicodeDecodeError, csv.Error, StopIteration):
+        return None
+    for c in numeric:
+        j = header.index(names[c])
+        text = cells[j] if j < len(cells) else ""
+        try:
+            ok = np.isfinite(float(text))
+        except ValueError:
+            ok = False
+        if not ok:
+            return SessionFormatError(f"{path.name}: row {_row(row)}, column {c}: {_cell_problem(text)}")
+    return None
+
+
+#: Most places a token may be looked at before the scan gives up (a token such as "e" occurs in
+#: every exponent; then the block-wise re-read is the faster way).
+_MAX_TOKEN_HITS = 10_000
+_CELL_EDGE = frozenset(b',"\t \r\n')
+
+
+def _find_token_row(path: Path, token: str) -> tuple[int, bytes] | None:
+    """(0-based data row, line bytes) of the first cell that is exactly ``token`` (the text pandas
+    could not convert, which its message quotes), found in one pass over the file's blocks with
+    ``bytes.find`` and ``bytes.count``; None when not found or too common to look for."""
+    tok = token.encode("utf-8") if token else b""
+    if not tok or b"\n" in tok:
+        return None
+    hits = 0
+    line = 0            # newlines before the current block
+    with open(path, "rb") as fh:
+        carry = b""     # the unfinished last line of the previous block
+        while True:
+            data = fh.read(_BLOCK_BYTES)
+            block = carry + data
+            if not block:
+                return None
+            cut = len(block) if not data else block.rfind(b"\n") + 1
+            if cut == 0:        # a line longer than the block: read on
+                carry = block
+                continue
+            body = block[:cut]
+            start = body.find(b"\n") + 1 if line == 0 else 0  # not in the header
+            pos = body.find(tok, start)
+            while pos >= 0:
+                hits += 1
+                if hits > _MAX_TOKEN_HITS:
+                    return None
+                end = pos + len(tok)
+                if (pos == 0 or body[pos - 1] in _CELL_EDGE) and (end == len(body) or body[end] in _CELL_EDGE):
+                    first = body.rfind(b"\n", 0, pos) + 1
+                    last = body.find(b"\n", pos)
+                    n = line + body.count(b"\n", 0, first)
+                    return n - 1, body[first:last if last >= 0 else len(body)].rstrip(b"\r")
+                pos = body.find(tok, pos + 1)
+            line += body.count(b"\n")
+            carry = block[cut:]
+            if not data:
+                return None
+
+
+def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str],
+                     exc: Exception | None = None) -> SessionFormatError:
     """Find the first non-numeric or non-finite numeric cell and describe it.
 
     Reads the numeric columns again as floats in blocks of :data:`_LOCATE_CHUNK_ROWS` rows (as
     fast as the first read, memory bounded by one block) and only the block that fails as text,
     so a bad cell at the end of a 5-million-row file costs about one more read of the file, not
-    a text copy of all of it (issue 12).
+    a text copy of all of it (issue 12). Before that, when pandas' message quotes the text it
+    could not convert (``exc``), one scan for that text finds the row in a second or two.
     """
+    import re
+
     import pandas as pd
 
     header = _header(path)
+    m = re.fullmatch(r"could not convert string to float: '(.*)'", str(exc)) if exc is not None else None
+    if m is not None:
+        hit = _find_token_row(path, m.group(1))
+        found = _bad_row_text(path, header, names, numeric, *hit) if hit is not None else None
+        if found is not None:
+            return found
     cols = [names[c] for c in numeric]
     reader = pd.read_csv(path, usecols=cols, dtype={c: "float64" for c in cols}, chunksize=_LOCATE_CHUNK_ROWS,
                          skip_blank_lines=False, encoding="utf-8-sig", engine="c")
@@ -480,7 +588,7 @@ def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> S
             finite = np.isfinite(chunk[cols].to_numpy(dtype=float))
             if not finite.all():
                 i = int(np.argmax(~finite.all(axis=1)))
-                found = _first_bad_text(path, header, names, numeric, first + i, 1)
+                found = _bad_row_text(path, header, names, numeric, first + i)
                 if found is not None:
                     return found
             first += len(chunk)
@@ -526,7 +634,7 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
     except ValueError as exc:
         if isinstance(exc, pd.errors.ParserError):
             raise _parser_error(path, exc) from None
-        raise _locate_bad_cell(path, names, required) from None
+        raise _locate_bad_cell(path, names, required, exc) from None
     if len(df) < min_rows:
         raise SessionFormatError(f"{path.name}: {len(df)} data row(s), at least {min_rows} needed"
                                  if len(df) else f"{path.name}: row 2: no data rows")
@@ -536,7 +644,7 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
     finite = np.isfinite(m)
     if not finite.all():
         i = int(np.argmax(~finite.all(axis=1)))
-        raise _first_bad_text(path, header, names, required, i, 1) or _locate_bad_cell(path, names, required)
+        raise _bad_row_text(path, header, names, required, i) or _locate_bad_cell(path, names, required)
     _check_plausible(path, required, m)
     _check_time(path, m[:, required.index("t_s")])
     return m

@@ -517,3 +517,34 @@ def test_inf_never_reaches_a_csv_or_workbook_cell(tmp_path, inputs):
     with zipfile.ZipFile(write_workbook(tmp_path / "t.xlsx", rep)) as z:
         xml = "".join(z.read(n).decode("utf-8", "replace") for n in z.namelist() if n.startswith("xl/worksheets/"))
     assert "<v>inf</v>" not in xml and "<v>-inf</v>" not in xml
+
+
+# ------------------------------------------------------------------------------------------
+# a bad cell deep in a large IMU file: the right row, by every locating path
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("value, what", [("x", "'x' is not a number"), ("inf", "'inf' is not a finite number"),
+                                         ("", "empty value"), ("1e308", "not a plausible value")])
+@pytest.mark.parametrize("scan", [True, False], ids=["token-scan", "block-reread"])
+def test_bad_cell_deep_in_a_large_imu_file(tmp_path, monkeypatch, value, what, scan):
+    import numpy as np
+
+    import survey.sessionio as sio
+
+    n, bad_row = 250_000, 231_457   # beyond the first block of _LOCATE_CHUNK_ROWS rows
+    t = np.arange(1, n + 1) * 0.005
+    m = np.column_stack([t] + [np.full(n, 1e-3)] * 6)
+    path = tmp_path / "imu.csv"
+    with open(path, "w") as fh:
+        fh.write(",".join(sio.IMU_COLUMNS) + "\n")
+        np.savetxt(fh, m, fmt="%.6g", delimiter=",")
+    lines = path.read_text().splitlines()
+    cells = lines[bad_row - 1].split(",")
+    cells[4] = value                    # column fx_m_s2, spreadsheet row bad_row
+    lines[bad_row - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    if not scan:
+        monkeypatch.setattr(sio, "_find_token_row", lambda p, token: None)
+    with pytest.raises(sio.SessionFormatError) as info:
+        sio._read_numeric(path, sio.IMU_COLUMNS)
+    msg = str(info.value)
+    assert f"row {bad_row}, column fx_m_s2" in msg and what in msg, msg
