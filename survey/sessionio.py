@@ -600,7 +600,8 @@ def _check_plausible(path: Path, columns: list[str], m: np.ndarray) -> None:
     limits = np.array([PLAUSIBLE_ABS.get(c, np.inf) for c in columns])
     if np.isinf(limits).all():
         return
-    out = np.abs(m) > limits
+    out = m > limits          # two boolean masks, not a float copy of a 5 M-row file (np.abs)
+    out |= m < -limits
     rows = out.any(axis=1)
     if not rows.any():
         return

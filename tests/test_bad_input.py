@@ -548,3 +548,23 @@ def test_bad_cell_deep_in_a_large_imu_file(tmp_path, monkeypatch, value, what, s
         sio._read_numeric(path, sio.IMU_COLUMNS)
     msg = str(info.value)
     assert f"row {bad_row}, column fx_m_s2" in msg and what in msg, msg
+
+
+def test_hostile_labels_are_printed_literally_and_escaped_in_fixes_csv(tmp_path, inputs):
+    """Fix labels reach the terminal (a rejected fix is named) and fixes.csv: printed as they are,
+    no rich markup interpreted, and formula-leading text quoted like the export's CSV."""
+    s = copy(inputs.session, tmp_path / "run[/x]")
+    set_cell(s / "fixes.csv", 2, "point", "CP[/x]1")
+    set_cell(s / "fixes.csv", 3, "point", "=HYPERLINK(x)")
+    set_cell(s / "fixes.csv", 3, "E_m", "500000.0")   # far off: rejected, and named on the terminal
+    r = CliRunner().invoke(app, ["process", str(s), "--out", str(tmp_path / "out[blink red]")])
+    assert r.exit_code == 0, r.stderr
+    assert "MarkupError" not in r.stderr and "Traceback" not in r.stderr
+    assert "rejected fix =HYPERLINK(x)" in r.stderr
+    assert "out[blinkred]/fixes.csv" in "".join(r.stdout.split())  # literally (rich may wrap the line)
+    text = (tmp_path / "out[blink red]" / "fixes.csv").read_text()
+    assert "CP[/x]1" in text and "'=HYPERLINK(x)" in text
+    from survey.track_reader import read_fixes_csv
+
+    points = [f.point for f in read_fixes_csv(tmp_path / "out[blink red]" / "fixes.csv")]
+    assert "=HYPERLINK(x)" in points and "CP[/x]1" in points
