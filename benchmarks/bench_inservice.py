@@ -21,7 +21,11 @@ irregularities and the sensor noise):
 Targets (issue 14): standard case J <= 0.30 mm and Jrel <= 0.20 over 3-200 m, honesty in
 0.7-1.3, at least 20x faster than real time on one core.
 
+* forward filter only (the paper's estimator), calibrated for it (identification.calibrate with
+  smoother="none"), on the same seeds.
+
     python benchmarks/bench_inservice.py [--seeds 1 2 3] [--cal-seed 1000] [--radius-m 1500]
+        [--sections standard robustness resonance curved forward]
 """
 from __future__ import annotations
 
@@ -40,6 +44,7 @@ from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, sim
 V = 20.0
 LENGTH = 400.0
 SETTLE_M = 30.0
+SECTIONS = ("standard", "robustness", "resonance", "curved", "forward")
 
 
 def states(run):
@@ -87,6 +92,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--cal-seed", type=int, default=1000)
     ap.add_argument("--radius-m", type=float, default=1500.0)
+    ap.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS)
     args = ap.parse_args()
 
     vp = VehicleParameters()
@@ -94,12 +100,15 @@ def main() -> None:
     t0 = time.process_time()
     ref = run_case(vp, args.cal_seed)
     sim_cpu = time.process_time() - t0
+    print(f"truth: first lateral mode {mode.frequency_hz:.3f} Hz, wavelength {mode.wavelength_m:.2f} m at {V} m/s;"
+          f" reference run {sim_cpu:.1f} s CPU")
+    if args.sections == ["forward"]:
+        forward(vp, ref, args)
+        return
     t0 = time.process_time()
     mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref))
     cal_cpu = time.process_time() - t0
     p = mdl.params
-    print(f"truth: first lateral mode {mode.frequency_hz:.3f} Hz, wavelength {mode.wavelength_m:.2f} m at {V} m/s;"
-          f" reference run {sim_cpu:.1f} s CPU")
     print(f"calibration (seed {args.cal_seed}, {cal_cpu:.1f} s CPU): kx {p.kx:.4g} N/m, cx {p.cx:.4g} N s/m, "
           f"ky {p.ky:.4g} N/m, cy {p.cy:.4g} N s/m; Q factors dyn {mdl.q_dynamics_factor:.3g} "
           f"xi {mdl.q_xi_factor:.3g}, virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm, sigma scale "
@@ -135,6 +144,17 @@ def main() -> None:
 
     s0 = args.seeds[0]
     std_acc, std_h = allj[0][0], allj[0][1]
+    if "robustness" in args.sections:
+        robustness(mdl, vp, s0, std_acc, std_h)
+    if "resonance" in args.sections:
+        resonance(mdl, vp, s0, mode, std_acc, std_h)
+    if "curved" in args.sections:
+        curved(mdl, vp, s0, args.radius_m)
+    if "forward" in args.sections:
+        forward(vp, ref, args)
+
+
+def robustness(mdl, vp, s0, std_acc, std_h):
     header(f"robustness (seed {s0}; truth varied, estimator nominal)")
     row("standard", std_acc, std_h)
     cases = {"no sensor noise": (vp, dict(noise=False)),
@@ -146,6 +166,8 @@ def main() -> None:
         acc, h, _ = evaluate(mdl, run_case(pp, s0, **kw))
         row(name, acc, h)
 
+
+def resonance(mdl, vp, s0, mode, std_acc, std_h):
     header(f"resonance: 1 mm harmonic at {mode.wavelength_m:.2f} m ({mode.frequency_hz:.3f} Hz at {V} m/s)")
     row("Case 1 (standard)", std_acc, std_h)
     acc, h, _ = evaluate(mdl, run_case(vp, s0, lateral=0.0, harmonic=mode.wavelength_m))
@@ -153,11 +175,26 @@ def main() -> None:
     acc, h, _ = evaluate(mdl, run_case(vp, s0, harmonic=mode.wavelength_m))
     row("Case 3 (harmonic + random)", acc, h)
 
-    header(f"curved track: R = {args.radius_m:.0f} m (left), design curvature a known input")
-    acc, h, _ = evaluate(mdl, run_case(vp, s0, kappa=1.0 / args.radius_m))
-    row(f"R {args.radius_m:.0f} m, seed {s0}", acc, h)
-    acc, h, _ = evaluate(mdl, run_case(vp, s0, kappa=-1.0 / args.radius_m))
-    row(f"R {args.radius_m:.0f} m right, seed {s0}", acc, h)
+
+def curved(mdl, vp, s0, radius_m):
+    header(f"curved track: R = {radius_m:.0f} m (left), design curvature a known input")
+    acc, h, _ = evaluate(mdl, run_case(vp, s0, kappa=1.0 / radius_m))
+    row(f"R {radius_m:.0f} m, seed {s0}", acc, h)
+    acc, h, _ = evaluate(mdl, run_case(vp, s0, kappa=-1.0 / radius_m))
+    row(f"R {radius_m:.0f} m right, seed {s0}", acc, h)
+
+
+def forward(vp, ref, args):
+    """The paper's estimator: forward filter only, calibrated for it."""
+    t0 = time.process_time()
+    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref), smoother="none")
+    print(f"\nforward-only calibration ({time.process_time() - t0:.1f} s CPU): Q factors dyn "
+          f"{mdl.q_dynamics_factor:.3g} xi {mdl.q_xi_factor:.3g}, virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm,"
+          f" sigma scale {mdl.sigma_scale:.3f}")
+    header("forward filter only (the paper's estimator), tuned for it; standard case")
+    for seed in args.seeds:
+        acc, h, cpu = evaluate(mdl, run_case(vp, seed), smoother="none")
+        row(f"seed {seed} (forward only)", acc, h, f"  cpu {cpu:.3f} s ({20.0 / cpu:.0f}x real time)")
 
 
 if __name__ == "__main__":

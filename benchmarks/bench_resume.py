@@ -102,8 +102,8 @@ def outcome(st, name: str):
     accepted = [(f.point, setups.get(f.setup_id)) for f in fixes if f.accepted]
     overlaps = [(f.point, f.accepted, f.reason, np.array([f.e_m, f.n_m, f.h_m])) for f in fixes
                 if f.reason.startswith("overlap check")]
-    run = [r for r in st.processing_runs(sid) if r.kind == "final"][-1]
-    return accepted, overlaps, st.track(run.run_id)
+    runs = [r for r in st.processing_runs(sid) if r.kind == "final"]
+    return accepted, overlaps, st.track(runs[-1].run_id) if runs else None
 
 
 def main() -> None:
@@ -147,7 +147,7 @@ def main() -> None:
         same_fixes = fa == fb
         same_overlap = len(oa) == len(ob) and all(
             a[:3] == b[:3] and np.max(np.abs(a[3] - b[3])) < 1e-9 for a, b in zip(oa, ob))
-        if np.array_equal(ta.chainage_m, tb.chainage_m):
+        if tb is not None and np.array_equal(ta.chainage_m, tb.chainage_m):
             d = 1e3 * float(np.max(np.abs(ta.enh_m - tb.enh_m)))
         else:
             d = float("nan")
@@ -162,7 +162,7 @@ def main() -> None:
     ds = np.array([r[6] for r in rows])
     print(f"{len(rows)} kill points: accepted fixes the same in {sum(r[4] for r in rows)}, overlap checks the "
           f"same in {sum(r[5] for r in rows)}; max track difference {np.nanmax(ds) if np.isfinite(ds).any() else float('nan'):.4f} mm"
-          f" (tracks of different stations: {int(np.sum(~np.isfinite(ds)))})")
+          f" (no final track, or on other stations: {int(np.sum(~np.isfinite(ds)))})")
     if args.keep is None:
         import shutil
 

@@ -155,7 +155,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     if design_file is not None:
         if not design_file.is_file():
             raise ExportInputError(f"{design_file}: design alignment file not found")
-        track = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info))
+        track = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info), notes)
     else:
         notes.append("no design alignment (summary.json / session.toml [design]): design columns empty")
     if np.isnan(track.lateral_dev_m).all():

@@ -192,7 +192,7 @@ def crs_header(store, rec) -> dict[str, str]:
         else:
             if grid is not None:
                 out["grid"] = (f"convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
-                               f"combined scale {grid.combined_scale:.9f} at the CPIII centroid")
+                               f"scale {grid.combined_scale:.9f} (CPIII centroid)")
     if datum:
         out["height_datum"] = str(datum)
     return out
@@ -248,20 +248,28 @@ def read_field_record(path: Path) -> FieldRecord:
                 raise ExportInputError(f"{path}: key {key}[{i}]: {e}") from None
         return out
 
-    fix = lambda d: RecordFix(num(d["t_s"]), str(d["point"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),  # noqa: E731
-                              int(d["station"]), bool(d["accepted"]), str(d["reason"]))
-    pointing = lambda d: RecordPointing(str(d["point"]), bool(d["used"]), *(num(d[k]) for k in (  # noqa: E731
-        "across_m", "along_m", "height_m", "hz_rad", "zenith_rad", "distance_m", "max_standardized")),
-        bool(d["flagged"]), str(d["reason"]))
-    setup = lambda d: RecordSetup(int(d["station"]), num(d["t_s"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),  # noqa: E731
-                                  num(d["orientation_rad"]), num(d["sigma0"]), int(d["dof"]), bool(d["accepted"]),
-                                  tuple(str(x) for x in d["excluded"]),
-                                  tuple(pointing(p) for p in d["pointings"]))
-    overlap = lambda d: RecordOverlap(num(d["t_s"]), str(d["old_point"]), str(d["new_point"]),  # noqa: E731
-                                      int(d["from_station"]), int(d["to_station"]), num(d["dE_m"]), num(d["dN_m"]),
-                                      num(d["dH_m"]), num(d["tolerance_m"]), bool(d["within"]),
-                                      bool(d["accepted"]), str(d["reason"]))
-    stop = lambda d: RecordStop(num(d["t_start_s"]), num(d["t_end_s"]), str(d["label"]), num(d["chainage_m"]))  # noqa: E731
+    def fix(d) -> RecordFix:
+        return RecordFix(num(d["t_s"]), str(d["point"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),
+                         int(d["station"]), bool(d["accepted"]), str(d["reason"]))
+
+    def pointing(d) -> RecordPointing:
+        return RecordPointing(str(d["point"]), bool(d["used"]), *(num(d[k]) for k in (
+            "across_m", "along_m", "height_m", "hz_rad", "zenith_rad", "distance_m", "max_standardized")),
+            bool(d["flagged"]), str(d["reason"]))
+
+    def setup(d) -> RecordSetup:
+        return RecordSetup(int(d["station"]), num(d["t_s"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),
+                           num(d["orientation_rad"]), num(d["sigma0"]), int(d["dof"]), bool(d["accepted"]),
+                           tuple(str(x) for x in d["excluded"]), tuple(pointing(p) for p in d["pointings"]))
+
+    def overlap(d) -> RecordOverlap:
+        return RecordOverlap(num(d["t_s"]), str(d["old_point"]), str(d["new_point"]), int(d["from_station"]),
+                             int(d["to_station"]), num(d["dE_m"]), num(d["dN_m"]), num(d["dH_m"]),
+                             num(d["tolerance_m"]), bool(d["within"]), bool(d["accepted"]), str(d["reason"]))
+
+    def stop(d) -> RecordStop:
+        return RecordStop(num(d["t_start_s"]), num(d["t_end_s"]), str(d["label"]), num(d["chainage_m"]))
+
     header = doc.get("header", {})
     if not isinstance(header, dict):
         raise ExportInputError(f"{path}: key header: expected an object")

@@ -139,19 +139,21 @@ def _position(table: dict, key: str, fname: str) -> tuple:
     return tuple(float(x) for x in a)
 
 
-def _parse_toml(path: Path) -> dict:
+def parse_toml(path: Path, fmt: str = FORMAT, tables=("vehicle", "run", "sensors"),
+               error: type[ValueError] = InserviceFormatError) -> dict:
+    """Read a TOML file with a ``format`` key and required tables; ``error`` names the file."""
     fname = path.name
-    if not path.exists():
-        raise InserviceFormatError(f"{fname}: file not found in {path.parent}")
+    if not path.is_file():
+        raise error(f"{fname}: file not found in {path.parent}")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InserviceFormatError(f"{fname}: not valid TOML ({exc})") from None
-    if data.get("format") != FORMAT:
-        raise InserviceFormatError(f"{fname}: format must be \"{FORMAT}\", got {data.get('format')!r}")
-    for t in ("vehicle", "run", "sensors"):
+        raise error(f"{fname}: not valid TOML ({exc})") from None
+    if data.get("format") != fmt:
+        raise error(f"{fname}: format must be \"{fmt}\", got {data.get('format')!r}")
+    for t in tables:
         if not isinstance(data.get(t), dict):
-            raise InserviceFormatError(f"{fname}: missing table [{t}]")
+            raise error(f"{fname}: missing table [{t}]")
     return data
 
 
@@ -168,7 +170,7 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     if not folder.is_dir():
         raise InserviceFormatError(f"{folder}: not a folder")
     toml_path = folder / "inservice.toml"
-    data = _parse_toml(toml_path)
+    data = parse_toml(toml_path)
     fname = toml_path.name
     veh, run, sen = data["vehicle"], data["run"], data["sensors"]
     try:

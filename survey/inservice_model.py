@@ -8,13 +8,13 @@ the reader names the file and the key of any bad value.
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
 
 from survey.atomicwrite import write_text_atomic
+from survey.inservice_io import parse_toml
 
 FORMAT = "trolley-inservice-model/1"
 
@@ -67,17 +67,8 @@ def read_model(path: str | os.PathLike):
 
     path = Path(path)
     fname = path.name
-    if not path.is_file():
-        raise ModelFileError(f"{path}: file not found")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ModelFileError(f"{fname}: not valid TOML ({exc})") from None
-    if data.get("format") != FORMAT:
-        raise ModelFileError(f"{fname}: format must be \"{FORMAT}\", got {data.get('format')!r}")
-    par, noi = data.get("parameters"), data.get("noise")
-    if not isinstance(par, dict) or not isinstance(noi, dict):
-        raise ModelFileError(f"{fname}: needs tables [parameters] and [noise]")
+    data = parse_toml(path, FORMAT, ("parameters", "noise"), ModelFileError)
+    par, noi = data["parameters"], data["noise"]
     try:
         params = ModelParameters(**{f.name: _number(par, f.name, "parameters", fname) for f in fields(ModelParameters)})
     except ValueError as exc:

@@ -843,6 +843,15 @@ class ProjectStore:
         rows = self._conn.execute("SELECT point_id, e_m, n_m, h_m, source, line FROM cpiii_point ORDER BY point_id")
         return [ControlPoint(*r) for r in rows]
 
+    def session_meta(self, design_alignment: str | None = None) -> SessionMeta:
+        """Metadata of a new session: the settings', with the site latitude the CRS gives at the
+        CPIII centroid when the project has a CRS (:meth:`site_grid`)."""
+        meta = self.settings().session_meta(design_alignment)
+        grid = self.site_grid()
+        if grid is not None:
+            meta = dataclasses.replace(meta, latitude_rad=grid.latitude_rad)
+        return meta
+
     def site_grid(self):
         """The project CRS's factors at the CPIII centroid (``trolley.projection.GridFactors``), or
         None without a CRS or without CPIII points."""
@@ -879,10 +888,7 @@ class ProjectStore:
         """Create a session (metadata from the project settings when not given)."""
         _check_name("session name", name)
         if meta is None:
-            meta = self.settings().session_meta()
-            grid = self.site_grid()
-            if grid is not None:  # the latitude of the site, from the CRS at the CPIII
-                meta = dataclasses.replace(meta, latitude_rad=grid.latitude_rad)
+            meta = self.session_meta()
         state = "open" if source == "live" else "imported"
         with self._transaction() as c:
             if c.execute("SELECT 1 FROM session WHERE name = ?", (name,)).fetchone():

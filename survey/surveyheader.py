@@ -96,13 +96,10 @@ def check_header_value(key: str, value: str) -> str:
 
 
 def software_version() -> str:
-    """``trolley-survey X.Y.Z`` of the installed package."""
-    from importlib.metadata import PackageNotFoundError, version
+    """``trolley-survey X.Y.Z`` of the installed package (:func:`survey.version.version`)."""
+    from survey.version import DISTRIBUTION, version
 
-    try:
-        return f"trolley-survey {version('trolley-survey')}"
-    except PackageNotFoundError:
-        return "trolley-survey (version unknown: not installed as a package)"
+    return f"{DISTRIBUTION} {version()}"
 
 
 def header_rows(rep) -> list[tuple[str, str]]:
@@ -125,6 +122,10 @@ def header_rows(rep) -> list[tuple[str, str]]:
     # engine records them), else the session's (field record, from `trolley project set-crs`)
     crs = str(getattr(info, "crs", "") or "") or field("coordinate_system")
     datum = str(getattr(info, "vertical_datum", "") or "") or field("height_datum")
+    grid = field("grid")
+    if math.isfinite(getattr(info, "grid_convergence_deg", math.nan)):  # the processing's own, at the fixes
+        grid = (f"convergence {info.grid_convergence_deg:+.6f} deg, point scale factor {info.grid_scale_factor:.9f}, "
+                f"combined scale {info.grid_combined_scale:.9f} at the site")
     s = rep.geometry.chainage_m
     span = time_span(rec.start_utc, rec.end_utc) if rec is not None else NOT_GIVEN
     rows = [
@@ -149,7 +150,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
         (HEADER_FIELDS["rail_temperature_c"].label, field("rail_temperature_c")),
         ("Coordinate system", crs),
         ("Height datum", datum),
-        ("Grid convergence and scale", field("grid")),
+        ("Grid convergence and scale", grid),
         ("Software", software_version()),
         ("Tolerance set", f"{rep.tolerances.name}: {rep.tolerances.title}"),
         ("Tolerance source", _tolerance_source(rep.tolerances)),

@@ -104,6 +104,10 @@ class SurveyInfo:
 
     ``equipment`` holds the figures of :data:`EQUIPMENT` that are known (summary.json
     ``equipment``, else the session's session.toml); ``equipment_source`` says where from.
+    ``crs``, ``vertical_datum``: the project grid ("" = not given: a local grid, true north);
+    ``grid_scale_factor`` (the projection's point scale k), ``grid_combined_scale`` (k times the
+    height reduction) and ``grid_convergence_deg`` at the site (NaN without a CRS;
+    ``trolley.projection``).
     """
 
     project: str = ""
@@ -123,6 +127,11 @@ class SurveyInfo:
     rail_spacing_m: float = 1.500
     nominal_gauge_m: float = 1.435
     present: bool = False
+    crs: str = ""
+    vertical_datum: str = ""
+    grid_scale_factor: float = math.nan
+    grid_convergence_deg: float = math.nan
+    grid_combined_scale: float = math.nan
     extra: dict = field(default_factory=dict)
 
 
@@ -328,7 +337,8 @@ def read_summary_json(path: Path) -> SurveyInfo:
 
     known = {"session_dir", "project", "session", "imu", "equipment", "smoother", "fixes_used",
              "fixes_rejected", "rms_innovation_mm", "max_sigma_mm", "step_m", "rail_spacing_m",
-             "nominal_gauge_m"}
+             "nominal_gauge_m", "crs", "vertical_datum", "grid_scale_factor", "grid_convergence_deg",
+             "grid_combined_scale"}
     equipment = _equipment_from_json(path, doc.get("equipment"))
     return SurveyInfo(
         project=str(doc.get("project", "")), session=str(doc.get("session", "")),
@@ -340,6 +350,9 @@ def read_summary_json(path: Path) -> SurveyInfo:
         rms_innovation_mm=num(doc, "rms_innovation_mm"), max_sigma_mm=num(doc, "max_sigma_mm"),
         step_m=num(doc, "step_m"), rail_spacing_m=num(doc, "rail_spacing_m", 1.500),
         nominal_gauge_m=num(doc, "nominal_gauge_m", 1.435), present=True,
+        crs=str(doc.get("crs") or ""), vertical_datum=str(doc.get("vertical_datum") or ""),
+        grid_scale_factor=num(doc, "grid_scale_factor"), grid_convergence_deg=num(doc, "grid_convergence_deg"),
+        grid_combined_scale=num(doc, "grid_combined_scale"),
         extra={k: v for k, v in doc.items() if k not in known})
 
 
@@ -417,22 +430,29 @@ def design_alignment_name(info: SurveyInfo) -> str | None:
 
 
 def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
-               alignment_name: str | None = None) -> TrackInput:
+               alignment_name: str | None = None, notes: list[str] | None = None) -> TrackInput:
     """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
     (internal stations: track.csv's ``distance_m`` when it has one).
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
-    positive when the left rail is higher, like the measured cant.
+    positive when the left rail is higher, like the measured cant. The LandXML reader's notes,
+    and a word on the chainage when the design has station equations, are appended to ``notes``.
     """
-    from trolley.landxml import LandXmlError, parse_landxml
+    from trolley.landxml import LandXmlError, read_landxml
 
     try:
-        alignment = parse_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
-                                  rail_spacing_m=rail_spacing_m)
+        design = read_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
+                              rail_spacing_m=rail_spacing_m)
     except (OSError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
     except LandXmlError as e:
         raise ExportInputError(f"{landxml_path}: {e}") from None
+    alignment = design.alignment
+    if notes is not None:
+        notes.extend(f"{Path(landxml_path).name}: {n}" for n in design.notes)
+        if alignment.stationing is not None and alignment.stationing.equations:
+            notes.append(f"{Path(landxml_path).name} has station equations: the chainages here are internal "
+                         f"stations (track.csv distance_m); the drawing's stationing is track.csv chainage_m")
     d = alignment.evaluate(track.chainage_m)
     track.design_E_m, track.design_N_m = d.E_m, d.N_m
     track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)

@@ -119,6 +119,11 @@ def summary_dict(result: ProcessResult, session: RawSession, session_dir: Path, 
         "observability_ranks": list(result.observability_ranks) if result.observability_ranks else None,
         "filter_nodes": result.node_count,
         "stations": int(len(result.stations.chainage_m)),
+        "crs": s.get("crs"),
+        "vertical_datum": s.get("vertical_datum"),
+        "grid_scale_factor": s.get("grid_scale_factor"),
+        "grid_combined_scale": s.get("grid_combined_scale"),
+        "grid_convergence_deg": s.get("grid_convergence_deg"),
     }
 
 

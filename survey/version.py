@@ -17,10 +17,10 @@ def version() -> str:
     Returns
     -------
     str
-        ``importlib.metadata.version("trolley-survey")``, e.g. ``"0.1.0"``; ``"unknown (not
-        installed)"`` when the code runs from a source tree that was never installed.
+        ``importlib.metadata.version("trolley-survey")``, e.g. ``"0.1.0"``; ``"(version unknown:
+        not installed as a package)"`` when the code runs from a source tree never installed.
     """
     try:
         return metadata.version(DISTRIBUTION)
     except metadata.PackageNotFoundError:
-        return "unknown (not installed)"
+        return "(version unknown: not installed as a package)"

@@ -209,8 +209,8 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             ws.column_dimensions[_col_letter(j)].width = w
 
 
-#: rows 1-6 of every sheet but Track: the header block (title and five lines); the table starts at TABLE_ROW
-HEADER_ROWS = 6
+#: rows 1-7 of every sheet but Track: the header block (title and six lines); the table starts at TABLE_ROW
+HEADER_ROWS = 7
 TABLE_ROW = HEADER_ROWS + 2
 
 
@@ -225,7 +225,7 @@ def _source_name(origin: str) -> str:
 
 
 def header_lines(rep: SurveyReport) -> list[str]:
-    """The header block as five lines of text (every sheet but Summary, which has one row per field)."""
+    """The header block as six lines of text (every sheet but Summary, which has one row per field)."""
     h = dict(header_rows(rep))
 
     def join(*labels: str) -> str:
@@ -239,16 +239,16 @@ def header_lines(rep: SurveyReport) -> list[str]:
 
     return [
         join("Project", "Session", "Line", "Track", "Client"),
-        join("Chainage", "Survey date and time", "Crew / operator"),
+        join("Chainage", "Survey date and time", "Crew / operator", "Rail temperature [°C]"),
         "   |   ".join([device("Total station", "totalstation"), device("IMU", "imu")]),
-        "   |   ".join([device("Trolley", "trolley"), f"Rail temperature [°C]: {h['Rail temperature [°C]']}",
-                        join("Coordinate system", "Height datum", "Grid convergence and scale")]),
-        f"Software: {h['Software']}   |   Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
+        "   |   ".join([device("Trolley", "trolley"), f"Software: {h['Software']}"]),
+        join("Coordinate system", "Height datum", "Grid convergence and scale"),
+        f"Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
     ]
 
 
 def _sheet_header(ws, rep: SurveyReport, title: str) -> int:
-    """Title and header block in rows 1-6 (text overflowing to the right). Returns :data:`TABLE_ROW`."""
+    """Title and header block in rows 1-7 (text overflowing to the right). Returns :data:`TABLE_ROW`."""
     from openpyxl.styles import Font
 
     put_text(ws, 1, 1, title).font = Font(bold=True, size=13)
@@ -611,7 +611,7 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
     from openpyxl.styles import Font, PatternFill
 
     _header(ws, 1, [c.header for c in rep.columns])
-    ws.row_dimensions[1].height = 45
+    ws.row_dimensions[1].height = 58
     for j, col in enumerate(rep.columns, start=1):
         c = ws.cell(row=2, column=j, value=0.0)
         c.number_format = col.number_format

@@ -205,6 +205,43 @@ def test_export_and_project_commands_print_strict_json(processed, tmp_path):
     added = strict_json(r.stdout)["added"]
     r = runner.invoke(app, ["project", "show", "p", "--root", str(root), "--json"])
     assert strict_json(r.stdout)["cpiii"]["count"] == added > 0
+    r = runner.invoke(app, ["project", "set", "crew", "A. Smith", "-p", "p", "--root", str(root), "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["value"] == "A. Smith"
+
+
+def test_tgms_json_is_strict_where_the_accuracy_has_no_value(tmp_path):
+    rec = tmp_path / "rec"
+    r = runner.invoke(app, ["tgms", "simulate", "--out", str(rec), "--length-m", "60", "--camera-rate-hz", "10",
+                            "--json"])
+    assert r.exit_code == 0, r.output
+    assert strict_json(r.stdout)["frames"] > 0
+    r = runner.invoke(app, ["tgms", "process", str(rec), "--out", str(tmp_path / "out"), "--no-plots", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = strict_json(r.stdout)  # a 60 m ride leaves accuracy figures undefined (NaN before issue 15)
+
+    def nulls(v):
+        if isinstance(v, dict):
+            return sum(nulls(u) for u in v.values())
+        if isinstance(v, list):
+            return sum(nulls(u) for u in v)
+        return v is None
+    assert nulls(doc["accuracy_3_25m"]) > 0
+
+
+def test_survey_start_json_is_the_final_summary_alone(tmp_path):
+    sys.path.insert(0, str(Path(__file__).parent))
+    from session_project import make_project
+
+    make_project(tmp_path / "projects")
+    (tmp_path / "crew.txt").write_text("fix\nmove\nfix\nmove\nfix\nend\n")
+    p = subprocess.run([sys.executable, "-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                        "--session", "s", "--simulate", "--speedup", "25", "--script", "crew.txt", "--json"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    doc = strict_json(p.stdout)
+    assert doc["session"] == "s" and doc["fixes_accepted"] >= 2
+    assert (tmp_path / doc["track_csv"]).is_file() and (tmp_path / doc["xlsx"]).is_file()  # relative to cwd
 
 
 # --------------------------------------------------------------------------------- old names

@@ -127,6 +127,24 @@ def test_process_cli_exits_2_without_crs_and_succeeds_with_it(design, tmp_path):
     assert math.degrees(back.meta.latitude_rad) == pytest.approx(28.01, abs=0.01)
     r = runner.invoke(app, ["process", str(folder), "--out", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output
+    # the survey sheet carries the CRS, the scale factor and the convergence
+    import json
+
+    from openpyxl import load_workbook
+
+    from survey.export import export_outputs
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["crs"] == CRS and summary["grid_convergence_deg"] == pytest.approx(0.96, abs=0.01)
+    export_outputs(tmp_path / "out", tmp_path / "survey.xlsx", tmp_path / "table.csv", tmp_path / "plots")
+    wb = load_workbook(tmp_path / "survey.xlsx")
+    sheet = {row[0].value: row[1].value for row in wb["Summary"].iter_rows(min_row=1, max_col=2)}
+    from survey.surveyheader import NOT_GIVEN
+    assert sheet["Coordinate system"] == CRS and sheet["Height datum"] == NOT_GIVEN
+    grid = sheet["Grid convergence and scale"]
+    assert f"convergence {summary['grid_convergence_deg']:+.6f} deg" in grid
+    assert f"point scale factor {summary['grid_scale_factor']:.9f}" in grid
+    assert f"combined scale {summary['grid_combined_scale']:.9f}" in grid
+    assert 1.00008 < summary["grid_scale_factor"] < 1.0001  # k0 (1 + x^2 / 2R^2) at 200 km
 
 
 def test_session_toml_crs_round_trip_and_errors(tmp_path):

@@ -148,7 +148,7 @@ def test_workbook_structure(exported):
 
 
 def test_print_settings_and_header_block(exported):
-    """Every sheet: A4 landscape, page numbers in the footer, the header block (rows 1-6 or the
+    """Every sheet: A4 landscape, page numbers in the footer, the header block (rows 1-7 or the
     Summary's rows) with "not given" for what nobody gave; the Track sheet prints in column
     groups with chainage and station on every page."""
     from openpyxl import load_workbook
@@ -169,7 +169,8 @@ def test_print_settings_and_header_block(exported):
         assert wb[title].sheet_properties.pageSetUpPr.fitToPage and wb[title].page_setup.fitToWidth == 1
         lines = [wb[title].cell(r, 1).value for r in range(2, HEADER_ROWS + 1)]
         assert lines[0].startswith("Project: =1+1") and "Line: not given" in lines[0]
-        assert "IMU: not given" in lines[2] and "Software: trolley-survey" in lines[4]
+        assert "IMU: not given" in lines[2] and "Software: trolley-survey" in lines[3]
+        assert lines[5].startswith("Tolerance set: built-in set hsr_ballastless_static")
         assert not any("/tmp" in x or "pytest" in x for x in lines)     # no path of this machine
     track = wb["Track"]
     assert track.print_title_cols == "$A:$B" and track.print_title_rows == "$1:$1"

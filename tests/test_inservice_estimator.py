@@ -63,6 +63,9 @@ def test_observability_rank_is_seven_and_six_without_the_virtual_measurement():
     # the accelerations see y - xi and the gyro psi: without xi = 0 a common lateral offset of y,
     # y_f and xi is invisible
     assert observability_rank(dm.F, dm.H[:3]) == 6
+    # python-control builds the same matrix (imported lazily: it pulls in matplotlib)
+    control = pytest.importorskip("control")
+    assert np.allclose(control.obsv(dm.F, dm.H), observability_matrix(dm.F, dm.H))
 
 
 def _own_model_run(n=3000, dt=0.005, V=20.0, seed=3, xi_density=1e-7):

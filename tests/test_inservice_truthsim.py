@@ -201,3 +201,29 @@ def test_rigid_vehicle_motions_load_no_suspension():
     assert np.max(np.abs(lin.j @ roll)) > 0.5
     k = lin.kc[:, :vh.N_DOF]
     assert np.allclose(k, k.T)
+
+
+def test_robustness_factors_change_the_truth_not_the_nominal():
+    """conicity -10 % / Kalker 50 % act on the simulated vehicle only: the nominal values the
+    estimator gets stay, the truth's free-wheelset wavelength grows by 1 / sqrt(0.9) and the
+    bogie mode moves."""
+    p0 = vh.VehicleParameters()
+    p1 = vh.with_factors(p0, conicity_factor=0.9, creep_factor=0.5)
+    assert p1.nominal() == p0.nominal()
+    assert vh.kinematic_wavelength(p1.contact) == pytest.approx(vh.kinematic_wavelength(p0.contact) / np.sqrt(0.9))
+    f0 = vh.first_lateral_mode(p0, 20.0).frequency_hz
+    assert abs(vh.first_lateral_mode(p1, 20.0).frequency_hz - f0) > 0.02
+    fx0, _ = ct.creep_forces(1e-6, 0.0, C.wheel_load_n, C)
+    fx1, _ = ct.creep_forces(1e-6, 0.0, C.wheel_load_n, C, creep_factor=0.5)
+    assert fx1 == pytest.approx(0.5 * fx0, rel=1e-3)
+
+
+@pytest.mark.parametrize("conicity_factor,creep_factor,speed,low,high", [
+    (1.0, 1.0, 10.0, 0.63, 0.75), (0.9, 1.0, 20.0, 1.0, 1.26), (1.0, 0.5, 20.0, 0.9, 1.26),
+    (0.9, 0.5, 20.0, 0.9, 1.26), (1.0, 1.0, 40.0, 2.0, 3.0)])
+def test_first_lateral_mode_tracks_the_bogie_not_a_body_or_primary_mode(conicity_factor, creep_factor, speed,
+                                                                      low, high):
+    """The kinematic bogie frequency scales roughly with V sqrt(lambda): the selected mode stays in its
+    window (the car body modes are at 0.63-0.88 Hz at any speed, the primary-suspension ones above 6 Hz)."""
+    p = vh.with_factors(vh.VehicleParameters(), conicity_factor, creep_factor)
+    assert low < vh.first_lateral_mode(p, speed).frequency_hz < high

@@ -361,3 +361,24 @@ def test_session_toml_names_the_alignment_of_a_file_holding_several(tmp_path):
     back = read_session_meta(tmp_path)
     assert back.design_alignment_name == "Gleis 2"
     assert_at(read_design(tmp_path, back), 1600.0, hand_position(1600.0, e0=E0 - 4.5))
+
+
+def test_export_reads_track_csv_along_distance_and_says_so(tmp_path):
+    from survey.track_reader import add_design, read_track_csv
+
+    s = 1296.0 + np.arange(8) * 1.0
+    drawing = read_landxml(text("station_equation.xml")).alignment.station(s)
+    rows = ["chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,lateral_dev_mm,vertical_dev_mm,gauge_mm,"
+            "cant_mm,twist_mm,distance_m"]
+    for c, d in zip(drawing, s):
+        e, n = hand_position(d)
+        rows.append(f"{c:.6f},{e:.6f},{n:.6f},100.0,0.5,0.5,0.5,,,,,,{d:.6f}")
+    (tmp_path / "track.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    (tmp_path / "design.xml").write_text(text("station_equation.xml"), encoding="utf-8")
+    track, _ = read_track_csv(tmp_path / "track.csv")  # chainage_m jumps 1299 -> 2300: read along distance_m
+    np.testing.assert_allclose(track.chainage_m, s)
+    notes: list[str] = []
+    track = add_design(track, tmp_path / "design.xml", 1.5, None, notes)
+    np.testing.assert_allclose(track.design_E_m, track.E_m, atol=POS_TOL_M)
+    assert any("station equations" in n and "distance_m" in n for n in notes), notes
+    assert any("read as drawing stations" in n for n in notes), notes

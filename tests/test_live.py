@@ -163,6 +163,39 @@ def test_live_screen_sigma_grows_past_the_planned_spacing():
     assert predicted_sigma_mm(meta, 60.0, 240.0) > predicted_sigma_mm(meta, 60.0, 60.0)
 
 
+def test_live_filter_in_a_projected_grid_off_the_central_meridian():
+    # 200 km east of UTM 50N's central meridian (0.96 deg of convergence): with the CRS the live
+    # gate accepts every fix and agrees with the batch engine; without it the fixes are rejected
+    design = parse_landxml(DEMO.read_text(encoding="utf-8")).translated(200000.0, 0.0)
+    s = simulate_survey(design, SimulationConfig(length_m=240.0, static_s=120.0, imu_rate_hz=100.0, seed=11,
+                                                 crs="EPSG:32650"))
+    lp, verdicts, intervals = _feed(design, s)
+    assert all(v.accepted for v in verdicts)
+    batch = process_session(s.session, design, ProcessConfig(relinearisations=0, smoother="none"),
+                            with_observability=False)
+    assert np.allclose([v.nis for v in verdicts], batch.fixes.nis, rtol=1e-2, atol=1e-9)
+    # the innovations are reported in the grid, as the batch engine reports them (left in the local
+    # frame, the 0.26 m one would be off by 0.96 deg: 4 mm, beyond this 0.5 % tolerance)
+    assert np.allclose(np.array([v.innovation_enh_m for v in verdicts]), batch.fixes.innovation_enh_m,
+                       rtol=5e-3, atol=2e-5)
+    lat = np.concatenate([r.stations.lateral_dev_m for r in intervals])
+    ch = np.concatenate([r.stations.chainage_m for r in intervals])
+    true_lat = np.interp(ch, s.truth.chainage_m,
+                         np.asarray(design.project(s.truth.E_m, s.truth.N_m, s.truth.H_m).lateral_m))
+    assert np.sqrt(np.mean((lat - true_lat) ** 2)) < 1.5e-3
+    import dataclasses
+    no_crs = dataclasses.replace(s, session=dataclasses.replace(
+        s.session, meta=dataclasses.replace(s.session.meta, crs=None)))
+    lp2 = LiveProcessor(no_crs.session.meta, design, ProcessConfig(relinearisations=0))
+    ses = no_crs.session
+    static = ses.imu_t_s <= ses.imu_t_s[0] + ses.meta.static_s
+    lp2.align(ses.imu_t_s[static], ses.imu_w_rad_s[static], ses.imu_f_m_s2[static])
+    lp2.add_fix(ses.fixes.t_s[0], ses.fixes.point[0], ses.fixes.enh_m[0])
+    late = ses.imu_t_s > ses.imu_t_s[static][-1]
+    lp2.add_samples(ses.imu_t_s[late], ses.imu_w_rad_s[late], ses.imu_f_m_s2[late], ses.odo_t_s, ses.odo_distance_m)
+    assert not lp2.add_fix(ses.fixes.t_s[-1], ses.fixes.point[-1], ses.fixes.enh_m[-1]).accepted
+
+
 @pytest.mark.parametrize("length_m", [240.0, 480.0])
 def test_live_interval_summaries_agree_with_the_final_track_on_short_surveys(length_m):
     """Each interval's live track, its summary and its geometry agree with the final track within

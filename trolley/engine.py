@@ -167,21 +167,23 @@ def _enh(ned: np.ndarray, origin_enh: np.ndarray) -> np.ndarray:
     return np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]]) + origin_enh
 
 
-def _grid_to_local(enh: np.ndarray, origin_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
-    """Grid E, N, H to the local true-north ground frame about ``origin_enh`` (identity without a grid)."""
+def grid_to_ned(enh: np.ndarray, origin_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
+    """Grid E, N, H to the filter's local NED about ``origin_enh``: with a projected grid, turned to
+    true north and brought to ground scale (``GridFactors.grid_to_local``); without, swapped only."""
     if grid is None:
-        return enh
-    return origin_enh + grid.grid_to_local(enh - origin_enh)
+        return _ned(enh, origin_enh)
+    d = grid.grid_to_local(enh - origin_enh)
+    return np.column_stack([d[:, 1], d[:, 0], -d[:, 2]])
 
 
-def _local_to_grid(enh: np.ndarray, origin_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
-    """The inverse of :func:`_grid_to_local`."""
+def ned_to_grid(ned: np.ndarray, origin_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
+    """The inverse of :func:`grid_to_ned`."""
     if grid is None:
-        return enh
-    return origin_enh + grid.local_to_grid(enh - origin_enh)
+        return _enh(ned, origin_enh)
+    return origin_enh + grid.local_to_grid(np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]]))
 
 
-def _sigmas_to_grid(sigma_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
+def sigmas_to_grid(sigma_enh: np.ndarray, grid: GridFactors | None) -> np.ndarray:
     """1-sigmas along true east / north to grid E / N (the E-N correlation is dropped)."""
     if grid is None:
         return sigma_enh
@@ -258,9 +260,11 @@ def check_rotation(dr: DeadReckoning, fix_blocks: np.ndarray, fix_ned: np.ndarra
             f"{after:.3f} m after turning them back; scale {scale:.6f})")
     if grid is None:
         raise GridRotationError(
-            f"{what}. That is the grid convergence of a map projection ({-deg:+.4f} deg): give the "
-            "project's coordinate reference system ([site] crs = \"EPSG:...\" in session.toml, or "
-            "`trolley project set-crs`), and the engine turns true north into grid north")
+            f"{what}. That is what the grid convergence of a map projection does ({-deg:+.4f} deg here; "
+            "0.96 deg 200 km off a UTM central meridian at 28 deg N): give the project's coordinate reference "
+            "system ([site] crs = \"EPSG:...\" in session.toml, or `trolley project set-crs`), and the engine "
+            "turns true north into grid north. If the grid is a local one with true north, the initial "
+            "heading is off by that much instead")
     raise GridRotationError(
         f"{what}, after the convergence of {grid.convergence_rad * 180 / np.pi:+.4f} deg of the CRS given was "
         "applied: check the CRS (its zone) and the initial heading")
@@ -558,7 +562,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     origin = fix_enh[0].copy()
     # the filter works in a local true-north ground frame (the dead reckoning's); a projected
     # grid is turned by its convergence and scaled by its combined scale factor about the first fix
-    fix_ned = _ned(_grid_to_local(fix_enh, origin, grid), origin)
+    fix_ned = grid_to_ned(fix_enh, origin, grid)
     fix_blocks = np.clip(np.searchsorted(dr.t_s, fix_t), 0, dr.t_s.shape[0] - 1)
 
     if align.heading_source == "fixes":
@@ -639,9 +643,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     # smoothed errors at every DR block, subtracted from the dead-reckoned trajectory
     Pdiag = np.diagonal(Ps, axis1=1, axis2=2)[:, _POS]
     var_blocks = _interp_nodes(dr, nodes, Pdiag)
-    enh = _local_to_grid(_enh(ned, origin), origin, grid)
+    enh = ned_to_grid(ned, origin, grid)
     sig = np.sqrt(np.maximum(var_blocks, 0.0))
-    sigma_enh = _sigmas_to_grid(np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), grid)
+    sigma_enh = sigmas_to_grid(np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), grid)
     roll = dr_used.euler_rad()[:, 0]
     traj = Trajectory(dr.t_s, dr.travel_m, enh, sigma_enh, roll, x_blocks, odometer_m=dr.distance_m)
 
@@ -686,6 +690,12 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         "heading_sigma_deg": float(np.rad2deg(heading_sigma)),
         "nodes": int(len(nodes)),
         "observability_ranks": list(ranks) if ranks is not None else None,
+        # the project grid at the site (trolley.projection); None without a CRS
+        "crs": meta.crs,
+        "vertical_datum": meta.vertical_datum,
+        "grid_convergence_deg": float(np.rad2deg(grid.convergence_rad)) if grid is not None else None,
+        "grid_scale_factor": grid.point_scale if grid is not None else None,
+        "grid_combined_scale": grid.combined_scale if grid is not None else None,
     }
     report("done", 1.0)
     return ProcessResult(stations, traj, fixes, align, dr, ranks, config, int(len(nodes)), summary)

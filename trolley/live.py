@@ -22,9 +22,10 @@ from scipy.spatial.transform import Rotation
 
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, mounting_rotation,
                                    static_alignment, stop_levels)
-from trolley.engine import (ProcessConfig, Stations, Trajectory, _enh, _interp_nodes, _ned, _POS,
-                            error_model, filter_noise, filter_nodes, fix_covariances, fix_matrices,
-                            initial_covariance, make_stations, turn_sigmas)
+from trolley.engine import (ProcessConfig, Stations, Trajectory, _interp_nodes, _POS, error_model, filter_noise,
+                            filter_nodes, fix_covariances, fix_matrices, grid_to_ned, initial_covariance,
+                            make_stations, ned_to_grid, sigmas_to_grid, turn_sigmas)
+from trolley.projection import GridFactors, site_factors
 from trolley.session import Fixes, RawSession, SessionMeta
 from trolley.smoothers import ForwardResult, Measurements, forward_filter, gate_threshold, rts_smooth
 
@@ -95,9 +96,13 @@ class LiveProcessor:
     meta : session metadata (site, trolley, IMU and odometer figures, fix sigma).
     design : ``trolley.alignment.Alignment`` or None.
     config : processing settings (the same as the final processing).
+    grid : the project grid at the site (``trolley.projection.GridFactors``, e.g. at the CPIII
+        centroid); None with ``meta.crs`` takes it at the first fix; without a CRS the grid is a
+        local true-north map, as in :func:`trolley.engine.process_session`.
     """
 
-    def __init__(self, meta: SessionMeta, design=None, config: ProcessConfig = ProcessConfig()):
+    def __init__(self, meta: SessionMeta, design=None, config: ProcessConfig = ProcessConfig(),
+                 grid: GridFactors | None = None):
         if meta.imu is None:
             raise ValueError("the session has no IMU figures: the filter needs them")
         self.meta = meta
@@ -115,6 +120,7 @@ class LiveProcessor:
         self._P0 = None
         self._origin = None
         self._p0 = None
+        self._grid = grid
         self._noise = filter_noise(meta, config)
         self._misalign = meta.trolley.imu_misalignment_rad
         self._lever = np.asarray(meta.trolley.prism_lever_arm_m, dtype=float)
@@ -201,12 +207,14 @@ class LiveProcessor:
         lever_ned = att.apply(self._lever)
         if not self._fixes:
             self._origin = enh.copy()
-            self._p0 = _ned(enh[None], self._origin)[0] - lever_ned - dr.position_ned_m[block]
+            if self._grid is None and self.meta.crs:
+                self._grid = site_factors(self.meta.crs, enh[None])
+            self._p0 = grid_to_ned(enh[None], self._origin, self._grid)[0] - lever_ned - dr.position_ned_m[block]
             x_prev, P_prev, b_prev = np.zeros(8), self._P0, block
         else:
             prev = self._fixes[-1]
             x_prev, P_prev, b_prev = prev.x, prev.P, prev.block
-        z = self._p0 + dr.position_ned_m[block] + lever_ned - _ned(enh[None], self._origin)[0]
+        z = self._p0 + dr.position_ned_m[block] + lever_ned - grid_to_ned(enh[None], self._origin, self._grid)[0]
         if self._fixes and block > b_prev:
             sub = _slice(dr, b_prev, block + 1)
             nodes = filter_nodes(sub, np.array([0, block - b_prev]), self.config.node_spacing_m,
@@ -223,6 +231,8 @@ class LiveProcessor:
                              force_accept=np.array([force_accept]))
         y = fwd.innovation[0]
         innov = np.array([y[1], y[0], -y[2]])
+        if self._grid is not None:
+            innov = self._grid.local_to_grid(innov)
         accepted = bool(fwd.accepted[0])
         thr = gate_threshold(self.config.gate_probability, 3) if self.config.gate_probability else np.inf
         if accepted:
@@ -283,8 +293,9 @@ class LiveProcessor:
         sig = np.sqrt(np.maximum(var, 0.0))
         roll_err = np.interp(sub.t_s, [sub.t_s[0], last.t_s], [prev.roll_error_rad, last.roll_error_rad])
         roll = sub.euler_rad()[:, 0] - roll_err
-        traj = Trajectory(sub.t_s, sub.travel_m, _enh(ned, self._origin),
-                          np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), roll, xb, odometer_m=sub.distance_m)
+        traj = Trajectory(sub.t_s, sub.travel_m, ned_to_grid(ned, self._origin, self._grid),
+                          sigmas_to_grid(np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), self._grid), roll, xb,
+                          odometer_m=sub.distance_m)
         gt, gm = self._gauge.arrays(2)
         session = RawSession(self.meta, np.empty(0), np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty(0),
                              self.fixes, gt if gt.size else None, gm if gm.size else None)
@@ -318,7 +329,7 @@ class LiveProcessor:
         else:
             x, P = last.x, last.P
         ned = self._p0 + dr.position_ned_m[b] - x[_POS]
-        E, N, H = _enh(ned[None], self._origin)[0]
+        E, N, H = ned_to_grid(ned[None], self._origin, self._grid)[0]
         chain = float(self.design.project(np.array([E]), np.array([N]), np.array([H])).chainage_m[0]) \
             if self.design is not None else float(dr.travel_m[b])
         sigma_h = float(np.sqrt(0.5 * (P[0, 0] + P[1, 1])))

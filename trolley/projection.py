@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["CrsError", "GridFactors", "crs_info", "grid_factors", "site_factors",
-           "gaussian_radius_m", "session_site"]
+           "gaussian_radius_m", "session_site", "same_crs"]
 
 #: A projection whose meridional and parallel scales differ by more than this is not conformal:
 #: a distance then has no single reduction to the grid.
@@ -163,6 +163,13 @@ def crs_info(text: str) -> CrsInfo:
     """
     crs, vertical = _crs(text)
     return CrsInfo(text=text.strip(), name=crs.name, epsg=crs.to_epsg(), vertical_datum=vertical)
+
+
+def same_crs(a: str, b: str) -> bool:
+    """Whether two CRS texts (EPSG code, WKT, PROJ string) define the same CRS (axis order aside)."""
+    from pyproj import CRS
+
+    return CRS.from_user_input(a).equals(CRS.from_user_input(b), ignore_axis_order=True)
 
 
 def gaussian_radius_m(latitude_rad: float, semi_major_m: float = 6378137.0,

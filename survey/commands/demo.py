@@ -133,6 +133,7 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     from dataclasses import replace
 
     from survey.commands.engine import fail, print_summary, run_process
+    from survey.commands.progress import progress_bar
     from survey.commands.simulate import ProjectFileError, project_settings
     from survey.export import export_outputs
     from survey.sessionio import write_session, write_truth_csv
@@ -166,8 +167,10 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     result, _, written = run_process(session_dir, out / "processed")
     print_summary(result, written, con)
     err.print("3/4 survey sheet and plots ...")
-    exported = export_outputs(out / "processed", out / "survey.xlsx", None, out / "plots",
-                              project_name=project.resolve().name, session_name="simulated (direct)")
+    with progress_bar("computing the track geometry", err) as report:
+        exported = export_outputs(out / "processed", out / "survey.xlsx", None, out / "plots",
+                                  project_name=project.resolve().name, session_name="simulated (direct)",
+                                  progress=report)
     err.print("4/4 comparing with the simulator's truth ...")
     accuracy = _accuracy_line(con, result, sim.truth)
     con.print(f"\nraw session:  {session_dir}\ntrack:        {written.track_csv}\n"

@@ -23,7 +23,8 @@ def fail(message: str, code: int = 2) -> None:
     """Print a one-line error to stderr (literally: no markup from the data) and exit non-zero."""
     from rich.text import Text
 
-    err.print(Text.assemble(("error:", "bold red"), " ", message), highlight=False, soft_wrap=True)
+    # the message as text, not markup: "[site] crs" must print as written
+    err.print(Text.assemble(("error: ", "bold red"), message), highlight=False, soft_wrap=True)
     raise typer.Exit(code=code)
 
 

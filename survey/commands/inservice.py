@@ -23,8 +23,10 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
+from survey import jsonout
 from survey.atomicwrite import write_with
 from survey.commands.inservice_simulate import simulate_cmd
+from survey.commands.options import JsonAlways
 
 console = Console(stderr=True)
 
@@ -68,7 +70,8 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
     ax.set_xlabel("chainage [m]  (alignment positive to the right)")
     for a in axes:
         a.grid(True, lw=0.4, alpha=0.6)
-        a.legend(loc="upper right", fontsize=8)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     try:
         write_with(path, lambda tmp: fig.savefig(tmp))
@@ -81,7 +84,7 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
     from openpyxl import Workbook
 
     from survey.sheet_text import put_text
-    from survey.workbook import _header, _num, _print_setup
+    from survey.workbook import _header, _num
 
     wb = Workbook()
     ws = wb.active
@@ -104,7 +107,10 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
         _num(ws, i, 2, a, "0.000")
         _num(ws, i, 3, g, "0.000")
     ws.freeze_panes = "A5"
-    _print_setup(ws, landscape=False)
+    ws.page_setup.paperSize = ws.PAPERSIZE_A4
+    ws.page_setup.fitToWidth, ws.page_setup.fitToHeight = 1, 0
+    ws.sheet_properties.pageSetUpPr.fitToPage = True
+    ws.print_title_rows = "4:4"
     write_with(path, lambda tmp: wb.save(tmp))
 
 
@@ -117,6 +123,7 @@ def process_cmd(
         "--model", help="model.toml from `trolley inservice calibrate` (default: the recording's nominal "
                         "parameters with default noise)")] = None,
     smoother: Annotated[str, typer.Option("--smoother", help="rts (forward filter + RTS smoother) or none")] = "rts",
+    json_output: JsonAlways = False,
 ) -> None:
     """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
     import numpy as np
@@ -189,13 +196,14 @@ def process_cmd(
         out.mkdir(parents=True, exist_ok=True)
         _atomic_write_csv(out / "irregularities.csv",
                           pd.DataFrame({"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}), "%.6g")
-        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {recording.name}")
+        run_name = f"{recording.resolve().parent.name}/{recording.name}"
+        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {run_name}")
         _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
                     grid, est_mm, sig_mm)
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    print(json.dumps(summary))
+    jsonout.echo(summary)
 
 
 @inservice_app.command("calibrate")
@@ -205,6 +213,7 @@ def calibrate_cmd(
     length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
     import numpy as np
@@ -230,10 +239,10 @@ def calibrate_cmd(
         write_model(out, mdl)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    print(json.dumps({"out": str(out), "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
-                      "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
-                      "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
-                      "cpu_s": round(time.process_time() - t0, 2)}))
+    jsonout.echo({"out": out, "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
+                  "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
+                  "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
+                  "cpu_s": round(time.process_time() - t0, 2)})
 
 
 def register(app: typer.Typer) -> None:

@@ -8,13 +8,15 @@ harmonic amplitude in mm. A JSON summary goes to stdout, errors to stderr (exit 
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+
+from survey import jsonout
+from survey.commands.options import JsonAlways
 
 console = Console(stderr=True)
 
@@ -48,6 +50,7 @@ def simulate_cmd(
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
     sensor_gravity: Annotated[bool, typer.Option(
         "--sensor-gravity", help="accelerometers also sense g x their roll (not in the paper)")] = False,
+    json_output: JsonAlways = False,
 ) -> None:
     """Write a synthetic in-service recording (wheelset and bogie frame inertial sensors) plus truth.csv."""
     from survey import inservice_io
@@ -80,7 +83,7 @@ def simulate_cmd(
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     import numpy as np
-    print(json.dumps({
+    jsonout.echo({
         "out": str(out), "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m, "samples": int(len(run.t_s)),
         "curvature_1_m": curvature_1_m, "conicity_factor": conicity_factor, "creep_factor": creep_factor,
         "noise": not no_noise, "vertical": not no_vertical, "random_lateral": not no_random_lateral,
@@ -88,4 +91,4 @@ def simulate_cmd(
         "first_lateral_mode_hz": mode.frequency_hz, "first_lateral_mode_wavelength_m": mode.wavelength_m,
         "alignment_rms_mm": float(units.m_to_mm(np.sqrt(np.mean(run.alignment_m ** 2)))),
         "max_wheel_rail_shift_mm": float(units.m_to_mm(run.max_shift_m)),
-        "step_s": run.step_s, "cpu_s": round(cpu, 2)}))
+        "step_s": run.step_s, "cpu_s": round(cpu, 2)})

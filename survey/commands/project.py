@@ -73,6 +73,8 @@ def new(
     """
     import dataclasses
 
+    import numpy as np
+
     from survey.cpiii import CpiiiError, read_cpiii_file
     from survey.names import UnsafeNameError, check_name, inside
     from survey.store import ProjectSettings, ProjectStore, StoreError, alignment_record_from_text, project_path
@@ -136,6 +138,16 @@ def new(
     except ToleranceError as e:
         fail(f"{tolerance_option}: {e}")
     settings = dataclasses.replace(settings, tolerance_set=tolerance_set)
+    toml_crs = None
+    if settings.crs:
+        from trolley.projection import CrsError, crs_info, site_factors
+
+        try:
+            toml_crs = crs_info(settings.crs)
+            if points:
+                site_factors(toml_crs.text, np.array([[p.e_m, p.n_m, p.h_m] for p in points]))
+        except CrsError as e:
+            fail(f"{folder / 'project.toml'}: key site.crs: {e}")
     try:
         store = ProjectStore.create(root, name, settings)
     except StoreError as e:
@@ -145,12 +157,21 @@ def new(
             store.add_alignment(design)
         if points is not None:
             store.add_cpiii_points(points)
+        # a project.toml's [site] crs wins (checked before the store was created); else the
+        # design's <CoordinateSystem>
+        crs_notes = []
+        if toml_crs is not None:
+            apply_crs(store, toml_crs, settings.vertical_datum or toml_crs.vertical_datum or None)
+        elif design is not None:
+            crs_notes = design_crs(store, folder / design_name, xml)
     say(f"created project {name}: {store.path}")
     if design is not None:
         say(f"  design {design.name!r} ({design.file_name}): {design.element_count} elements, chainage "
             f"{design.chainage_start_m:.3f} .. {design.chainage_end_m:.3f} m")
     if points is not None:
         say(f"  {len(points)} CPIII points from {points[0].source}")
+    for note in crs_notes:
+        say(f"  note: {note}")
     if json_output:
         jsonout.echo({"project": name, "store": store.path,
                       "design": None if design is None else {
@@ -214,7 +235,8 @@ def import_alignment(
         except ValueError as e:  # LandXmlError names the element
             fail(f"{file}: {e} (nothing imported)")
         store.add_alignment(rec)
-    for note in rec.notes:
+        crs_notes = design_crs(store, file, text)
+    for note in (*rec.notes, *crs_notes):
         say(f"{file}: note: {note}")
     say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
               f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
@@ -222,7 +244,7 @@ def import_alignment(
     if json_output:
         jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
                       "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m,
-                      "notes": list(rec.notes)})
+                      "notes": list(rec.notes), "crs_notes": list(crs_notes)})
 
 
 @project_app.command("import-session")
@@ -309,15 +331,11 @@ def set_crs(
     vertical_datum: Annotated[str | None, typer.Option(
         "--vertical-datum", help="name of the height datum of H [default: the vertical part of a compound CRS]")] = None,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Set the project's CRS and vertical datum. The site latitude, grid convergence and scale
     factor follow from it at the CPIII centroid (trolley/projection.py)."""
-    import dataclasses
-
-    import numpy as np
-
-    from trolley import units
-    from trolley.projection import CrsError, crs_info, site_factors
+    from trolley.projection import CrsError, crs_info
 
     try:
         info = crs_info(crs)
@@ -327,17 +345,47 @@ def set_crs(
     if vd is not None and not vd.strip():
         fail("--vertical-datum: empty name")
     with _open(root, name) as store:
-        settings = dataclasses.replace(store.settings(), crs=info.text, vertical_datum=vd)
-        pts = store.cpiii_points()
-        grid = None
-        if pts:
-            try:
-                grid = site_factors(info.text, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
-            except CrsError as e:
-                fail(f"CRS {info.text} at the CPIII centroid: {e}")
-            settings = dataclasses.replace(settings, latitude_rad=grid.latitude_rad)
-        store.set_settings(settings)
-    say(f"project {name}: CRS {info.text} ({info.name}), vertical datum {vd or 'not given'}")
+        try:
+            grid = apply_crs(store, info, vd)
+        except CrsError as e:
+            fail(f"CRS {info.text} at the CPIII centroid: {e}")
+    say_crs(f"project {name}", info, vd, grid)
+    if json_output:
+        jsonout.echo({"project": name, "crs": info.text, "crs_name": info.name, "vertical_datum": vd,
+                      "cpiii_centroid": grid})
+
+
+def apply_crs(store, info, vertical_datum: str | None):
+    """Make ``info`` (``trolley.projection.CrsInfo``) the project's CRS and ``vertical_datum`` its
+    height datum; the settings' latitude becomes the CRS's at the CPIII centroid. Returns the grid
+    factors there (``GridFactors``), or None without CPIII points.
+
+    Raises
+    ------
+    trolley.projection.CrsError
+        The CPIII centroid lies outside the CRS's domain (nothing is stored).
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from trolley.projection import site_factors
+
+    settings = dataclasses.replace(store.settings(), crs=info.text, vertical_datum=vertical_datum)
+    pts = store.cpiii_points()
+    grid = None
+    if pts:
+        grid = site_factors(info.text, np.array([[p.e_m, p.n_m, p.h_m] for p in pts]))
+        settings = dataclasses.replace(settings, latitude_rad=grid.latitude_rad)
+    store.set_settings(settings)
+    return grid
+
+
+def say_crs(who: str, info, vertical_datum: str | None, grid) -> None:
+    """The CRS now in force and its factors at the CPIII centroid, on stderr."""
+    from trolley import units
+
+    say(f"{who}: CRS {info.text} ({info.name}), vertical datum {vertical_datum or 'not given'}")
     if grid is None:
         say("  no CPIII points yet: the site latitude, convergence and scale follow from them once imported")
     else:
@@ -345,6 +393,45 @@ def set_crs(
             f"{units.rad_to_deg(grid.longitude_rad):.6f} deg, grid convergence {units.rad_to_deg(grid.convergence_rad):+.6f} deg, "
             f"point scale {grid.point_scale:.9f}, height reduction {grid.height_reduction:.9f}, "
             f"combined scale {grid.combined_scale:.9f}")
+
+
+def design_crs(store, file, text: str) -> list[str]:
+    """Read the design's LandXML ``<CoordinateSystem>`` (``trolley.landxml.coordinate_system``).
+
+    A project without a CRS takes the file's (an EPSG code, WKT or PROJ string that pyproj knows),
+    with its vertical datum; a project whose CRS differs keeps its own. Returns the notes to print
+    (what was taken, or why not).
+    """
+    from trolley.landxml import coordinate_system
+    from trolley.projection import CrsError, crs_info, same_crs
+
+    try:
+        cs = coordinate_system(text)
+    except ValueError as e:
+        return [f"<CoordinateSystem> not read: {e}"]
+    if cs is None:
+        return []
+    label = cs.name or cs.horizontal_crs_name or "(no name)"
+    if cs.crs_text is None:
+        return [f"<CoordinateSystem> {label!r} gives no epsgCode and no WKT or PROJ definition: the project CRS "
+                f"is {store.settings().crs or 'not set'} (trolley project set-crs)"]
+    try:
+        info = crs_info(cs.crs_text)
+    except CrsError as e:
+        return [f"<CoordinateSystem> {label!r}: {e}; the project CRS is unchanged"]
+    current = store.settings().crs
+    if current:
+        if same_crs(current, info.text):
+            return []
+        return [f"<CoordinateSystem> {info.text} ({info.name}) differs from the project's CRS {current}: the project "
+                "keeps its own (trolley project set-crs to change it)"]
+    vd = cs.vertical_datum or cs.vertical_crs_name or info.vertical_datum or None
+    try:
+        grid = apply_crs(store, info, vd)
+    except CrsError as e:
+        return [f"<CoordinateSystem> {info.text}: at the CPIII centroid: {e}; the project CRS is unchanged"]
+    say_crs(f"{file}: <CoordinateSystem>", info, vd, grid)
+    return [f"the project's CRS is now {info.text} from the file's <CoordinateSystem>"]
 
 
 @project_app.command("set")
@@ -357,6 +444,7 @@ def set_field(
                                               "\"\" clears the field")],
     project: ProjectOption = ...,
     root: RootOption = Path("projects"),
+    json_output: JsonFlag = False,
 ) -> None:
     """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them)."""
     from survey.surveyheader import HEADER_FIELDS
@@ -368,6 +456,8 @@ def set_field(
             fail(str(e))
     label = HEADER_FIELDS[key].label
     say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
+    if json_output:
+        jsonout.echo({"project": project, "key": key, "label": label, "value": text or None})
 
 
 @project_app.command("show")

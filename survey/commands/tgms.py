@@ -35,6 +35,16 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _read_recording(folder: Path):
+    """The recording in ``folder``; a bad folder is one line naming the file, exit 2."""
+    from survey import tgms_io
+
+    try:
+        return tgms_io.read_recording(folder)
+    except tgms_io.TgmsFormatError as exc:
+        _fail(str(exc))
+
+
 def parse_band(text: str, step_m: float):
     """``--band``: D1, D2, D3, none, SHORT-LONG (e.g. 3-25) or LONG (a user cut-off: keeps the
     wavelengths from 2.5 steps up to LONG, i.e. removes the longer ones). Returns (short_m, long_m)
@@ -245,10 +255,7 @@ def process_cmd(
         console.print(f"[yellow]warning:[/yellow] --orientation {escape(orientation)} is ignored: the 12-state smoother "
                       "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
     with progress_bar("reading the recording", console) as report:
-        try:
-            rec = tgms_io.read_recording(folder)
-        except tgms_io.TgmsFormatError as exc:
-            _fail(str(exc))
+        rec = _read_recording(folder)
         try:
             res = process(rec, params, step_m=step, match_curves=not no_curve_matching,
                           progress=share(report, 0.1, 1.0))
@@ -321,21 +328,20 @@ def tune_cmd(
     --evaluations is a hard limit on the filter runs."""
     import numpy as np
 
-    from survey import tgms_io
+    from survey.commands.progress import progress_bar
     from trolley.tgms.tuning import tune_cml
+
     try:
         check_outputs([("--out", out)], inputs=[folder / "tgms.toml"], made_before=_params_file)
     except OutputError as exc:
         _fail(str(exc))
-    try:
-        rec = tgms_io.read_recording(folder)
-    except tgms_io.TgmsFormatError as exc:
-        _fail(str(exc))
-    try:
-        with console.status("tuning (maximum likelihood)"):
-            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box)
-    except ValueError as exc:
-        _fail(f"{folder}: {exc}")
+    with progress_bar("reading the recording", console) as report:
+        rec = _read_recording(folder)
+        try:
+            params, info = tune_cml(rec, max_evaluations=evaluations, seed=seed, model=model, box=box,
+                                    progress=report)
+        except ValueError as exc:
+            _fail(f"{folder}: {exc}")
     if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
         _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
     try:

@@ -217,7 +217,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
         else:
             design = self.store.alignment()
-            meta = self.settings.session_meta("alignment.xml" if design else None)
+            meta = self.store.session_meta("alignment.xml" if design else None)
             if self.world is not None:
                 meta = replace(meta, initial_heading_rad=self.world.sim.session.meta.initial_heading_rad,
                                static_s=self.world.sim.session.meta.static_s)
@@ -271,7 +271,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 # a scripted crew: the world never runs more than SIM_STEP_S ahead of the data, also
                 # before the loop (device check, and on resume the replay and the restored setup,
                 # which take wall-clock time in which the trolley would otherwise move on unseen)
-                self.world.clock.limit = t_start + SIM_STEP_S
+                # (the streams restart at their own last stored samples: every one must reach its own)
+                self.world.clock.limit = max(last.values(), default=0.0) + SIM_STEP_S
             tb.imu_week, tb.imu_sow0_s = IMU_WEEK, IMU_SOW0
             tb.gauge_origin_s = self.world.gauge_t0_s
             if tb.odo_count0 is None:

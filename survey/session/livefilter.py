@@ -32,7 +32,8 @@ class LiveFiltering:
             except ImportError:
                 self._live = False
                 return None
-            self._live = LiveProcessor(self.rec.meta, self._design)
+            self._live = LiveProcessor(self.rec.meta, self._design, grid=self.store.site_grid()
+                                       if self.rec.meta.crs else None)
             imu = self.acq.buffers.array("imu", 7)
             t0 = self.static_start_s if self.static_start_s is not None else imu[0, 0]
             sel = (imu[:, 0] >= t0) & (imu[:, 0] <= t0 + self.rec.meta.static_s)

@@ -170,7 +170,7 @@ def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_
 
 
 def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measurements,
-              skip_m: float = 30.0) -> EstimatorModel:
+              skip_m: float = 30.0, smoother: str = "rts") -> EstimatorModel:
     """Identify the SM and tune the filter on one reference run of the complete model.
 
     Steps: (1) p_opt by least squares (Eq. 6) on :data:`CALIBRATION_CHANNELS`; (2) Q and R from
@@ -188,6 +188,8 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
     states : (N, 7) CM states [y, psi, y_f, y', psi', y_f', xi] of the instrumented bodies.
     measurements : (N, 3) sensor channels of the run (with noise).
     skip_m : chainage at the start left out of the tuning (the filter's start-up).
+    smoother : the estimator the tuning is for: "rts" (filter + smoother) or "none" (forward
+        filter only, as the paper).
 
     Returns
     -------
@@ -211,7 +213,7 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
 
     def run(logf):
         Qt, Rt = tuned_covariances(Q, R, *np.exp(logf))
-        return estimate(p, t[use], s_m[use], speed_m_s, Zm[use], Q=Qt, R=Rt)
+        return estimate(p, t[use], s_m[use], speed_m_s, Zm[use], Q=Qt, R=Rt, smoother=smoother)
 
     def cost(logf):
         e = run(logf)

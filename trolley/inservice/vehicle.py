@@ -486,10 +486,13 @@ def modes(p: VehicleParameters, speed_m_s: float) -> list[Mode]:
 def first_lateral_mode(p: VehicleParameters, speed_m_s: float) -> Mode:
     """The first lateral mode of the bogie (resonance case of Munoz 2021 Sec. V-E).
 
-    The lowest-frequency mode whose kinetic energy is mostly lateral/yaw/roll (> 50 %) and mostly in
-    the bogie frames and wheelsets (> 50 %); the car body's sway and yaw modes are below it.
+    The lowest-frequency mode whose kinetic energy is mostly lateral/yaw/roll (> 50 %) with more
+    than 5 % of it in the bogie frames and wheelsets. The bogies' kinematic modes couple with the
+    car body's sway and yaw when their frequencies are close (shares of 10-60 % in the bogies),
+    while the car body's own modes keep at most 2 % there (checked at 10, 20 and 40 m/s, with the
+    conicity at 90 % and the Kalker coefficients at 50 %).
     """
-    cands = [m for m in modes(p, speed_m_s) if m.lateral_share > 0.5 and m.bogie_share > 0.5]
+    cands = [m for m in modes(p, speed_m_s) if m.lateral_share > 0.5 and m.bogie_share > 0.05]
     if not cands:
         raise ValueError("first_lateral_mode: no lateral bogie mode found")
     return cands[0]

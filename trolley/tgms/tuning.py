@@ -37,6 +37,7 @@ What is tuned (``model``):
 from __future__ import annotations
 
 import dataclasses
+from typing import Callable
 
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
@@ -147,7 +148,8 @@ def _maximise(negll, names, base, bounds, max_evaluations, seed):
 
 
 def tune_cml(rec: Recording, base: TgmsParams = TgmsParams(), max_evaluations: int = 60,
-             seed: int = 0, decades: float = 4.0, model: str = "kf", box: str = "relative"):
+             seed: int = 0, decades: float = 4.0, model: str = "kf", box: str = "relative",
+             progress: Callable[[str, float], None] | None = None):
     """CML estimate of the noise parameters for one recording.
 
     Parameters
@@ -159,6 +161,8 @@ def tune_cml(rec: Recording, base: TgmsParams = TgmsParams(), max_evaluations: i
     decades : half-width of the "relative" box in decades.
     model : "kf", "ltv" or "ekf" (see the module docstring).
     box : "relative" or "absolute" (Eq. 17), see :func:`search_box`.
+    progress : optional ``progress(step, fraction)``: the vision first (fraction 0), then the
+        likelihood evaluations against ``max_evaluations`` (the CLI's progress bar).
 
     Returns
     -------
@@ -191,6 +195,8 @@ def tune_cml(rec: Recording, base: TgmsParams = TgmsParams(), max_evaluations: i
     s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else rec.alignment.start_chainage_m
     odo = odometry(t, rec.enc_t_s, rec.enc_count, cfg.encoder.metres_per_count, s0, w[:, 2], rec.alignment,
                    windows=base.odometry_windows, method=base.odometry_method)
+    if progress is not None:
+        progress("vision (profile fit of every frame)", 0.0)
     vis = run_vision(rec)
     if not vis.ok.any():
         raise ValueError("no camera frame could be used (every frame flagged by the profile fit), "
@@ -199,8 +205,15 @@ def tune_cml(rec: Recording, base: TgmsParams = TgmsParams(), max_evaluations: i
     kin = track_kinematics(rec.alignment, t, odo.s_m, np.array([0.0, 0.0, r0_z]))
     kin.v_m_s, kin.a_m_s2 = odo.v_m_s, odo.a_m_s2
 
+    calls = 0
+
     def run(names, stage_base, ll_of, constraint, budget):
         def negll(x):
+            nonlocal calls
+            calls += 1
+            if progress is not None:
+                progress(f"likelihood, evaluation {calls} of at most {max_evaluations}",
+                         min(calls / max_evaluations, 1.0))
             p = dataclasses.replace(stage_base, **{k: float(10 ** v) for k, v in zip(names, x)})
             if not constraint(p):
                 return 1e30

@@ -1,0 +1,110 @@
+"""``trolley inservice process``: outputs, signs in the files, J/Jrel in summary.json, the model file
+round trip and clear errors (exit 2, nothing written)."""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+
+import numpy as np
+import pandas as pd
+import pytest
+from test_inservice_io import _app
+from typer.testing import CliRunner
+
+from survey import inservice_io as io
+from survey.inservice_model import ModelFileError, model_toml_text, read_model, write_model
+from trolley.inservice.identification import EstimatorModel
+from trolley.inservice.model import ModelParameters, simulate_response
+
+P = ModelParameters()
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A 150 m recording of the SM itself at 20 m/s (noise-free) with a 12 m harmonic alignment
+    and its truth.csv."""
+    tmp = tmp_path_factory.mktemp("ins")
+    V, dt = 20.0, 0.005
+    t = np.arange(1501) * dt
+    s = V * t
+    xi = 1e-3 * np.sin(2 * np.pi * s / 12.0)
+    _, Z = simulate_response(P, V, t, xi)
+    rec = io.InserviceRecording(
+        nominal=asdict(P), vehicle_extra={"half_wheelbase_m": 1.28, "half_bogie_spacing_m": 9.5,
+                                          "m_frame_kg": 2615.0, "m_body_kg": 32000.0},
+        speed_m_s=V, rate_hz=200.0, start_chainage_m=100.0, curvature_1_m=0.0, sigma_acc_m_s2=0.01,
+        sigma_gyro_rad_s=5e-4, wheelset_sensor_m=(10.78, 1.0, 0.46), frame_sensor_m=(9.5, 0.0, 0.6),
+        t_s=t, s_m=s + 100.0, speed_arr_m_s=np.full_like(t, V), wheelset_ay_m_s2=Z[:, 0],
+        wheelset_wz_rad_s=Z[:, 1], frame_ay_m_s2=Z[:, 2])
+    io.write_recording(tmp / "recording", rec)
+    io.write_truth(tmp / "truth.csv", s + 100.0, xi, np.zeros_like(s), 0.0)
+    return tmp
+
+
+def test_process_writes_outputs_with_accuracy(recording, tmp_path):
+    out = tmp_path / "out"
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(recording / "recording"), "--out", str(out),
+                                      "--truth", str(recording / "truth.csv")])
+    assert res.exit_code == 0, res.output
+    for f in ("irregularities.csv", "summary.json", "alignment.png", "inservice.xlsx"):
+        assert (out / f).is_file(), f
+    df = pd.read_csv(out / "irregularities.csv")
+    assert list(df.columns) == ["s_m", "alignment_mm", "sigma_alignment_mm"]
+    assert df["s_m"].iloc[0] == 100.0 and np.allclose(np.diff(df["s_m"]), 0.25)
+    # files carry alignment positive to the RIGHT: the estimate matches minus the internal truth
+    s = df["s_m"].to_numpy()
+    truth_right_mm = -np.sin(2 * np.pi * (s - 100.0) / 12.0)
+    inner = (s > 130.0) & (s < 230.0)
+    assert np.sqrt(np.mean((df["alignment_mm"].to_numpy() - truth_right_mm)[inner] ** 2)) < 0.1
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["accuracy"]) == {"D1", "D2", "D3", "3-200"}
+    assert summary["accuracy"]["D1"]["Jrel"] < 0.08
+    assert summary["accuracy"]["D1"]["rms_true_mm"] == pytest.approx(1 / np.sqrt(2), rel=0.01)
+    from openpyxl import load_workbook
+    ws = load_workbook(out / "inservice.xlsx").active
+    assert ws.cell(1, 1).value == "recording" and ws.cell(4, 2).value == "alignment_mm"
+    assert ws.cell(5, 1).value == 100.0 and ws.max_row == 4 + len(df)
+
+
+def test_process_forward_filter_only_and_without_truth(recording, tmp_path):
+    out = tmp_path / "out"
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(recording / "recording"), "--out", str(out),
+                                      "--smoother", "none"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["smoother"] == "none" and "accuracy" not in summary
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--smoother", "ukf"], "--smoother must be rts or none"),
+    (["--truth", "MISSING"], "truth.csv"),
+    (["--model", "MISSING"], "file not found"),
+])
+def test_process_refuses_bad_input_without_output(recording, tmp_path, args, message):
+    out = tmp_path / "out"
+    args = [a.replace("MISSING", str(tmp_path / "nope" / ("truth.csv" if "truth" in message else "model.toml")))
+            for a in args]
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(recording / "recording"), "--out", str(out), *args])
+    assert res.exit_code == 2
+    assert message in res.stderr
+    assert "Traceback" not in res.output
+    assert not out.exists()
+
+
+def test_model_file_round_trip_and_errors(tmp_path):
+    m = EstimatorModel(P.with_opt([1e6, 2e4, 3e6, 4e4]), np.diag(np.arange(1.0, 8.0) * 1e-9),
+                       np.diag([1e-4, 2.5e-7, 1e-4, 0.09]), 0.005, 0.8, 0.1, 30.0, 0.3)
+    write_model(tmp_path / "model.toml", m)
+    r = read_model(tmp_path / "model.toml")
+    assert r.params == m.params and np.array_equal(r.Q, m.Q) and np.array_equal(r.R, m.R)
+    assert (r.dt_s, r.sigma_scale, r.q_xi_factor) == (0.005, 0.8, 30.0)
+    # at another rate the per-step Q scales with dt, the virtual measurement's pull per second is kept
+    h = r.at_dt(0.0025)
+    assert np.allclose(h.Q, m.Q / 2) and h.R[3, 3] == pytest.approx(2 * m.R[3, 3]) and h.R[0, 0] == m.R[0, 0]
+    bad = model_toml_text(m).replace("kx = 1000000.0", 'kx = "stiff"')
+    (tmp_path / "bad.toml").write_text(bad)
+    with pytest.raises(ModelFileError, match="bad.toml: parameters.kx must be a finite number"):
+        read_model(tmp_path / "bad.toml")
+    (tmp_path / "bad2.toml").write_text(model_toml_text(m).replace("q_diagonal = [", "q_diagonal = [1.0, "))
+    with pytest.raises(ModelFileError, match="noise.q_diagonal must be 7"):
+        read_model(tmp_path / "bad2.toml")
