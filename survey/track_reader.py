@@ -184,6 +184,12 @@ def _read_csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
     if not rows:
         raise ExportInputError(f"{path}: empty file (no header row)")
     header = [h.strip() for h in rows[0]]
+    for i, r in enumerate(rows[1:], start=2):
+        if len(r) > len(header) and any(c.strip() for c in r[len(header):]):
+            # more cells than columns: a decimal comma ("0,5") splits a number in two, and the
+            # cells after it would be read into the wrong columns (trolley process refuses it too)
+            raise ExportInputError(f"{path}: row {i}: {len(r)} cells, the header has {len(header)} columns "
+                                   "(a decimal comma? use a point: 0.5)")
     body = [r for r in rows[1:] if any(c.strip() for c in r)]
     return header, body
 

@@ -221,6 +221,9 @@ PROBES: list[Probe] = [
     # ---- export -------------------------------------------------------------------------
     Probe("export/track-decimal-comma", export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", '"500123,5"')),
           ("track.csv", "5", "E_m")),
+    Probe("export/track-decimal-comma-unquoted",
+          export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", "500123,5"), "--csv", "{t}/o.csv"),
+          ("track.csv", "row 5", "decimal comma")),
     Probe("export/track-inf", export_probe(lambda p: set_cell(p / "track.csv", 6, "gauge_mm", "inf"), "--csv",
                                            "{t}/o.csv"), ("track.csv", "6", "gauge_mm")),
     Probe("export/track-1e308", export_probe(lambda p: set_cell(p / "track.csv", 6, "H_m", "1e308"), "--csv",
