@@ -347,7 +347,7 @@ PROBES: list[Probe] = [
           (t / "c.csv").write_bytes(b"point,E_m,N_m,H_m\nCP\xe91,1,2,3\n") and
           ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")], ("c.csv",)),
     Probe("project-import-cpiii/markup-label", lambda t, i: new_project(t / "r") or
-          (t / "c.csv").write_text("point,E_m,N_m,H_m\nCP[/x]1,1,2,inf\n") and
+          (t / "c.csv").write_text("id,E_m,N_m,H_m\nCP[/x]1,1,2,inf\n") and
           ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")], ("c.csv",)),
     Probe("project-import-alignment/not-xml", lambda t, i: new_project(t / "r") or
           (t / "a.xml").write_text("[blink red]hello") and
@@ -360,9 +360,11 @@ PROBES: list[Probe] = [
     # ---- survey / devices / budget / demo -----------------------------------------------
     Probe("survey-start/session-dotdot", lambda t, i: new_project(t / "r") or
           ["survey", "start", "p", "--session", "../../x", "--root", str(t / "r")], ("../../x",)),
+    Probe("survey-start/session-markup-slash", lambda t, i: new_project(t / "r") or
+          ["survey", "start", "p", "--session", "CP[/x]1", "--root", str(t / "r")], ("CP[/x]1", "path separator")),
     Probe("survey-start/no-project", lambda t, i: ["survey", "start", "nope", "--session", "s", "--root",
                                                    str(t / "r")], ("nope",)),
-    Probe("survey-start/markup-session", lambda t, i: ["survey", "start", "[blink red]", "--session", "CP[/x]1",
+    Probe("survey-start/markup-session", lambda t, i: ["survey", "start", "[blink red]", "--session", "[bold]s1",
                                                        "--root", str(t / "r")], ("[blink red]",)),
     Probe("devices-record/out-existing-file", lambda t, i: (t / "o").write_text("x") and
           ["devices", "record", "--imu-port", str(t / "nodev"), "--seconds", "1", "--out", str(t / "o")], ("o",)),

@@ -49,6 +49,8 @@ def demo(
         check_finite(speedup, "--speedup", positive=True)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--speedup") from None
+    if out is not None and out.exists() and not out.is_dir():
+        raise typer.BadParameter(f"{out}: exists and is not a folder", param_hint="--out")
     project = _demo_project()
     out = out if out is not None else project / "out"
     con = Console(stderr=True) if json_output else Console()

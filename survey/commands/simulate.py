@@ -132,6 +132,11 @@ def project_settings(project: Path):
     return kwargs, preset, xml
 
 
+def _file_or_option(key: str) -> str:
+    """The option that sets a SimulationConfig field (the same key of project.toml's [simulation])."""
+    return {"imu_rate_hz": "--rate-hz"}.get(key, "--" + key.replace("_", "-")) + f" / project.toml simulation.{key}"
+
+
 #: Memory one simulated IMU sample needs through the simulation and the writing (truth states,
 #: the six channels, noise, CSV text), bytes; one truth.csv row likewise.
 _SAMPLE_BYTES = 1024
@@ -222,14 +227,13 @@ def register(app: typer.Typer) -> None:
                            ("static_s", static_s), ("imu_rate_hz", rate_hz)):
             if value is not None:
                 kwargs[key] = value
-        for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):
-            if key in kwargs and not kwargs[key] > 0:
-                fail(f"{key.replace('_', '-')}: must be > 0, got {kwargs[key]!r}")
         try:
             for option, value in (("--length-m", length_m), ("--fix-spacing-m", fix_spacing_m),
                                   ("--rate-hz", rate_hz), ("--truth-step-m", step_m)):
                 check_finite(value, option, positive=True)
             check_finite(static_s, "--static-s", minimum=0.0)
+            for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
+                check_finite(kwargs.get(key), f"{_file_or_option(key)}", positive=True)
             check_simulation_size(SimulationConfig(**kwargs), step_m)
         except (ValueError, TypeError) as exc:
             fail(str(exc))

@@ -138,6 +138,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.session.script import ScriptError, read_script
     from survey.store import SessionEvent, StoreError
 
+    from survey.names import UnsafeNameError, check_name
+
+    try:
+        check_name("--session", session)
+    except UnsafeNameError as exc:
+        fail(str(exc))
     store = open_store(project, root)
     lock = session_lock(store.path.parent, session)
     with store, lock:
