@@ -573,3 +573,16 @@ def test_hostile_labels_are_printed_literally_and_escaped_in_fixes_csv(tmp_path,
 
     points = [f.point for f in read_fixes_csv(tmp_path / "out[blink red]" / "fixes.csv")]
     assert "=HYPERLINK(x)" in points and "CP[/x]1" in points
+
+
+def test_field_screen_shows_hostile_text_literally():
+    from rich.console import Console
+
+    from survey.session.screen import ScreenState, render
+
+    s = ScreenState()
+    s.message, s.prompt = "fix CP[/x]1 rejected [blink red]", "aim at CP[/x]1 and press Enter"
+    con = Console(record=True, width=120)
+    con.print(render(s))
+    out = con.export_text()
+    assert "fix CP[/x]1 rejected [blink red]" in out and "aim at CP[/x]1" in out

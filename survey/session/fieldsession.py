@@ -197,7 +197,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     def say(self, text: str) -> None:
         """A message on the screen and in the scroll-back."""
         self.screen.message = text
-        self.console.print(text, highlight=False)
+        self.console.print(text, highlight=False, markup=False)  # labels and paths printed as they are
 
     # ================================================================== start
     def open_session(self) -> None:

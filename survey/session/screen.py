@@ -18,6 +18,7 @@ import tty
 from dataclasses import dataclass, field
 
 from rich.console import Group
+from rich.markup import escape
 from rich.panel import Panel
 from rich.table import Table
 
@@ -62,7 +63,7 @@ def render(s: ScreenState):
     for _ in range(4):
         dev.add_column()
     for h in s.devices:
-        mark = "[green]ok[/]" if h.ok else f"[bold red]{h.message or 'fault'}[/]"
+        mark = "[green]ok[/]" if h.ok else f"[bold red]{escape(h.message or 'fault')}[/]"
         dev.add_row(h.name, mark, f"{h.samples} samples", f"{h.errors} errors")
     parts = [top, dev]
     if s.progress is not None:
@@ -71,8 +72,8 @@ def render(s: ScreenState):
     if s.last_interval:
         parts.append(s.last_interval)
     if s.message:
-        parts.append(f"[bold yellow]{s.message}[/]")
-    parts.append(f"[dim]{s.prompt}[/]")
+        parts.append(f"[bold yellow]{escape(s.message)}[/]")
+    parts.append(f"[dim]{escape(s.prompt)}[/]")
     return Panel(Group(*parts), title=f"trolley survey {s.session}")
 
 
