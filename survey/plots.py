@@ -194,12 +194,27 @@ def panel_marks(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return acc, rej, stops
 
 
-def km_axis(ax) -> None:
-    """Label a chainage x axis in km+m."""
+def km_axis(ax, rep: SurveyReport | None = None) -> None:
+    """Label a chainage x axis in km+m.
+
+    The axis runs along the internal station (the distance: no gap or fold at a station
+    equation); with ``rep`` the labels are its drawing stationing (:meth:`SurveyReport.station`)
+    and each station equation in the survey is a dashed vertical line with its text.
+    """
     from matplotlib.ticker import FuncFormatter
 
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(x, 1)))
-    ax.set_xlabel("chainage [km+m]")
+    station = (lambda x: x) if rep is None else rep.station
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(station(x), 1)))
+    ax.set_xlabel("chainage [km+m]" + (" (drawing stationing)" if rep is not None and rep.equations() else ""))
+    for s, text in ([] if rep is None else rep.equations()):
+        shown = [a for a in ax.get_figure().axes if a.get_xlim()[0] <= s <= a.get_xlim()[1]]
+        for a in shown:
+            a.axvline(s, color="black", ls="--", lw=0.8)
+        if shown:   # "1+300.000 back = 2+300.000 ahead" at the foot of the first panel (the legend is at the top)
+            label = " " + text.split(": ", 1)[1].split(" (")[0]
+            shown[0].text(s, 0.03, label, transform=shown[0].get_xaxis_transform(),
+                          fontsize=7, va="bottom", ha="left", zorder=6,
+                          bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
 
 
 def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
@@ -226,7 +241,7 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
                                  sharex=True, squeeze=False)
         for ax, keys in zip(axes[:, 0], panels):
             draw_panel(ax, rep, keys, marks)
-        km_axis(axes[-1, 0])
+        km_axis(axes[-1, 0], rep)
         names = " / ".join(x for x in (rep.info.project, rep.info.session) if x) or rep.track_csv.name
         axes[0, 0].set_title(f"{title} - {names}")
         fig.tight_layout()

@@ -173,7 +173,7 @@ def _strip(fig, rep: SurveyReport, a: float, b: float, marks) -> None:
         leg = ax.get_legend()
         if leg is not None:
             leg.set_visible(ax is axes[0, 0])
-    km_axis(axes[-1, 0])
+    km_axis(axes[-1, 0], rep)
 
 
 def _defects(fig, rep: SurveyReport, chunk) -> None:
@@ -182,8 +182,8 @@ def _defects(fig, rep: SurveyReport, chunk) -> None:
     for i, d in chunk:
         col = by_key.get(d.column)
         conv = (lambda v: float(col.display(np.array([v]))[0])) if col else (lambda v: v)
-        rows.append([str(i), col.header if col else d.parameter, km_label(d.start_chainage_m, 3),
-                     km_label(d.end_chainage_m, 3), _fmt(d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, 3),
+        rows.append([str(i), col.header if col else d.parameter, km_label(rep.station(d.start_chainage_m), 3),
+                     km_label(rep.station(d.end_chainage_m), 3), _fmt(d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, 3),
                      _fmt(conv(d.peak)), _fmt(conv(d.limit)), col.unit if col else "", str(d.stations)])
     if not rows:
         fig.text(0.05, 0.9, "No value beyond tolerance.", fontsize=11)
@@ -204,7 +204,8 @@ def _quality(fig, rep: SurveyReport) -> None:
         return
     q0 = quals[0]
     s = rep.geometry.chainage_m
-    rows = [[str(i + 1), km_label(max(q0.start_m[i], s[0]), 1), km_label(min(q0.end_m[i], s[-1]), 1)]
+    rows = [[str(i + 1), km_label(rep.station(max(q0.start_m[i], s[0])), 1),
+             km_label(rep.station(min(q0.end_m[i], s[-1])), 1)]
             + [_fmt(q.std[i] * 1e3) for q in quals] for i in range(min(q0.start_m.size, 40))]
     ax = fig.add_axes([0.05, 0.06, 0.9, 0.84])
     _table(ax, rows, ["#", "From", "To"] + [f"SD {lab}" for _, lab in keys])
@@ -230,7 +231,8 @@ def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
                                   _fmt(p.height_m * 1e3), _fmt(p.hz_rad / arcsec, 1), _fmt(p.zenith_rad / arcsec, 1),
                                   _fmt(p.distance_m * 1e3), _fmt(p.max_standardized, 1),
                                   p.reason if (p.flagged or not p.used) else "ok"], p.flagged or not p.used))
-    out.append(("title", ["Overlap checks (new minus old station)"], False))
+    out.append(("title", ["Overlap checks: old / new fix, stations; new minus old station dE, dN, dH [mm] in the "
+                          "across, along, height columns; tolerance [mm] in the distance column; verdict"], False))
     for o in rec.overlaps:
         out.append(("point", [f"{o.old_point} / {o.new_point}", f"{o.from_station}->{o.to_station}",
                               _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), "", "",
@@ -263,7 +265,7 @@ def page_plan(rep: SurveyReport) -> list[tuple[str, callable]]:
         a, b = max(k * STRIP_M, float(s[0])), min((k + 1) * STRIP_M, float(s[-1]))
         if b <= a:
             continue
-        plan.append((f"Strip charts {km_label(a, 0)} to {km_label(b, 0)}",
+        plan.append((f"Strip charts {km_label(rep.station(a), 0)} to {km_label(rep.station(b), 0)}",
                      lambda fig, a=a, b=b: _strip(fig, rep, a, b, marks)))
     numbered = list(enumerate(rep.defects, start=1))
     chunks = [numbered[i:i + DEFECT_ROWS] for i in range(0, len(numbered), DEFECT_ROWS)] or [[]]

@@ -25,6 +25,7 @@ import zipfile
 from datetime import datetime, timezone
 from pathlib import Path
 from xml.etree import ElementTree as ET
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -99,8 +100,11 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     kv("Track file", rep.track_csv.name)
     kv("Written (UTC)", datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S"))
     kv("Stations", int(g.chainage_m.size))
-    kv("Chainage from [m]", float(g.chainage_m[0]), KM_FORMAT)
-    kv("Chainage to [m]", float(g.chainage_m[-1]), KM_FORMAT)
+    kv("Chainage from [m]", rep.station(float(g.chainage_m[0])), KM_FORMAT)
+    kv("Chainage to [m]", rep.station(float(g.chainage_m[-1])), KM_FORMAT)
+    for _, text in rep.equations():
+        kv("Station equation", f"{text}: chainages are the drawing's stationing; lengths, chords, "
+                               "twist bases, filters and sections run along the distance")
     kv("Station step [m]", float(g.step_m), "0.000")
     if g.resampled:
         kv("Note", "input chainage not uniform: values interpolated linearly onto the grid")
@@ -145,7 +149,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     r += 1
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
-    kv("Design alignment", str(rep.design_file) if rep.design_file else "none: design columns empty")
+    kv("Design alignment", rep.design_file.name if rep.design_file else "none: design columns empty")
     for name, text in conventions(cfg):
         kv(name, text)
     kv("Twist", f"cant(s) - cant(s - {cfg.twist_base_m:g} m)")
@@ -204,9 +208,13 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             put_text(ws, r, 13, "example value" + (f" ({lim.note})" if lim.note else "") if lim.example
                      else lim.source)
         r += 1
-    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 60), start=1):
+    from openpyxl.styles import Alignment
+
+    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 44), start=1):
         if j > 2:
             ws.column_dimensions[_col_letter(j)].width = w
+    for row in ws.iter_rows(min_col=13, max_col=13):      # limit sources wrap: the page stays readable
+        row[0].alignment = Alignment(wrap_text=True, vertical="top")
 
 
 #: rows 1-7 of every sheet but Track: the header block (title and six lines); the table starts at TABLE_ROW
@@ -239,21 +247,27 @@ def header_lines(rep: SurveyReport) -> list[str]:
 
     return [
         join("Project", "Session", "Line", "Track", "Client"),
-        join("Chainage", "Survey date and time", "Crew / operator", "Rail temperature [°C]"),
+        join("Chainage", "Survey date and time", "Crew / operator"),
         "   |   ".join([device("Total station", "totalstation"), device("IMU", "imu")]),
-        "   |   ".join([device("Trolley", "trolley"), f"Software: {h['Software']}"]),
+        "   |   ".join([device("Trolley", "trolley"), join("Rail temperature [°C]", "Software")]),
         join("Coordinate system", "Height datum", "Grid convergence and scale"),
         f"Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
     ]
 
 
-def _sheet_header(ws, rep: SurveyReport, title: str) -> int:
-    """Title and header block in rows 1-7 (text overflowing to the right). Returns :data:`TABLE_ROW`."""
-    from openpyxl.styles import Font
+def _sheet_header(ws, rep: SurveyReport, title: str, width: int) -> int:
+    """Title and header block in rows 1-7. Each line is merged over the sheet's ``width`` printed
+    columns and wraps inside them (two lines of room), so no text runs past the printed width
+    (LibreOffice prints such overflow on a page of its own). Returns :data:`TABLE_ROW`."""
+    from openpyxl.styles import Alignment, Font
 
     put_text(ws, 1, 1, title).font = Font(bold=True, size=13)
     for i, line in enumerate(header_lines(rep), start=2):
-        put_text(ws, i, 1, line).font = Font(size=8)
+        c = put_text(ws, i, 1, line)
+        c.font = Font(size=8)
+        c.alignment = Alignment(wrap_text=True, vertical="top")
+        ws.merge_cells(start_row=i, start_column=1, end_row=i, end_column=width)
+        ws.row_dimensions[i].height = 21
     return TABLE_ROW
 
 
@@ -267,7 +281,7 @@ def _field_only_rejections(rep: SurveyReport):
 
 
 def _defects_sheet(ws, rep: SurveyReport) -> None:
-    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section")
+    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section", 12)
     heads = ["#", "Parameter", "From [m]", "To [m]", "From [km+m]", "To [km+m]", "Length [m]", "Peak",
              "Limit", "Unit", "Stations", "Limit source"]
     _header(ws, r0, heads)
@@ -281,10 +295,11 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
         fmt = col.number_format if col else "0.000"
         _num(ws, r, 1, i)
         put_text(ws, r, 2, col.header if col else d.parameter)
-        _num(ws, r, 3, d.start_chainage_m, "0.000")
-        _num(ws, r, 4, d.end_chainage_m, "0.000")
-        _num(ws, r, 5, d.start_chainage_m, KM_FORMAT)
-        _num(ws, r, 6, d.end_chainage_m, KM_FORMAT)
+        start, end = rep.station(d.start_chainage_m), rep.station(d.end_chainage_m)   # drawing stations
+        _num(ws, r, 3, start, "0.000")
+        _num(ws, r, 4, end, "0.000")
+        _num(ws, r, 5, start, KM_FORMAT)
+        _num(ws, r, 6, end, KM_FORMAT)
         _num(ws, r, 7, d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, "0.000")
         conv = col.display if col else (lambda x: x)
         _num(ws, r, 8, float(conv(np.array([d.peak]))[0]), fmt)
@@ -303,8 +318,8 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
 
 
 #: parameters of the section-quality table (EN 13848-6 style SD): geometry column, label
-QUALITY_COLUMNS = [("level_D1_m", "Longitudinal level D1"), ("align_D1_m", "Alignment D1"),
-                   ("cant_dev_m", "Cross level (cant dev)"), ("gauge_dev_m", "Gauge dev"), ("twist_m", "Twist")]
+QUALITY_COLUMNS = [("level_D1_m", "level D1"), ("align_D1_m", "alignment D1"),
+                   ("cant_dev_m", "cross level"), ("gauge_dev_m", "gauge dev"), ("twist_m", "twist")]
 
 
 def section_table(rep: SurveyReport):
@@ -338,8 +353,8 @@ def _quality_table(ws, rep: SurveyReport, r: int) -> None:
     for i in range(q0.start_m.size):
         rr = r + 1 + i
         _num(ws, rr, 1, i + 1)
-        _num(ws, rr, 2, max(q0.start_m[i], float(rep.geometry.chainage_m[0])), KM_FORMAT)
-        _num(ws, rr, 3, min(q0.end_m[i], float(rep.geometry.chainage_m[-1])), KM_FORMAT)
+        _num(ws, rr, 2, rep.station(max(q0.start_m[i], float(rep.geometry.chainage_m[0]))), KM_FORMAT)
+        _num(ws, rr, 3, rep.station(min(q0.end_m[i], float(rep.geometry.chainage_m[-1]))), KM_FORMAT)
         _num(ws, rr, 4, int(q0.count[i]))
         for j, q in enumerate(quals, start=5):
             _num(ws, rr, j, float(q.std[i]) * 1e3, "0.00")
@@ -348,7 +363,7 @@ def _quality_table(ws, rep: SurveyReport, r: int) -> None:
 def _fixes_sheet(ws, rep: SurveyReport) -> None:
     from openpyxl.styles import PatternFill
 
-    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason")
+    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason", 13)
     if rep.fixes is None and rep.record is None:
         put_text(ws, r0, 1, "fixes.csv not found next to track.csv: no per-stop fix information")
         ws.column_dimensions["A"].width = 70
@@ -390,7 +405,7 @@ def _stations_sheet(ws, rep: SurveyReport) -> None:
 
     from trolley import units
 
-    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks")
+    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks", 10)
     for j, w in enumerate((12, 10, 12, 12, 12, 10, 10, 11, 9, 44), start=1):
         ws.column_dimensions[_col_letter(j)].width = w
     rec = rep.record
@@ -458,13 +473,14 @@ def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
     from trolley.trackgeometry import rail_values
 
     g = rep.geometry
+    station = rep.station_m
     by_key = {c.key: c for c in rep.columns}
     rails = rail_values(g)
     lat, cant = by_key["lateral_dev_m"].header.split("]")[-1].strip(), by_key["cant_m"].header.split("]")[-1].strip()
 
     def col(key):
         c = by_key[key]
-        return (c.header, c.number_format, column_values(c, g))
+        return (c.header, c.number_format, column_values(c, g, station))
 
     def mm(header, x):
         return (header, "0.00", np.round(x * 1e3, 4))
@@ -480,25 +496,32 @@ def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
 
 
 def _track_print_sheet(ws, rep: SurveyReport) -> None:
-    """The Track table for paper: a row every :data:`PRINT_STEP_M`, the centre line and each rail."""
+    """The Track table for paper: a row every :data:`PRINT_STEP_M` of drawing stationing, the
+    centre line and each rail; a text row where a station equation makes the stationing jump."""
     r0 = _sheet_header(ws, rep, f"Track (printable view, every {PRINT_STEP_M:g} m; all stations on the "
-                                "Track sheet): centre line and each rail")
+                                "Track sheet): centre line and each rail", 13)
     g = rep.geometry
     k = max(1, int(round(PRINT_STEP_M / g.step_m)))
     # stations on multiples of PRINT_STEP_M when the grid holds them, else every k-th
-    on_grid = np.isclose(np.mod(g.chainage_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
+    on_grid = np.isclose(np.mod(rep.station_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
     idx = np.flatnonzero(on_grid) if on_grid.sum() >= g.chainage_m.size // k else np.arange(0, g.chainage_m.size, k)
+    # one note row before the first printed station at or after each station equation
+    eqs = rep.equations()
+    before = np.searchsorted(g.chainage_m[idx], [s for s, _ in eqs], side="left")
+    row = r0 + 1 + np.arange(idx.size) + np.searchsorted(np.sort(before), np.arange(idx.size), side="right")
     cols = print_columns(rep)
     _header(ws, r0, [h for h, _, _ in cols])
     ws.row_dimensions[r0].height = 58
     for j, (_, fmt, v) in enumerate(cols, start=1):
         vals = v[idx].tolist()
-        for i, x in enumerate(vals, start=r0 + 1):
+        for i, x in zip(row.tolist(), vals):
             _num(ws, i, j, x, fmt)
         ws.column_dimensions[_col_letter(j)].width = 13 if j == 1 else 10.5
+    for n, (b, (_, text)) in enumerate(sorted(zip(before.tolist(), eqs))):
+        put_text(ws, r0 + 1 + b + n, 1, text)
     ws.freeze_panes = f"B{r0 + 1}"
     if not (np.isfinite(rep.geometry.columns["gauge_dev_m"]).any()):
-        put_text(ws, r0 + len(idx) + 2, 1, "gauge not measured: rail alignment values not available")
+        put_text(ws, r0 + len(idx) + len(eqs) + 2, 1, "gauge not measured: rail alignment values not available")
 
 
 #: charts on the Charts sheet: title, y-axis title, geometry columns (cant and its deviation apart:
@@ -514,8 +537,10 @@ CHARTS = [
 CHART_COLOURS = ["1F77B4", "FF7F0E", "2CA02C", "9467BD", "8C564B"]
 TOLERANCE_COLOUR = "C00000"
 #: chart size (cm) and the rows each takes: two charts per A4 landscape page below the header block
-CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 6.0, 25.0, 12
+CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 5.6, 24.0, 11
 CHARTS_PER_PAGE = 2
+#: columns of the printed Charts sheet (14 x 8.43 characters: the chart's 25 cm within the printed width)
+CHART_COLUMNS = 14
 
 #: x-axis tick labels of the charts: km+m without decimals (1+234)
 CHART_KM_FORMAT = '0"+"000'
@@ -551,8 +576,13 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     data = ws.parent["ChartData"]
     put_text(data, 1, 1, "tolerance lines of the Charts sheet: chainage [m], value")
     xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
-    s0, s1 = float(rep.geometry.chainage_m[0]), float(rep.geometry.chainage_m[-1])
-    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]")
+    station = rep.station_m    # the Track sheet's chainage column: drawing stationing
+    s0, s1 = float(station.min()), float(station.max())
+    for j in range(1, CHART_COLUMNS + 1):    # explicit: LibreOffice's default column is wider than Excel's
+        ws.column_dimensions[_col_letter(j)].width = 8.43
+    # the header merged over fewer columns than printed: LibreOffice's columns are wider than Excel's,
+    # and a merged line reaching past the page width printed an empty page of its own
+    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]", CHART_COLUMNS - 2)
     drow = 2
     slot = 0
     for title, ytitle, keys in CHARTS:
@@ -598,11 +628,12 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
         page, k_on_page = divmod(slot, CHARTS_PER_PAGE)
         row = r0 + page * CHARTS_PER_PAGE * CHART_ROWS + k_on_page * CHART_ROWS
         if k_on_page == 0 and page > 0:
-            ws.row_breaks.append(Break(id=row - 1))
+            ws.row_breaks.append(Break(id=row - 1, max=16383))
         ws.add_chart(ch, f"A{row}")
         slot += 1
-    pages = -(-slot // CHARTS_PER_PAGE)
-    ws.print_area = f"A1:P{r0 + max(pages, 1) * CHARTS_PER_PAGE * CHART_ROWS - 1}"
+    last = r0 + max(slot - 1, 0) // CHARTS_PER_PAGE * CHARTS_PER_PAGE * CHART_ROWS \
+        + max(slot - 1, 0) % CHARTS_PER_PAGE * CHART_ROWS + CHART_ROWS - 1      # the last chart's last row
+    ws.print_area = f"A1:{_col_letter(CHART_COLUMNS)}{last}"
 
 
 def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
@@ -610,7 +641,7 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
     from openpyxl.formatting.rule import FormulaRule
     from openpyxl.styles import Font, PatternFill
 
-    _header(ws, 1, [c.header for c in rep.columns])
+    _header(ws, 1, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
     ws.row_dimensions[1].height = 58
     for j, col in enumerate(rep.columns, start=1):
         c = ws.cell(row=2, column=j, value=0.0)
@@ -663,16 +694,24 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
     repr) and one %-template per run of rows with the same empty cells (0.28-0.43 s).
     """
     n = rep.geometry.chainage_m.size
+    station = rep.station_m
     rows_num = [str(i) for i in range(2, n + 2)]
     per_col = []
     for j, col in enumerate(rep.columns, start=1):
         L = _col_letter(j)
         s = styles.get(L, "0")
-        vals = column_values(col, rep.geometry).tolist()
+        vals = column_values(col, rep.geometry, station).tolist()
         pre = f'<c r="{L}'
         mid = f'" s="{s}"><v>'
         per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v - v == 0 else ""   # NaN, +-inf -> no cell
                         for r, v in zip(rows_num, vals)])
+    eqs = rep.equations()
+    if eqs:   # the text of each station equation in the row of the first station at or after it
+        L = _col_letter(len(rep.columns) + 1)
+        at = dict(zip(np.searchsorted(rep.geometry.chainage_m, [s for s, _ in eqs], side="left").tolist(),
+                      [escape(t) for _, t in eqs]))
+        per_col.append([f'<c r="{L}{r}" t="inlineStr"><is><t>{at[i]}</t></is></c>' if i in at else ""
+                        for i, r in enumerate(rows_num)])
     return "".join(f'<row r="{r}">' + "".join(cells) + "</row>" for r, cells in zip(rows_num, zip(*per_col)))
 
 
@@ -692,7 +731,7 @@ def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float])
     xml = xml[:m.start()] + rows + xml[m.end():]
     t1 = time.perf_counter()
     timings["rows_xml"] = t1 - t0
-    last = _col_letter(len(rep.columns))
+    last = _col_letter(len(rep.columns) + (1 if rep.equations() else 0))
     xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{n + 1}"/>', xml, count=1)
     with atomic_path(path) as tmp:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as out:

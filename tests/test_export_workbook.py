@@ -170,6 +170,7 @@ def test_print_settings_and_header_block(exported):
         lines = [wb[title].cell(r, 1).value for r in range(2, HEADER_ROWS + 1)]
         assert lines[0].startswith("Project: =1+1") and "Line: not given" in lines[0]
         assert "IMU: not given" in lines[2] and "Software: trolley-survey" in lines[3]
+        assert all(len(x) < 190 for x in lines)          # fits the printed width at 8 pt
         assert lines[5].startswith("Tolerance set: built-in set hsr_ballastless_static")
         assert not any("/tmp" in x or "pytest" in x for x in lines)     # no path of this machine
     track = wb["Track"]

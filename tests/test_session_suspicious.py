@@ -96,7 +96,8 @@ class Crew:
                 (lambda: fs.pending is not None, "r"),  # FIX004
                 (lambda: self._at_next_stop(3), "f"),  # FIX005: suspicious
                 (lambda: fs.pending is not None, "a"),
-                (lambda: len(fs.interval_seconds) == 3, "e")]
+                (lambda: len(fs.interval_seconds) == 3, "e"),
+                (lambda: fs._confirm_end, "y")]  # e asks before it ends the session
         if self.step < len(plan) and plan[self.step][0]():
             self.step += 1
             return plan[self.step - 1][1]

@@ -436,10 +436,10 @@ def design_crs(store, file, text: str) -> list[str]:
 
 @project_app.command("set")
 def set_field(
-    key: Annotated[str, typer.Argument(help="header field: line, track, client, crew, totalstation, "
-                                            "totalstation_serial, totalstation_calibrated, imu, imu_serial, "
-                                            "imu_calibrated, trolley, trolley_serial, trolley_calibrated, "
-                                            "rail_temperature_c (the CRS: project set-crs)")],
+    key: Annotated[str, typer.Argument(metavar="KEY", help=(
+        "header field: line, track, client, crew, totalstation, totalstation_serial, totalstation_calibrated, "
+        "imu, imu_serial, imu_calibrated, trolley, trolley_serial, trolley_calibrated, rail_temperature_c "
+        "(checked by the store, which holds the one list; the CRS: `project set-crs`)"))],
     value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
                                               "\"\" clears the field")],
     project: ProjectOption = ...,
