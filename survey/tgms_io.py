@@ -185,7 +185,7 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         bad = ~np.isfinite(vals)
         if bad.any():
             i = int(np.argmax(bad))
-            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({col.iloc[i]!r})")
+            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({str(col.iloc[i])!r})")
         limit = PLAUSIBLE_ABS.get(c, _TGMS_PLAUSIBLE_ABS.get(c, np.inf))
         far = np.abs(vals) > limit
         if far.any():

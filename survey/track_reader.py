@@ -341,7 +341,7 @@ def read_track_file(path: Path) -> TrackFile:
     s = cols[along]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
-        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {s[i]!r} does not increase")
+        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {float(s[i])!r} does not increase")
     nan = np.full(s.size, np.nan)
     mm = units.mm_to_m
     track = TrackInput(
