@@ -60,7 +60,7 @@ def evaluate(mdl, run, smoother="rts"):
     """Estimate on one run; returns (accuracy per band, honesty, cpu seconds)."""
     kap = run.curvature_1_m if run.curvature_1_m else None
     t0 = time.process_time()
-    est = estimate(mdl.params, run.t_s, run.s_m, run.speed_m_s, sensors(run), Q=mdl.Q, R=mdl.R,
+    est = estimate(mdl.params, run.t_s, run.s_m, run.speed_m_s, sensors(run), Q=mdl.Q, R=mdl.R, S=mdl.S,
                    curvature_1_m=kap, smoother=smoother)
     cpu = time.process_time() - t0
     acc = band_accuracy(run.s_m, est.alignment_m, run.alignment_m)

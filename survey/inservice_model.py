@@ -2,7 +2,8 @@
 
 Holds a :class:`trolley.inservice.identification.EstimatorModel`: the simplified model's
 parameters (Munoz 2021 Eq. 4, with p_opt identified by Eq. 6), the diagonals of Q (per step of
-``dt_s``) and R (Eq. 26-29, tuned), the sigma scale. SI units throughout. Written atomically;
+``dt_s``) and R (Eq. 26-29, tuned), the sigma scale, and with correlated noises the full Q, R and
+their cross covariance S. SI units throughout. Written atomically;
 the reader names the file and the key of any bad value.
 """
 from __future__ import annotations
@@ -32,6 +33,11 @@ def model_toml_text(model) -> str:
               "r_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.R)) + "]",
               f"sigma_scale = {model.sigma_scale!r}", f"q_dynamics_factor = {model.q_dynamics_factor!r}",
               f"q_xi_factor = {model.q_xi_factor!r}", f"sigma_xi_virtual_m = {model.sigma_xi_virtual_m!r}"]
+    if model.S is not None:
+        lines += ["# correlated noises (identification.cross_covariance_from_residuals): full Q (7x7), R (4x4)",
+                  "# and S (7x4), row by row"]
+        lines += [f"{key} = [" + ", ".join(repr(float(v)) for v in np.ravel(m)) + "]"
+                  for key, m in (("q_matrix", model.Q), ("r_matrix", model.R), ("s_matrix", model.S))]
     return "\n".join(lines) + "\n"
 
 
@@ -49,14 +55,14 @@ def _number(table: dict, key: str, where: str, fname: str) -> float:
     return float(v)
 
 
-def _vector(table: dict, key: str, n: int, fname: str) -> np.ndarray:
+def _vector(table: dict, key: str, n: int, fname: str, signed: bool = False) -> np.ndarray:
     v = table.get(key)
     try:
         a = np.asarray(v, dtype=float)
     except (TypeError, ValueError):
         a = None
-    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0):
-        raise ModelFileError(f"{fname}: noise.{key} must be {n} finite numbers >= 0, got {v!r}")
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)) or (not signed and np.any(a < 0)):
+        raise ModelFileError(f"{fname}: noise.{key} must be {n} finite numbers{'' if signed else ' >= 0'}, got {v!r}")
     return a
 
 
@@ -78,9 +84,13 @@ def read_model(path: str | os.PathLike):
     dt = _number(noi, "dt_s", "noise", fname)
     if dt <= 0:
         raise ModelFileError(f"{fname}: noise.dt_s must be > 0, got {dt}")
-    return EstimatorModel(params, np.diag(_vector(noi, "q_diagonal", 7, fname)),
-                          np.diag(_vector(noi, "r_diagonal", 4, fname)), dt,
+    Q, R, S = np.diag(_vector(noi, "q_diagonal", 7, fname)), np.diag(_vector(noi, "r_diagonal", 4, fname)), None
+    if "s_matrix" in noi:
+        Q = _vector(noi, "q_matrix", 49, fname, signed=True).reshape(7, 7)
+        R = _vector(noi, "r_matrix", 16, fname, signed=True).reshape(4, 4)
+        S = _vector(noi, "s_matrix", 28, fname, signed=True).reshape(7, 4)
+    return EstimatorModel(params, Q, R, dt,
                           _number(noi, "sigma_scale", "noise", fname),
                           _number(noi, "q_dynamics_factor", "noise", fname),
                           _number(noi, "q_xi_factor", "noise", fname),
-                          _number(noi, "sigma_xi_virtual_m", "noise", fname))
+                          _number(noi, "sigma_xi_virtual_m", "noise", fname), S)

@@ -842,8 +842,10 @@ def _check_finite(name: str, col: str, x: np.ndarray) -> None:
 
 
 def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
-                         exact: bool) -> None:
+                         exact: bool, progress: Callable[[str, float], None] | None = None) -> None:
     meta = session.meta
+    if progress is not None:
+        progress("writing imu.csv", 0.0)
     sensor = _EXACT if exact else _SENSOR
     (tmp / "session.toml").write_text(session_toml_text(meta), encoding="utf-8")
     w = np.asarray(session.imu_w_rad_s, dtype=float)
@@ -854,6 +856,9 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
     for col, x in zip(IMU_COLUMNS, [t, *w.T, *f.T]):
         _check_finite("imu.csv", col, x)
     write_csv_columns(tmp / "imu.csv", IMU_COLUMNS, [t, *w.T, *f.T], [_EXACT] + [sensor] * 6)
+    if progress is not None:
+        # imu.csv is most of the bytes: the other files share the last fifth
+        progress("writing odometer.csv, fixes.csv, gauge.csv", 0.8)
     _check_finite("odometer.csv", "t_s", session.odo_t_s)
     _check_finite("odometer.csv", "distance_m", session.odo_distance_m)
     write_csv_columns(tmp / "odometer.csv", ODOMETER_COLUMNS,
@@ -886,7 +891,8 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
 
 def write_session(folder: Path, session: RawSession, design_xml: str | None = None, *,
                   overwrite: bool = False, exact: bool = False,
-                  extra_files: Mapping[str, Callable[[Path], None]] | None = None) -> None:
+                  extra_files: Mapping[str, Callable[[Path], None]] | None = None,
+                  progress: Callable[[str, float], None] | None = None) -> None:
     """Write a raw session folder atomically (FORMATS.md sec. 1).
 
     Parameters
@@ -902,6 +908,7 @@ def write_session(folder: Path, session: RawSession, design_xml: str | None = No
     extra_files : name -> writer(path) of further files to put into the folder before it is
         renamed into place (e.g. ``truth.csv``), so that the folder appears complete or not
         at all.
+    progress : optional callable ``progress(step, fraction)``, called as each file begins.
 
     Raises
     ------
@@ -921,8 +928,10 @@ def write_session(folder: Path, session: RawSession, design_xml: str | None = No
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
     try:
         os.chmod(tmp, folder_mode())
-        _write_session_files(tmp, session, design_xml, exact)
+        _write_session_files(tmp, session, design_xml, exact, progress)
         for name, writer in (extra_files or {}).items():
+            if progress is not None:
+                progress(f"writing {name}", 0.95)
             writer(tmp / name)
         move_into_place(tmp, folder)
     except BaseException:

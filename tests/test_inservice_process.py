@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -101,6 +103,13 @@ def test_model_file_round_trip_and_errors(tmp_path):
     # at another rate the per-step Q scales with dt, the virtual measurement's pull per second is kept
     h = r.at_dt(0.0025)
     assert np.allclose(h.Q, m.Q / 2) and h.R[3, 3] == pytest.approx(2 * m.R[3, 3]) and h.R[0, 0] == m.R[0, 0]
+    # with correlated noises the full Q, R and S go through the file exactly
+    S = np.arange(28.0).reshape(7, 4) * 1e-9
+    Qf = m.Q + 1e-12 * np.ones((7, 7))
+    write_model(tmp_path / "model_s.toml", replace(m, Q=Qf, S=S))
+    rs = read_model(tmp_path / "model_s.toml")
+    assert np.array_equal(rs.Q, Qf) and np.array_equal(rs.S, S) and np.array_equal(rs.R, m.R)
+    assert r.S is None
     bad = model_toml_text(m).replace("kx = 1000000.0", 'kx = "stiff"')
     (tmp_path / "bad.toml").write_text(bad)
     with pytest.raises(ModelFileError, match="bad.toml: parameters.kx must be a finite number"):

@@ -162,7 +162,7 @@ def process_cmd(
     t0 = time.process_time()
     if mdl is not None:
         m = mdl.at_dt(dt)
-        est = estimate(m.params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, Q=m.Q, R=m.R,
+        est = estimate(m.params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale = m.sigma_scale
     else:

@@ -200,6 +200,7 @@ def register(app: typer.Typer) -> None:
 
         from survey import jsonout
         from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
+        from survey.commands.progress import progress_bar, share
         from survey.limits import check_finite
         from survey.sessionio import write_session, write_truth_csv
         from trolley.landxml import parse_landxml
@@ -266,19 +267,21 @@ def register(app: typer.Typer) -> None:
         t0 = time.perf_counter()
         err.print(f"simulating {config.length_m:g} m with the {preset} IMU at "
                   f"{config.imu_rate_hz:g} Hz ...", highlight=False)
-        try:
-            sim = simulate_survey(alignment, config)
-        except ValueError as exc:
-            fail(str(exc))
-        t1 = time.perf_counter()
-        session = replace(sim.session, meta=replace(sim.session.meta,
-                                                    design_alignment="alignment.xml"))
-        try:
-            write_session(out, session, xml, overwrite=force,
-                          extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m),
-                                       MARKER_NAME: lambda p: p.write_text("simulate\n", encoding="utf-8")})
-        except (OSError, ValueError) as exc:
-            fail(f"{out}: {exc}")
+        with progress_bar("simulating", console=err) as report:
+            try:
+                sim = simulate_survey(alignment, config, progress=share(report, 0.0, 0.55))
+            except ValueError as exc:
+                fail(str(exc))
+            t1 = time.perf_counter()
+            session = replace(sim.session, meta=replace(sim.session.meta,
+                                                        design_alignment="alignment.xml"))
+            try:
+                write_session(out, session, xml, overwrite=force,
+                              extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m),
+                                           MARKER_NAME: lambda p: p.write_text("simulate\n", encoding="utf-8")},
+                              progress=share(report, 0.55, 1.0))
+            except (OSError, ValueError) as exc:
+                fail(f"{out}: {exc}")
         t2 = time.perf_counter()
         err.print(f"wrote {escape(str(out))} (simulate {t1 - t0:.1f} s, write {t2 - t1:.1f} s)", highlight=False)
         summary = {

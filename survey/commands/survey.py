@@ -130,7 +130,7 @@ def read_devices(path: Path) -> tuple[dict, dict]:
 
 def run_session(project: str, session: str, root: Path, devices: Optional[Path], simulate: bool,
                 script: Optional[Path], speedup: Optional[float], out: Optional[Path], resume: bool,
-                live: bool = True, con: Console | None = None):
+                live: bool = True, con: Console | None = None, reopen: bool = False):
     """Start or resume a session; prints where the results are (on ``con``, default stdout).
     Returns the outcome."""
     from survey.session.fieldsession import FieldSession, SessionAbort, SessionConfig
@@ -188,7 +188,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             tolerance_set(tolerances)  # a bad set stops the start, not the end of the survey
         except ToleranceError as exc:
             fail(f"project tolerance set: {exc}", "the file must exist where the project names it")
-        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances)
+        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances, reopen=reopen)
         fs = FieldSession(store, session, config, world=world, ports=ports, console=err, keys=keys,
                           resume=resume, device_options=options)
         try:
@@ -229,15 +229,15 @@ def session_outcome_dict(session_name: str, outcome) -> dict:
 
 
 def _run_and_report(project, session, root, devices, simulate, script, speedup, out, resume: bool,
-                    json_output: bool) -> None:
+                    json_output: bool, reopen: bool = False) -> None:
     if json_output:
         from survey import jsonout
 
         outcome = run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume,
-                              con=err)
+                              con=err, reopen=reopen)
         jsonout.echo(session_outcome_dict(session, outcome))
     else:
-        run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume)
+        run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume, reopen=reopen)
 
 
 @survey_app.command("start")
@@ -253,9 +253,11 @@ def start(project: Annotated[str, typer.Argument(help="project name (under --roo
 def resume(project: Annotated[str, typer.Argument(help="project name (under --root) or project folder")],
            session: SessionOption, root: RootOption = Path("projects"), devices: DevicesOption = None,
            simulate: SimulateOption = False, script: ScriptOption = None, speedup: SpeedupOption = None,
-           out: OutOption = None, json_output: JsonOption = False) -> None:
+           out: OutOption = None, json_output: JsonOption = False,
+           reopen: Annotated[bool, typer.Option("--reopen", help="reopen an ended session to add intervals "
+                                                "(it is processed again at its next end)")] = False) -> None:
     """Continue a session after a crash, a power loss or kill -9 (fixes taken are kept)."""
-    _run_and_report(project, session, root, devices, simulate, script, speedup, out, True, json_output)
+    _run_and_report(project, session, root, devices, simulate, script, speedup, out, True, json_output, reopen)
 
 
 def register(app: typer.Typer) -> None:

@@ -58,6 +58,7 @@ class SessionConfig:
     live : process each interval as soon as its closing fix is accepted.
     tolerances : tolerance set of the live interval summaries and of the survey sheet (None: the
         project's setting); resolved once by :func:`survey.session.interval.tolerance_set_name`.
+    reopen : on resume, reopen an ended session to add intervals (the script, if any, starts again).
     """
 
     script: list[Action] | None = None
@@ -66,6 +67,7 @@ class SessionConfig:
     setup_points: int = 8
     live: bool = True
     tolerances: str | None = None
+    reopen: bool = False
 
 
 @dataclass
@@ -147,6 +149,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         #: resume: the setup number (1-based) of a station change the crash interrupted
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
+        self._resume_moved = False  # resume: the trolley moved in the interrupted ``move`` step
+        self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
         self._key_prompt = ""  # a question of the station setup, shown instead of the loop's keys
@@ -208,13 +212,21 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         if self.resume:
             self.rec = self.store.session(self.name)
-            if self.rec.state == "ended":
-                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
-                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
-                                       "start a new session with `trolley survey start`")
-                return  # ended but its final processing did not finish: run() does only that
             if self.rec.source != "live":
                 raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
+            if self.rec.state == "ended" and self.config.reopen:
+                # reopened to add intervals: the session goes on from its last data; the next end
+                # processes it again (a new "final" run)
+                last = max(self._stored_state()["last"].values(), default=0.0)
+                self.store.set_session_state(self.rec.session_id, "open")
+                self._event("reopened", f"data up to t = {last:.3f} s", t_s=last)
+                self.rec = self.store.session(self.name)
+            elif self.rec.state == "ended":
+                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
+                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
+                                       f"`trolley survey resume PROJECT --session {self.name} --reopen` "
+                                       "reopens it to add intervals; or start a new session")
+                return  # ended but its final processing did not finish: run() does only that
         else:
             design = self.store.alignment()
             meta = self.store.session_meta("alignment.xml" if design else None)
@@ -506,6 +518,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             try:
                 if self._live_thread is not None:
                     self._live_thread.join()
+                self._replay_due()
                 self._feed_live(fix.t_s)  # after a resume the filter has not seen these data yet
                 self._live.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
                                    np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), force_accept=True)
@@ -528,7 +541,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         fix = self.accepted_fixes.pop()
         self.store.decide_fix(fix.fix_id, False, "undone by the crew")
-        if self._live is not None:
+        replay = self._live_replay
+        if replay and replay[-1].fix_id == fix.fix_id:
+            replay.pop()  # resumed, and not replayed yet: it never will be
+        elif self._live is not None:
             try:
                 self._live.undo_last_fix()
             except Exception:
@@ -581,6 +597,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._check_health()
         self._alignment_step()
         self._settle_fix_distance()
+        self._replay_due()
         standing, speed, dist = self.motion()
         t = self.now()
         if standing and self.stop_started_s is None and self.aligned:
@@ -634,12 +651,13 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _hold_at_stop(self, standing: bool, dist: float) -> None:
         """An interactive simulated session: the simulated world waits at a stop until the crew has
-        taken its fix (a real trolley waits for its crew; the simulator's motion is scripted in
-        time, and at 40x a stop would last a fraction of a second)."""
+        taken its fix, at the start once the static alignment is done (a real trolley waits for its
+        crew; the simulator's motion is scripted in time, and at 40x a stop would last a fraction
+        of a second)."""
         if self.world is None or self.config.script is not None:
             return
-        hold = (standing and self.aligned and bool(self.accepted_fixes) and not self.ended
-                and abs(dist - self.last_fix_distance_m) > 1.0 and not self.world.finished(self.data_time()))
+        hold = (standing and self.aligned and not self.ended and not self.world.finished(self.data_time())
+                and (not self.accepted_fixes or abs(dist - self.last_fix_distance_m) > 1.0))
         if hold != self._stop_held:
             if hold:
                 self.world.clock.freeze()
@@ -749,7 +767,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             if not self.aligned:
                 return False
             if not st.get("moved"):
-                st["moved"] = not standing
+                st["moved"], self._resume_moved = (not standing) or self._resume_moved, False
                 return False
             return standing
         if a.name == "station":
@@ -848,6 +866,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 self.direction = -self.direction
             elif ev.kind == "script":
                 self.script_index = int(ev.detail)
+            elif ev.kind == "reopened":  # the script of a reopened session starts again
+                self.script_index = 0
         fixes = self.store.fixes(sid, accepted_only=True)
         self.stop_count = len(self.store.stops(sid))
         self.accepted_fixes.extend(fixes)
@@ -876,7 +896,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if script is None or self.script_index >= len(script):
             return
         events = self.store.events(self.rec.session_id)
-        last = max((i for i, e in enumerate(events) if e.kind == "script"), default=-1)
+        last = max((i for i, e in enumerate(events) if e.kind in ("script", "reopened")), default=-1)
         last_step_t = events[last].t_s if last >= 0 else -math.inf
         a = script[self.script_index]
         done = False
@@ -888,6 +908,14 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             changes = [e for e in events[last + 1:] if e.kind == "station_change"]
             if changes:
                 self._station_resumed = int(changes[-1].detail.split()[-1])
+        elif a.name == "move":
+            # the trolley moved since the step began: the step waits for it to stand, not to move
+            # again (else the crew would miss the stop it was arriving at when the session died)
+            od = self._odometer()
+            if od.shape[0] and np.isfinite(last_step_t):
+                d0 = float(np.interp(last_step_t, od[:, 0], od[:, 1]))
+                self._resume_moved = bool(np.max(np.abs(od[od[:, 0] >= last_step_t, 1] - d0), initial=0.0)
+                                          > STAND_TOLERANCE_M)
         if done:
             self.script_index += 1
             self._event("script", str(self.script_index))

@@ -196,13 +196,33 @@ class AlignmentEstimate:
         return self.sigma[:, 6]
 
 
+def _rts_from_priors(Xf, Pf, Xp, Pp, Fs):
+    """Rauch-Tung-Striebel backward pass from the forward filter's posteriors and priors.
+
+    filterpy's rts_smoother recomputes the priors as F x without an input term; with the
+    measurement-dependent input of the correlated-noise form (``estimate(..., S=...)``) the
+    stored priors x_(k+1|k), P_(k+1|k) are used instead (the same recursion, Rauch et al. 1965):
+    C_k = P_k F_(k+1)^T P_(k+1|k)^-1, x_k^s = x_k + C_k (x_(k+1)^s - x_(k+1|k)),
+    P_k^s = P_k + C_k (P_(k+1)^s - P_(k+1|k)) C_k^T. The gains are computed for all k at once.
+    """
+    n = len(Xf)
+    F = np.stack(Fs)
+    # C_k^T = solve(P_(k+1|k), F_(k+1) P_k) (P symmetric), batched over k
+    C = np.swapaxes(np.linalg.solve(Pp[1:], F[1:] @ Pf[:-1]), 1, 2)
+    Xs, Ps = Xf.copy(), Pf.copy()
+    for k in range(n - 2, -1, -1):
+        Xs[k] = Xf[k] + C[k] @ (Xs[k + 1] - Xp[k + 1])
+        Ps[k] = Pf[k] + C[k] @ (Ps[k + 1] - Pp[k + 1]) @ C[k].T
+    return Xs, Ps
+
+
 def _initial_covariance() -> np.ndarray:
     return np.diag([5e-3, 2e-3, 5e-3, 5e-2, 2e-2, 5e-2, 5e-3]) ** 2
 
 
 def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=None,
              noise: NoiseDensities | None = None, curvature_1_m=None,
-             smoother: str = "rts", initial_covariance=None) -> AlignmentEstimate:
+             smoother: str = "rts", initial_covariance=None, S=None) -> AlignmentEstimate:
     """Estimate the lateral alignment along a run (Munoz 2021 Sec. IV, plus an RTS smoother).
 
     Parameters
@@ -220,6 +240,12 @@ def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=No
     smoother : "rts" (filterpy.kalman.rts_smoother) or "none" (forward filter only, as the paper).
     initial_covariance : (7, 7) P0 (Eq. 19) around x0 = 0 (Eq. 18); default: 5 mm, 2 mrad and their
         rates of a few cm/s.
+    S : (7, 4) cross covariance E[v_k w_(k-1)^T] of the process noise of step k and the measurement
+        error of the sample before it (identification.covariances_from_residuals), or None
+        (uncorrelated, the paper). Given S, the previous measurement becomes an input
+        (x_k = (F - J H) x_(k-1) + J z_(k-1) + v_k - J w_(k-1), J = S R^-1, process covariance
+        Q - J S^T): the accelerometers then act kinematically on the velocities, whatever the SM's
+        force balance predicts.
 
     Returns
     -------
@@ -252,11 +278,19 @@ def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=No
     ubins, which = np.unique(bins, return_inverse=True)
     models = [discrete_model(p, b * SPEED_BIN_M_S, dt, Q=Q, noise=noise) for b in ubins]
     H = models[0].H
+    if S is not None:
+        S = np.asarray(S, float)
+        J = S @ np.linalg.inv(R)
+        models = [DiscreteModel(m.F - J @ H, m.G, H, m.D, 0.5 * ((m.Q - J @ S.T) + (m.Q - J @ S.T).T))
+                  for m in models]
     # measurements with the known curvature feed removed, as (N, 4, 1) column vectors
     Dk = np.stack([mdl.D[:, 0] for mdl in models])[which] * kap[:, None]
     z = np.column_stack([zm, np.zeros(n)]) - Dk
     zcol = z[:, :, None]
 
+    Jz = np.zeros((n, N_STATE)) if S is None else z @ J.T      # J z_k, input of step k + 1
+    Xp = np.empty((n, N_STATE)) if S is not None else None      # priors for the smoother with inputs
+    Pp = np.empty((n, N_STATE, N_STATE)) if S is not None else None
     kf = KalmanFilter(dim_x=N_STATE, dim_z=N_MEAS, dim_u=1)
     kf.H = H
     kf.R = R
@@ -273,13 +307,18 @@ def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=No
             kf.F, kf.Q, kf.B = mdl.F, mdl.Q, mdl.G
             u[0, 0] = kap[k - 1]
             kf.predict(u=u)
-            if curved:
+            if S is not None:
+                kf.x[:, 0] += Jz[k - 1]
+                Xp[k], Pp[k] = kf.x[:, 0], kf.P
+            elif curved:
                 d = mdl.F @ d + mdl.G[:, 0] * kap[k - 1]
                 det[k] = d
         kf.update(zcol[k])
         Xf[k] = kf.x[:, 0]
         Pf[k] = kf.P
-    if smoother == "rts":
+    if smoother == "rts" and S is not None:
+        X, P = _rts_from_priors(Xf, Pf, Xp, Pp, [models[w].F for w in which])
+    elif smoother == "rts":
         Fs = [models[w].F for w in which]
         Qs = [models[w].Q for w in which]
         Xs, Ps, _, _ = rts_smoother((Xf - det)[:, :, None], Pf, Fs, Qs)
