@@ -582,7 +582,11 @@ def test_field_screen_shows_hostile_text_literally():
 
     s = ScreenState()
     s.message, s.prompt = "fix CP[/x]1 rejected [blink red]", "aim at CP[/x]1 and press Enter"
+    s.last_interval = "interval CP[/x]1 -> CP[b]2: 1 defect [red]cant[/red]"
+    s.progress = 0.5
     con = Console(record=True, width=120)
     con.print(render(s))
     out = con.export_text()
     assert "fix CP[/x]1 rejected [blink red]" in out and "aim at CP[/x]1" in out
+    assert "interval CP[/x]1 -> CP[b]2: 1 defect [red]cant[/red]" in out
+    assert "[###############...............]  50.0 %" in out

@@ -111,7 +111,7 @@ class LiveFiltering:
                 dt = time.perf_counter() - t0
                 self.interval_seconds.append(dt)
                 self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
-                self.console.print(self.screen.last_interval, highlight=False)
+                self.console.print(self.screen.last_interval, highlight=False, markup=False)
                 # stored by the session's thread (the store's connection belongs to it)
                 self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
             except Exception as exc:

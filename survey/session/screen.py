@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from rich.console import Group
 from rich.markup import escape
 from rich.panel import Panel
+from rich.text import Text
 from rich.table import Table
 
 KEYS_HELP = "f fix | u undo | n note | p pause/resume | t turned | s station change | e end"
@@ -68,9 +69,9 @@ def render(s: ScreenState):
     parts = [top, dev]
     if s.progress is not None:
         n = int(30 * max(0.0, min(1.0, s.progress)))
-        parts.append(f"[{'#' * n}{'.' * (30 - n)}] {100 * s.progress:5.1f} %")
+        parts.append(Text(f"[{'#' * n}{'.' * (30 - n)}] {100 * s.progress:5.1f} %"))
     if s.last_interval:
-        parts.append(s.last_interval)
+        parts.append(Text(s.last_interval))  # data (defect labels, messages): printed literally
     if s.message:
         parts.append(f"[bold yellow]{escape(s.message)}[/]")
     parts.append(f"[dim]{escape(s.prompt)}[/]")
