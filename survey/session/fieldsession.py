@@ -150,6 +150,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
         self._resume_moved = False  # resume: the trolley moved in the interrupted ``move`` step
+        self._resume_seen_t = -math.inf  # resume: session time of the crew's last script step
         self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
@@ -711,6 +712,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def do(self, a: Action) -> bool:
         """Carry out (a step of) an action; True when it is done."""
+        if self.config.script is not None and self.data_time() < self._resume_seen_t:
+            return False  # resumed: the data have not caught up with what the crew had seen
         st = self._action_state
         standing = self.motion()[0]
         if a.name == "wait":
@@ -899,6 +902,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         last = max((i for i, e in enumerate(events) if e.kind in ("script", "reopened")), default=-1)
         last_step_t = events[last].t_s if last >= 0 else -math.inf
         a = script[self.script_index]
+        # the crew had seen the world up to its last step: the data streamed again from before it
+        # (committed up to 0.5 s late) are the past, not what the next step waits for
+        self._resume_seen_t = last_step_t
         done = False
         if a.name in ("fix", "remeasure"):
             done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t
