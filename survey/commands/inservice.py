@@ -213,6 +213,9 @@ def calibrate_cmd(
     length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    extra_runs: Annotated[int, typer.Option("--extra-runs", min=0, max=20,
+                                            help="further runs (seeds SEED+1...) the tuning and the sigma "
+                                                 "scale are pooled over")] = 3,
     json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
@@ -231,15 +234,25 @@ def calibrate_cmd(
                            seed=seed + 1)
     X = np.column_stack([run.wheelset_y_m, run.wheelset_psi_rad, run.frame_y_m, run.wheelset_vy_m_s,
                          run.wheelset_wz_rad_s_true, run.frame_vy_m_s, run.alignment_m])
-    Z = np.column_stack([run.wheelset_ay_m_s2, run.wheelset_wz_rad_s, run.frame_ay_m_s2])
+    def sensors(r):
+        return np.column_stack([r.wheelset_ay_m_s2, r.wheelset_wz_rad_s, r.frame_ay_m_s2])
+
+    extra = []
+    with console.status("simulating the further reference runs"):
+        for sd in range(seed + 1, seed + 1 + extra_runs):
+            r = simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m, rate_hz=rate_hz,
+                             seed=sd + 1)
+            extra.append((r.t_s, r.s_m, speed_m_s, sensors(r), r.alignment_m))
     with console.status("identifying and tuning"):
-        mdl = calibrate(ModelParameters(**vp.nominal()), speed_m_s, run.t_s, run.s_m, X, Z)
+        mdl = calibrate(ModelParameters(**vp.nominal()), speed_m_s, run.t_s, run.s_m, X, sensors(run),
+                        extra_runs=extra)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         write_model(out, mdl)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    jsonout.echo({"out": out, "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
+    jsonout.echo({"out": out, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
+                  "speed_m_s": speed_m_s, "length_m": length_m,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
                   "cpu_s": round(time.process_time() - t0, 2)})
