@@ -3,9 +3,10 @@ robustness study and resonance case, curved track.
 
 The estimator (trolley.inservice.estimator: simplified 1-wheelset + frame model, Kalman filter,
 RTS smoother) is calibrated ONCE on a reference run of the full-vehicle truth simulator
-(trolley.inservice.vehicle, seed --cal-seed; identification Eq. 6, Q and R Eq. 26-29, tuning,
-sigma scale: identification.calibrate) and then evaluated on other runs (other seeds of the
-irregularities and the sensor noise):
+(trolley.inservice.vehicle, seed --cal-seed; identification Eq. 6, Q and R Eq. 26-29 with their
+cross covariance S: identification.calibrate), its tuning and sigma scale pooled over that run and the
+runs of --extra-seeds, and then evaluated on other runs (other seeds of the irregularities and the
+sensor noise; the evaluation seeds must not be among the calibration seeds):
 
 * standard case: straight track, 20 m/s, 400 m, noise and vertical irregularity on (paper Table 2);
   J and Jrel per band (D1 3-25 m, D2 25-70 m, D3 70-200 m, 3-200 m), the honesty rms(error/sigma)
@@ -22,10 +23,12 @@ Targets (issue 14): standard case J <= 0.30 mm and Jrel <= 0.20 over 3-200 m, ho
 0.7-1.3, at least 20x faster than real time on one core.
 
 * forward filter only (the paper's estimator), calibrated for it (identification.calibrate with
-  smoother="none"), on the same seeds.
+  smoother="none"), on the same seeds;
+* uncorrelated: the paper's Q and R without S (calibrate(correlated=False)), filter + smoother,
+  on the same seeds (the estimator before S was added).
 
-    python benchmarks/bench_inservice.py [--seeds 1 2 3] [--cal-seed 1000] [--radius-m 1500]
-        [--sections standard robustness resonance curved forward]
+    python benchmarks/bench_inservice.py [--seeds 1 2 3] [--cal-seed 1000] [--extra-seeds 1001 1002 1003]
+        [--radius-m 1500] [--sections standard robustness resonance curved forward uncorrelated]
 """
 from __future__ import annotations
 
@@ -44,7 +47,7 @@ from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, sim
 V = 20.0
 LENGTH = 400.0
 SETTLE_M = 30.0
-SECTIONS = ("standard", "robustness", "resonance", "curved", "forward")
+SECTIONS = ("standard", "robustness", "resonance", "curved", "forward", "uncorrelated")
 
 
 def states(run):
@@ -91,9 +94,13 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--cal-seed", type=int, default=1000)
+    ap.add_argument("--extra-seeds", type=int, nargs="*", default=[1001, 1002, 1003])
     ap.add_argument("--radius-m", type=float, default=1500.0)
     ap.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS)
     args = ap.parse_args()
+    used = set(args.seeds) & ({args.cal_seed} | set(args.extra_seeds))
+    if used:
+        ap.error(f"evaluation seeds {sorted(used)} are also calibration seeds")
 
     vp = VehicleParameters()
     mode = first_lateral_mode(vp, V)
@@ -102,17 +109,20 @@ def main() -> None:
     sim_cpu = time.process_time() - t0
     print(f"truth: first lateral mode {mode.frequency_hz:.3f} Hz, wavelength {mode.wavelength_m:.2f} m at {V} m/s;"
           f" reference run {sim_cpu:.1f} s CPU")
+    extra_runs = [(r.t_s, r.s_m, r.speed_m_s, sensors(r), r.alignment_m)
+                  for r in (run_case(vp, sd) for sd in args.extra_seeds)]
     if args.sections == ["forward"]:
-        forward(vp, ref, args)
+        forward(vp, ref, args, extra_runs)
         return
     t0 = time.process_time()
-    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref))
+    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref),
+                    extra_runs=extra_runs)
     cal_cpu = time.process_time() - t0
     p = mdl.params
     print(f"calibration (seed {args.cal_seed}, {cal_cpu:.1f} s CPU): kx {p.kx:.4g} N/m, cx {p.cx:.4g} N s/m, "
           f"ky {p.ky:.4g} N/m, cy {p.cy:.4g} N s/m; Q factors dyn {mdl.q_dynamics_factor:.3g} "
           f"xi {mdl.q_xi_factor:.3g}, virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm, sigma scale "
-          f"{mdl.sigma_scale:.3f}")
+          f"{mdl.sigma_scale:.3f} (pooled over seeds {args.cal_seed} {' '.join(map(str, args.extra_seeds))})")
     print("SM modes at 20 m/s: " + ", ".join(f"{m.frequency_hz:.3f} Hz (zeta {m.damping_ratio:.2f})"
                                             for m in eigenfrequencies(p, V)))
     from trolley.inservice.estimator import discrete_model
@@ -151,7 +161,9 @@ def main() -> None:
     if "curved" in args.sections:
         curved(mdl, vp, s0, args.radius_m)
     if "forward" in args.sections:
-        forward(vp, ref, args)
+        forward(vp, ref, args, extra_runs)
+    if "uncorrelated" in args.sections:
+        uncorrelated(vp, ref, args, extra_runs)
 
 
 def robustness(mdl, vp, s0, std_acc, std_h):
@@ -184,10 +196,11 @@ def curved(mdl, vp, s0, radius_m):
     row(f"R {radius_m:.0f} m right, seed {s0}", acc, h)
 
 
-def forward(vp, ref, args):
+def forward(vp, ref, args, extra_runs):
     """The paper's estimator: forward filter only, calibrated for it."""
     t0 = time.process_time()
-    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref), smoother="none")
+    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref), smoother="none",
+                    extra_runs=extra_runs)
     print(f"\nforward-only calibration ({time.process_time() - t0:.1f} s CPU): Q factors dyn "
           f"{mdl.q_dynamics_factor:.3g} xi {mdl.q_xi_factor:.3g}, virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm,"
           f" sigma scale {mdl.sigma_scale:.3f}")
@@ -195,6 +208,18 @@ def forward(vp, ref, args):
     for seed in args.seeds:
         acc, h, cpu = evaluate(mdl, run_case(vp, seed), smoother="none")
         row(f"seed {seed} (forward only)", acc, h, f"  cpu {cpu:.3f} s ({20.0 / cpu:.0f}x real time)")
+
+
+def uncorrelated(vp, ref, args, extra_runs):
+    """The paper's uncorrelated Q and R (no S), filter + smoother: the estimator before S."""
+    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref),
+                    correlated=False, extra_runs=extra_runs)
+    print(f"\nuncorrelated calibration: Q factors dyn {mdl.q_dynamics_factor:.3g} xi {mdl.q_xi_factor:.3g}, "
+          f"virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm, sigma scale {mdl.sigma_scale:.3f}")
+    header("uncorrelated Q, R (no S; the estimator before S), filter + smoother; standard case")
+    for seed in args.seeds:
+        acc, h, _ = evaluate(mdl, run_case(vp, seed))
+        row(f"seed {seed} (no S)", acc, h)
 
 
 if __name__ == "__main__":

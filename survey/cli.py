@@ -12,6 +12,8 @@ from typing import Annotated
 
 import typer
 
+from survey.errors import guard_app
+
 app = typer.Typer(
     name="trolley",
     help="Stop-and-go track surveying with a trolley: simulate, process, budget, export.",
@@ -52,6 +54,9 @@ COMMAND_MODULES: list[str] = [
 
 for _name in COMMAND_MODULES:
     importlib.import_module(f"survey.commands.{_name}").register(app)
+
+# known errors -> one line on stderr, exit 2; never a traceback (survey/errors.py)
+guard_app(app)
 
 
 #: The one-line summaries of the command lists (``trolley --help``, ``trolley project --help``):

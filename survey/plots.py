@@ -24,12 +24,11 @@ the per-station values thin and, as its line, their maximum over one spacing
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from survey.atomicwrite import write_with
 from trolley.bands import BANDS
 
 from survey.track_table import SurveyReport, limit_in_display
@@ -284,14 +283,8 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
         axes[0, 0].set_title(f"{title} - {names}")
         fig.tight_layout()
         out = folder / f"{stem}.png"
-        fd, tmp = tempfile.mkstemp(prefix=f".{stem}-", suffix=".png", dir=folder)
-        os.close(fd)
         try:
-            fig.savefig(tmp, format="png")
-            os.replace(tmp, out)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+            write_with(out, lambda tmp: fig.savefig(tmp, format="png"))
         finally:
             plt.close(fig)
         written.append(out)

@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import io
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from survey.atomicwrite import write_bytes_atomic
 from survey.plots import draw_panel, km_axis, km_label, panel_marks
 from survey.surveyheader import header_rows
 from survey.track_table import SurveyReport, limit_in_display
@@ -351,15 +350,7 @@ def write_pdf_report(path: Path, rep: SurveyReport) -> PdfReport:
                 pdf.savefig(fig)
             finally:
                 plt.close(fig)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".pdf", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.getvalue())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, buf.getvalue())
     return PdfReport(path=path, pages=tuple(t for t, _ in plan))
 
 

@@ -25,6 +25,10 @@ from trolley import units
 from trolley.stationing import StationEquation, Stationing
 from trolley.trackgeometry import TrackInput
 
+from survey.names import inside
+from survey.sessionio import PLAUSIBLE_ABS
+from survey.sheet_text import csv_read_text
+
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
 TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
 FIX_NUMERIC = ["t_s", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"]
@@ -181,6 +185,12 @@ def _read_csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
     if not rows:
         raise ExportInputError(f"{path}: empty file (no header row)")
     header = [h.strip() for h in rows[0]]
+    for i, r in enumerate(rows[1:], start=2):
+        if len(r) > len(header) and any(c.strip() for c in r[len(header):]):
+            # more cells than columns: a decimal comma ("0,5") splits a number in two, and the
+            # cells after it would be read into the wrong columns (trolley process refuses it too)
+            raise ExportInputError(f"{path}: row {i}: {len(r)} cells, the header has {len(header)} columns "
+                                   "(a decimal comma? use a point: 0.5)")
     body = [r for r in rows[1:] if any(c.strip() for c in r)]
     return header, body
 
@@ -240,6 +250,24 @@ def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
             return None
         out[name] = arr
     return out
+
+
+#: Largest plausible |value| of track.csv's mm columns (the SI ones: sessionio.PLAUSIBLE_ABS):
+#: a 1-sigma or deviation beyond 100 m, a gauge, cant or twist beyond 10 m is a corrupt cell.
+_TRACK_PLAUSIBLE_ABS_MM = {"sigma_E_mm": 1e5, "sigma_N_mm": 1e5, "sigma_H_mm": 1e5, "lateral_dev_mm": 1e5,
+                           "vertical_dev_mm": 1e5, "gauge_mm": 1e4, "cant_mm": 1e4, "twist_mm": 1e4}
+
+
+def _check_plausible_track(path: Path, cols: dict[str, np.ndarray]) -> None:
+    """Refuse finite but absurd values (1e308 in H_m): they would reach the sheet as inf."""
+    for name, v in cols.items():
+        limit = PLAUSIBLE_ABS.get(name, _TRACK_PLAUSIBLE_ABS_MM.get(name, math.inf))
+        with np.errstate(invalid="ignore"):
+            far = np.abs(v) > limit
+        if far.any():
+            i = int(np.argmax(far))
+            raise ExportInputError(f"{path}: row {i + 2}, column {name}: {float(v[i]):g} is not a plausible value "
+                                   f"(|{name}| <= {limit:g})")
 
 
 def stationing_of_track(distance_m: np.ndarray, chainage_m: np.ndarray, tol_m: float = 1e-5) -> Stationing | None:
@@ -307,12 +335,13 @@ def read_track_file(path: Path) -> TrackFile:
             raise ExportInputError(f"{path}: no stations (only a header row)")
         present_optional = [n for n in TRACK_OPTIONAL if n in header]
         cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
+    _check_plausible_track(path, cols)
     # distance_m (the internal station) increases even where station equations make chainage_m jump
     along = "distance_m" if "distance_m" in cols and np.all(np.isfinite(cols["distance_m"])) else "chainage_m"
     s = cols[along]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
-        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {s[i]!r} does not increase")
+        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {float(s[i])!r} does not increase")
     nan = np.full(s.size, np.nan)
     mm = units.mm_to_m
     track = TrackInput(
@@ -338,11 +367,11 @@ def read_fixes_csv(path: Path) -> list[FixRow]:
         acc = (r[ia] if ia < len(r) else "").strip().lower()
         if acc not in ("1", "0", "true", "false", "1.0", "0.0"):
             raise ExportInputError(f"{path}: row {i + 2}, column accepted: expected 1 or 0, got {acc[:20]!r}")
-        out.append(FixRow(t_s=float(cols["t_s"][i]), point=r[ip] if ip < len(r) else "",
+        out.append(FixRow(t_s=float(cols["t_s"][i]), point=csv_read_text(r[ip] if ip < len(r) else ""),
                           E_m=float(cols["E_m"][i]), N_m=float(cols["N_m"][i]), H_m=float(cols["H_m"][i]),
                           innov_E_m=mm(float(cols["innov_E_mm"][i])), innov_N_m=mm(float(cols["innov_N_mm"][i])),
                           innov_H_m=mm(float(cols["innov_H_mm"][i])), nis=float(cols["nis"][i]),
-                          accepted=acc in ("1", "true", "1.0"), reason=r[ir] if ir < len(r) else ""))
+                          accepted=acc in ("1", "true", "1.0"), reason=csv_read_text(r[ir] if ir < len(r) else "")))
     return out
 
 
@@ -445,7 +474,11 @@ def design_alignment_path(info: SurveyInfo) -> Path | None:
     name = _design_table(info).get("alignment")
     if not name:
         return None
-    return Path(info.session_dir) / str(name)
+    try:
+        return inside(Path(info.session_dir), str(name),
+                      f"{Path(info.session_dir) / 'session.toml'}: key design.alignment")
+    except ValueError as e:
+        raise ExportInputError(str(e)) from None
 
 
 def design_alignment_name(info: SurveyInfo) -> str | None:

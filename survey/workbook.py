@@ -19,9 +19,7 @@ shared/research/protocols.md 6 (columns, formula injection); deps.md 5 (openpyxl
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 import time
 import zipfile
 from datetime import datetime, timezone
@@ -31,6 +29,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from survey.atomicwrite import atomic_path
 from survey.sheet_text import put_text
 from survey.surveyheader import NOT_GIVEN, header_rows
 from survey.track_reader import EQUIPMENT
@@ -717,7 +716,7 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
         vals = column_values(col, rep.geometry, station).tolist()
         pre = f'<c r="{L}'
         mid = f'" s="{s}"><v>'
-        per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v == v else ""   # v != v: NaN -> no cell
+        per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v - v == 0 else ""   # NaN, +-inf -> no cell
                         for r, v in zip(rows_num, vals)])
     eqs = rep.equations()
     if eqs:   # the text of each station equation in the row of the first station at or after it
@@ -747,19 +746,13 @@ def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float])
     timings["rows_xml"] = t1 - t0
     last = _col_letter(len(rep.columns) + (1 if rep.equations() else 0))
     xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{TRACK_FIRST_ROW + n - 1}"/>', xml, count=1)
-    fd, tmp = tempfile.mkstemp(prefix=".splice-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as out:
             for info, data in members:
                 payload = xml.encode("utf-8") if info.filename == part else data
                 zi = zipfile.ZipInfo(info.filename, date_time=info.date_time)
                 zi.compress_type = zipfile.ZIP_DEFLATED
                 out.writestr(zi, payload, compresslevel=1)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     timings["zip"] = time.perf_counter() - t1
 
 
@@ -867,16 +860,10 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
         _print_setup(ws, rep, titles)
     _print_setup(stations, rep, f"1:{HEADER_ROWS}")
     _print_setup(charts, rep, f"1:{HEADER_ROWS}", fit_width=False)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         t1 = time.perf_counter()
         timings["openpyxl_build"] = t1 - t0
         wb.save(tmp)
         timings["openpyxl_save"] = time.perf_counter() - t1
-        _splice_track_rows(Path(tmp), rep, timings)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        _splice_track_rows(tmp, rep, timings)
     return path

@@ -16,8 +16,6 @@ Bad input: a message naming the file/row/column or key on stderr, exit 2, no out
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -26,6 +24,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
+from survey.atomicwrite import write_with
 from survey.commands.inservice_simulate import simulate_cmd
 from survey.commands.options import JsonAlways
 
@@ -42,18 +41,6 @@ OUTPUT_STEP_M = 0.25
 def _fail(msg: str) -> None:
     console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
-
-
-def _save_atomic(path: Path, save) -> None:
-    """Call ``save(tmp)`` on a temporary file next to ``path``, then rename it to ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        save(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") -> None:
@@ -87,7 +74,7 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
             a.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     try:
-        _save_atomic(path, fig.savefig)
+        write_with(path, lambda tmp: fig.savefig(tmp))
     finally:
         plt.close(fig)
 
@@ -124,7 +111,7 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
     ws.page_setup.fitToWidth, ws.page_setup.fitToHeight = 1, 0
     ws.sheet_properties.pageSetUpPr.fitToPage = True
     ws.print_title_rows = "4:4"
-    _save_atomic(path, wb.save)
+    write_with(path, lambda tmp: wb.save(tmp))
 
 
 @inservice_app.command("process")
@@ -226,6 +213,9 @@ def calibrate_cmd(
     length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    extra_runs: Annotated[int, typer.Option("--extra-runs", min=0, max=20,
+                                            help="further runs (seeds SEED+1...) the tuning and the sigma "
+                                                 "scale are pooled over")] = 3,
     json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
@@ -244,15 +234,25 @@ def calibrate_cmd(
                            seed=seed + 1)
     X = np.column_stack([run.wheelset_y_m, run.wheelset_psi_rad, run.frame_y_m, run.wheelset_vy_m_s,
                          run.wheelset_wz_rad_s_true, run.frame_vy_m_s, run.alignment_m])
-    Z = np.column_stack([run.wheelset_ay_m_s2, run.wheelset_wz_rad_s, run.frame_ay_m_s2])
+    def sensors(r):
+        return np.column_stack([r.wheelset_ay_m_s2, r.wheelset_wz_rad_s, r.frame_ay_m_s2])
+
+    extra = []
+    with console.status("simulating the further reference runs"):
+        for sd in range(seed + 1, seed + 1 + extra_runs):
+            r = simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m, rate_hz=rate_hz,
+                             seed=sd + 1)
+            extra.append((r.t_s, r.s_m, speed_m_s, sensors(r), r.alignment_m))
     with console.status("identifying and tuning"):
-        mdl = calibrate(ModelParameters(**vp.nominal()), speed_m_s, run.t_s, run.s_m, X, Z)
+        mdl = calibrate(ModelParameters(**vp.nominal()), speed_m_s, run.t_s, run.s_m, X, sensors(run),
+                        extra_runs=extra)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         write_model(out, mdl)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    jsonout.echo({"out": out, "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m,
+    jsonout.echo({"out": out, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
+                  "speed_m_s": speed_m_s, "length_m": length_m,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
                   "cpu_s": round(time.process_time() - t0, 2)})

@@ -13,6 +13,7 @@ from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 err = Console(stderr=True)
 survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True,
@@ -31,7 +32,7 @@ JsonOption = Annotated[bool, typer.Option("--json", help="print the final summar
 
 def fail(message: str, hint: str = "", code: int = 2) -> None:
     """One line on stderr (and what to try), exit code ``code``."""
-    err.print(f"[bold red]error:[/] {message}" + (f"\n  try: {hint}" if hint else ""), highlight=False,
+    err.print(f"[bold red]error:[/] {escape(str(message))}" + (f"\n  try: {escape(str(hint))}" if hint else ""), highlight=False,
               soft_wrap=True)
     raise typer.Exit(code=code)
 
@@ -137,6 +138,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.session.script import ScriptError, read_script
     from survey.store import SessionEvent, StoreError
 
+    from survey.names import UnsafeNameError, check_name
+
+    try:
+        check_name("--session", session)
+    except UnsafeNameError as exc:
+        fail(str(exc))
     store = open_store(project, root)
     lock = session_lock(store.path.parent, session)
     with store, lock:
@@ -204,12 +211,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             if keys is not None:
                 keys.stop()
     con = con if con is not None else Console()
-    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False)
+    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False, markup=False)
     if outcome.xlsx is not None:
         con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
-                  f"survey sheet: {outcome.xlsx}", highlight=False)
+                  f"survey sheet: {outcome.xlsx}", highlight=False, markup=False)
         for i, png in enumerate(outcome.plots):
-            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
+            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False, markup=False)
     outcome.world = world
     return outcome
 

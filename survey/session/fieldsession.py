@@ -31,6 +31,7 @@ from survey.session.stationsetup import StationSetupSteps
 from survey.session.screen import KEYS_HELP, ScreenState, render
 from survey.session.script import Action
 from survey.store import FixRecord, NoteRecord, ProjectStore, RecordWriter, SessionEvent, StopRecord
+from rich.markup import escape
 
 #: the trolley stands when the odometer moved less than this over ``STAND_WINDOW_S``
 STAND_TOLERANCE_M = 0.002
@@ -149,6 +150,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
         self._resume_moved = False  # resume: the trolley moved in the interrupted ``move`` step
+        self._resume_seen_t = -math.inf  # resume: session time of the crew's last script step
         self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
@@ -200,7 +202,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     def say(self, text: str) -> None:
         """A message on the screen and in the scroll-back."""
         self.screen.message = text
-        self.console.print(text, highlight=False)
+        self.console.print(text, highlight=False, markup=False)  # labels and paths printed as they are
 
     # ================================================================== start
     def open_session(self) -> None:
@@ -359,7 +361,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             rel, ver, sub = self.ts.sw_version()
             table.add_row("totalstation", self.ports["totalstation"], f"[green]ok[/] GeoCOM {rel}.{ver}.{sub}")
         except (GeoComError, DeviceError) as exc:
-            table.add_row("totalstation", self.ports["totalstation"], f"[red]{exc}[/]")
+            table.add_row("totalstation", escape(str(self.ports["totalstation"])), f"[red]{escape(str(exc))}[/]")
             problems.append(("totalstation", str(exc), "switch the instrument on, check GeoCOM on the serial port "
                                                        "and its baud rate"))
         deadline = time.monotonic() + self.config.device_wait_s
@@ -374,7 +376,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 problems.append((name, str(mismatch), "set the counter width in the devices file"))
             elif n == 0:
                 err = self.acq.links[name].last_error or "no data"
-                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({err})[/]")
+                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({escape(str(err))})[/]")
                 problems.append((name, f"no data from {port} in {self.config.device_wait_s:g} s",
                                  "check power, cable and baud rate; `trolley devices record` shows what arrives"))
             else:
@@ -389,7 +391,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _ask_key(self, prompt: str, allowed: str) -> str:
         """Wait for one of the ``allowed`` keys; ``prompt`` is the one set of keys on the screen."""
-        self.console.print(f"[bold]{prompt}[/]", highlight=False)
+        self.console.print(f"[bold]{escape(prompt)}[/]", highlight=False)
         self._key_prompt = prompt
         try:
             while True:
@@ -710,6 +712,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def do(self, a: Action) -> bool:
         """Carry out (a step of) an action; True when it is done."""
+        if self.config.script is not None and self.data_time() < self._resume_seen_t:
+            return False  # resumed: the data have not caught up with what the crew had seen
         st = self._action_state
         standing = self.motion()[0]
         if a.name == "wait":
@@ -898,6 +902,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         last = max((i for i, e in enumerate(events) if e.kind in ("script", "reopened")), default=-1)
         last_step_t = events[last].t_s if last >= 0 else -math.inf
         a = script[self.script_index]
+        # the crew had seen the world up to its last step: the data streamed again from before it
+        # (committed up to 0.5 s late) are the past, not what the next step waits for
+        self._resume_seen_t = last_step_t
         done = False
         if a.name in ("fix", "remeasure"):
             done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t

@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from survey.store import FixRecord
+from rich.markup import escape
 
 #: a fix needs the data up to this long before its time (one period of the slowest stream it uses)
 DATA_SLACK_S = 0.02
@@ -87,7 +88,7 @@ class LiveFiltering:
             return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
                               np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]))
         except Exception as exc:  # never stop the survey for the live view
-            self.console.print(f"[yellow]live processing unavailable: {exc}[/]", highlight=False)
+            self.console.print(f"[yellow]live processing unavailable: {escape(str(exc))}[/]", highlight=False)
             self._live = False
             return None
 
@@ -110,7 +111,7 @@ class LiveFiltering:
                 dt = time.perf_counter() - t0
                 self.interval_seconds.append(dt)
                 self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
-                self.console.print(self.screen.last_interval, highlight=False)
+                self.console.print(self.screen.last_interval, highlight=False, markup=False)
                 # stored by the session's thread (the store's connection belongs to it)
                 self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
             except Exception as exc:
@@ -163,7 +164,7 @@ class LiveFiltering:
                 lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
                            np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
         except Exception as exc:
-            self.console.print(f"[yellow]live processing unavailable after resume: {exc}[/]")
+            self.console.print(f"[yellow]live processing unavailable after resume: {escape(str(exc))}[/]")
             self._live = False
 
 def interval_summary_text(r, seconds: float) -> str:

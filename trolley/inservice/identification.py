@@ -250,17 +250,17 @@ def pooled_sigma_scale(mdl: "EstimatorModel", runs, skip_m: float = 30.0, smooth
 
 def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measurements,
               skip_m: float = 30.0, smoother: str = "rts", correlated: bool = True,
-              scale_runs=None) -> EstimatorModel:
+              extra_runs=None) -> EstimatorModel:
     """Identify the SM and tune the filter on one reference run of the complete model.
 
     Steps: (1) p_opt by least squares (Eq. 6) on :data:`CALIBRATION_CHANNELS`; (2) Q and R from
     the residuals (Eq. 26-29) and, beyond the paper, their cross covariance S
     (:func:`cross_covariance_from_residuals`; without it the wheelset accelerometer, whose Eq. 28
-    residual is ~2.4 m/s^2 at 0.3-3 Hz, is nearly ignored); (3) beyond the paper: the dynamics part of Q, the random-walk
-    density of xi and the virtual measurement's sigma are scaled to minimise J over 3-200 m on this
-    run (Nelder-Mead on their logarithms), because Eq. 27's Q for xi together with Eq. 29's R for
-    the virtual sensor pull the estimate towards 0 at the long (D3) wavelengths; (4) the sigmas are
-    scaled so that rms(error / sigma) = 1 pooled over this run and ``scale_runs``
+    residual is ~2.4 m/s^2 at 0.3-3 Hz, is nearly ignored); (3) beyond the paper: the dynamics
+    part of Q, the random-walk density of xi and the virtual measurement's sigma are scaled to
+    minimise J over 3-200 m (rms over this run and ``extra_runs``; Nelder-Mead on their
+    logarithms), because Eq. 27's Q for xi together with Eq. 29's R for the virtual sensor pull the estimate towards 0 at the long (D3) wavelengths; (4) the sigmas are
+    scaled so that rms(error / sigma) = 1 pooled over this run and ``extra_runs``
     (:func:`pooled_sigma_scale`; one run alone gives a scale that varies from seed to seed).
     Evaluate on different runs.
 
@@ -277,8 +277,9 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
     correlated : also estimate the cross covariance S of the process noise and the previous
         measurement's error (:func:`cross_covariance_from_residuals`) and filter with it (default);
         False: the paper's uncorrelated Q and R.
-    scale_runs : further reference runs (t_s, s_m, speed, measurements, true alignment) for the
-        sigma scale (:func:`pooled_sigma_scale`, pooled with this run); None: this run alone.
+    extra_runs : further reference runs (t_s, s_m, speed, measurements, true alignment) that the
+        tuning (step 3, rms of their J) and the sigma scale (:func:`pooled_sigma_scale`) are pooled
+        over together with this run; None: this run alone. Never the evaluation runs.
 
     Returns
     -------
@@ -302,21 +303,23 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
     Z4 = np.column_stack([Zm, np.zeros(len(t))])
     Q, R = covariances_from_residuals(dm, X, Z4)
     S = cross_covariance_from_residuals(dm, X, Z4) if correlated else None
-    use = np.asarray(s_m, float) >= s_m[0] + skip_m
     whole = {"3-200": ACCURACY_BANDS["3-200"]}
-
-    def run(logf):
-        Qt, Rt = tuned_covariances(Q, R, *np.exp(logf), S=S)
-        return estimate(p, t[use], s_m[use], speed_m_s, Zm[use], Q=Qt, R=Rt, S=S, smoother=smoother)
+    runs = [(t, np.asarray(s_m, float), speed_m_s, Zm, X[:, 6])]
+    runs += [(np.asarray(a, float), np.asarray(b, float), v, np.asarray(z, float), xi) for a, b, v, z, xi in extra_runs or []]
 
     def cost(logf):
-        e = run(logf)
-        return band_accuracy(e.s_m, e.alignment_m, X[use, 6], bands=whole)["3-200"].J_m
+        Qt, Rt = tuned_covariances(Q, R, *np.exp(logf), S=S)
+        js = []
+        for tr, sr, vr, zr, xir in runs:
+            use = sr >= sr[0] + skip_m
+            vu = np.broadcast_to(np.asarray(vr, float), sr.shape)[use]
+            e = estimate(p, tr[use], sr[use], vu, zr[use], Q=Qt, R=Rt, S=S, smoother=smoother)
+            js.append(band_accuracy(e.s_m, e.alignment_m, np.asarray(xir)[use], bands=whole)["3-200"].J_m)
+        return float(np.sqrt(np.mean(np.square(js))))
 
     f0 = np.log([1.0, 30.0, 0.4] if correlated else [0.1, 30.0, 0.3])
     sol = minimize(cost, f0, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-6, "maxfev": 60})
     Qt, Rt = tuned_covariances(Q, R, *np.exp(sol.x), S=S)
     f = np.exp(sol.x)
     mdl = EstimatorModel(p, Qt, Rt, dt, 1.0, float(f[0]), float(f[1]), float(f[2]), S)
-    runs = [(t, s_m, speed_m_s, Zm, X[:, 6])] + list(scale_runs or [])
     return replace(mdl, sigma_scale=pooled_sigma_scale(mdl, runs, skip_m, smoother))
