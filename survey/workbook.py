@@ -330,9 +330,17 @@ def section_table(rep: SurveyReport):
     """(columns used, list of SectionQuality) of the section-quality table."""
     from trolley.sectionquality import section_quality
 
+    from dataclasses import fields, replace
+
     keys = [(k, lab) for k, lab in QUALITY_COLUMNS if k in rep.stats and rep.stats[k].count > 0]
     g = rep.geometry
-    return keys, [section_quality(g.chainage_m, g.columns[k], step_m=g.step_m) for k, _ in keys]
+    quals = [section_quality(g.chainage_m, g.columns[k], step_m=g.step_m) for k, _ in keys]
+    if quals and quals[0].start_m.size > 1:
+        # a survey that ends on a section limit touches the next section in one station only:
+        # no row "1+200.0 to 1+200.0" for it
+        keep = quals[0].start_m < g.chainage_m[-1]
+        quals = [replace(q, **{f.name: getattr(q, f.name)[keep] for f in fields(q)}) for q in quals]
+    return keys, quals
 
 
 def _quality_table(ws, rep: SurveyReport, r: int) -> None:

@@ -221,3 +221,35 @@ def test_chord_magnitude_cycles_with_the_spacing_and_the_plot_draws_its_maximum(
     ok = np.isfinite(a)
     assert np.all(b[ok] >= a[ok]) and np.nanmax(b) == pytest.approx(np.nanmax(a))
     plt.close(fig)
+
+
+def test_section_rows_cover_some_track(report):
+    """Every section-quality row (sheet and PDF) spans track; a survey ending on a section limit
+    gets no empty last row (it touches the next section in one station only)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from survey.workbook import section_table
+
+    _, res = report
+    for rep in (res.report, replace(res.report, geometry=_cut_at_section_limit(res.report.geometry))):
+        s = rep.geometry.chainage_m
+        keys, quals = section_table(rep)
+        q0 = quals[0]
+        assert q0.start_m.size >= 1
+        assert np.all(np.maximum(q0.start_m, s[0]) < np.minimum(q0.end_m, s[-1]))
+        assert all(q.start_m.size == q0.start_m.size for q in quals)
+
+
+def _cut_at_section_limit(g):
+    """The geometry up to and including the station on the first 200 m limit after its start."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    s = g.chainage_m
+    limit = (np.floor(s[0] / 200.0) + 1) * 200.0
+    n = int(np.searchsorted(s, limit + 1e-9))
+    assert abs(s[n - 1] - limit) < 1e-9, "the station grid has a station on the limit"
+    return replace(g, chainage_m=s[:n], columns={k: v[:n] for k, v in g.columns.items()})
