@@ -604,7 +604,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if standing and self.stop_started_s is None and self.aligned:
             self.stop_started_s = t
             if self.accepted_fixes and abs(dist - self.last_fix_distance_m) > 1.0:
-                self.say(f"standing at {self.chainage_now(dist):.1f} m: f = take a fix")
+                self.say(f"standing at {self.shown_station(self.chainage_now(dist)):.1f} m: f = take a fix")
         elif not standing and self.stop_started_s is not None:
             self.store.add_stop(self.rec.session_id, StopRecord(self.stop_started_s, t, f"S{self.stop_count:03d}",
                                                                 self.chainage_now(dist)))
@@ -615,7 +615,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         s.prompt = self.keys_prompt()
         s.t_s, s.standing, s.speed_m_s = t, standing, speed
         s.distance_since_fix_m = abs(dist - self.last_fix_distance_m) if self.last_fix else dist
-        s.chainage_m = self.chainage_now(dist)
+        s.chainage_m = self.shown_station(self.chainage_now(dist))
         t_ref = self.last_fix.t_s if self.last_fix else (self.static_start_s or 0.0)
         s.sigma_mm = predicted_sigma_mm(self.rec.meta, s.distance_since_fix_m, t - t_ref)
         s.sigma_fix_here_mm = interval_sigma_mm(self.rec.meta, s.distance_since_fix_m, t - t_ref)
@@ -665,6 +665,14 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             else:
                 self.world.clock.thaw()
             self._stop_held = hold
+
+    def shown_station(self, chainage_m: float) -> float:
+        """What the crew reads for an internal chainage: the drawing's station after the design's
+        station equations (``Alignment.station``), the chainage itself without them. Stored
+        records keep the internal chainage."""
+        if self._design is None or not np.isfinite(chainage_m):
+            return chainage_m
+        return float(self._design.station(np.array([chainage_m]))[0])
 
     def chainage_now(self, dist: float) -> float:
         """Chainage of the trolley at odometer distance ``dist``: the last fix's chainage on the

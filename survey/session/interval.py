@@ -75,12 +75,16 @@ def interval_check(stations, design, tol: ToleranceSet, rail_spacing_m: float, n
     return IntervalCheck(geometry, defects, time.perf_counter() - t0)
 
 
-def defects_text(check: IntervalCheck, tol: ToleranceSet) -> str:
-    """One line: the defects of the interval against the tolerance set."""
+def defects_text(check: IntervalCheck, tol: ToleranceSet, station=None) -> str:
+    """One line of plain text (it is stored as well as shown): the defects of the interval
+    against the tolerance set, at the drawing's stations ``station(chainage)`` when given (the
+    design's station equations; ``Alignment.station``), else at the internal chainage."""
     if check.geometry is None:
         return "too short for the geometry check"
     if not check.defects:
         return f"no defects against {tol.name}"
-    worst = ", ".join(f"{d.parameter} {d.start_chainage_m:.1f}-{d.end_chainage_m:.1f} m" for d in check.defects[:3])
+    at = (lambda c: c) if station is None else (lambda c: float(station(np.array([c]))[0]))
+    worst = ", ".join(f"{d.parameter} {at(d.start_chainage_m):.1f}-{at(d.end_chainage_m):.1f} m"
+                      for d in check.defects[:3])
     more = f" and {len(check.defects) - 3} more" if len(check.defects) > 3 else ""
-    return f"[bold red]{len(check.defects)} defects against {tol.name}[/]: {worst}{more}"
+    return f"{len(check.defects)} defects against {tol.name}: {worst}{more}"

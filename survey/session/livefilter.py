@@ -14,6 +14,7 @@ import numpy as np
 
 from survey.store import FixRecord
 from rich.markup import escape
+from rich.text import Text
 
 #: a fix needs the data up to this long before its time (one period of the slowest stream it uses)
 DATA_SLACK_S = 0.02
@@ -110,8 +111,11 @@ class LiveFiltering:
                 chk = interval_check(r.stations, self._design, self._tolerances, tr.rail_spacing_m, tr.nominal_gauge_m)
                 dt = time.perf_counter() - t0
                 self.interval_seconds.append(dt)
-                self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
-                self.console.print(self.screen.last_interval, highlight=False, markup=False)
+                station = None if self._design is None else self._design.station
+                self.screen.last_interval = (interval_summary_text(r, dt, station) + "; "
+                                             + defects_text(chk, self._tolerances, station))
+                self.screen.last_interval_alarm = bool(chk.defects)
+                self.console.print(Text(self.screen.last_interval, style="bold red" if chk.defects else ""))
                 # stored by the session's thread (the store's connection belongs to it)
                 self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
             except Exception as exc:
@@ -167,11 +171,15 @@ class LiveFiltering:
             self.console.print(f"[yellow]live processing unavailable after resume: {escape(str(exc))}[/]")
             self._live = False
 
-def interval_summary_text(r, seconds: float) -> str:
+def interval_summary_text(r, seconds: float, station=None) -> str:
     """One line for the crew about the interval just smoothed: deviations, sigma, gauge and cant
-    min..max (mm), seconds taken."""
+    min..max (mm), seconds taken; its ends at the drawing's stations ``station(chainage)`` when
+    given (the design's station equations), else at the internal chainage."""
     mm = 1e3
-    return (f"interval {r.stations.chainage_m[0]:.1f}-{r.stations.chainage_m[-1]:.1f} m: max |lateral| "
+    ends = r.stations.chainage_m[[0, -1]]
+    if station is not None:
+        ends = station(ends)
+    return (f"interval {ends[0]:.1f}-{ends[1]:.1f} m: max |lateral| "
             f"{mm * r.max_abs_lateral_dev_m:.2f} mm, max |vertical| {mm * r.max_abs_vertical_dev_m:.2f} mm, "
             f"max 1-sigma {mm * r.max_sigma_m:.2f} mm, gauge {mm * r.gauge_range_m[0]:.2f}..{mm * r.gauge_range_m[1]:.2f} mm, "
             f"cant {mm * r.cant_range_m[0]:.2f}..{mm * r.cant_range_m[1]:.2f} mm ({seconds:.2f} s)")

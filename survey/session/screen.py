@@ -43,6 +43,7 @@ class ScreenState:
     devices: list = field(default_factory=list)
     message: str = ""
     last_interval: str = ""
+    last_interval_alarm: bool = False  # the interval has defects: shown in red
     prompt: str = KEYS_HELP
     progress: float | None = None
 
@@ -71,7 +72,8 @@ def render(s: ScreenState):
         n = int(30 * max(0.0, min(1.0, s.progress)))
         parts.append(Text(f"[{'#' * n}{'.' * (30 - n)}] {100 * s.progress:5.1f} %"))
     if s.last_interval:
-        parts.append(Text(s.last_interval))  # data (defect labels, messages): printed literally
+        # data (defect labels, messages): printed literally, never as markup
+        parts.append(Text(s.last_interval, style="bold red" if s.last_interval_alarm else ""))
     if s.message:
         parts.append(f"[bold yellow]{escape(s.message)}[/]")
     parts.append(f"[dim]{escape(s.prompt)}[/]")
