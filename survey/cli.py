@@ -12,6 +12,8 @@ from typing import Annotated
 
 import typer
 
+from survey.errors import guard_app
+
 app = typer.Typer(
     name="trolley",
     help="Stop-and-go track surveying with a trolley: simulate, process, budget, export.",
@@ -53,12 +55,59 @@ COMMAND_MODULES: list[str] = [
 for _name in COMMAND_MODULES:
     importlib.import_module(f"survey.commands.{_name}").register(app)
 
+# known errors -> one line on stderr, exit 2; never a traceback (survey/errors.py)
+guard_app(app)
 
-def _plain_help(typer_app: typer.Typer) -> None:
-    """Plain click help for every command group, whatever its own Typer(...) said."""
+
+#: The one-line summaries of the command lists (``trolley --help``, ``trolley project --help``):
+#: click cuts a longer first sentence with "..." at 80 columns, so each command says what it
+#: does in a few words here; its own docstring keeps the full help text.
+SHORT_HELP: dict[str, str] = {
+    "process": "Filter and smooth a raw session into track.csv.",
+    "export": "Track geometry, tolerances, survey sheet, plots, PDF.",
+    "simulate": "Simulate a stop-and-go survey and its truth.",
+    "demo": "Survey the demo project end to end.",
+    "budget": "Accuracy budget and IMU/odometer sizing.",
+    "devices": "Check, record and simulate the serial instruments.",
+    "project": "Project store: CPIII, design, sessions, header.",
+    "tgms": "TGMS: cameras, lasers, IMU, encoder -> irregularities.",
+    "survey": "The field survey session: start, resume.",
+    "inservice": "In-service vehicle sensors -> lateral alignment.",
+    "devices probe": "Check the instruments and what they answer.",
+    "devices record": "Record imu.csv, odometer.csv, gauge.csv.",
+    "devices simulate": "Start the device twins on pseudo-terminals.",
+    "project new": "Create a project store.",
+    "project import-cpiii": "Import CPIII control points.",
+    "project import-alignment": "Import the design alignment (LandXML).",
+    "project import-session": "Import a raw session folder.",
+    "project export-session": "Write a stored session as a raw folder.",
+    "project set-crs": "Set the CRS and vertical datum.",
+    "project set": "Set a survey header field.",
+    "project show": "Show settings, CPIII, design, sessions.",
+    "tgms simulate": "Write a synthetic TGMS recording and truth.",
+    "tgms process": "Process a recording into irregularities.csv.",
+    "tgms tune": "Tune the noise parameters (constrained ML).",
+    "survey start": "Start a field session.",
+    "survey resume": "Continue a session after a crash or kill -9.",
+    "inservice simulate": "Write a synthetic in-service recording.",
+    "inservice process": "Estimate the lateral alignment (Munoz 2021).",
+    "inservice calibrate": "Identify and tune the estimator.",
+}
+
+
+def _command_name(info: typer.models.CommandInfo) -> str:
+    return info.name or info.callback.__name__.replace("_", "-")
+
+
+def _plain_help(typer_app: typer.Typer, prefix: str = "") -> None:
+    """Plain click help and short summaries for every command and group, whatever its own
+    Typer(...) said."""
+    for info in typer_app.registered_commands:
+        info.short_help = info.short_help or SHORT_HELP.get(prefix + _command_name(info))
     for group in typer_app.registered_groups:
         group.typer_instance.rich_markup_mode = None
-        _plain_help(group.typer_instance)
+        group.short_help = group.short_help or SHORT_HELP.get(prefix + group.name)
+        _plain_help(group.typer_instance, prefix + group.name + " ")
 
 
 _plain_help(app)

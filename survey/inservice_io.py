@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from survey.tgms_io import TgmsFormatError, _atomic_write_csv, _num, _read_csv, write_text_atomic
+from survey.atomicwrite import write_text_atomic
+from survey.tgms_io import TgmsFormatError, _atomic_write_csv, _num, _read_csv
 
 FORMAT = "trolley-inservice/1"
 SENSOR_COLUMNS = ["t_s", "s_m", "speed_m_s", "wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2"]

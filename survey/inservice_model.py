@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from survey.atomicwrite import write_text_atomic
 from survey.inservice_io import parse_toml
-from survey.tgms_io import write_text_atomic
 
 FORMAT = "trolley-inservice-model/1"
 

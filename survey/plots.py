@@ -11,16 +11,24 @@ carries the filter's start-up transient (within half the longest wavelength of t
 end of the record, trolley/bands.py "NaN gaps"), are hatched grey; the long-chord checks are drawn
 as their magnitude (the value is the largest difference along the chord with its sign, which
 flips from one station to the next: drawn signed it reads as a comb).
+
+The magnitude of a check with more than two points spacings along the chord (30 m / 5 m) rises
+and falls with a period of one spacing p, and that is the check itself, not the drawing: the
+largest difference of points p apart takes a steep stretch of the deviation whole when the
+chord's points straddle it and split over two pairs when they do not, so as the chord slides
+by 0.625 m the value cycles every p (a single 1 mm ramp over 2 m reads 0.83, 0.52, 0.46, 0.77,
+0.83 mm ... every 5 m; a pure 20 m sine of 0.5 mm between 0.50 and 0.83 mm). Such a panel draws
+the per-station values thin and, as its line, their maximum over one spacing
+(:func:`chord_envelope`): the check with the chord's points at their worst place.
 """
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from survey.atomicwrite import write_with
 from trolley.bands import BANDS
 
 from survey.track_table import SurveyReport, limit_in_display
@@ -70,6 +78,29 @@ def _panel_limit(rep: SurveyReport, keys: list[str]) -> tuple[float, float, str]
 def is_chord(key: str) -> bool:
     """A long-chord check column (drawn as its magnitude)."""
     return key.startswith("chord")
+
+
+def chord_spacing_m(rep: SurveyReport, key: str) -> float | None:
+    """The point spacing p of the long-chord check ``key`` if its magnitude cycles with p (more
+    than two spacings along the chord), else None (B = 2p: the value is +-one versine)."""
+    from trolley.trackgeometry import long_chord_name
+
+    for chord, spacing in rep.geometry.config.long_chords_m:
+        if key in (long_chord_name(chord, spacing, "lat"), long_chord_name(chord, spacing, "vert")):
+            return float(spacing) if round(chord / spacing) > 2 else None
+    return None
+
+
+def chord_envelope(magnitude: np.ndarray, spacing_m: float, step_m: float) -> np.ndarray:
+    """The largest magnitude within half a spacing either side of each station (a centred running
+    maximum over one spacing p, scipy.ndimage.maximum_filter1d); NaN where the value is NaN."""
+    from scipy.ndimage import maximum_filter1d
+
+    v = np.asarray(magnitude, dtype=float)
+    half = int(round(0.5 * spacing_m / step_m))
+    out = maximum_filter1d(np.where(np.isnan(v), -np.inf, v), size=2 * half + 1, mode="nearest")
+    out[np.isnan(v)] = np.nan
+    return out
 
 
 def edge_zones(chainage_m: np.ndarray, values: np.ndarray, key: str) -> list[tuple[float, float]]:
@@ -136,6 +167,11 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
             label = "|" + col.header.replace(" [mm]", "| [mm]", 1)
         if not np.isfinite(v[sel]).any():
             continue
+        p = chord_spacing_m(rep, k) if is_chord(k) else None
+        if p is not None:   # the per-station values thin; the line is their maximum over one spacing
+            ax.plot(s[sel], v[sel], lw=0.4, color=colours[n % 3], alpha=0.35, label=f"{label} per station")
+            v = chord_envelope(v, p, rep.geometry.step_m)
+            label = f"{label}, max over {p:g} m"
         vals.append(v[sel][np.isfinite(v[sel])])
         ax.plot(s[sel], v[sel], lw=0.9, color=colours[n % 3], label=label)
         if k in SIGMA_OF:
@@ -195,12 +231,27 @@ def panel_marks(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return acc, rej, stops
 
 
-def km_axis(ax) -> None:
-    """Label a chainage x axis in km+m."""
+def km_axis(ax, rep: SurveyReport | None = None) -> None:
+    """Label a chainage x axis in km+m.
+
+    The axis runs along the internal station (the distance: no gap or fold at a station
+    equation); with ``rep`` the labels are its drawing stationing (:meth:`SurveyReport.station`)
+    and each station equation in the survey is a dashed vertical line with its text.
+    """
     from matplotlib.ticker import FuncFormatter
 
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(x, 1)))
-    ax.set_xlabel("chainage [km+m]")
+    station = (lambda x: x) if rep is None else rep.station
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: km_label(station(x), 1)))
+    ax.set_xlabel("chainage [km+m]" + (" (drawing stationing)" if rep is not None and rep.equations() else ""))
+    for s, text in ([] if rep is None else rep.equations()):
+        shown = [a for a in ax.get_figure().axes if a.get_xlim()[0] <= s <= a.get_xlim()[1]]
+        for a in shown:
+            a.axvline(s, color="black", ls="--", lw=0.8)
+        if shown:   # "1+300.000 back = 2+300.000 ahead" at the foot of the first panel (the legend is at the top)
+            label = " " + text.split(": ", 1)[1].split(" (")[0]
+            shown[0].text(s, 0.03, label, transform=shown[0].get_xaxis_transform(),
+                          fontsize=7, va="bottom", ha="left", zorder=6,
+                          bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
 
 
 def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
@@ -227,19 +278,13 @@ def write_plots(folder: Path, rep: SurveyReport) -> list[Path]:
                                  sharex=True, squeeze=False)
         for ax, keys in zip(axes[:, 0], panels):
             draw_panel(ax, rep, keys, marks)
-        km_axis(axes[-1, 0])
+        km_axis(axes[-1, 0], rep)
         names = " / ".join(x for x in (rep.info.project, rep.info.session) if x) or rep.track_csv.name
         axes[0, 0].set_title(f"{title} - {names}")
         fig.tight_layout()
         out = folder / f"{stem}.png"
-        fd, tmp = tempfile.mkstemp(prefix=f".{stem}-", suffix=".png", dir=folder)
-        os.close(fd)
         try:
-            fig.savefig(tmp, format="png")
-            os.replace(tmp, out)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+            write_with(out, lambda tmp: fig.savefig(tmp, format="png"))
         finally:
             plt.close(fig)
         written.append(out)

@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import io
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from survey.atomicwrite import write_bytes_atomic
 from survey.plots import draw_panel, km_axis, km_label, panel_marks
 from survey.surveyheader import header_rows
 from survey.track_table import SurveyReport, limit_in_display
@@ -38,8 +37,8 @@ STRIP_M = 1000.0
 #: line spacing of the tables (multiples of the font's line height)
 LINESPACING = 1.3
 #: table rows per page
-DEFECT_ROWS = 30
-QA_ROWS = 34
+DEFECT_ROWS = 50
+QA_ROWS = 56
 
 
 @dataclass(frozen=True)
@@ -61,47 +60,61 @@ def _frame(fig, rep: SurveyReport, title: str, page: int, total: int) -> None:
     fig.text(0.97, 0.015, f"tolerances {rep.tolerances.name}", fontsize=7, ha="right")
 
 
-def _line_pitch(fig, fontsize: float) -> float:
-    """The baseline distance of a multi-line text at ``fontsize`` and :data:`LINESPACING`, as a
-    figure fraction (measured: 41 lines less one, over 40)."""
-    renderer = fig.canvas.get_renderer()
-    one = fig.text(0, 0, "lp", fontsize=fontsize, linespacing=LINESPACING, family="DejaVu Sans")
-    many = fig.text(0, 0, "\n".join(["lp"] * 41), fontsize=fontsize, linespacing=LINESPACING, family="DejaVu Sans")
-    pitch = (many.get_window_extent(renderer).height - one.get_window_extent(renderer).height) / 40
-    one.remove()
-    many.remove()
-    return pitch / fig.bbox.height
+#: the table font: monospaced, so the columns of a row line up as text (DejaVu Sans Mono's advance)
+TABLE_FONT = "DejaVu Sans Mono"
+_MONO_ADVANCE_EM = 0.602
 
 
-def _table(ax, rows: list[list[str]], heads: list[str], widths: list[float] | None = None, red: set[int] = frozenset(),
-           fontsize: float = 7.0, bold: set[int] = frozenset()) -> None:
-    """A table at the top of ``ax``: one multi-line text per column (matplotlib's Table draws
-    every cell as its own text and took 15 s for 1100 cells), a blue header row, row rules, and
-    the rows in ``red`` shaded red, those in ``bold`` (titles spanning the row) in bold."""
+def _row_pitch(fig, fontsize: float) -> float:
+    """Distance between table rows as a figure fraction: :data:`LINESPACING` times the font size."""
+    return fontsize * LINESPACING / 72.0 / fig.get_figheight()
+
+
+def _row_text(cells: list[str], chars: list[int]) -> str:
+    """One table row as monospaced text: each cell padded (or cut, ending in an ellipsis) to its
+    column's width in characters."""
+    out = []
+    for text, n in zip(cells, chars):
+        text = str(text)
+        out.append(text.ljust(n) if len(text) < n else text[:max(n - 2, 0)] + "… ")
+    return "".join(out).rstrip()
+
+
+def _table(ax, rows: list[list[str]], heads: list[str] | None, widths: list[float] | None = None,
+           red: set[int] = frozenset(), fontsize: float = 7.0, bold: set[int] = frozenset(),
+           subheads: set[int] = frozenset()) -> None:
+    """A table at the top of ``ax``: one monospaced text per row, each at its own computed height
+    (row ``i``'s centre at ``top - (i + 1.5) * pitch``), so rows stay on their rules and shading
+    down the page (matplotlib's Table draws every cell as its own text and took 15 s for 1100
+    cells; one multi-line text per column drifted from the shading by about a line near the
+    foot of a page). ``heads`` (if given) is a blue header row; rows in ``subheads`` are header
+    rows of a section (blue, bold), in ``bold`` titles spanning the row, in ``red`` shaded red."""
     from matplotlib.patches import Rectangle
 
     ax.axis("off")
     fig = ax.figure
     box = ax.get_position()
-    widths = widths or [1.0 / len(heads)] * len(heads)
-    scale = box.width / sum(widths)
-    row_h = _line_pitch(fig, fontsize)
+    ncol = len(heads) if heads else max(len(r) for r in rows)
+    widths = widths or [1.0 / ncol] * ncol
+    char_w = _MONO_ADVANCE_EM * fontsize / 72.0 / fig.get_figwidth()        # figure fraction per character
+    total = int((box.width - 0.006) / char_w)
+    chars = [int(w / sum(widths) * total) for w in widths]
+    chars[-1] = total - sum(chars[:-1])
+    pitch = _row_pitch(fig, fontsize)
     top = box.y1
-    fig.patches.append(Rectangle((box.x0, top - row_h), box.width, row_h, transform=fig.transFigure,
-                                 facecolor="#DDEBF7", edgecolor="none", zorder=0))
-    for i in sorted(red):
-        fig.patches.append(Rectangle((box.x0, top - (i + 2) * row_h), box.width, row_h, transform=fig.transFigure,
-                                     facecolor="#FFC7CE", edgecolor="none", zorder=0))
-    x = box.x0
-    for j, (head, w) in enumerate(zip(heads, widths)):
-        fig.text(x + 0.003, top - 0.5 * row_h, head, fontsize=fontsize, weight="bold", va="center")
-        # a blank line would be lower than the others: a no-break space keeps every line one pitch
-        plain = "\n".join("\u00a0" if i in bold or j >= len(r) or not r[j] else r[j] for i, r in enumerate(rows))
-        fig.text(x + 0.003, top - row_h - 0.12 * row_h, plain, fontsize=fontsize, va="top",
-                 linespacing=LINESPACING, family="DejaVu Sans")
-        x += w * scale
-    for i in sorted(bold):
-        fig.text(box.x0 + 0.003, top - (i + 1.5) * row_h, rows[i][0], fontsize=fontsize, weight="bold", va="center")
+    lines = ([(heads, "head")] if heads else []) + [
+        (r, "sub" if i in subheads else "title" if i in bold else "row") for i, r in enumerate(rows)]
+    first = 1 if heads else 0
+    for k, (cells, kind) in enumerate(lines):
+        y = top - (k + 1) * pitch
+        fill = ("#DDEBF7" if kind in ("head", "sub") else
+                "#FFC7CE" if kind == "row" and (k - first) in red else None)
+        if fill:
+            fig.patches.append(Rectangle((box.x0, y), box.width, pitch, transform=fig.transFigure,
+                                         facecolor=fill, edgecolor="none", zorder=0))
+        text = _row_text(cells[:1], [total]) if kind == "title" else _row_text(cells, chars)
+        fig.text(box.x0 + 0.003, y + 0.5 * pitch, text, fontsize=fontsize, va="center", family=TABLE_FONT,
+                 weight="normal" if kind == "row" else "bold")
 
 
 def _fmt(x: float, digits: int = 2) -> str:
@@ -174,7 +187,7 @@ def _strip(fig, rep: SurveyReport, a: float, b: float, marks) -> None:
         leg = ax.get_legend()
         if leg is not None:
             leg.set_visible(ax is axes[0, 0])
-    km_axis(axes[-1, 0])
+    km_axis(axes[-1, 0], rep)
 
 
 def _defects(fig, rep: SurveyReport, chunk) -> None:
@@ -183,8 +196,8 @@ def _defects(fig, rep: SurveyReport, chunk) -> None:
     for i, d in chunk:
         col = by_key.get(d.column)
         conv = (lambda v: float(col.display(np.array([v]))[0])) if col else (lambda v: v)
-        rows.append([str(i), col.header if col else d.parameter, km_label(d.start_chainage_m, 3),
-                     km_label(d.end_chainage_m, 3), _fmt(d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, 3),
+        rows.append([str(i), col.header if col else d.parameter, km_label(rep.station(d.start_chainage_m), 3),
+                     km_label(rep.station(d.end_chainage_m), 3), _fmt(d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, 3),
                      _fmt(conv(d.peak)), _fmt(conv(d.limit)), col.unit if col else "", str(d.stations)])
     if not rows:
         fig.text(0.05, 0.9, "No value beyond tolerance.", fontsize=11)
@@ -205,14 +218,25 @@ def _quality(fig, rep: SurveyReport) -> None:
         return
     q0 = quals[0]
     s = rep.geometry.chainage_m
-    rows = [[str(i + 1), km_label(max(q0.start_m[i], s[0]), 1), km_label(min(q0.end_m[i], s[-1]), 1)]
+    rows = [[str(i + 1), km_label(rep.station(max(q0.start_m[i], s[0])), 1),
+             km_label(rep.station(min(q0.end_m[i], s[-1])), 1)]
             + [_fmt(q.std[i] * 1e3) for q in quals] for i in range(min(q0.start_m.size, 40))]
     ax = fig.add_axes([0.05, 0.06, 0.9, 0.84])
     _table(ax, rows, ["#", "From", "To"] + [f"SD {lab}" for _, lab in keys])
 
 
+#: column headings of the free-station QA sections (each section has its own)
+QA_POINT_HEADS = ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]', "Dist [mm]",
+                  "|w| max", "Reason"]
+QA_OVERLAP_HEADS = ["Old / new fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "", "",
+                    "Tol./axis [mm]", "Verdict", "Reason"]
+QA_FIX_HEADS = ["Point", "Time [s]", "", "", "", "", "", "", "", "Reason"]
+QA_WIDTHS = [0.13, 0.07, 0.07, 0.07, 0.07, 0.07, 0.06, 0.06, 0.08, 0.32]
+
+
 def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
-    """Rows of the free-station QA pages: (kind, cells, red)."""
+    """Rows of the free-station QA pages: (kind, cells, red), kind "title" (a section's title),
+    "head" (its column headings) or "point" (a row of values)."""
     from trolley import units
 
     from survey.workbook import _field_only_rejections
@@ -225,32 +249,55 @@ def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
         out.append(("title", [f"Station {st.station}: E {st.E_m:.4f} N {st.N_m:.4f} H {st.H_m:.4f} m, sigma0 "
                               f"{st.sigma0:.2f} ({st.dof} dof), {'accepted' if st.accepted else 'not accepted'}, "
                               f"{sum(p.used for p in st.pointings)} points used"
-                              + (f", dropped {', '.join(dropped)}" if dropped else "")], False))
+                              + (f", dropped {', '.join(dropped)}" if dropped else "")
+                              + "; residuals across / along / height of the line of sight"], False))
+        out.append(("head", QA_POINT_HEADS, False))
         for p in st.pointings:
             out.append(("point", [p.point, "yes" if p.used else "dropped", _fmt(p.across_m * 1e3), _fmt(p.along_m * 1e3),
                                   _fmt(p.height_m * 1e3), _fmt(p.hz_rad / arcsec, 1), _fmt(p.zenith_rad / arcsec, 1),
                                   _fmt(p.distance_m * 1e3), _fmt(p.max_standardized, 1),
                                   p.reason if (p.flagged or not p.used) else "ok"], p.flagged or not p.used))
-    out.append(("title", ["Overlap checks (new minus old station)"], False))
+    out.append(("title", ["Overlap checks: the same CPIII point fixed from two stations; new minus old position "
+                          "in grid E, N and height, each within the tolerance"], False))
+    out.append(("head", QA_OVERLAP_HEADS, False))
     for o in rec.overlaps:
         out.append(("point", [f"{o.old_point} / {o.new_point}", f"{o.from_station}->{o.to_station}",
                               _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), "", "",
                               _fmt(o.tolerance_m * 1e3), "within" if o.within else "OUTSIDE", o.reason], not o.within))
     out.append(("title", ["Fixes rejected or undone"], False))
+    out.append(("head", QA_FIX_HEADS, False))
     for f in sorted(list(_field_only_rejections(rep)) + [f for f in (rep.fixes or []) if not f.accepted],
                     key=lambda f: f.t_s):
-        out.append(("point", [f.point, f"t {f.t_s:.1f} s", "", "", "", "", "", "", "", f.reason or "rejected"], True))
+        out.append(("point", [f.point, f"{f.t_s:.1f}", "", "", "", "", "", "", "", f.reason or "rejected"], True))
     return out
 
 
+def qa_pages(rows: list[tuple[str, list[str], bool]], per_page: int = QA_ROWS) -> list[list[tuple[str, list[str], bool]]]:
+    """The QA rows cut into pages of at most ``per_page`` rows. A page that starts inside a
+    section starts with that section's column headings again; no page ends on a title or
+    headings without a row below them."""
+    pages: list[list] = [[]]
+    head = None
+    for row in rows:
+        kind = row[0]
+        if kind == "head":
+            head = row
+        page = pages[-1]
+        # rows this one needs on the same page: a title its headings and a first row, headings a first row
+        need = 3 if kind == "title" else 2 if kind == "head" else 1
+        if len(page) + need > per_page and page:
+            pages.append([] if kind != "point" or head is None else [head])
+        pages[-1].append(row)
+    return pages
+
+
 def _qa(fig, chunk) -> None:
-    heads = ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]', "Dist [mm]",
-             "|w| max / verdict", "Reason"]
-    rows = [cells if kind == "point" else [cells[0]] + [""] * 9 for kind, cells, _ in chunk]
+    rows = [cells if kind != "title" else [cells[0]] for kind, cells, _ in chunk]
     red = {i for i, (_, _, r) in enumerate(chunk) if r}
     bold = {i for i, (kind, _, _) in enumerate(chunk) if kind == "title"}
+    subheads = {i for i, (kind, _, _) in enumerate(chunk) if kind == "head"}
     ax = fig.add_axes([0.05, 0.06, 0.9, 0.86])
-    _table(ax, rows, heads, [0.13, 0.07, 0.07, 0.07, 0.07, 0.06, 0.06, 0.07, 0.1, 0.3], red, fontsize=6.5, bold=bold)
+    _table(ax, rows, None, QA_WIDTHS, red, fontsize=6.5, bold=bold, subheads=subheads)
 
 
 def page_plan(rep: SurveyReport) -> list[tuple[str, callable]]:
@@ -264,7 +311,7 @@ def page_plan(rep: SurveyReport) -> list[tuple[str, callable]]:
         a, b = max(k * STRIP_M, float(s[0])), min((k + 1) * STRIP_M, float(s[-1]))
         if b <= a:
             continue
-        plan.append((f"Strip charts {km_label(a, 0)} to {km_label(b, 0)}",
+        plan.append((f"Strip charts {km_label(rep.station(a), 0)} to {km_label(rep.station(b), 0)}",
                      lambda fig, a=a, b=b: _strip(fig, rep, a, b, marks)))
     numbered = list(enumerate(rep.defects, start=1))
     chunks = [numbered[i:i + DEFECT_ROWS] for i in range(0, len(numbered), DEFECT_ROWS)] or [[]]
@@ -276,8 +323,7 @@ def page_plan(rep: SurveyReport) -> list[tuple[str, callable]]:
             0.05, 0.9, "No field record beside track.csv (a track processed outside a field session): station "
                        "setups and overlap checks not given.", fontsize=10)))
     else:
-        rows = _qa_rows(rep)
-        chunks = [rows[i:i + QA_ROWS] for i in range(0, len(rows), QA_ROWS)]
+        chunks = qa_pages(_qa_rows(rep))
         for j, chunk in enumerate(chunks, start=1):
             plan.append((f"Free-station QA ({j}/{len(chunks)})", lambda fig, c=chunk: _qa(fig, c)))
     return plan
@@ -304,15 +350,7 @@ def write_pdf_report(path: Path, rep: SurveyReport) -> PdfReport:
                 pdf.savefig(fig)
             finally:
                 plt.close(fig)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".pdf", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.getvalue())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, buf.getvalue())
     return PdfReport(path=path, pages=tuple(t for t, _ in plan))
 
 

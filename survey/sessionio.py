@@ -30,6 +30,9 @@ from trolley import units
 from trolley.sensors import ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
+from survey.atomicwrite import folder_mode, write_text_atomic, write_with
+from survey.names import is_relative_inside
+
 __all__ = [
     "SessionFormatError",
     "FORMAT_ID",
@@ -207,8 +210,7 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
     design = t.string("design.alignment", None) if t.raw("design.alignment") is not _MISSING \
         else None
     if design is not None:
-        p = Path(design)
-        if design == "" or p.is_absolute() or ".." in p.parts:
+        if not is_relative_inside(design):
             raise t.error("design.alignment", f"must be a relative path inside the session "
                                               f"folder, got {design!r}")
     return SessionMeta(
@@ -335,7 +337,7 @@ def read_session_meta(folder: Path) -> SessionMeta:
 
 def write_session_meta(path: Path, meta: SessionMeta) -> None:
     """Write ``session.toml`` (atomic: temp file + os.replace)."""
-    _atomic_text(Path(path), session_toml_text(meta))
+    write_text_atomic(Path(path), session_toml_text(meta))
 
 
 # ------------------------------------------------------------------------------------------
@@ -395,13 +397,45 @@ def _parser_error(path: Path, exc: Exception) -> SessionFormatError:
     return SessionFormatError(f"{path.name}: {where}malformed CSV ({msg.strip()})")
 
 
-def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> SessionFormatError:
-    """Re-read as text and describe the first non-numeric or non-finite numeric cell."""
+#: Largest magnitude a cell of these columns can plausibly hold, SI units. A finite but absurd
+#: value (1e308 in an IMU cell) would otherwise pass the finite check and end as a garbage or
+#: empty track; the limits are far beyond any real instrument: a navigation gyro's range is
+#: below 35 rad/s (2000 deg/s), an accelerometer's below 200 g, a survey below 10 000 km.
+PLAUSIBLE_ABS = {
+    "t_s": 1e10, "wx_rad_s": 100.0, "wy_rad_s": 100.0, "wz_rad_s": 100.0,
+    "fx_m_s2": 2000.0, "fy_m_s2": 2000.0, "fz_m_s2": 2000.0, "distance_m": 1e7, "gauge_m": 10.0,
+    "chainage_m": 1e8, "E_m": 1e8, "N_m": 1e8, "H_m": 1e5,
+}
+#: A fix's 1-sigma, m: below 1 micrometre no instrument measures, above 100 m it is no fix.
+SIGMA_RANGE_M = (1e-6, 100.0)
+#: Rows re-read as text at a time when a bad cell must be found (bounded memory).
+_LOCATE_CHUNK_ROWS = 200_000
+
+
+def _cell_problem(value: str) -> str:
+    value = value.strip()
+    if value == "":
+        return "empty value"
+    if value.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+        return f"{value!r} is not a finite number"
+    return f"{value!r} is not a number"
+
+
+def _text_rows(path: Path, header: list[str], cols: list[str], first: int, nrows: int):
+    """Rows ``first`` .. ``first + nrows`` (0-based data rows) of ``cols`` as text."""
     import pandas as pd
 
-    raw = pd.read_csv(path, usecols=[names[c] for c in numeric], dtype=str,
-                      keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
-                      engine="c")
+    return pd.read_csv(path, header=None, names=header, usecols=cols, skiprows=first + 1, nrows=nrows,
+                       dtype=str, keep_default_na=False, skip_blank_lines=False, encoding="utf-8-sig",
+                       engine="c")
+
+
+def _first_bad_text(path: Path, header: list[str], names: dict[str, str], numeric: list[str],
+                    first: int, nrows: int) -> SessionFormatError | None:
+    """The first non-numeric or non-finite cell of rows ``first`` .. ``first + nrows``, or None."""
+    import pandas as pd
+
+    raw = _text_rows(path, header, [names[c] for c in numeric], first, nrows)
     best = None
     for c in numeric:
         text = raw[names[c]]
@@ -411,13 +445,171 @@ def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str]) -> S
             i = int(np.argmax(bad))
             if best is None or i < best[0]:
                 best = (i, c, text.iloc[i])
-    if best is None:  # pragma: no cover - the fast path and this path disagree
-        return SessionFormatError(f"{path.name}: unreadable numeric data")
+    if best is None:
+        return None
     i, c, value = best
-    what = "empty value" if value.strip() == "" else (
-        f"{value!r} is not a finite number" if value.strip().lower().lstrip("+-") in
-        ("nan", "inf", "infinity") else f"{value!r} is not a number")
-    return SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {what}")
+    return SessionFormatError(f"{path.name}: row {_row(first + i)}, column {c}: {_cell_problem(value)}")
+
+
+_BLOCK_BYTES = 1 << 24
+
+
+def _line_at(path: Path, line: int) -> bytes | None:
+    """The bytes of line ``line`` (0 = the header) without its end, None past the end.
+
+    Newlines are counted block by block (``bytes.count`` runs at memory speed), so finding one row
+    of a 500 MB file costs a fraction of a second and one block of memory, not a parse.
+    """
+    seen = 0
+    with open(path, "rb") as fh:
+        carry = b""
+        while True:
+            block = fh.read(_BLOCK_BYTES)
+            if not block:
+                return carry if seen == line and carry else None
+            block = carry + block
+            n = block.count(b"\n")
+            if seen + n > line:
+                start = 0
+                for _ in range(line - seen):
+                    start = block.index(b"\n", start) + 1
+                return block[start:block.index(b"\n", start)].rstrip(b"\r")
+            seen += n
+            carry = block[block.rfind(b"\n") + 1:]
+
+
+def _bad_row_text(path: Path, header: list[str], names: dict[str, str], numeric: list[str],
+                  row: int, raw: bytes | None = None) -> SessionFormatError | None:
+    """Describe the first non-numeric or non-finite cell of data row ``row`` (0-based), its text
+    ``raw`` or read by :func:`_line_at`; None if that row has none (or cannot be split)."""
+    import csv
+
+    raw = _line_at(path, row + 1) if raw is None else raw
+    if raw is None:
+        return None
+    try:
+        cells = next(csv.reader([raw.decode("utf-8")]))
+    except (UnicodeDecodeError, csv.Error, StopIteration):
+        return None
+    for c in numeric:
+        j = header.index(names[c])
+        text = cells[j] if j < len(cells) else ""
+        try:
+            ok = np.isfinite(float(text))
+        except ValueError:
+            ok = False
+        if not ok:
+            return SessionFormatError(f"{path.name}: row {_row(row)}, column {c}: {_cell_problem(text)}")
+    return None
+
+
+#: Most places a token may be looked at before the scan gives up (a token such as "e" occurs in
+#: every exponent; then the block-wise re-read is the faster way).
+_MAX_TOKEN_HITS = 10_000
+_CELL_EDGE = frozenset(b',"\t \r\n')
+
+
+def _find_token_row(path: Path, token: str) -> tuple[int, bytes] | None:
+    """(0-based data row, line bytes) of the first cell that is exactly ``token`` (the text pandas
+    could not convert, which its message quotes), found in one pass over the file's blocks with
+    ``bytes.find`` and ``bytes.count``; None when not found or too common to look for."""
+    tok = token.encode("utf-8") if token else b""
+    if not tok or b"\n" in tok:
+        return None
+    hits = 0
+    line = 0            # newlines before the current block
+    with open(path, "rb") as fh:
+        carry = b""     # the unfinished last line of the previous block
+        while True:
+            data = fh.read(_BLOCK_BYTES)
+            block = carry + data
+            if not block:
+                return None
+            cut = len(block) if not data else block.rfind(b"\n") + 1
+            if cut == 0:        # a line longer than the block: read on
+                carry = block
+                continue
+            body = block[:cut]
+            start = body.find(b"\n") + 1 if line == 0 else 0  # not in the header
+            pos = body.find(tok, start)
+            while pos >= 0:
+                hits += 1
+                if hits > _MAX_TOKEN_HITS:
+                    return None
+                end = pos + len(tok)
+                if (pos == 0 or body[pos - 1] in _CELL_EDGE) and (end == len(body) or body[end] in _CELL_EDGE):
+                    first = body.rfind(b"\n", 0, pos) + 1
+                    last = body.find(b"\n", pos)
+                    n = line + body.count(b"\n", 0, first)
+                    return n - 1, body[first:last if last >= 0 else len(body)].rstrip(b"\r")
+                pos = body.find(tok, pos + 1)
+            line += body.count(b"\n")
+            carry = block[cut:]
+            if not data:
+                return None
+
+
+def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str],
+                     exc: Exception | None = None) -> SessionFormatError:
+    """Find the first non-numeric or non-finite numeric cell and describe it.
+
+    Reads the numeric columns again as floats in blocks of :data:`_LOCATE_CHUNK_ROWS` rows (as
+    fast as the first read, memory bounded by one block) and only the block that fails as text,
+    so a bad cell at the end of a 5-million-row file costs about one more read of the file, not
+    a text copy of all of it (issue 12). Before that, when pandas' message quotes the text it
+    could not convert (``exc``), one scan for that text finds the row in a second or two.
+    """
+    import re
+
+    import pandas as pd
+
+    header = _header(path)
+    m = re.fullmatch(r"could not convert string to float: '(.*)'", str(exc)) if exc is not None else None
+    if m is not None:
+        hit = _find_token_row(path, m.group(1))
+        found = _bad_row_text(path, header, names, numeric, *hit) if hit is not None else None
+        if found is not None:
+            return found
+    cols = [names[c] for c in numeric]
+    reader = pd.read_csv(path, usecols=cols, dtype={c: "float64" for c in cols}, chunksize=_LOCATE_CHUNK_ROWS,
+                         skip_blank_lines=False, encoding="utf-8-sig", engine="c")
+    first = 0
+    with reader:
+        while True:
+            try:
+                chunk = next(reader)
+            except StopIteration:
+                break
+            except ValueError:
+                found = _first_bad_text(path, header, names, numeric, first, _LOCATE_CHUNK_ROWS)
+                if found is not None:
+                    return found
+                break
+            finite = np.isfinite(chunk[cols].to_numpy(dtype=float))
+            if not finite.all():
+                i = int(np.argmax(~finite.all(axis=1)))
+                found = _bad_row_text(path, header, names, numeric, first + i)
+                if found is not None:
+                    return found
+            first += len(chunk)
+    return SessionFormatError(f"{path.name}: unreadable numeric data")
+
+
+def _check_plausible(path: Path, columns: list[str], m: np.ndarray) -> None:
+    """Refuse finite but absurd values (:data:`PLAUSIBLE_ABS`), naming the first row and column."""
+    limits = np.array([PLAUSIBLE_ABS.get(c, np.inf) for c in columns])
+    if np.isinf(limits).all():
+        return
+    out = m > limits          # two boolean masks, not a float copy of a 5 M-row file (np.abs)
+    out |= m < -limits
+    rows = out.any(axis=1)
+    if not rows.any():
+        return
+    i = int(np.argmax(rows))
+    j = int(np.argmax(out[i]))
+    c = columns[j]
+    raise SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {float(m[i, j]):g} is not a plausible "
+                             f"value (|{c}| <= {limits[j]:g})")
 
 
 def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.ndarray:
@@ -443,14 +635,18 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
     except ValueError as exc:
         if isinstance(exc, pd.errors.ParserError):
             raise _parser_error(path, exc) from None
-        raise _locate_bad_cell(path, names, required) from None
+        raise _locate_bad_cell(path, names, required, exc) from None
     if len(df) < min_rows:
-        raise SessionFormatError(f"{path.name}: row 2: no data rows")
+        raise SessionFormatError(f"{path.name}: {len(df)} data row(s), at least {min_rows} needed"
+                                 if len(df) else f"{path.name}: row 2: no data rows")
     # one float block: a view, its rows being the file's rows
     m = df[[names[c] for c in required]].to_numpy(dtype=float)
     m.flags.writeable = False
-    if not np.isfinite(m).all():
-        raise _locate_bad_cell(path, names, required)
+    finite = np.isfinite(m)
+    if not finite.all():
+        i = int(np.argmax(~finite.all(axis=1)))
+        raise _bad_row_text(path, header, names, required, i) or _locate_bad_cell(path, names, required)
+    _check_plausible(path, required, m)
     _check_time(path, m[:, required.index("t_s")])
     return m
 
@@ -460,7 +656,7 @@ def _check_time(path: Path, t: np.ndarray) -> None:
     if np.any(back):
         i = int(np.argmax(back)) + 1
         raise SessionFormatError(f"{path.name}: row {_row(i)}, column t_s: time goes backwards "
-                                 f"({t[i]!r} after {t[i - 1]!r})")
+                                 f"({float(t[i])!r} after {float(t[i - 1])!r})")
 
 
 def _read_fixes(path: Path, default_sigma: float) -> Fixes:
@@ -492,9 +688,9 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         vals[c] = v
     first = None
     for c in num + sig:
-        bad = ~np.isfinite(vals[c])
+        bad = ~np.isfinite(vals[c]) | (np.abs(vals[c]) > PLAUSIBLE_ABS.get(c, np.inf))
         if c in sig:
-            bad |= ~(vals[c] > 0)
+            bad |= ~((vals[c] >= SIGMA_RANGE_M[0]) & (vals[c] <= SIGMA_RANGE_M[1]))
         if np.any(bad):
             i = int(np.argmax(bad))
             if first is None or i < first[0]:
@@ -507,8 +703,11 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         i, c = first
         value = raw[names[c]].iloc[i]
         what = ("empty point label" if c == "point" else
-                "sigma must be a positive number" if c in sig and value.strip() != "" and
+                f"sigma must be a positive number from {SIGMA_RANGE_M[0]:g} to {SIGMA_RANGE_M[1]:g} m"
+                if c in sig and value.strip() != "" and
                 np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
+                f"{value.strip()} is not a plausible value (|{c}| <= {PLAUSIBLE_ABS[c]:g})"
+                if c in PLAUSIBLE_ABS and np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
                 "empty value" if value.strip() == "" else
                 f"{value!r} is not a finite number"
                 if value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity")
@@ -548,8 +747,8 @@ def read_session(folder: Path) -> RawSession:
     if not folder.is_dir():
         raise SessionFormatError(f"{folder}: not a session folder (no such directory)")
     meta = read_session_meta(folder)
-    imu = _read_numeric(folder / "imu.csv", IMU_COLUMNS)
-    odo = _read_numeric(folder / "odometer.csv", ODOMETER_COLUMNS)
+    imu = _read_numeric(folder / "imu.csv", IMU_COLUMNS, min_rows=2)
+    odo = _read_numeric(folder / "odometer.csv", ODOMETER_COLUMNS, min_rows=2)
     fixes = _read_fixes(folder / "fixes.csv", meta.fix_sigma_m)
     gauge_t = gauge = None
     if (folder / "gauge.csv").exists():
@@ -643,8 +842,10 @@ def _check_finite(name: str, col: str, x: np.ndarray) -> None:
 
 
 def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
-                         exact: bool) -> None:
+                         exact: bool, progress: Callable[[str, float], None] | None = None) -> None:
     meta = session.meta
+    if progress is not None:
+        progress("writing imu.csv", 0.0)
     sensor = _EXACT if exact else _SENSOR
     (tmp / "session.toml").write_text(session_toml_text(meta), encoding="utf-8")
     w = np.asarray(session.imu_w_rad_s, dtype=float)
@@ -655,6 +856,9 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
     for col, x in zip(IMU_COLUMNS, [t, *w.T, *f.T]):
         _check_finite("imu.csv", col, x)
     write_csv_columns(tmp / "imu.csv", IMU_COLUMNS, [t, *w.T, *f.T], [_EXACT] + [sensor] * 6)
+    if progress is not None:
+        # imu.csv is most of the bytes: the other files share the last fifth
+        progress("writing odometer.csv, fixes.csv, gauge.csv", 0.8)
     _check_finite("odometer.csv", "t_s", session.odo_t_s)
     _check_finite("odometer.csv", "distance_m", session.odo_distance_m)
     write_csv_columns(tmp / "odometer.csv", ODOMETER_COLUMNS,
@@ -687,7 +891,8 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
 
 def write_session(folder: Path, session: RawSession, design_xml: str | None = None, *,
                   overwrite: bool = False, exact: bool = False,
-                  extra_files: Mapping[str, Callable[[Path], None]] | None = None) -> None:
+                  extra_files: Mapping[str, Callable[[Path], None]] | None = None,
+                  progress: Callable[[str, float], None] | None = None) -> None:
     """Write a raw session folder atomically (FORMATS.md sec. 1).
 
     Parameters
@@ -703,6 +908,7 @@ def write_session(folder: Path, session: RawSession, design_xml: str | None = No
     extra_files : name -> writer(path) of further files to put into the folder before it is
         renamed into place (e.g. ``truth.csv``), so that the folder appears complete or not
         at all.
+    progress : optional callable ``progress(step, fraction)``, called as each file begins.
 
     Raises
     ------
@@ -721,9 +927,11 @@ def write_session(folder: Path, session: RawSession, design_xml: str | None = No
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
     try:
-        os.chmod(tmp, 0o755)
-        _write_session_files(tmp, session, design_xml, exact)
+        os.chmod(tmp, folder_mode())
+        _write_session_files(tmp, session, design_xml, exact, progress)
         for name, writer in (extra_files or {}).items():
+            if progress is not None:
+                progress(f"writing {name}", 0.95)
             writer(tmp / name)
         move_into_place(tmp, folder)
     except BaseException:
@@ -756,18 +964,6 @@ def move_into_place(tmp: Path, folder: Path) -> None:
         old.unlink()
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 # ------------------------------------------------------------------------------------------
 # truth.csv
 # ------------------------------------------------------------------------------------------
@@ -788,15 +984,7 @@ def write_truth_csv(path: Path, truth, step_m: float = 0.1) -> None:
     p = truth.resampled(step_m)
     cols = [p.chainage_m, p.E_m, p.N_m, p.H_m, p.roll_rad, p.pitch_rad, p.yaw_rad, p.gauge_m,
             units.m_to_mm(p.cant_m), units.m_to_mm(p.lateral_m), units.m_to_mm(p.vertical_m)]
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    os.close(fd)
-    try:
-        write_csv_columns(Path(tmp), TRUTH_COLUMNS, cols, [_EXACT] * len(cols))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_with(path, lambda tmp: write_csv_columns(tmp, TRUTH_COLUMNS, cols, [_EXACT] * len(cols)))
 
 
 def read_truth_csv(path: Path):
@@ -829,4 +1017,5 @@ def _read_numeric_generic(path: Path, required: list[str]) -> dict[str, np.ndarr
     out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
     if any(not np.all(np.isfinite(v)) for v in out.values()):
         raise _locate_bad_cell(path, names, required)
+    _check_plausible(path, required, np.column_stack([out[c] for c in required]))
     return out

@@ -38,6 +38,11 @@ def csv_safe_text(value: object) -> str:
     return "'" + text if needs_quote_prefix(text) else text
 
 
+def csv_read_text(text: str) -> str:
+    """Undo :func:`csv_safe_text`'s quote prefix when reading a CSV cell back."""
+    return text[1:] if text.startswith("'") and needs_quote_prefix(text[1:]) else text
+
+
 def put_text(ws, row: int, column: int, value: object):
     """Write ``value`` as a text cell into an openpyxl worksheet (never a formula).
 

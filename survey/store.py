@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -34,6 +35,9 @@ import numpy as np
 from trolley.resection import InstrumentSigmas, PolarModel, PolarObservations, Resection, ResectionConfig
 from trolley.sensors import IMU_PRESETS, ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
+
+from survey.atomicwrite import file_mode
+from survey.names import UnsafeNameError, check_name
 
 #: PRAGMA application_id of a trolley-survey project file ("TRLY").
 APPLICATION_ID = 0x54524C59
@@ -574,9 +578,16 @@ def migrate(conn: sqlite3.Connection, target: int = SCHEMA_VERSION) -> int:
             conn.execute(f"PRAGMA user_version = {version}")
             conn.execute("COMMIT")
         except BaseException:
-            conn.execute("ROLLBACK")
+            _rollback(conn)
             raise
     return schema_version(conn)
+
+
+def _rollback(conn: sqlite3.Connection) -> None:
+    """Roll back the open transaction, if SQLite has not already done so itself (it does after a
+    full disk or an I/O error: a second ROLLBACK would hide that error behind its own)."""
+    if conn.in_transaction:
+        conn.execute("ROLLBACK")
 
 
 def connect(path: Path, *, check_same_thread: bool = True) -> sqlite3.Connection:
@@ -586,6 +597,35 @@ def connect(path: Path, *, check_same_thread: bool = True) -> sqlite3.Connection
     conn.execute("PRAGMA journal_mode = WAL")
     conn.execute("PRAGMA synchronous = FULL")
     return conn
+
+
+def _check_name(kind: str, name: str) -> None:
+    """A project or session name that is a plain folder name (survey.names.check_name)."""
+    try:
+        check_name(kind, name)
+    except UnsafeNameError as exc:
+        raise StoreError(str(exc)) from None
+
+
+def _check_ours(path: Path) -> None:
+    """Refuse a file that is not a trolley-survey store *before* anything writes to it.
+
+    Read through a read-only connection: no WAL switch, no migration, not a byte changed in a
+    foreign SQLite file or a corrupt one.
+    """
+    try:
+        ro = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise StoreError(f"{path}: cannot open the project store ({exc})") from None
+    try:
+        app_id = int(ro.execute("PRAGMA application_id").fetchone()[0])
+    except sqlite3.DatabaseError as exc:
+        raise StoreError(f"{path}: not a trolley-survey project store (not a usable SQLite file: {exc})") from None
+    finally:
+        ro.close()
+    if app_id != APPLICATION_ID:
+        raise StoreError(f"{path}: not a trolley-survey project store (SQLite application_id {app_id:#x}, "
+                         f"expected {APPLICATION_ID:#x}); left unchanged")
 
 
 def project_path(root: Path | str, name: str) -> Path:
@@ -616,22 +656,46 @@ class ProjectStore:
     # -- opening ---------------------------------------------------------------------------------
     @classmethod
     def create(cls, root: Path | str, name: str, settings: ProjectSettings | None = None) -> "ProjectStore":
-        """Create ``<root>/<name>/project.sqlite``; error if it exists."""
-        if not name or any(c in name for c in "/\\") or name in (".", ".."):
-            raise StoreError(f"invalid project name {name!r}")
+        """Create ``<root>/<name>/project.sqlite``; error if it exists.
+
+        The store is built complete in a hidden temporary file beside it and linked into place
+        only then, so a full disk or a crash leaves no stub ``project.sqlite`` (and no project
+        folder that was not there before).
+        """
+        _check_name("project name", name)
         path = project_path(root, name)
         if path.exists():
             raise StoreError(f"project {name!r} already exists: {path}")
+        made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
         path.parent.mkdir(parents=True, exist_ok=True)
-        conn = connect(path)
-        conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
-        migrate(conn)
-        store = cls(path, conn)
-        with store._transaction():
-            conn.execute("INSERT INTO project (id, name, created_utc) VALUES (1, ?, ?)", (name, utc_now()))
-            conn.execute("INSERT INTO setting (key, value_json) VALUES ('project', ?)",
-                         (settings_to_json(settings or ProjectSettings()),))
-        return store
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        try:
+            conn = sqlite3.connect(str(tmp), isolation_level=None)
+            try:
+                conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+                conn.execute("PRAGMA synchronous = FULL")
+                migrate(conn)
+                conn.execute("BEGIN IMMEDIATE")
+                conn.execute("INSERT INTO project (id, name, created_utc) VALUES (1, ?, ?)", (name, utc_now()))
+                conn.execute("INSERT INTO setting (key, value_json) VALUES ('project', ?)",
+                             (settings_to_json(settings or ProjectSettings()),))
+                conn.execute("COMMIT")
+            finally:
+                conn.close()
+            os.chmod(tmp, file_mode())
+            os.link(tmp, path)  # fails if someone created the project meanwhile: never replaced
+        except BaseException:
+            for p in (tmp, tmp.with_name(tmp.name + "-journal")):
+                p.unlink(missing_ok=True)
+            for p in made:
+                try:
+                    p.rmdir()
+                except OSError:
+                    pass
+            raise
+        finally:
+            tmp.unlink(missing_ok=True)
+        return cls.open(path)
 
     @classmethod
     def open(cls, path: Path | str) -> "ProjectStore":
@@ -641,13 +705,16 @@ class ProjectStore:
             path = path / STORE_FILE
         if not path.is_file():
             raise StoreError(f"no project store at {path}")
-        conn = connect(path)
-        app_id = int(conn.execute("PRAGMA application_id").fetchone()[0])
-        if app_id != APPLICATION_ID:
-            conn.close()
-            raise StoreError(f"{path} is not a trolley-survey project file")
+        _check_ours(path)
+        try:
+            conn = connect(path)
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{path}: cannot open the project store ({exc})") from None
         try:
             migrate(conn)
+        except sqlite3.DatabaseError as exc:
+            conn.close()
+            raise StoreError(f"{path}: the project store is damaged or read-only ({exc})") from None
         except BaseException:
             conn.close()
             raise
@@ -656,7 +723,12 @@ class ProjectStore:
     @classmethod
     def open_project(cls, root: Path | str, name: str) -> "ProjectStore":
         """Open the project ``name`` under ``root``."""
+        _check_name("project name", name)
+        if Path(root).exists() and not Path(root).is_dir():
+            raise StoreError(f"--root {root}: is a file, not a folder of projects")
         path = project_path(root, name)
+        if path.is_dir():
+            raise StoreError(f"{path}: is a folder, not a project store")
         if not path.is_file():
             raise StoreError(f"no project {name!r} under {Path(root)} (create it with `trolley project new {name}`)")
         return cls.open(path)
@@ -680,7 +752,10 @@ class ProjectStore:
             return self.conn
 
         def __exit__(self, exc_type, exc, tb):
-            self.conn.execute("ROLLBACK" if exc_type else "COMMIT")
+            if exc_type:
+                _rollback(self.conn)
+            else:
+                self.conn.execute("COMMIT")
             return False
 
     def _transaction(self) -> "ProjectStore._Tx":
@@ -811,8 +886,7 @@ class ProjectStore:
     def create_session(self, name: str, meta: SessionMeta | None = None, *, source: str = "live",
                        source_toml: str | None = None, alignment_id: int | None = None) -> SessionRecord:
         """Create a session (metadata from the project settings when not given)."""
-        if not name or any(c in name for c in "/\\"):
-            raise StoreError(f"invalid session name {name!r}")
+        _check_name("session name", name)
         if meta is None:
             meta = self.session_meta()
         state = "open" if source == "live" else "imported"
@@ -1064,6 +1138,7 @@ class ProjectStore:
         The design alignment, if given, is stored (or reused when the same LandXML text is already
         stored) and linked to the session. Fixes are stored as accepted ("imported").
         """
+        _check_name("session name", name)
         with self._transaction() as c:
             if c.execute("SELECT 1 FROM session WHERE name = ?", (name,)).fetchone():
                 raise StoreError(f"session {name!r} already exists in project {self.info().name!r}")
@@ -1301,7 +1376,7 @@ class RecordWriter:
                         c.executemany(_RECORD_TABLES[t][1], v)
                     c.execute("COMMIT")
                 except BaseException:
-                    c.execute("ROLLBACK")
+                    _rollback(c)
                     # put the rows back so nothing is lost; the caller sees the error
                     with self._lock:
                         self._raw[:0] = raw

@@ -134,7 +134,7 @@ def header_rows(rep) -> list[tuple[str, str]]:
         ("Line", field("line")),
         ("Track", field("track")),
         ("Client", field("client")),
-        ("Chainage", f"{km_label(float(s[0]), 3)} to {km_label(float(s[-1]), 3)} ({s.size} stations, "
+        ("Chainage", f"{km_label(rep.station(float(s[0])), 3)} to {km_label(rep.station(float(s[-1])), 3)} ({s.size} stations, "
                      f"step {rep.geometry.step_m:g} m)"),
         ("Survey date and time", span),
         ("Crew / operator", field("crew")),
@@ -156,6 +156,15 @@ def header_rows(rep) -> list[tuple[str, str]]:
         ("Tolerance source", _tolerance_source(rep.tolerances)),
     ]
     return rows
+
+
+def _grid(info) -> str:
+    """The processing's grid convergence and combined scale (summary.json), '' when not known."""
+    conv = getattr(info, "grid_convergence_deg", math.nan)
+    scale = getattr(info, "grid_combined_scale", math.nan)
+    if not (math.isfinite(conv) and math.isfinite(scale)):
+        return ""
+    return f"convergence {conv:+.6f} deg, scale {scale:.9f} (site)"
 
 
 def time_span(start_utc: str, end_utc: str) -> str:

@@ -12,7 +12,6 @@ Optional keys we added where FORMATS.md is silent (documented in ``docs/tgms.md`
 from __future__ import annotations
 
 import os
-import tempfile
 import tomllib
 from pathlib import Path
 
@@ -24,6 +23,10 @@ from trolley.tgms.camera import Camera
 from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
 from trolley.tgms.recording import LaserPoints, Recording
 
+from survey.atomicwrite import atomic_path, write_text_atomic
+from survey.names import inside
+from survey.sessionio import PLAUSIBLE_ABS
+
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
 
@@ -34,37 +37,9 @@ class TgmsFormatError(ValueError):
 
 # ---------------------------------------------------------------------------------------------
 # atomic writing
-def _atomic_write_text(path: Path, text: str) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write a text file atomically (temporary file in the same folder, then os.replace)."""
-    _atomic_write_text(Path(path), text)
-
-
 def _atomic_write_csv(path: Path, df: pd.DataFrame, float_format: str | None = None) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         df.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 # ---------------------------------------------------------------------------------------------
@@ -178,8 +153,14 @@ def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
 
 # ---------------------------------------------------------------------------------------------
 # CSV
+#: Largest plausible |value| of the TGMS columns that the raw-session reader does not know
+#: (sessionio.PLAUSIBLE_ABS has the IMU ones): an encoder count beyond 1e12 (a 1440-pulse wheel
+#: over 1.8 million km) or a pixel far outside any image is a corrupt cell, not a measurement.
+_TGMS_PLAUSIBLE_ABS = {"count": 1e12, "frame": 1e12, "u_px": 1e5, "v_px": 1e5, "s_m": 1e8}
+
+
 def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
-              monotonic: str | None = "t_s", strict: bool = False) -> dict[str, np.ndarray]:
+              monotonic: str | None = "t_s", strict: bool = False, min_rows: int = 1) -> dict[str, np.ndarray]:
     name = path.name
     if not path.exists():
         raise TgmsFormatError(f"{name}: file not found in {path.parent}")
@@ -191,8 +172,9 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise TgmsFormatError(f"{name}: missing column {missing[0]}")
-    if len(df) == 0:
-        raise TgmsFormatError(f"{name}: no data rows")
+    if len(df) < min_rows:
+        raise TgmsFormatError(f"{name}: {len(df)} data row(s), at least {min_rows} needed" if len(df)
+                              else f"{name}: no data rows")
     out = {}
     for c in columns:
         col = df[c]
@@ -203,7 +185,13 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         bad = ~np.isfinite(vals)
         if bad.any():
             i = int(np.argmax(bad))
-            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({col.iloc[i]!r})")
+            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({str(col.iloc[i])!r})")
+        limit = PLAUSIBLE_ABS.get(c, _TGMS_PLAUSIBLE_ABS.get(c, np.inf))
+        far = np.abs(vals) > limit
+        if far.any():
+            i = int(np.argmax(far))
+            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: {float(vals[i]):g} is not a plausible value "
+                                  f"(|{c}| <= {limit:g})")
         if c in integer:
             if np.any(vals != np.round(vals)):
                 i = int(np.argmax(vals != np.round(vals)))
@@ -232,16 +220,28 @@ def read_recording(folder: str | os.PathLike) -> Recording:
     toml_path = folder / "tgms.toml"
     if not toml_path.exists():
         raise TgmsFormatError(f"tgms.toml: file not found in {folder}")
-    cfg = parse_tgms_toml(toml_path.read_text(encoding="utf-8"))
-    al_path = folder / cfg.track.alignment
-    if not al_path.exists():
+    try:
+        text = toml_path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise TgmsFormatError(f"{toml_path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+    cfg = parse_tgms_toml(text)
+    try:
+        al_path = inside(folder, cfg.track.alignment, f"{toml_path}: key track.alignment")
+    except ValueError as exc:
+        raise TgmsFormatError(str(exc)) from None
+    if not al_path.is_file():
         raise TgmsFormatError(f"tgms.toml: track.alignment names {cfg.track.alignment!r}, not found in {folder}")
     try:
         alignment = parse_landxml(al_path.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise TgmsFormatError(f"{al_path.name}: {exc}") from None
-    imu = _read_csv(folder / "imu.csv", ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"], strict=True)
-    enc = _read_csv(folder / "encoder.csv", ["t_s", "count"], integer=("count",))
+    except ValueError as exc:  # UnicodeDecodeError included
+        raise TgmsFormatError(f"{al_path}: {exc}") from None
+    s0 = cfg.track.start_station_m
+    if s0 is not None and not (alignment.start_chainage_m <= s0 <= alignment.end_chainage_m):
+        raise TgmsFormatError(f"{toml_path}: key track.start_station_m: {s0:g} m is outside the alignment "
+                              f"{al_path.name} ({alignment.start_chainage_m:g} .. {alignment.end_chainage_m:g} m)")
+    imu = _read_csv(folder / "imu.csv", ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
+                    strict=True, min_rows=2)
+    enc = _read_csv(folder / "encoder.csv", ["t_s", "count"], integer=("count",), min_rows=2)
     lasers = {}
     for side in ("left", "right"):
         d = _read_csv(folder / f"laser_{side}.csv", ["frame", "t_s", "u_px", "v_px"], integer=("frame",))
@@ -262,7 +262,7 @@ def write_recording(folder: str | os.PathLike, rec: Recording) -> None:
     """Write a recording folder (creates the folder; every file written atomically)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _atomic_write_text(folder / rec.config.track.alignment, landxml_text(rec.alignment))
+    write_text_atomic(folder / rec.config.track.alignment, landxml_text(rec.alignment))
     w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
     _atomic_write_csv(folder / "imu.csv", pd.DataFrame({
         "t_s": rec.imu_t_s, "wx_rad_s": w[:, 0], "wy_rad_s": w[:, 1], "wz_rad_s": w[:, 2],
@@ -273,7 +273,7 @@ def write_recording(folder: str | os.PathLike, rec: Recording) -> None:
                            "u_px": np.round(lp.u_px, 3), "v_px": np.round(lp.v_px, 3)})
         _atomic_write_csv(folder / f"laser_{side}.csv", df)
     # tgms.toml last: a folder without it is not a recording
-    _atomic_write_text(folder / "tgms.toml", tgms_toml_text(rec.config))
+    write_text_atomic(folder / "tgms.toml", tgms_toml_text(rec.config))
 
 
 TRUTH_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm",

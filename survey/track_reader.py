@@ -22,7 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from trolley import units
+from trolley.stationing import StationEquation, Stationing
 from trolley.trackgeometry import TrackInput
+
+from survey.names import inside
+from survey.sessionio import PLAUSIBLE_ABS
+from survey.sheet_text import csv_read_text
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
 TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
@@ -180,6 +185,12 @@ def _read_csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
     if not rows:
         raise ExportInputError(f"{path}: empty file (no header row)")
     header = [h.strip() for h in rows[0]]
+    for i, r in enumerate(rows[1:], start=2):
+        if len(r) > len(header) and any(c.strip() for c in r[len(header):]):
+            # more cells than columns: a decimal comma ("0,5") splits a number in two, and the
+            # cells after it would be read into the wrong columns (trolley process refuses it too)
+            raise ExportInputError(f"{path}: row {i}: {len(r)} cells, the header has {len(header)} columns "
+                                   "(a decimal comma? use a point: 0.5)")
     body = [r for r in rows[1:] if any(c.strip() for c in r)]
     return header, body
 
@@ -241,14 +252,82 @@ def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
     return out
 
 
-def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
-    """Read a track.csv (FORMATS.md section 2).
+#: Largest plausible |value| of track.csv's mm columns (the SI ones: sessionio.PLAUSIBLE_ABS):
+#: a 1-sigma or deviation beyond 100 m, a gauge, cant or twist beyond 10 m is a corrupt cell.
+_TRACK_PLAUSIBLE_ABS_MM = {"sigma_E_mm": 1e5, "sigma_N_mm": 1e5, "sigma_H_mm": 1e5, "lateral_dev_mm": 1e5,
+                           "vertical_dev_mm": 1e5, "gauge_mm": 1e4, "cant_mm": 1e4, "twist_mm": 1e4}
+
+
+def _check_plausible_track(path: Path, cols: dict[str, np.ndarray]) -> None:
+    """Refuse finite but absurd values (1e308 in H_m): they would reach the sheet as inf."""
+    for name, v in cols.items():
+        limit = PLAUSIBLE_ABS.get(name, _TRACK_PLAUSIBLE_ABS_MM.get(name, math.inf))
+        with np.errstate(invalid="ignore"):
+            far = np.abs(v) > limit
+        if far.any():
+            i = int(np.argmax(far))
+            raise ExportInputError(f"{path}: row {i + 2}, column {name}: {float(v[i]):g} is not a plausible value "
+                                   f"(|{name}| <= {limit:g})")
+
+
+def stationing_of_track(distance_m: np.ndarray, chainage_m: np.ndarray, tol_m: float = 1e-5) -> Stationing | None:
+    """The drawing stationing a track.csv shows: its ``chainage_m`` against ``distance_m``.
+
+    Between stations the chainage runs with the distance (or against it); where it does not, a
+    station equation is taken at the first station after the break, its drawing station ahead
+    that station's chainage. Used when no design gives the equations exactly (a track.csv
+    exported without its LandXML); the equations are then placed within one station step.
 
     Returns
     -------
-    track : TrackInput in SI (no design columns yet).
-    twist_file_m : the file's own twist column, m (NaN where empty).
+    Stationing, or None when the chainage is the distance at every station.
     """
+    d, c = np.asarray(distance_m, dtype=float), np.asarray(chainage_m, dtype=float)
+    dd, dc = np.diff(d), np.diff(c)
+    sign = np.where(np.abs(dc - dd) <= tol_m, 1, np.where(np.abs(dc + dd) <= tol_m, -1, 0))
+    eqs: list[StationEquation] = []
+    cur = 1
+    if d.size and (abs(c[0] - d[0]) > tol_m or (sign.size and sign[0] == -1)):
+        cur = -1 if sign.size and sign[0] == -1 else 1
+        eqs.append(StationEquation(float(d[0]), float(c[0]), None, cur > 0))
+    # only the steps that break the stationing or turn its direction (a handful): a short loop
+    for i in np.flatnonzero((sign == 0) | (sign != np.r_[sign[:1], sign[:-1]])).tolist():
+        if sign[i] == 0:
+            cur = int(sign[i + 1]) if i + 1 < sign.size and sign[i + 1] != 0 else 1
+            eqs.append(StationEquation(float(d[i + 1]), float(c[i + 1]), float(c[i]), cur > 0))
+        elif sign[i] != cur and not (eqs and eqs[-1].internal_m == d[i]):
+            cur = int(sign[i])
+            eqs.append(StationEquation(float(d[i]), float(c[i]), float(c[i]), cur > 0))
+    if not eqs:
+        return None
+    return Stationing(float(d[0]), float(d[-1] + (dd[-1] if dd.size else 1.0)), eqs)
+
+
+@dataclass
+class TrackFile:
+    """A track.csv as the export reads it.
+
+    Attributes
+    ----------
+    track : TrackInput in SI along the internal station (no design columns yet).
+    twist_file_m : the file's own twist column, m (NaN where empty).
+    stationing : the file's drawing stationing (:func:`stationing_of_track`), None when its
+        chainage_m is its distance_m (or it has no distance_m).
+    """
+
+    track: TrackInput
+    twist_file_m: np.ndarray
+    stationing: Stationing | None = None
+
+
+def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
+    """Read a track.csv (FORMATS.md section 2): (track, twist_file_m) of :func:`read_track_file`."""
+    f = read_track_file(path)
+    return f.track, f.twist_file_m
+
+
+def read_track_file(path: Path) -> TrackFile:
+    """Read a track.csv (FORMATS.md section 2; distance_m, docs/conventions.md)."""
     cols = _track_columns_fast(path)
     if cols is None:
         header, body = _read_csv_rows(path)
@@ -256,12 +335,13 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
             raise ExportInputError(f"{path}: no stations (only a header row)")
         present_optional = [n for n in TRACK_OPTIONAL if n in header]
         cols = _numeric_columns(path, header, body, TRACK_REQUIRED + present_optional, set(TRACK_OPTIONAL))
+    _check_plausible_track(path, cols)
     # distance_m (the internal station) increases even where station equations make chainage_m jump
     along = "distance_m" if "distance_m" in cols and np.all(np.isfinite(cols["distance_m"])) else "chainage_m"
     s = cols[along]
     if s.size > 1 and not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
-        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {s[i]!r} does not increase")
+        raise ExportInputError(f"{path}: row {i + 2}, column {along}: {float(s[i])!r} does not increase")
     nan = np.full(s.size, np.nan)
     mm = units.mm_to_m
     track = TrackInput(
@@ -269,7 +349,8 @@ def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
         sigma_E_m=mm(cols["sigma_E_mm"]), sigma_N_m=mm(cols["sigma_N_mm"]), sigma_H_m=mm(cols["sigma_H_mm"]),
         lateral_dev_m=mm(cols.get("lateral_dev_mm", nan)), vertical_dev_m=mm(cols.get("vertical_dev_mm", nan)),
         gauge_m=mm(cols.get("gauge_mm", nan)), cant_m=mm(cols.get("cant_mm", nan)))
-    return track, mm(cols.get("twist_mm", nan))
+    st = stationing_of_track(s, cols["chainage_m"]) if along == "distance_m" else None
+    return TrackFile(track, mm(cols.get("twist_mm", nan)), st)
 
 
 def read_fixes_csv(path: Path) -> list[FixRow]:
@@ -286,11 +367,11 @@ def read_fixes_csv(path: Path) -> list[FixRow]:
         acc = (r[ia] if ia < len(r) else "").strip().lower()
         if acc not in ("1", "0", "true", "false", "1.0", "0.0"):
             raise ExportInputError(f"{path}: row {i + 2}, column accepted: expected 1 or 0, got {acc[:20]!r}")
-        out.append(FixRow(t_s=float(cols["t_s"][i]), point=r[ip] if ip < len(r) else "",
+        out.append(FixRow(t_s=float(cols["t_s"][i]), point=csv_read_text(r[ip] if ip < len(r) else ""),
                           E_m=float(cols["E_m"][i]), N_m=float(cols["N_m"][i]), H_m=float(cols["H_m"][i]),
                           innov_E_m=mm(float(cols["innov_E_mm"][i])), innov_N_m=mm(float(cols["innov_N_mm"][i])),
                           innov_H_m=mm(float(cols["innov_H_mm"][i])), nis=float(cols["nis"][i]),
-                          accepted=acc in ("1", "true", "1.0"), reason=r[ir] if ir < len(r) else ""))
+                          accepted=acc in ("1", "true", "1.0"), reason=csv_read_text(r[ir] if ir < len(r) else "")))
     return out
 
 
@@ -393,7 +474,11 @@ def design_alignment_path(info: SurveyInfo) -> Path | None:
     name = _design_table(info).get("alignment")
     if not name:
         return None
-    return Path(info.session_dir) / str(name)
+    try:
+        return inside(Path(info.session_dir), str(name),
+                      f"{Path(info.session_dir) / 'session.toml'}: key design.alignment")
+    except ValueError as e:
+        raise ExportInputError(str(e)) from None
 
 
 def design_alignment_name(info: SurveyInfo) -> str | None:
@@ -403,13 +488,20 @@ def design_alignment_name(info: SurveyInfo) -> str | None:
 
 
 def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
-               alignment_name: str | None = None, notes: list[str] | None = None) -> TrackInput:
+               alignment_name: str | None = None,
+               notes: list[str] | None = None) -> tuple[TrackInput, Stationing | None]:
     """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
     (internal stations: track.csv's ``distance_m`` when it has one).
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
     positive when the left rail is higher, like the measured cant. The LandXML reader's notes,
     and a word on the chainage when the design has station equations, are appended to ``notes``.
+
+    Returns
+    -------
+    track : with the design columns.
+    stationing : the design's drawing stationing (trolley.stationing.Stationing) when it has
+        station equations, else None (the drawing stationing is the internal station).
     """
     from trolley.landxml import LandXmlError, read_landxml
 
@@ -424,10 +516,12 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
     if notes is not None:
         notes.extend(f"{Path(landxml_path).name}: {n}" for n in design.notes)
         if alignment.stationing is not None and alignment.stationing.equations:
-            notes.append(f"{Path(landxml_path).name} has station equations: the chainages here are internal "
-                         f"stations (track.csv distance_m); the drawing's stationing is track.csv chainage_m")
+            notes.append(f"{Path(landxml_path).name} has station equations: every chainage shown is the "
+                         f"drawing's stationing (track.csv chainage_m); chords, twist bases, wavelength "
+                         f"filters and sections run along the distance (track.csv distance_m)")
     d = alignment.evaluate(track.chainage_m)
     track.design_E_m, track.design_N_m = d.E_m, d.N_m
     track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)
     track.design_cant_m = rail_spacing_m * np.sin(d.cant_rad)
-    return track
+    st = alignment.stationing
+    return track, (st if st is not None and st.equations else None)

@@ -13,6 +13,7 @@ import numpy as np
 
 from trolley import units
 from trolley.bands import BANDS
+from trolley.stationing import Stationing
 from trolley.tolerances import Defect, Limit, ToleranceSet
 from trolley.trackgeometry import ColumnStats, GeometryConfig, TrackGeometry
 
@@ -146,10 +147,14 @@ def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
     return [SheetColumn(*c) for c in cols]
 
 
-def column_values(col: SheetColumn, geometry: TrackGeometry) -> np.ndarray:
-    """The display values of one Track column."""
+def column_values(col: SheetColumn, geometry: TrackGeometry, station_m: np.ndarray | None = None) -> np.ndarray:
+    """The display values of one Track column.
+
+    ``station_m`` is the drawing stationing of the stations (:meth:`SurveyReport.station`), shown
+    in the chainage columns; None: the internal stations ``geometry.chainage_m``.
+    """
     if col.key in ("chainage_m", "station_km"):
-        return col.display(geometry.chainage_m)
+        return col.display(geometry.chainage_m if station_m is None else station_m)
     return col.display(geometry.columns[col.key])
 
 
@@ -177,6 +182,10 @@ class SurveyReport:
     design_file : LandXML used, or None.
     notes : messages for the Summary sheet (e.g. why no design).
     record : the field session's record (field_record.json beside track.csv), or None.
+    stationing : the design's drawing stationing (station equations), or None when the drawing
+        stationing is the internal station. ``geometry.chainage_m`` (and every chainage in
+        ``defects``) is the internal station, along which chords, twist bases, filters and
+        sections run; every chainage shown goes through :meth:`station`.
     """
 
     track_csv: Path
@@ -190,6 +199,36 @@ class SurveyReport:
     design_file: Path | None = None
     notes: list[str] = field(default_factory=list)
     record: FieldRecord | None = None
+    stationing: Stationing | None = None
+
+    def station(self, internal_m):
+        """Drawing station (what the client sees) of internal stations, m (array or float)."""
+        if self.stationing is None:
+            return np.asarray(internal_m, dtype=float) if np.ndim(internal_m) else float(internal_m)
+        v = self.stationing.station(internal_m)
+        return v if np.ndim(internal_m) else float(v)
+
+    @property
+    def station_m(self) -> np.ndarray:
+        """Drawing station of every station of the geometry, m."""
+        return self.station(self.geometry.chainage_m)
+
+    def equations(self) -> list[tuple[float, str]]:
+        """The station equations inside the surveyed stretch: (internal station, text for the
+        client), e.g. "station equation: 1+300.000 back = 2+300.000 ahead (jump +1000.000 m)"."""
+        if self.stationing is None:
+            return []
+        from survey.plots import km_label
+
+        s = self.geometry.chainage_m
+        out = []
+        for i, e in enumerate(self.stationing.equations):
+            if s[0] < e.internal_m <= s[-1]:
+                back = self.stationing.back_station(i)
+                out.append((e.internal_m, f"station equation: {km_label(back, 3)} back = "
+                                          f"{km_label(e.ahead_m, 3)} ahead (jump {e.ahead_m - back:+.3f} m"
+                                          + ("" if e.increasing else ", stationing decreasing ahead") + ")"))
+        return out
 
     @property
     def passed(self) -> bool:

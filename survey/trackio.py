@@ -20,6 +20,7 @@ from trolley.session import RawSession
 from trolley.stationing import Stationing
 
 from survey.sessionio import move_into_place, write_csv_columns
+from survey.sheet_text import csv_safe_text
 from survey.track_reader import equipment_figures
 
 TRACK_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm",
@@ -69,11 +70,11 @@ def fixes_frame(result: ProcessResult) -> pd.DataFrame:
     f = result.fixes
     mm = units.m_to_mm
     return pd.DataFrame({
-        "t_s": f.t_s, "point": [str(p) for p in f.point],
+        "t_s": f.t_s, "point": [csv_safe_text(p) for p in f.point],
         "E_m": f.enh_m[:, 0], "N_m": f.enh_m[:, 1], "H_m": f.enh_m[:, 2],
         "innov_E_mm": mm(f.innovation_enh_m[:, 0]), "innov_N_mm": mm(f.innovation_enh_m[:, 1]),
         "innov_H_mm": mm(f.innovation_enh_m[:, 2]), "nis": f.nis,
-        "accepted": f.accepted.astype(int), "reason": f.reason,
+        "accepted": f.accepted.astype(int), "reason": [csv_safe_text(r) for r in f.reason],
     }, columns=FIX_COLUMNS)
 
 

@@ -19,17 +19,17 @@ shared/research/protocols.md 6 (columns, formula injection); deps.md 5 (openpyxl
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 import time
 import zipfile
 from datetime import datetime, timezone
 from pathlib import Path
 from xml.etree import ElementTree as ET
+from xml.sax.saxutils import escape
 
 import numpy as np
 
+from survey.atomicwrite import atomic_path
 from survey.sheet_text import put_text
 from survey.surveyheader import NOT_GIVEN, header_rows
 from survey.track_reader import EQUIPMENT
@@ -42,8 +42,6 @@ _NS_PKG_REL = "http://schemas.openxmlformats.org/package/2006/relationships"
 TRACK_SHEET = "Track"
 #: the printable view of the Track sheet
 TRACK_PRINT_SHEET = "Track print"
-#: freeze the header row and the chainage + station columns
-TRACK_FREEZE = "C2"
 
 
 def _col_letter(i: int) -> str:
@@ -100,8 +98,11 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     kv("Track file", rep.track_csv.name)
     kv("Written (UTC)", datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S"))
     kv("Stations", int(g.chainage_m.size))
-    kv("Chainage from [m]", float(g.chainage_m[0]), KM_FORMAT)
-    kv("Chainage to [m]", float(g.chainage_m[-1]), KM_FORMAT)
+    kv("Chainage from [m]", rep.station(float(g.chainage_m[0])), KM_FORMAT)
+    kv("Chainage to [m]", rep.station(float(g.chainage_m[-1])), KM_FORMAT)
+    for _, text in rep.equations():
+        kv("Station equation", f"{text}: chainages are the drawing's stationing; lengths, chords, "
+                               "twist bases, filters and sections run along the distance")
     kv("Station step [m]", float(g.step_m), "0.000")
     if g.resampled:
         kv("Note", "input chainage not uniform: values interpolated linearly onto the grid")
@@ -146,7 +147,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     r += 1
     put_text(ws, r, 1, "Design and conventions").font = Font(bold=True, size=12)
     r += 1
-    kv("Design alignment", str(rep.design_file) if rep.design_file else "none: design columns empty")
+    kv("Design alignment", rep.design_file.name if rep.design_file else "none: design columns empty")
     for name, text in conventions(cfg):
         kv(name, text)
     kv("Twist", f"cant(s) - cant(s - {cfg.twist_base_m:g} m)")
@@ -205,14 +206,23 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             put_text(ws, r, 13, "example value" + (f" ({lim.note})" if lim.note else "") if lim.example
                      else lim.source)
         r += 1
-    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 60), start=1):
+    from openpyxl.styles import Alignment
+
+    for j, w in enumerate((34, 8, 8, 10, 10, 10, 10, 10, 11, 11, 9, 8, 44), start=1):
         if j > 2:
             ws.column_dimensions[_col_letter(j)].width = w
+    for row in ws.iter_rows(min_col=13, max_col=13):      # limit sources wrap: the page stays readable
+        row[0].alignment = Alignment(wrap_text=True, vertical="top")
 
 
-#: rows 1-7 of every sheet but Track: the header block (title and six lines); the table starts at TABLE_ROW
+#: rows 1-7 of every sheet but Summary: the header block (title and six lines); the table's column
+#: header row is TABLE_ROW (on the Track sheet too: its station rows start at TRACK_FIRST_ROW)
 HEADER_ROWS = 7
 TABLE_ROW = HEADER_ROWS + 2
+#: the first station row of the Track sheet (its column header is TABLE_ROW)
+TRACK_FIRST_ROW = TABLE_ROW + 1
+#: freeze the Track sheet below its column header row and right of the chainage + station columns
+TRACK_FREEZE = f"C{TRACK_FIRST_ROW}"
 
 
 def _source_name(origin: str) -> str:
@@ -240,21 +250,28 @@ def header_lines(rep: SurveyReport) -> list[str]:
 
     return [
         join("Project", "Session", "Line", "Track", "Client"),
-        join("Chainage", "Survey date and time", "Crew / operator", "Rail temperature [°C]"),
+        join("Chainage", "Survey date and time", "Crew / operator"),
         "   |   ".join([device("Total station", "totalstation"), device("IMU", "imu")]),
-        "   |   ".join([device("Trolley", "trolley"), f"Software: {h['Software']}"]),
+        "   |   ".join([device("Trolley", "trolley"), join("Rail temperature [°C]", "Software")]),
         join("Coordinate system", "Height datum", "Grid convergence and scale"),
         f"Tolerance set: {h['Tolerance source']} (sources per limit: Summary)",
     ]
 
 
-def _sheet_header(ws, rep: SurveyReport, title: str) -> int:
-    """Title and header block in rows 1-7 (text overflowing to the right). Returns :data:`TABLE_ROW`."""
-    from openpyxl.styles import Font
+def _sheet_header(ws, rep: SurveyReport, title: str, width: int, first_col: int = 1) -> int:
+    """Title and header block in rows 1-7, from column ``first_col``. Each line is merged over
+    the sheet's printed columns up to ``width`` and wraps inside them (two lines of room), so no
+    text runs past the printed width (LibreOffice prints such overflow on a page of its own).
+    Returns :data:`TABLE_ROW`."""
+    from openpyxl.styles import Alignment, Font
 
-    put_text(ws, 1, 1, title).font = Font(bold=True, size=13)
+    put_text(ws, 1, first_col, title).font = Font(bold=True, size=13)
     for i, line in enumerate(header_lines(rep), start=2):
-        put_text(ws, i, 1, line).font = Font(size=8)
+        c = put_text(ws, i, first_col, line)
+        c.font = Font(size=8)
+        c.alignment = Alignment(wrap_text=True, vertical="top")
+        ws.merge_cells(start_row=i, start_column=first_col, end_row=i, end_column=width)
+        ws.row_dimensions[i].height = 21
     return TABLE_ROW
 
 
@@ -268,7 +285,7 @@ def _field_only_rejections(rep: SurveyReport):
 
 
 def _defects_sheet(ws, rep: SurveyReport) -> None:
-    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section")
+    r0 = _sheet_header(ws, rep, "Defects: single defects beyond tolerance, and track quality per section", 12)
     heads = ["#", "Parameter", "From [m]", "To [m]", "From [km+m]", "To [km+m]", "Length [m]", "Peak",
              "Limit", "Unit", "Stations", "Limit source"]
     _header(ws, r0, heads)
@@ -282,10 +299,11 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
         fmt = col.number_format if col else "0.000"
         _num(ws, r, 1, i)
         put_text(ws, r, 2, col.header if col else d.parameter)
-        _num(ws, r, 3, d.start_chainage_m, "0.000")
-        _num(ws, r, 4, d.end_chainage_m, "0.000")
-        _num(ws, r, 5, d.start_chainage_m, KM_FORMAT)
-        _num(ws, r, 6, d.end_chainage_m, KM_FORMAT)
+        start, end = rep.station(d.start_chainage_m), rep.station(d.end_chainage_m)   # drawing stations
+        _num(ws, r, 3, start, "0.000")
+        _num(ws, r, 4, end, "0.000")
+        _num(ws, r, 5, start, KM_FORMAT)
+        _num(ws, r, 6, end, KM_FORMAT)
         _num(ws, r, 7, d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, "0.000")
         conv = col.display if col else (lambda x: x)
         _num(ws, r, 8, float(conv(np.array([d.peak]))[0]), fmt)
@@ -304,17 +322,25 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
 
 
 #: parameters of the section-quality table (EN 13848-6 style SD): geometry column, label
-QUALITY_COLUMNS = [("level_D1_m", "Longitudinal level D1"), ("align_D1_m", "Alignment D1"),
-                   ("cant_dev_m", "Cross level (cant dev)"), ("gauge_dev_m", "Gauge dev"), ("twist_m", "Twist")]
+QUALITY_COLUMNS = [("level_D1_m", "level D1"), ("align_D1_m", "alignment D1"),
+                   ("cant_dev_m", "cross level"), ("gauge_dev_m", "gauge dev"), ("twist_m", "twist")]
 
 
 def section_table(rep: SurveyReport):
     """(columns used, list of SectionQuality) of the section-quality table."""
     from trolley.sectionquality import section_quality
 
+    from dataclasses import fields, replace
+
     keys = [(k, lab) for k, lab in QUALITY_COLUMNS if k in rep.stats and rep.stats[k].count > 0]
     g = rep.geometry
-    return keys, [section_quality(g.chainage_m, g.columns[k], step_m=g.step_m) for k, _ in keys]
+    quals = [section_quality(g.chainage_m, g.columns[k], step_m=g.step_m) for k, _ in keys]
+    if quals and quals[0].start_m.size > 1:
+        # a survey that ends on a section limit touches the next section in one station only:
+        # no row "1+200.0 to 1+200.0" for it
+        keep = quals[0].start_m < g.chainage_m[-1]
+        quals = [replace(q, **{f.name: getattr(q, f.name)[keep] for f in fields(q)}) for q in quals]
+    return keys, quals
 
 
 def _quality_table(ws, rep: SurveyReport, r: int) -> None:
@@ -339,8 +365,8 @@ def _quality_table(ws, rep: SurveyReport, r: int) -> None:
     for i in range(q0.start_m.size):
         rr = r + 1 + i
         _num(ws, rr, 1, i + 1)
-        _num(ws, rr, 2, max(q0.start_m[i], float(rep.geometry.chainage_m[0])), KM_FORMAT)
-        _num(ws, rr, 3, min(q0.end_m[i], float(rep.geometry.chainage_m[-1])), KM_FORMAT)
+        _num(ws, rr, 2, rep.station(max(q0.start_m[i], float(rep.geometry.chainage_m[0]))), KM_FORMAT)
+        _num(ws, rr, 3, rep.station(min(q0.end_m[i], float(rep.geometry.chainage_m[-1]))), KM_FORMAT)
         _num(ws, rr, 4, int(q0.count[i]))
         for j, q in enumerate(quals, start=5):
             _num(ws, rr, j, float(q.std[i]) * 1e3, "0.00")
@@ -349,7 +375,7 @@ def _quality_table(ws, rep: SurveyReport, r: int) -> None:
 def _fixes_sheet(ws, rep: SurveyReport) -> None:
     from openpyxl.styles import PatternFill
 
-    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason")
+    r0 = _sheet_header(ws, rep, "Fixes: every prism fix on CPIII, with the decision and its reason", 13)
     if rep.fixes is None and rep.record is None:
         put_text(ws, r0, 1, "fixes.csv not found next to track.csv: no per-stop fix information")
         ws.column_dimensions["A"].width = 70
@@ -391,7 +417,7 @@ def _stations_sheet(ws, rep: SurveyReport) -> None:
 
     from trolley import units
 
-    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks")
+    r = _sheet_header(ws, rep, "Free stations: setups on CPIII, residuals, overlap checks", 10)
     for j, w in enumerate((12, 10, 12, 12, 12, 10, 10, 11, 9, 44), start=1):
         ws.column_dimensions[_col_letter(j)].width = w
     rec = rep.record
@@ -459,13 +485,14 @@ def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
     from trolley.trackgeometry import rail_values
 
     g = rep.geometry
+    station = rep.station_m
     by_key = {c.key: c for c in rep.columns}
     rails = rail_values(g)
     lat, cant = by_key["lateral_dev_m"].header.split("]")[-1].strip(), by_key["cant_m"].header.split("]")[-1].strip()
 
     def col(key):
         c = by_key[key]
-        return (c.header, c.number_format, column_values(c, g))
+        return (c.header, c.number_format, column_values(c, g, station))
 
     def mm(header, x):
         return (header, "0.00", np.round(x * 1e3, 4))
@@ -481,25 +508,32 @@ def print_columns(rep: SurveyReport) -> list[tuple[str, str, np.ndarray]]:
 
 
 def _track_print_sheet(ws, rep: SurveyReport) -> None:
-    """The Track table for paper: a row every :data:`PRINT_STEP_M`, the centre line and each rail."""
+    """The Track table for paper: a row every :data:`PRINT_STEP_M` of drawing stationing, the
+    centre line and each rail; a text row where a station equation makes the stationing jump."""
     r0 = _sheet_header(ws, rep, f"Track (printable view, every {PRINT_STEP_M:g} m; all stations on the "
-                                "Track sheet): centre line and each rail")
+                                "Track sheet): centre line and each rail", 13)
     g = rep.geometry
     k = max(1, int(round(PRINT_STEP_M / g.step_m)))
     # stations on multiples of PRINT_STEP_M when the grid holds them, else every k-th
-    on_grid = np.isclose(np.mod(g.chainage_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
+    on_grid = np.isclose(np.mod(rep.station_m + 1e-9, PRINT_STEP_M), 0.0, atol=1e-6)
     idx = np.flatnonzero(on_grid) if on_grid.sum() >= g.chainage_m.size // k else np.arange(0, g.chainage_m.size, k)
+    # one note row before the first printed station at or after each station equation
+    eqs = rep.equations()
+    before = np.searchsorted(g.chainage_m[idx], [s for s, _ in eqs], side="left")
+    row = r0 + 1 + np.arange(idx.size) + np.searchsorted(np.sort(before), np.arange(idx.size), side="right")
     cols = print_columns(rep)
     _header(ws, r0, [h for h, _, _ in cols])
     ws.row_dimensions[r0].height = 58
     for j, (_, fmt, v) in enumerate(cols, start=1):
         vals = v[idx].tolist()
-        for i, x in enumerate(vals, start=r0 + 1):
+        for i, x in zip(row.tolist(), vals):
             _num(ws, i, j, x, fmt)
         ws.column_dimensions[_col_letter(j)].width = 13 if j == 1 else 10.5
+    for n, (b, (_, text)) in enumerate(sorted(zip(before.tolist(), eqs))):
+        put_text(ws, r0 + 1 + b + n, 1, text)
     ws.freeze_panes = f"B{r0 + 1}"
     if not (np.isfinite(rep.geometry.columns["gauge_dev_m"]).any()):
-        put_text(ws, r0 + len(idx) + 2, 1, "gauge not measured: rail alignment values not available")
+        put_text(ws, r0 + len(idx) + len(eqs) + 2, 1, "gauge not measured: rail alignment values not available")
 
 
 #: charts on the Charts sheet: title, y-axis title, geometry columns (cant and its deviation apart:
@@ -515,8 +549,10 @@ CHARTS = [
 CHART_COLOURS = ["1F77B4", "FF7F0E", "2CA02C", "9467BD", "8C564B"]
 TOLERANCE_COLOUR = "C00000"
 #: chart size (cm) and the rows each takes: two charts per A4 landscape page below the header block
-CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 6.0, 25.0, 12
+CHART_HEIGHT_CM, CHART_WIDTH_CM, CHART_ROWS = 5.6, 24.0, 11
 CHARTS_PER_PAGE = 2
+#: columns of the printed Charts sheet (14 x 8.43 characters: the chart's 25 cm within the printed width)
+CHART_COLUMNS = 14
 
 #: x-axis tick labels of the charts: km+m without decimals (1+234)
 CHART_KM_FORMAT = '0"+"000'
@@ -551,9 +587,15 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
     track = ws.parent[track_ws_title]
     data = ws.parent["ChartData"]
     put_text(data, 1, 1, "tolerance lines of the Charts sheet: chainage [m], value")
-    xref = Reference(track, min_col=index["chainage_m"], min_row=2, max_row=n + 1)
-    s0, s1 = float(rep.geometry.chainage_m[0]), float(rep.geometry.chainage_m[-1])
-    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]")
+    first, last_row = TRACK_FIRST_ROW, TRACK_FIRST_ROW + n - 1
+    xref = Reference(track, min_col=index["chainage_m"], min_row=first, max_row=last_row)
+    station = rep.station_m    # the Track sheet's chainage column: drawing stationing
+    s0, s1 = float(station.min()), float(station.max())
+    for j in range(1, CHART_COLUMNS + 1):    # explicit: LibreOffice's default column is wider than Excel's
+        ws.column_dimensions[_col_letter(j)].width = 8.43
+    # the header merged over fewer columns than printed: LibreOffice's columns are wider than Excel's,
+    # and a merged line reaching past the page width printed an empty page of its own
+    r0 = _sheet_header(ws, rep, "Charts of the Track sheet against chainage [km+m]", CHART_COLUMNS - 2)
     drow = 2
     slot = 0
     for title, ytitle, keys in CHARTS:
@@ -574,7 +616,7 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
         ch.legend.position = "b"
         ch.height, ch.width = CHART_HEIGHT_CM, CHART_WIDTH_CM
         for i, k in enumerate(keys):
-            yref = Reference(track, min_col=index[k], min_row=1, max_row=n + 1)
+            yref = Reference(track, min_col=index[k], min_row=TABLE_ROW, max_row=last_row)   # title + values
             ser = Series(yref, xref, title_from_data=True)
             ser.marker.symbol = "none"
             ser.smooth = False
@@ -599,30 +641,39 @@ def _charts_sheet(ws, track_ws_title: str, rep: SurveyReport, n: int) -> None:
         page, k_on_page = divmod(slot, CHARTS_PER_PAGE)
         row = r0 + page * CHARTS_PER_PAGE * CHART_ROWS + k_on_page * CHART_ROWS
         if k_on_page == 0 and page > 0:
-            ws.row_breaks.append(Break(id=row - 1))
+            ws.row_breaks.append(Break(id=row - 1, max=16383))
         ws.add_chart(ch, f"A{row}")
         slot += 1
-    pages = -(-slot // CHARTS_PER_PAGE)
-    ws.print_area = f"A1:P{r0 + max(pages, 1) * CHARTS_PER_PAGE * CHART_ROWS - 1}"
+    last = r0 + max(slot - 1, 0) // CHARTS_PER_PAGE * CHARTS_PER_PAGE * CHART_ROWS \
+        + max(slot - 1, 0) % CHARTS_PER_PAGE * CHART_ROWS + CHART_ROWS - 1      # the last chart's last row
+    ws.print_area = f"A1:{_col_letter(CHART_COLUMNS)}{last}"
 
 
 def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
-    """Header, template row 2 (styles), widths, freeze, autofilter, conditional formats."""
+    """Header block (rows 1-7, as on every sheet), column header row :data:`TABLE_ROW`, template
+    row :data:`TRACK_FIRST_ROW` (styles), widths, freeze, autofilter, conditional formats."""
     from openpyxl.formatting.rule import FormulaRule
     from openpyxl.styles import Font, PatternFill
 
-    _header(ws, 1, [c.header for c in rep.columns])
-    ws.row_dimensions[1].height = 58
+    index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
+    # the header block spans the first printed column group right of chainage and station (the
+    # page it prints on): columns A:B repeat on every page, and a block starting in A printed its
+    # first two columns' worth, cut off, on the other groups' pages
+    first_group = min([index[k] - 1 for k in TRACK_PRINT_GROUPS if k in index] or [len(rep.columns)])
+    _sheet_header(ws, rep, "Track: every station, every column", first_group, first_col=3)
+    head, row0 = TABLE_ROW, TRACK_FIRST_ROW
+    _header(ws, head, [c.header for c in rep.columns] + (["Station equation"] if rep.equations() else []))
+    ws.row_dimensions[head].height = 72    # five wrapped lines: "Versine H 10 m [mm] centre-chord +right"
     for j, col in enumerate(rep.columns, start=1):
-        c = ws.cell(row=2, column=j, value=0.0)
+        c = ws.cell(row=row0, column=j, value=0.0)
         c.number_format = col.number_format
         ws.column_dimensions[_col_letter(j)].width = 11 if col.unit != "m" else 13
     ws.freeze_panes = TRACK_FREEZE
     last = _col_letter(len(rep.columns))
-    ws.auto_filter.ref = f"A1:{last}{n + 1}"
+    end = row0 + n - 1
+    ws.auto_filter.ref = f"A{head}:{last}{end}"
     red = PatternFill("solid", fgColor="FFC7CE", bgColor="FFC7CE")
     font = Font(color="9C0006")
-    index = {c.key: j for j, c in enumerate(rep.columns, start=1)}
     for lim in rep.tolerances.limits:
         j = index.get(lim.column)
         if j is None:
@@ -631,12 +682,12 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
         L = _col_letter(j)
         conds = []
         if math.isfinite(lo):
-            conds.append(f"{L}2<{lo!r}")
+            conds.append(f"{L}{row0}<{lo!r}")
         if math.isfinite(hi):
-            conds.append(f"{L}2>{hi!r}")
+            conds.append(f"{L}{row0}>{hi!r}")
         # ISNUMBER: empty cells (no value) are not exceedances
-        formula = f"AND(ISNUMBER({L}2),OR({','.join(conds)}))"
-        ws.conditional_formatting.add(f"{L}2:{L}{n + 1}", FormulaRule(formula=[formula], fill=red, font=font))
+        formula = f"AND(ISNUMBER({L}{row0}),OR({','.join(conds)}))"
+        ws.conditional_formatting.add(f"{L}{row0}:{L}{end}", FormulaRule(formula=[formula], fill=red, font=font))
 
 
 def _sheet_part(z: zipfile.ZipFile, title: str) -> str:
@@ -655,7 +706,7 @@ def _sheet_part(z: zipfile.ZipFile, title: str) -> str:
 
 
 def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
-    """SpreadsheetML ``<row>`` elements 2..n+1 of the Track sheet.
+    """SpreadsheetML ``<row>`` elements of the Track sheet's stations (from :data:`TRACK_FIRST_ROW`).
 
     The values come per column as numpy arrays; the text is built by one comprehension per
     column (repr: the shortest text that reads back to the same float). Measured on 16 000 x 45
@@ -664,50 +715,52 @@ def _station_rows_xml(rep: SurveyReport, styles: dict[str, str]) -> str:
     repr) and one %-template per run of rows with the same empty cells (0.28-0.43 s).
     """
     n = rep.geometry.chainage_m.size
-    rows_num = [str(i) for i in range(2, n + 2)]
+    station = rep.station_m
+    rows_num = [str(i) for i in range(TRACK_FIRST_ROW, TRACK_FIRST_ROW + n)]
     per_col = []
     for j, col in enumerate(rep.columns, start=1):
         L = _col_letter(j)
         s = styles.get(L, "0")
-        vals = column_values(col, rep.geometry).tolist()
+        vals = column_values(col, rep.geometry, station).tolist()
         pre = f'<c r="{L}'
         mid = f'" s="{s}"><v>'
-        per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v == v else ""   # v != v: NaN -> no cell
+        per_col.append([f"{pre}{r}{mid}{v!r}</v></c>" if v - v == 0 else ""   # NaN, +-inf -> no cell
                         for r, v in zip(rows_num, vals)])
+    eqs = rep.equations()
+    if eqs:   # the text of each station equation in the row of the first station at or after it
+        L = _col_letter(len(rep.columns) + 1)
+        at = dict(zip(np.searchsorted(rep.geometry.chainage_m, [s for s, _ in eqs], side="left").tolist(),
+                      [escape(t) for _, t in eqs]))
+        per_col.append([f'<c r="{L}{r}" t="inlineStr"><is><t>{at[i]}</t></is></c>' if i in at else ""
+                        for i, r in enumerate(rows_num)])
     return "".join(f'<row r="{r}">' + "".join(cells) + "</row>" for r, cells in zip(rows_num, zip(*per_col)))
 
 
 def _splice_track_rows(path: Path, rep: SurveyReport, timings: dict[str, float]) -> None:
-    """Replace the template row 2 of the Track sheet by all station rows (in place)."""
+    """Replace the template row :data:`TRACK_FIRST_ROW` of the Track sheet by all station rows (in place)."""
     t0 = time.perf_counter()
     n = rep.geometry.chainage_m.size
     with zipfile.ZipFile(path) as z:
         part = _sheet_part(z, TRACK_SHEET)
         members = [(i, z.read(i.filename)) for i in z.infolist()]
     xml = dict((i.filename, data) for i, data in members)[part].decode("utf-8")
-    m = re.search(r'<row r="2"[^>]*>.*?</row>', xml, flags=re.S)
+    m = re.search(rf'<row r="{TRACK_FIRST_ROW}"[^>]*>.*?</row>', xml, flags=re.S)
     if m is None:
-        raise RuntimeError("template row 2 missing from the Track sheet")
-    styles = dict(re.findall(r'<c r="([A-Z]+)2"[^>]*?\ss="(\d+)"', m.group(0)))
+        raise RuntimeError(f"template row {TRACK_FIRST_ROW} missing from the Track sheet")
+    styles = dict(re.findall(rf'<c r="([A-Z]+){TRACK_FIRST_ROW}"[^>]*?\ss="(\d+)"', m.group(0)))
     rows = _station_rows_xml(rep, styles)
     xml = xml[:m.start()] + rows + xml[m.end():]
     t1 = time.perf_counter()
     timings["rows_xml"] = t1 - t0
-    last = _col_letter(len(rep.columns))
-    xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{n + 1}"/>', xml, count=1)
-    fd, tmp = tempfile.mkstemp(prefix=".splice-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
+    last = _col_letter(len(rep.columns) + (1 if rep.equations() else 0))
+    xml = re.sub(r'<dimension ref="[^"]*"\s*/>', f'<dimension ref="A1:{last}{TRACK_FIRST_ROW + n - 1}"/>', xml, count=1)
+    with atomic_path(path) as tmp:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as out:
             for info, data in members:
                 payload = xml.encode("utf-8") if info.filename == part else data
                 zi = zipfile.ZipInfo(info.filename, date_time=info.date_time)
                 zi.compress_type = zipfile.ZIP_DEFLATED
                 out.writestr(zi, payload, compresslevel=1)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     timings["zip"] = time.perf_counter() - t1
 
 
@@ -752,10 +805,11 @@ def _print_setup(ws, rep: SurveyReport, title_rows: str | None, fit_width: bool 
 
 def _track_print_setup(ws, rep: SurveyReport) -> None:
     """The full Track sheet on paper: column groups, one group per page across, chainage and
-    station repeated on each (print title columns), header row on each page."""
+    station repeated on each (print title columns), the column header row on each page (the
+    header block above it prints once, on the first page)."""
     from openpyxl.worksheet.pagebreak import Break
 
-    _print_setup(ws, rep, "1:1", fit_width=False)
+    _print_setup(ws, rep, f"{TABLE_ROW}:{TABLE_ROW}", fit_width=False)
     ws.print_title_cols = "A:B"
     ws.page_setup.scale = 80
     ws.page_setup.pageOrder = "overThenDown"
@@ -782,8 +836,9 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     from openpyxl import Workbook
 
     path = Path(path)
-    if rep.geometry.chainage_m.size + 1 > 1_048_576:
-        raise ValueError(f"{path}: {rep.geometry.chainage_m.size} stations exceed the 1 048 575 data rows "
+    if rep.geometry.chainage_m.size + TRACK_FIRST_ROW - 1 > 1_048_576:
+        raise ValueError(f"{path}: {rep.geometry.chainage_m.size} stations exceed the "
+                         f"{1_048_576 - TRACK_FIRST_ROW + 1} station rows "
                          "of an Excel sheet; export a shorter stretch or use --csv")
     timings = {} if timings is None else timings
     t0 = time.perf_counter()
@@ -813,16 +868,10 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
         _print_setup(ws, rep, titles)
     _print_setup(stations, rep, f"1:{HEADER_ROWS}")
     _print_setup(charts, rep, f"1:{HEADER_ROWS}", fit_width=False)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xlsx", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         t1 = time.perf_counter()
         timings["openpyxl_build"] = t1 - t0
         wb.save(tmp)
         timings["openpyxl_save"] = time.perf_counter() - t1
-        _splice_track_rows(Path(tmp), rep, timings)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        _splice_track_rows(tmp, rep, timings)
     return path

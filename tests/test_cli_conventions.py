@@ -86,6 +86,22 @@ def test_help_at_80_columns_shows_every_option_unbroken(path, cmd):
                 assert found, f"{name} missing or cut in `trolley {' '.join(path)} --help`"
 
 
+GROUPS = [(p, c) for p, c in COMMANDS if getattr(c, "commands", None)]
+
+
+@pytest.mark.parametrize("path, group", GROUPS, ids=[" ".join(p) or "trolley" for p, _ in GROUPS])
+def test_command_lists_at_80_columns_show_whole_summaries(path, group):
+    """Click cuts a summary that does not fit with "..."; every listed command says what it does
+    in full (survey.cli.SHORT_HELP)."""
+    out = help_80(path)
+    listing = out[out.index("Commands:"):].splitlines()[1:]
+    names = [line.split()[0] for line in listing if line.startswith("  ") and line.split()]
+    assert sorted(names) == sorted(group.commands)
+    for line in listing:
+        assert not line.rstrip().endswith("..."), f"summary cut in `trolley {' '.join(path)} --help`: {line}"
+        assert len(line.split(None, 1)) == 2, f"no summary in `trolley {' '.join(path)} --help`: {line}"
+
+
 def test_help_keeps_square_brackets_of_the_toml_tables():
     out = help_80(["project", "new"])
     assert "[site]" in out and "[imu]" in out and "[design]" in out

@@ -11,6 +11,8 @@ import pytest
 
 from survey.export import export_outputs
 from survey.plots import km_label
+from survey.workbook import HEADER_ROWS
+from track_sheet import track_table
 from trolley.alignment import Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line, VerticalProfile
 
 STEP = 0.625
@@ -81,24 +83,28 @@ def test_workbook_structure(exported):
                              "ChartData"]
     assert wb["ChartData"].sheet_state == "hidden"
     ws = wb["Track"]
-    heads = [c.value for c in ws[1]]
+    head, heads = track_table(ws)
+    first = head + 1                                         # the first station row
+    # the header block above the table, right of the chainage and station columns (repeated on every page)
+    assert head > HEADER_ROWS and ws.cell(2, 3).value.startswith("Project: ") and ws.cell(2, 1).value is None
     assert heads[:3] == ["Chainage [m]", "Station [km+m]", "E [m]"]
     assert "Lateral dev [mm] +right" in heads and "Twist 3 m [mm] +left high" in heads
     assert "Alignment D1 3-25 m [mm] +right" in heads and "Chord 300/150 m vert [mm] +up" in heads
     assert "Versine H 10 m [mm] centre-chord +right" in heads and "Level 10 m chord [mm] centre-chord +up" in heads
-    assert ws.max_row == N + 1 and ws.freeze_panes == "C2"
-    assert ws.auto_filter.ref == f"A1:{ws.cell(1, len(heads)).column_letter}{N + 1}"
+    last = head + N                                          # the last station row
+    assert ws.max_row == last and ws.freeze_panes == f"C{first}"
+    assert ws.auto_filter.ref == f"A{head}:{ws.cell(1, len(heads)).column_letter}{last}"
     # number formats and values of one row against the computed geometry
-    row = 401
+    row = first + 399
     g = res.report.geometry
-    assert ws.cell(row, 1).value == pytest.approx(g.chainage_m[row - 2])
+    assert ws.cell(row, 1).value == pytest.approx(g.chainage_m[row - first])
     assert ws.cell(row, 2).number_format == '0"+"000.000'
     j = heads.index("Lateral dev [mm] +right") + 1
     assert ws.cell(row, j).number_format == "0.00"
-    assert ws.cell(row, j).value == pytest.approx(g.columns["lateral_dev_m"][row - 2] * 1e3, abs=1e-4)
+    assert ws.cell(row, j).value == pytest.approx(g.columns["lateral_dev_m"][row - first] * 1e3, abs=1e-4)
     # every station, every column: the sheet holds the computed values (empty = NaN)
     sheet = np.array([[np.nan if v is None else v for v in r]
-                      for r in ws.iter_rows(min_row=2, values_only=True)], dtype=float)
+                      for r in ws.iter_rows(min_row=first, values_only=True)], dtype=float)
     assert sheet.shape == (N, len(res.report.columns))
     for k, col in enumerate(res.report.columns):
         want = (g.chainage_m if col.key in ("chainage_m", "station_km") else g.columns[col.key])
@@ -109,7 +115,7 @@ def test_workbook_structure(exported):
     cf = {str(r.sqref): r.rules[0].formula[0] for r in ws.conditional_formatting}
     jg = heads.index("Gauge dev [mm] (nominal 1435)") + 1
     L = ws.cell(1, jg).column_letter
-    assert cf[f"{L}2:{L}{N + 1}"] == f"AND(ISNUMBER({L}2),OR({L}2<-1.0,{L}2>1.0))"
+    assert cf[f"{L}{first}:{L}{last}"] == f"AND(ISNUMBER({L}{first}),OR({L}{first}<-1.0,{L}{first}>1.0))"
     assert len(cf) == len(res.report.tolerances.limits)
     # charts: scatter with lines, x = the chainage column, y = the right columns, all N rows
     from openpyxl.chart import ScatterChart
@@ -133,9 +139,9 @@ def test_workbook_structure(exported):
         assert len(ch.series) == len(names) + n_tol
         for ser, name in zip(ch.series, names):
             L = ws.cell(1, heads.index(name) + 1).column_letter
-            assert ser.xVal.numRef.f == f"'Track'!$A$2:$A${N + 1}"
-            assert ser.yVal.numRef.f == f"'Track'!${L}$2:${L}${N + 1}"
-            assert ser.tx.strRef.f == f"'Track'!{L}1"
+            assert ser.xVal.numRef.f == f"'Track'!$A${first}:$A${last}"
+            assert ser.yVal.numRef.f == f"'Track'!${L}${first}:${L}${last}"
+            assert ser.tx.strRef.f == f"'Track'!{L}{head}"
         colours.append([str(ser.graphicalProperties.line.solidFill.srgbClr) for ser in ch.series[:len(names)]])
         for ser in ch.series[len(names):]:
             assert ser.graphicalProperties.line.prstDash == "dash" and "ChartData" in ser.yVal.numRef.f
@@ -170,10 +176,13 @@ def test_print_settings_and_header_block(exported):
         lines = [wb[title].cell(r, 1).value for r in range(2, HEADER_ROWS + 1)]
         assert lines[0].startswith("Project: =1+1") and "Line: not given" in lines[0]
         assert "IMU: not given" in lines[2] and "Software: trolley-survey" in lines[3]
+        assert all(len(x) < 190 for x in lines)          # fits the printed width at 8 pt
         assert lines[5].startswith("Tolerance set: built-in set hsr_ballastless_static")
         assert not any("/tmp" in x or "pytest" in x for x in lines)     # no path of this machine
     track = wb["Track"]
-    assert track.print_title_cols == "$A:$B" and track.print_title_rows == "$1:$1"
+    head, _ = track_table(track)
+    assert track.print_title_cols == "$A:$B" and track.print_title_rows == f"${head}:${head}"
+    assert track.freeze_panes == f"C{head + 1}"                         # frozen below the column header
     assert [b.id for b in track.col_breaks.brk] == [11, 17, 26, 32]    # positions | deviations | gauge, cant | ...
     summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
     assert summary["Line"] == "not given" and summary["Total station serial number"] == "not given"
@@ -269,9 +278,9 @@ def test_without_design_fixes_or_summary(tmp_path):
 
     assert "not found" in wb["Fixes"][f"A{TABLE_ROW}"].value
     assert "no field record" in wb["Free stations"][f"A{TABLE_ROW}"].value
-    heads = [c.value for c in wb["Track"][1]]
+    head, heads = track_table(wb["Track"])
     j = heads.index("Design E [m]") + 1
-    assert all(wb["Track"].cell(r, j).value is None for r in (2, 100, N + 1))
+    assert all(wb["Track"].cell(head + r, j).value is None for r in (1, 100, N))
     assert any("no design" in n for n in res.report.notes)
 
 
@@ -317,10 +326,11 @@ def test_libreoffice_opens_workbook(exported, tmp_path):
     _soffice_convert(base / "survey.xlsx", tmp_path, opts)
     with open(tmp_path / "survey-Track.csv", newline="", encoding="utf-8") as f:
         rows = list(csv.reader(f))
-    assert len(rows) == N + 1 and rows[0][0] == "Chainage [m]"
+    head = next(i for i, r in enumerate(rows) if r[0] == "Chainage [m]")
+    assert len(rows) == head + 1 + N and rows[0][2].startswith("Track") and rows[1][2].startswith("Project: =1+1")
     g = res.report.geometry
-    j = rows[0].index("Cant [mm] +left high")
-    vals = np.array([float(r[j]) for r in rows[1:]])
+    j = rows[head].index("Cant [mm] +left high")
+    vals = np.array([float(r[j]) for r in rows[head + 1:]])
     np.testing.assert_allclose(vals, g.columns["cant_m"] * 1e3, atol=1e-4)
     with open(tmp_path / "survey-Fixes.csv", newline="", encoding="utf-8") as f:
         fixes = list(csv.reader(f))
@@ -349,18 +359,22 @@ def test_libreoffice_round_trip_keeps_values_formats_and_charts(exported, tmp_pa
     ours = load_workbook(base / "survey.xlsx")
     lo = load_workbook(tmp_path / "survey.xlsx")
     assert lo.sheetnames == ours.sheetnames
-    a = np.array([[np.nan if v is None else v for v in r] for r in ours["Track"].iter_rows(min_row=2, values_only=True)],
-                 dtype=float)
-    b = np.array([[np.nan if v is None else v for v in r] for r in lo["Track"].iter_rows(min_row=2, values_only=True)],
-                 dtype=float)
+    head, heads = track_table(ours["Track"])
+    assert track_table(lo["Track"]) == (head, heads)
+    assert [lo["Track"].cell(r, 3).value for r in range(1, head)] == [ours["Track"].cell(r, 3).value
+                                                                       for r in range(1, head)]  # header block
+    a = np.array([[np.nan if v is None else v for v in r]
+                  for r in ours["Track"].iter_rows(min_row=head + 1, values_only=True)], dtype=float)
+    b = np.array([[np.nan if v is None else v for v in r]
+                  for r in lo["Track"].iter_rows(min_row=head + 1, values_only=True)], dtype=float)
+    assert a.shape == (N, len(res.report.columns))
     np.testing.assert_array_equal(a, b)                   # bit-identical numbers, same empty cells
-    assert [c.value for c in lo["Track"][1]] == [c.value for c in ours["Track"][1]]
     from survey.workbook import TABLE_ROW
 
     for ref in (f"B{TABLE_ROW + k}" for k in (2, 3, 4)):
         assert lo["Fixes"][ref].value == ours["Fixes"][ref].value and lo["Fixes"][ref].data_type == "s"
     assert lo["Summary"]["B3"].value == "=1+1" and lo["Summary"]["B3"].data_type == "s"
-    assert lo["Track"]["B2"].number_format.replace("\\", "").replace('"', "") == "0+000.000"
+    assert lo["Track"].cell(head + 1, 2).number_format.replace("\\", "").replace('"', "") == "0+000.000"
 
     def cf(ws):
         return {str(r.sqref): r.rules[0].formula[0].split(",OR(")[0] for r in ws.conditional_formatting}

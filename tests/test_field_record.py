@@ -114,7 +114,7 @@ def test_project_set_validates_and_show_lists(tmp_path):
     assert runner.invoke(app, ["project", "new", "p", "--root", root, "--no-toml"]).exit_code == 0
     r = runner.invoke(app, ["project", "set", "imu_serial", "RQH-2231", "--project", "p", "--root", root])
     assert r.exit_code == 0, r.output
-    for key, value, msg in (("bogus", "x", "unknown key 'bogus'"),
+    for key, value, msg in (("bogus", "x", "unknown key 'bogus'; the keys are: line, track"),
                             ("imu_calibrated", "14.03.2026", "not a date as YYYY-MM-DD"),
                             ("rail_temperature_c", "hot", "not a temperature"),
                             ("rail_temperature_c", "150", "outside -60..90"),
@@ -126,3 +126,8 @@ def test_project_set_validates_and_show_lists(tmp_path):
     assert runner.invoke(app, ["project", "set", "imu_serial", "", "--project", "p", "--root", root]).exit_code == 0
     r = runner.invoke(app, ["project", "show", "p", "--root", root, "--json"])
     assert json.loads(r.stdout)["header"] == {}
+    # the help lists every key the store accepts
+    from survey.surveyheader import HEADER_FIELDS
+
+    helptext = " ".join(runner.invoke(app, ["project", "set", "--help"], terminal_width=80).output.split())
+    assert all(k in helptext for k in HEADER_FIELDS)

@@ -378,7 +378,8 @@ def test_export_reads_track_csv_along_distance_and_says_so(tmp_path):
     track, _ = read_track_csv(tmp_path / "track.csv")  # chainage_m jumps 1299 -> 2300: read along distance_m
     np.testing.assert_allclose(track.chainage_m, s)
     notes: list[str] = []
-    track = add_design(track, tmp_path / "design.xml", 1.5, None, notes)
+    track, stationing = add_design(track, tmp_path / "design.xml", 1.5, None, notes)
+    np.testing.assert_allclose(stationing.station(s), drawing)
     np.testing.assert_allclose(track.design_E_m, track.E_m, atol=POS_TOL_M)
     assert any("station equations" in n and "distance_m" in n for n in notes), notes
     assert any("read as drawing stations" in n for n in notes), notes

@@ -110,3 +110,146 @@ def test_cli_pdf(tmp_path):
     assert _pages_in(tmp_path / "r.pdf") == 2 + 1 + 1 + 1 + 1                # no field record: one QA page
     r = CliRunner().invoke(app, ["export", str(out), "--pdf", str(tmp_path / "nofolder" / "r.pdf")])
     assert r.exit_code == 2 and "does not exist" in r.output
+
+
+def test_table_rows_stay_on_their_shading_to_the_foot_of_the_page():
+    """Every row of a long table is drawn at its own height: the text of each red row lies inside
+    its red band (one multi-line text per column drifted about a line by row 30), and the columns
+    of a row start at the same character in every row (monospaced, padded)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from survey.reportpdf import PAGE_SIZE_IN, TABLE_FONT, _table
+
+    fig = plt.figure(figsize=PAGE_SIZE_IN)
+    ax = fig.add_axes([0.05, 0.06, 0.9, 0.86])
+    rows = [[str(i), f"parameter {'x' * (i % 7)}", f"{i * 1.25:.2f}", "mm"] for i in range(56)]
+    red = set(range(0, 56, 2))
+    _table(ax, rows, ["#", "Parameter", "Peak", "Unit"], [0.1, 0.5, 0.2, 0.2], red, fontsize=7.0)
+    renderer = fig.canvas.get_renderer()
+    texts = [t for t in fig.texts if t.get_fontfamily()[0] == TABLE_FONT]
+    assert len(texts) == 1 + len(rows)                                   # header + one text per row
+    bands = sorted((p.get_window_extent(renderer) for p in fig.patches), key=lambda b: -b.y0)
+    red_bands = bands[1:]                                                # the first is the header's
+    assert len(red_bands) == len(red)
+    for i, band in zip(sorted(red), red_bands):
+        box = texts[1 + i].get_window_extent(renderer)
+        assert band.y0 < 0.5 * (box.y0 + box.y1) < band.y1, i
+        assert box.y0 > 0.06 * fig.bbox.height                           # still above the page foot
+    starts = {texts[1 + i].get_text().index(f"{i * 1.25:.2f}") for i in range(len(rows))}
+    assert len(starts) == 1                                              # the Peak column lines up
+    plt.close(fig)
+
+
+def test_qa_sections_have_their_own_headings(report):
+    """Overlap checks sit under dE / dN / dH headings (not the residuals' across / along / height),
+    the rejected fixes under their own; a page that starts inside a section repeats its headings."""
+    from survey.reportpdf import QA_FIX_HEADS, QA_OVERLAP_HEADS, QA_POINT_HEADS, _qa_rows, qa_pages
+
+    _, res = report
+    rows = _qa_rows(res.report)
+    kinds = [k for k, _, _ in rows]
+    i = next(j for j, (k, c, _) in enumerate(rows) if k == "title" and c[0].startswith("Overlap checks"))
+    assert rows[i + 1] == ("head", QA_OVERLAP_HEADS, False)
+    assert rows[i + 1][1][2:5] == ["dE [mm]", "dN [mm]", "dH [mm]"]
+    over = rows[i + 2]
+    assert over[0] == "point" and " / " in over[1][0]
+    o = res.report.record.overlaps[0]
+    assert over[1][2:5] == [f"{x * 1e3:.2f}" for x in (o.dE_m, o.dN_m, o.dH_m)]
+    assert over[1][7:9] == [f"{o.tolerance_m * 1e3:.2f}", "within" if o.within else "OUTSIDE"]
+    j = next(j for j, (k, c, _) in enumerate(rows) if k == "title" and c[0] == "Fixes rejected or undone")
+    assert rows[j + 1] == ("head", QA_FIX_HEADS, False)
+    assert all(rows[k - 1][0] in ("head", "point") for k in range(len(rows)) if kinds[k] == "point")
+    for per_page in (4, 5, 7):
+        pages = qa_pages(rows, per_page)
+        assert all(0 < len(p) <= per_page for p in pages)
+        for p in pages:
+            assert p[-1][0] == "point" or p is pages[-1] and p[-1][1] == QA_FIX_HEADS
+            assert p[0][0] != "point", "a page starts with a value row, without headings"
+        body = [r for p in pages for r in p if r[0] != "head"]
+        assert body == [r for r in rows if r[0] != "head"]               # nothing lost, nothing doubled
+        continued = [p for p in pages[1:] if p[0][0] == "head"]
+        assert continued and all(p[0][1] in (QA_POINT_HEADS, QA_OVERLAP_HEADS, QA_FIX_HEADS) for p in continued)
+
+
+def test_qa_pages_hand_cut():
+    """Pages of four rows, cut by hand: a section continued on a new page repeats its headings;
+    a title never ends a page without its headings and first row."""
+    from survey.reportpdf import qa_pages
+
+    rows = ([("title", ["S1"], False), ("head", ["P"], False)] + [("point", [f"p{i}"], False) for i in range(5)]
+            + [("title", ["Ov"], False), ("head", ["dE"], False), ("point", ["o1"], False),
+               ("title", ["Fx"], False), ("head", ["F"], False)] + [("point", [f"f{i}"], True) for i in range(3)])
+    got = [[r[1][0] for r in p] for p in qa_pages(rows, 4)]
+    assert got == [["S1", "P", "p0", "p1"], ["P", "p2", "p3", "p4"], ["Ov", "dE", "o1"], ["Fx", "F", "f0", "f1"],
+                   ["F", "f2"]]
+
+
+def test_chord_magnitude_cycles_with_the_spacing_and_the_plot_draws_its_maximum(report):
+    """The 30 m / 5 m check's magnitude cycles every 5 m by its definition (hand case: a single
+    1 mm ramp over 2 m); the panel's line is the maximum over one spacing, which is flat there,
+    and the per-station values are drawn thin beneath it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from survey.plots import chord_envelope, chord_spacing_m, draw_panel, panel_marks
+    from trolley.trackgeometry import long_chord_check
+
+    step = 0.625
+    s = np.arange(0.0, 200.0, step)
+    ramp = np.clip((s - 100.0) / 2.0, 0.0, 1.0) * 1e-3
+    v = np.abs(long_chord_check(ramp, 30.0, 5.0, step))
+    mid = v[np.searchsorted(s, 90.0):np.searchsorted(s, 110.0)]
+    assert mid.max() - mid.min() > 0.3e-3                                # 0.83 vs 0.46 mm: the check itself
+    np.testing.assert_allclose(mid[:8], mid[8:16], atol=1e-12)            # period: 8 stations = 5 m
+    env = chord_envelope(v, 5.0, step)[np.searchsorted(s, 90.0):np.searchsorted(s, 110.0)]
+    np.testing.assert_allclose(env, mid.max(), atol=1e-12)               # flat at the worst phase
+    assert np.isnan(chord_envelope(v, 5.0, step)[np.isnan(v)]).all()
+    _, res = report
+    rep = res.report
+    assert chord_spacing_m(rep, "chord30_5_lat_m") == 5.0 and chord_spacing_m(rep, "chord300_150_lat_m") is None
+    fig, ax = plt.subplots()
+    draw_panel(ax, rep, ["chord30_5_lat_m"], panel_marks(rep))
+    raw, line = ax.get_lines()[:2]
+    assert raw.get_linewidth() < line.get_linewidth() and line.get_label().endswith("max over 5 m")
+    a, b = raw.get_ydata(), line.get_ydata()
+    ok = np.isfinite(a)
+    assert np.all(b[ok] >= a[ok]) and np.nanmax(b) == pytest.approx(np.nanmax(a))
+    plt.close(fig)
+
+
+def test_section_rows_cover_some_track(report):
+    """Every section-quality row (sheet and PDF) spans track; a survey ending on a section limit
+    gets no empty last row (it touches the next section in one station only)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from survey.workbook import section_table
+
+    _, res = report
+    for rep in (res.report, replace(res.report, geometry=_cut_at_section_limit(res.report.geometry))):
+        s = rep.geometry.chainage_m
+        keys, quals = section_table(rep)
+        q0 = quals[0]
+        assert q0.start_m.size >= 1
+        assert np.all(np.maximum(q0.start_m, s[0]) < np.minimum(q0.end_m, s[-1]))
+        assert all(q.start_m.size == q0.start_m.size for q in quals)
+
+
+def _cut_at_section_limit(g):
+    """The geometry up to and including the station on the first 200 m limit after its start."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    s = g.chainage_m
+    limit = (np.floor(s[0] / 200.0) + 1) * 200.0
+    n = int(np.searchsorted(s, limit + 1e-9))
+    assert abs(s[n - 1] - limit) < 1e-9, "the station grid has a station on the limit"
+    return replace(g, chainage_m=s[:n], columns={k: v[:n] for k, v in g.columns.items()})

@@ -16,12 +16,37 @@ import pexpect
 from session_project import make_project
 
 
+def _start(tmp_path, session: str, speedup: str):
+    """A simulated session started at a terminal (pexpect)."""
+    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
+    return pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
+                                          "--session", session, "--simulate", "--speedup", speedup],
+                         cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+
+
+def _end(child) -> None:
+    """``e``, confirmed with ``y``: the session ends and writes the sheet."""
+    child.send("e")
+    child.expect("end the session\\? y = end it")
+    child.send("y")
+    child.expect("survey sheet:", timeout=90)
+    child.expect(pexpect.EOF)
+
+
+def _fix(child, label: str) -> None:
+    """``f`` until the fix ``label`` is accepted (a machine too loaded to stream for 1 s pauses the
+    session for a device fault, and the key is answered with that)."""
+    for _ in range(20):
+        child.send("f")
+        if child.expect([f"{label} accepted", "waiting for the devices"]) == 0:
+            return
+        time.sleep(0.5)
+    raise AssertionError(f"{label} not taken")
+
+
 def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
     make_project(tmp_path / "projects", static_s="20.0", stop_s="30.0")  # 2 s per stop at 15x: time to type
-    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
-    child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
-                                           "--session", "kb", "--simulate", "--speedup", "15"],
-                          cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+    child = _start(tmp_path, "kb", "15")
     try:
         child.expect("a accept")
         child.send("d")  # drop the point data snooping suggests, see the table again, accept
@@ -49,11 +74,7 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
         child.expect("paused: p to resume first")
         child.send("p")
         child.expect("resumed")
-        child.send("e")
-        child.expect("end the session\\? y = end it")
-        child.send("y")
-        child.expect("survey sheet:", timeout=90)
-        child.expect(pexpect.EOF)
+        _end(child)
     finally:
         child.close()
     assert child.exitstatus == 0
@@ -79,33 +100,24 @@ def test_at_40x_the_world_waits_at_a_stop_f_while_moving_is_answered_and_e_asks_
     the crew has taken its fix. ``f`` while the trolley moves says why nothing happens; ``e`` asks
     before it ends the session."""
     make_project(tmp_path / "projects", static_s="20.0")  # 8 s stops (tests/session_project.py)
-    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
-    child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "start", "t1", "--root", "projects",
-                                           "--session", "fast", "--simulate", "--speedup", "40"],
-                          cwd=str(tmp_path), env=env, encoding="utf-8", timeout=60, dimensions=(50, 140))
+    child = _start(tmp_path, "fast", "40")
     try:
         child.expect("a accept")
         child.send("a")
         child.expect("station accepted")
-        child.send("f")
-        child.expect("FIX001 accepted")
+        _fix(child, "FIX001")
         child.expect("static alignment done")
         child.expect("moving")
         child.send("f")
         child.expect("f ignored: the trolley is moving")
         child.expect("standing at 60")
         time.sleep(2.0)  # 80 s of simulated time at 40x: ten times the stop, had the world not waited
-        child.send("f")
-        child.expect("FIX002 accepted")
+        _fix(child, "FIX002")
         child.send("e")
         child.expect("end the session\\? y = end it")
         child.send("x")
         child.expect("the session goes on")
-        child.send("e")
-        child.expect("end the session\\? y = end it")
-        child.send("y")
-        child.expect("survey sheet:", timeout=90)
-        child.expect(pexpect.EOF)
+        _end(child)
     finally:
         child.close()
     assert child.exitstatus == 0
@@ -152,3 +164,50 @@ def test_one_set_of_keys_on_the_screen(tmp_path):
         assert shown() == ["end the session?"]
         fs._confirm_end, fs.note_buffer = False, "rail"
         assert shown() == ["note:"]
+
+
+def test_an_ended_session_is_reopened_to_add_intervals(tmp_path):
+    """The crew ends at the 60 m stop before its fix (``e``, ``y``: one fix, nothing to process);
+    ``trolley survey resume --reopen`` continues the session with a script: the fix at 60 m, the
+    next interval, the fix at 120 m. The session is processed again at its new end."""
+    import subprocess
+
+    make_project(tmp_path / "projects", static_s="20.0")
+    child = _start(tmp_path, "kb", "40")
+    try:
+        child.expect("a accept")
+        child.send("a")
+        child.expect("station accepted")
+        _fix(child, "FIX001")
+        child.expect("standing at 60")
+        child.send("e")
+        child.expect("end the session\\? y = end it")
+        child.send("y")
+        child.expect("fewer than two accepted fixes: nothing to process", timeout=90)
+        child.expect(pexpect.EOF)
+    finally:
+        child.close()
+    assert child.exitstatus == 0
+    args = [sys.executable, "-m", "survey.cli", "survey", "resume", "t1", "--root", "projects", "--session", "kb"]
+    (tmp_path / "add.txt").write_text("fix\nmove\nfix\nend\n")
+    r = subprocess.run(args + ["--reopen", "--script", "add.txt"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300, env={**os.environ, "COLUMNS": "160"})
+    assert r.returncode == 0, r.stderr[-3000:]
+    from survey.commands.survey import simulated_world
+    from survey.session.simworld import stop_index_at
+    from survey.store import ProjectStore
+
+    with ProjectStore.open(tmp_path / "projects" / "t1") as st:
+        sid = st.session("kb").session_id
+        fixes = st.fixes(sid)
+        sim = simulated_world(st, 1.0).sim
+        kinds = [e.kind for e in st.events(sid)]
+        finals = [p for p in st.processing_runs(sid) if p.kind == "final"]
+        track = st.track(finals[-1].run_id)
+        assert st.session("kb").state == "ended"
+    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True), ("FIX003", True)]
+    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1, 2]
+    assert kinds.count("end") == 2 and kinds.index("reopened") < kinds.index("resumed")
+    assert kinds.count("interval") == 2  # the live summaries of the two intervals added
+    assert len(finals) == 1 and track.chainage_m[0] < 1.0 and track.chainage_m[-1] > 119.0
+    assert "survey.xlsx" in r.stdout

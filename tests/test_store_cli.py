@@ -99,7 +99,7 @@ def test_session_folder_round_trip_through_store(tmp_path, with_design, with_gau
     out = tmp_path / "out"
     run("project", "export-session", "--project", "p", "--session", "s1", "--out", str(out), "--root", root)
     names = sorted(p.name for p in src.iterdir())
-    assert names == sorted(p.name for p in out.iterdir())
+    assert names == sorted(p.name for p in out.iterdir() if p.name != ".made-by-trolley")
     assert ("alignment.xml" in names) == with_design and ("gauge.csv" in names) == with_gauge
     for name in names:
         assert (out / name).read_bytes() == (src / name).read_bytes(), name
@@ -107,6 +107,13 @@ def test_session_folder_round_trip_through_store(tmp_path, with_design, with_gau
     res = run("project", "export-session", "--project", "p", "--session", "s1", "--out", str(out), "--root", root,
               code=2)
     assert "already exists" in res.stderr
+    # --overwrite replaces a folder export-session made, never another one (here the source)
+    run("project", "export-session", "--project", "p", "--session", "s1", "--out", str(out), "--root", root,
+        "--overwrite")
+    before = {p.name: p.read_bytes() for p in src.iterdir()}
+    res = run("project", "export-session", "--project", "p", "--session", "s1", "--out", str(src), "--root", root,
+              "--overwrite", code=2)
+    assert "not made by" in res.stderr and {p.name: p.read_bytes() for p in src.iterdir()} == before
 
 
 def test_rejected_fix_is_not_exported(tmp_path):

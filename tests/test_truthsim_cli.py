@@ -27,7 +27,7 @@ def test_simulate_writes_a_readable_session(tmp_path):
     summary = json.loads(r.stdout)
     assert summary["imu"] == "fog" and summary["stops"] == 3 and summary["fixes"] == 3
     assert sorted(p.name for p in out.iterdir()) == [
-        "alignment.xml", "fixes.csv", "gauge.csv", "imu.csv", "odometer.csv", "session.toml",
+        ".made-by-trolley", "alignment.xml", "fixes.csv", "gauge.csv", "imu.csv", "odometer.csv", "session.toml",
         "truth.csv"]
     ses = read_session(out)
     assert ses.meta.design_alignment == "alignment.xml"
@@ -69,6 +69,9 @@ def test_simulate_bad_input_exit_2_and_nothing_written(tmp_path):
     r = _run(["--out", str(out), "--project", str(DEMO), "--length-m", "60"])
     assert r.exit_code == 2 and "already exists" in r.stderr
     assert (out / "keep.txt").read_text() == "mine"
+    r = _run(["--out", str(out), "--project", str(DEMO), "--length-m", "60", "--force"])
+    assert r.exit_code == 2 and "not made by `trolley simulate`" in r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
     bad = tmp_path / "proj"
     bad.mkdir()
     (bad / "project.toml").write_text('[simulation]\nlength_m = "long"\n')

@@ -299,3 +299,20 @@ def test_a_turn_needs_a_long_enough_stop():
         motion_profile(0.0, 120.0, 60.0, 10.0, 12.0, 1.0, 4.0, turn_at_stops=(1,), turn_s=10.0)
     with pytest.raises(ValueError, match="static alignment"):
         motion_profile(0.0, 120.0, 60.0, 10.0, 30.0, 1.0, 4.0, turn_at_stops=(0,))
+
+
+def test_progress_reports_each_chunk_and_leaves_the_draws_alone(noisy, monkeypatch):
+    """The simulate command's progress bar: one report per chunk of IMU samples, fractions rising
+    from 0 below 1, and the same survey as without a progress callable."""
+    import trolley.truthsim as ts
+
+    monkeypatch.setattr(ts, "_CHUNK", 4096)
+    seen: list[tuple[str, float]] = []
+    sim = simulate_survey(small_alignment(), BASE, progress=lambda step, f: seen.append((step, f)))
+    n = noisy.session.imu_t_s.size
+    assert len(seen) == -(-n // 4096)
+    fractions = [f for _, f in seen]
+    assert fractions[0] == 0.0 and fractions == sorted(fractions) and fractions[-1] < 1.0
+    np.testing.assert_array_equal(sim.session.imu_w_rad_s, noisy.session.imu_w_rad_s)
+    np.testing.assert_array_equal(sim.session.imu_f_m_s2, noisy.session.imu_f_m_s2)
+    np.testing.assert_array_equal(sim.session.fixes.enh_m, noisy.session.fixes.enh_m)

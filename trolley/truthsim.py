@@ -69,6 +69,7 @@ Munoz, S., et al. (2021): validation against a model richer than the estimator's
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
@@ -735,7 +736,8 @@ def _kinematics(geo: TruthGeometry, motion: MotionProfile, t: np.ndarray, latitu
     return dict(s=s, p=p, q=q, roll=roll, pitch=pitch, yaw=yaw, v_n=v_n, a_n=a_n, lat=lat, h=h)
 
 
-def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) -> SimulatedSurvey:
+def simulate_survey(alignment, config: SimulationConfig = SimulationConfig(),
+                    progress: Callable[[str, float], None] | None = None) -> SimulatedSurvey:
     """Simulate a stop-and-go trolley survey along a design alignment.
 
     Parameters
@@ -743,6 +745,9 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     alignment : trolley.alignment.Alignment
         Design geometry (``evaluate``, ``start_chainage_m``, ``end_chainage_m``).
     config : SimulationConfig
+    progress : optional callable ``progress(step, fraction)`` (the convention of
+        :func:`trolley.engine.process_session`), called once per chunk of IMU samples; it does
+        not change the random draws.
 
     Returns
     -------
@@ -791,6 +796,8 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig()) ->
     tr = {k: np.empty(n_imu) for k in ("s", "E", "N", "H", "roll", "pitch", "yaw")}
     for i0 in range(0, n_imu, _CHUNK):
         i1 = min(i0 + _CHUNK, n_imu)
+        if progress is not None:
+            progress("simulating the truth and the IMU", i0 / n_imu)
         k = np.arange(i0, i1 + 1)
         t_half = np.empty(2 * (i1 - i0) + 1)
         t_half[0::2] = k / rate                       # interval ends t_{k-1}, t_k

@@ -9,15 +9,15 @@ Exit codes: 0 every direction within the target, 1 at least one direction over i
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from survey import jsonout
+from survey.atomicwrite import write_text_atomic, write_with
 from survey.commands.options import BudgetImu, old_name, renamed
+from rich.markup import escape
 
 IMU_CHOICES = ("rlg", "fog", "mems", "custom")
 
@@ -31,17 +31,10 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
-def _write_atomic(path: Path, write) -> None:
-    """Write through a temporary file in the same folder, then os.replace (no partial files)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def _num(x) -> float | None:
+    """A JSON-safe float: None for nan and inf."""
+    x = float(x)
+    return x if math.isfinite(x) else None
 
 
 def _check_nonnegative(**values) -> None:
@@ -318,7 +311,7 @@ def _print_table(rep: dict) -> None:
         con.print("[dim]* with the gyrocompassing heading error and the equivalent bias following the bias "
                   "instability (equivalent bias = 2 x bias instability)[/dim]", highlight=False)
     for k, msg in rep["limit_notes"].items():
-        con.print(f"[dim]{k}: {msg}[/dim]", highlight=False)
+        con.print(f"[dim]{escape(str(k))}: {escape(str(msg))}[/dim]", highlight=False)
     if "monte_carlo" in rep:
         mc = rep["monte_carlo"]
         m = Table(title=f"Monte Carlo, {mc['runs']} intervals (RMS relative sampling error "
@@ -363,7 +356,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     text = csv_text(["distance_m", "time_s", "vertical_mm", "lateral_mm", "longitudinal_mm"],
                     [dist, t] + [units.m_to_mm(sig[d]) for d in ("vertical", "lateral", "longitudinal")])
     p = folder / "budget_sigma.csv"
-    _write_atomic(p, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    write_text_atomic(p, text)
     written.append(p)
 
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -377,7 +370,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     ax.legend()
     fig.tight_layout()
     p = folder / "budget_sigma.png"
-    _write_atomic(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    write_with(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
     plt.close(fig)
     written.append(p)
 
@@ -395,7 +388,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     text = csv_text(["gyro_arw_deg_sqrt_h", "max_gyro_bias_lateral_deg_h", "max_gyro_bias_vertical_deg_h"],
                     [arw, curves["lateral"], curves["vertical"]])
     p = folder / "budget_requirements.csv"
-    _write_atomic(p, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    write_text_atomic(p, text)
     written.append(p)
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -425,7 +418,7 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
     ax.legend(fontsize=8)
     fig.tight_layout()
     p = folder / "budget_requirements.png"
-    _write_atomic(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    write_with(p, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
     plt.close(fig)
     written.append(p)
     return written

@@ -43,7 +43,14 @@ def demo(
 ) -> None:
     """Survey the demo project end to end (field session with simulated devices); print where the results are."""
     from survey import jsonout
+    from survey.limits import check_finite
 
+    try:
+        check_finite(speedup, "--speedup", positive=True)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--speedup") from None
+    if out is not None and out.exists() and not out.is_dir():
+        raise typer.BadParameter(f"{out}: exists and is not a folder", param_hint="--out")
     project = _demo_project()
     out = out if out is not None else project / "out"
     con = Console(stderr=True) if json_output else Console()
@@ -99,7 +106,7 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     (folder / "project.toml").write_text(toml, encoding="utf-8")
     for name in ("alignment.xml", "cpiii.csv"):
         shutil.copy(project / name, folder / name)
-    err.print(f"1/3 project store {folder / 'project.sqlite'} from {project}", highlight=False)
+    err.print(f"1/3 project store {folder / 'project.sqlite'} from {project}", highlight=False, markup=False)
     new("demo", root=root, imu=None, latitude_deg=None, height=None, tolerance_set="default", use_toml=True)
     from survey.commands.survey import open_store, simulated_world
 
@@ -108,14 +115,14 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     script = out / "crew_script.txt"
     script.write_text(survey_script(n_stops, note_every=5, station_every=5), encoding="utf-8")
     err.print(f"2/3 field session with simulated devices on ptys, {speedup:g}x real time, crew script {script}",
-              highlight=False)
+              highlight=False, markup=False)
     outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False, con=con)
     err.print("3/3 comparing with the simulator's truth ...")
     if outcome.result is None:
         fail("the session produced no processed track")
     accuracy = _accuracy_line(con, outcome.result, outcome.world.sim.truth)
     elapsed = time.perf_counter() - t_start
-    con.print(f"project store: {folder / 'project.sqlite'}\ndone in {elapsed:.1f} s", highlight=False)
+    con.print(f"project store: {folder / 'project.sqlite'}\ndone in {elapsed:.1f} s", highlight=False, markup=False)
     return {"mode": "field session", "project_store": folder / "project.sqlite",
             **session_outcome_dict(session_name="demo", outcome=outcome), "accuracy": accuracy,
             "elapsed_s": elapsed}
@@ -152,7 +159,7 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     design = parse_landxml(xml)
     config = SimulationConfig(**kwargs)
     err.print(f"1/4 simulating {config.length_m:g} m of {project.resolve().name} with the {preset} IMU "
-              f"at {config.imu_rate_hz:g} Hz ...", highlight=False)
+              f"at {config.imu_rate_hz:g} Hz ...", highlight=False, markup=False)
     sim = simulate_survey(design, config)
     session_dir = out / "session"
     session = replace(sim.session, meta=replace(sim.session.meta, design_alignment="alignment.xml"))
@@ -169,9 +176,9 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     err.print("4/4 comparing with the simulator's truth ...")
     accuracy = _accuracy_line(con, result, sim.truth)
     con.print(f"\nraw session:  {session_dir}\ntrack:        {written.track_csv}\n"
-              f"survey sheet: {exported.xlsx}", highlight=False)
+              f"survey sheet: {exported.xlsx}", highlight=False, markup=False)
     for i, png in enumerate(exported.plots):
-        con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
+        con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False, markup=False)
     elapsed = time.perf_counter() - t_start
     con.print(f"done in {elapsed:.1f} s", highlight=False)
     return {"mode": "direct", "raw_session": session_dir, "track_csv": written.track_csv,

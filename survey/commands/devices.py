@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 
 import typer
 
 from survey import jsonout
+from survey.atomicwrite import OutputError, guard_overwrite, write_marker, write_text_atomic
 from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
@@ -24,18 +23,6 @@ devices_app = typer.Typer(help="Check, record and simulate the trolley's serial 
 
 def _err(msg: str) -> None:
     typer.echo("error: " + " ".join(str(msg).split()), err=True)
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _csv(header: list[str], cols: list) -> str:
@@ -140,7 +127,13 @@ def record_cmd(
     except (ValueError, KeyError) as e:
         _err(str(e).strip("'\""))
         raise typer.Exit(code=2)
+    try:
+        guard_overwrite(out, "devices record", force=False, reuse_own=True)
+    except OutputError as e:
+        _err(str(e))
+        raise typer.Exit(code=2)
     out.mkdir(parents=True, exist_ok=True)
+    write_marker(out, "devices record")
     cfg = RecordConfig(imu_port=imu, seconds=seconds, odometer_port=odometer, gauge_port=gauge, raw_dir=out,
                        imu_axes=imu_axes, imu_type=imu_type, imu_rate_hz=imu_rate_hz, odometer=odo,
                        imu_baud=imu_baud, odometer_baud=odometer_baud, gauge_baud=gauge_baud)
@@ -156,18 +149,18 @@ def record_cmd(
         _err(str(e))
         raise typer.Exit(code=2)
     stats = {k: v.as_dict() for k, v in rec.stats.items()}
-    _write_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
+    write_text_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
     if len(rec.imu_t_s) == 0:
         _err(f"IMU on {imu}: no valid RAWIMUSXB frame in {seconds:g} s; nothing written but "
              f"{out / 'stats.json'} and the raw logs")
         raise typer.Exit(code=1)
     w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
-    _write_atomic(out / "imu.csv", _csv(["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
+    write_text_atomic(out / "imu.csv", _csv(["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"],
                                         [rec.imu_t_s, w[:, 0], w[:, 1], w[:, 2], f[:, 0], f[:, 1], f[:, 2]]))
     if rec.odo_t_s is not None:
-        _write_atomic(out / "odometer.csv", _csv(["t_s", "distance_m"], [rec.odo_t_s, rec.odo_distance_m]))
+        write_text_atomic(out / "odometer.csv", _csv(["t_s", "distance_m"], [rec.odo_t_s, rec.odo_distance_m]))
     if rec.gauge_t_s is not None:
-        _write_atomic(out / "gauge.csv", _csv(["t_s", "gauge_m"], [rec.gauge_t_s, rec.gauge_m]))
+        write_text_atomic(out / "gauge.csv", _csv(["t_s", "gauge_m"], [rec.gauge_t_s, rec.gauge_m]))
     from rich.console import Console
 
     if as_json:
@@ -280,7 +273,7 @@ def simulate(
     try:
         ports = fleet.ports_json()
         if out is not None:
-            _write_atomic(out, json.dumps(ports, indent=2) + "\n")
+            write_text_atomic(out, json.dumps(ports, indent=2) + "\n")
             wrote = True
         jsonout.echo(ports)
         import sys

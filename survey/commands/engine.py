@@ -5,19 +5,22 @@ file, row and column, with exit code 2 and no output written.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Optional
 
+import numpy as np
 import typer
 from rich.console import Console
 
 from survey.commands.options import Smoother, old_name, renamed
+from survey.limits import check_allocation
 
 err = Console(stderr=True)
 
 
 def fail(message: str, code: int = 2) -> None:
-    """Print a one-line error to stderr and exit non-zero."""
+    """Print a one-line error to stderr (literally: no markup from the data) and exit non-zero."""
     from rich.text import Text
 
     # the message as text, not markup: "[site] crs" must print as written
@@ -55,6 +58,9 @@ def process(
         print_summary(result, written)
 
 
+#: Memory one output station needs through resampling and writing (about 60 float columns), bytes.
+_STATION_BYTES = 512
+
 #: Share of the progress bar for reading the session before processing, and for writing after.
 _READ_SHARE, _WRITE_SHARE = 0.15, 0.05
 
@@ -75,8 +81,8 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
 
     if smoother not in ("rts", "tfs", "none"):
         fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
-    if not step > 0:
-        fail(f"--step-m must be positive, not {step}")
+    if not (step > 0 and math.isfinite(step)):
+        fail(f"--step-m must be a positive finite number, not {step}")
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
     design_notes: list[str] = []
@@ -89,6 +95,16 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         except ValueError as exc:  # a LandXmlError is a ValueError naming the element
             fail(f"{session_dir}: {exc}")
         report("processing", _READ_SHARE)
+        duration_s = float(session.imu_t_s[-1] - session.imu_t_s[0])
+        if session.meta.static_s >= duration_s:
+            fail(f"{session_dir / 'session.toml'}: key alignment.static_s: {session.meta.static_s:g} s is not "
+                 f"shorter than the IMU data ({duration_s:g} s in imu.csv); nothing would be left to survey")
+        span_m = float(np.ptp(session.odo_distance_m)) if session.odo_distance_m.size else 0.0
+        try:
+            # stations: a few dozen float columns each through resampling and writing
+            check_allocation(span_m / step + 1, _STATION_BYTES, f"--step-m {step:g} over {span_m:.1f} m")
+        except ValueError as exc:
+            fail(str(exc))
         try:
             result = process_session(session, design, ProcessConfig(smoother=smoother, step_m=step,
                                                                    force_accept=force_accept),
@@ -96,6 +112,8 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
                                      progress=share(report, _READ_SHARE, 1.0 - _WRITE_SHARE))
         except ValueError as exc:
             fail(f"{session_dir}: {exc}")
+        if result.stations.chainage_m.size == 0:
+            fail(f"{session_dir}: no track stations (the trolley did not move between two fixes); nothing written")
         report("writing the outputs", 1.0 - _WRITE_SHARE)
         try:
             written = write_outputs(out, result, session, session_dir,
@@ -113,6 +131,7 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
 def print_summary(result, written, con: Console | None = None) -> None:
     """A short summary of a processing run on the terminal (``con``, default stdout)."""
     from rich.table import Table
+    from rich.text import Text
 
     from trolley import units
 
@@ -137,9 +156,10 @@ def print_summary(result, written, con: Console | None = None) -> None:
     con.print(t)
     for i in range(len(result.fixes.t_s)):
         if not result.fixes.accepted[i]:
-            err.print(f"[yellow]rejected fix[/] {result.fixes.point[i]} at t={result.fixes.t_s[i]:.1f} s: "
-                      f"{result.fixes.reason[i]}", highlight=False)
-    con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}")
+            err.print(Text.assemble(("rejected fix", "yellow"), f" {result.fixes.point[i]} at t="
+                                    f"{result.fixes.t_s[i]:.1f} s: {result.fixes.reason[i]}"), highlight=False)
+    con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
+              markup=False, highlight=False)
 
 
 def register(app: typer.Typer) -> None:

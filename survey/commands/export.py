@@ -10,6 +10,7 @@ from enum import Enum
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 
 from survey.commands.options import JsonAlways, old_name, renamed
 
@@ -64,6 +65,7 @@ def export(
     from survey import jsonout
     from survey.commands.progress import progress_bar
     from survey.export import export_outputs
+    from survey.limits import check_finite
     from survey.track_reader import ExportInputError
     from trolley.tolerances import ToleranceError
 
@@ -71,9 +73,12 @@ def export(
     chord_m = renamed(chord_m, chord_old, "--chord-m", "--chord")
     gauge_rate_base_m = renamed(gauge_rate_base_m, gauge_rate_base_old, "--gauge-rate-base-m", "--gauge-rate-base")
     console = Console(stderr=True)
-    for out in (xlsx, csv, pdf):
-        if out is not None and not Path(out).parent.is_dir():
-            typer.echo(f"error: {out}: folder {Path(out).parent} does not exist", err=True)
+    for option, value in (("--twist-base-m", twist_base_m), ("--chord-m", chord_m),
+                          ("--gauge-rate-base-m", gauge_rate_base_m)):
+        try:
+            check_finite(value, option, positive=True)
+        except ValueError as e:
+            typer.echo(f"error: {e}", err=True)
             raise typer.Exit(code=2)
     try:
         with progress_bar("computing the track geometry", console) as report:
@@ -90,7 +95,7 @@ def export(
         raise typer.Exit(code=2)
     rep = result.report
     verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
-    console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {rep.tolerances.name}: {verdict}")
+    console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {escape(rep.tolerances.name)}: {verdict}")
     jsonout.echo(result.as_dict())
     if fail_on_defects and not result.passed:
         raise typer.Exit(code=1)

@@ -16,8 +16,6 @@ Bad input: a message naming the file/row/column or key on stderr, exit 2, no out
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -26,6 +24,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
+from survey.atomicwrite import write_with
 from survey.commands.inservice_simulate import simulate_cmd
 from survey.commands.options import JsonAlways
 
@@ -42,18 +41,6 @@ OUTPUT_STEP_M = 0.25
 def _fail(msg: str) -> None:
     console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
-
-
-def _save_atomic(path: Path, save) -> None:
-    """Call ``save(tmp)`` on a temporary file next to ``path``, then rename it to ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        save(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") -> None:
@@ -87,7 +74,7 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
             a.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     try:
-        _save_atomic(path, fig.savefig)
+        write_with(path, lambda tmp: fig.savefig(tmp))
     finally:
         plt.close(fig)
 
@@ -124,7 +111,7 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
     ws.page_setup.fitToWidth, ws.page_setup.fitToHeight = 1, 0
     ws.sheet_properties.pageSetUpPr.fitToPage = True
     ws.print_title_rows = "4:4"
-    _save_atomic(path, wb.save)
+    write_with(path, lambda tmp: wb.save(tmp))
 
 
 @inservice_app.command("process")

@@ -13,6 +13,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from survey import jsonout
 from survey.commands.options import ImuPreset, JsonFlag, old_name, renamed
@@ -75,10 +76,17 @@ def new(
     import numpy as np
 
     from survey.cpiii import CpiiiError, read_cpiii_file
+    from survey.names import UnsafeNameError, check_name, inside
     from survey.store import ProjectSettings, ProjectStore, StoreError, alignment_record_from_text, project_path
     from trolley import units
     from trolley.sensors import IMU_PRESETS
 
+    try:
+        check_name("project name", name)
+    except UnsafeNameError as e:
+        fail(str(e))
+    if Path(root).exists() and not Path(root).is_dir():
+        fail(f"--root {root}: is a file, not a folder of projects")
     height = renamed(height, height_old, "--height-m", "--height")
     tolerance_option = "--tolerance-set" if tolerance_set_old is not None else "--tolerances"
     tolerance_set = renamed(tolerance_set, tolerance_set_old, "--tolerances", "--tolerance-set", "default")
@@ -111,8 +119,8 @@ def new(
         cpiii_name = data.get("design", {}).get("cpiii")
         if isinstance(cpiii_name, str):
             try:
-                points = read_cpiii_file(folder / cpiii_name)
-            except CpiiiError as e:
+                points = read_cpiii_file(inside(folder, cpiii_name, f"{folder / 'project.toml'}: key design.cpiii"))
+            except (CpiiiError, UnsafeNameError) as e:
                 fail(str(e))
     if imu is not None:
         settings = dataclasses.replace(settings, imu=IMU_PRESETS[imu])
@@ -292,16 +300,22 @@ def export_session(
     json_output: JsonFlag = False,
 ) -> None:
     """Write a stored session as a raw session folder (accepted fixes only)."""
+    from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
     from survey.sessionio import write_session
     from survey.store import StoreError
 
+    try:
+        guard_overwrite(out, "project export-session", overwrite, "--out")
+    except OutputError as e:
+        fail(str(e))
     with _open(root, project) as store:
         try:
             raw, design_xml = store.raw_session(session)
         except StoreError as e:
             fail(str(e))
     try:
-        write_session(out, raw, design_xml, overwrite=overwrite)
+        write_session(out, raw, design_xml, overwrite=overwrite,
+                      extra_files={MARKER_NAME: lambda p: p.write_text("project export-session\n", encoding="utf-8")})
     except (FileExistsError, ValueError) as e:
         fail(str(e))
     say(f"session {session!r} written to {out}")
@@ -422,10 +436,10 @@ def design_crs(store, file, text: str) -> list[str]:
 
 @project_app.command("set")
 def set_field(
-    key: Annotated[str, typer.Argument(help="header field: line, track, client, crew, totalstation, "
-                                            "totalstation_serial, totalstation_calibrated, imu, imu_serial, "
-                                            "imu_calibrated, trolley, trolley_serial, trolley_calibrated, "
-                                            "rail_temperature_c (the CRS: project set-crs)")],
+    key: Annotated[str, typer.Argument(metavar="KEY", help=(
+        "header field: line, track, client, crew, totalstation, totalstation_serial, totalstation_calibrated, "
+        "imu, imu_serial, imu_calibrated, trolley, trolley_serial, trolley_calibrated, rail_temperature_c "
+        "(checked by the store, which holds the one list; the CRS: `project set-crs`)"))],
     value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
                                               "\"\" clears the field")],
     project: ProjectOption = ...,
@@ -498,17 +512,17 @@ def show(
         return
 
     out = Console()
-    t = Table(title=f"project {info.name}", show_header=False)
+    t = Table(title=f"project {escape(info.name)}", show_header=False)
     t.add_column("what")
     t.add_column("value")
-    t.add_row("store", f"{info.path} (schema v{info.schema_version}, created {info.created_utc})")
+    t.add_row("store", f"{escape(str(info.path))} (schema v{info.schema_version}, created {info.created_utc})")
     t.add_row("site", f"latitude {units.rad_to_deg(s.latitude_rad):.4f} deg, height {s.height_m:.1f} m")
     if s.crs:
         g = grid
-        t.add_row("CRS", f"{s.crs}, vertical datum {s.vertical_datum or 'not given'}" + (
+        t.add_row("CRS", f"{escape(str(s.crs))}, vertical datum {escape(str(s.vertical_datum or 'not given'))}" + (
             f"; at the CPIII: convergence {units.rad_to_deg(g.convergence_rad):+.6f} deg, "
             f"combined scale {g.combined_scale:.9f}" if g is not None else ""))
-    t.add_row("IMU", f"{s.imu.name}: bias instability {units.rad_s_to_deg_h(s.imu.gyro_bias_instability_rad_s):.3g} deg/h, "
+    t.add_row("IMU", f"{escape(s.imu.name)}: bias instability {units.rad_s_to_deg_h(s.imu.gyro_bias_instability_rad_s):.3g} deg/h, "
                      f"ARW {units.rad_sqrt_s_to_deg_sqrt_h(s.imu.gyro_arw_rad_sqrt_s):.3g} deg/sqrt(h), "
                      f"accel bias {units.m_s2_to_ug(s.imu.accel_bias_m_s2):.0f} ug")
     la = units.m_to_mm(np.asarray(s.trolley.prism_lever_arm_m))
@@ -525,7 +539,7 @@ def show(
     t.add_row("resection tolerance", f"|w| <= {s.max_standardized_residual:g}, residual <= "
                                      f"{units.m_to_mm(s.max_point_residual_m):g} mm, overlap <= "
                                      f"{units.m_to_mm(s.overlap_tolerance_m):g} mm")
-    t.add_row("conventions", f"signs {s.sign_convention}, tolerance set {s.tolerance_set}, "
+    t.add_row("conventions", f"signs {s.sign_convention}, tolerance set {escape(str(s.tolerance_set))}, "
                              f"static alignment {s.static_s:.0f} s")
     if pts:
         lo, hi = enh.min(axis=0), enh.max(axis=0)
@@ -534,7 +548,7 @@ def show(
     else:
         t.add_row("CPIII", "none (trolley project import-cpiii FILE --project NAME)")
     if al is not None:
-        t.add_row("alignment", f"{al.name} ({al.file_name}): {al.element_count} elements, chainage "
+        t.add_row("alignment", f"{escape(str(al.name))} ({escape(str(al.file_name))}): {al.element_count} elements, chainage "
                                f"{al.chainage_start_m:.3f} .. {al.chainage_end_m:.3f} m")
     else:
         t.add_row("alignment", "none (trolley project import-alignment FILE.xml --project NAME)")
@@ -547,7 +561,7 @@ def show(
     for col in ("name", "state", "source", "created (UTC)", "IMU samples", "fixes accepted/all", "setups"):
         st.add_column(col)
     for r, c, a, n, k in sessions:
-        st.add_row(r.name, r.state, r.source, r.created_utc, str(c["imu_sample"]), f"{a}/{n}", str(k))
+        st.add_row(escape(r.name), r.state, escape(str(r.source)), r.created_utc, str(c["imu_sample"]), f"{a}/{n}", str(k))
     if not sessions:
         st.add_row("(none)", "", "", "", "", "", "")
     out.print(st)
@@ -577,7 +591,7 @@ def resection_table(result, title: str = "free station"):
                f"orientation {units.rad_to_deg(result.orientation_rad):.6f} deg "
                f"(1-sigma {result.orientation_sigma_rad / arcsec:.2f}\"), sigma0 {result.sigma0:.2f} ({result.dof} dof)")
     if result.excluded:
-        caption += f"; dropped: {', '.join(result.excluded)}"
+        caption += f"; dropped: {escape(', '.join(map(str, result.excluded)))}"
     t = Table(title=title, caption=caption)
     for col in ("point", "across mm", "along mm", "height mm", "hz \"", "zenith \"", "dist mm", "|w| max", "flag"):
         t.add_column(col, justify="left" if col in ("point", "flag") else "right")
@@ -589,15 +603,15 @@ def resection_table(result, title: str = "free station"):
 
     worst = suggest_point_to_drop(result)
     if worst is not None:
-        caption += f"; data snooping suggests dropping or re-measuring {worst} (one point at a time)"
+        caption += f"; data snooping suggests dropping or re-measuring {escape(str(worst))} (one point at a time)"
         t.caption = caption
     mm = units.m_to_mm(1.0)
     for r in result.residuals:
         style = "bold red" if r.point_id == worst else ("yellow" if r.flagged else None)
-        t.add_row(r.point_id, fmt(r.across_m, mm), fmt(r.along_m, mm), fmt(r.height_m, mm),
+        t.add_row(escape(str(r.point_id)), fmt(r.across_m, mm), fmt(r.along_m, mm), fmt(r.height_m, mm),
                   fmt(r.hz_rad, 1 / arcsec, 1), fmt(r.zenith_rad, 1 / arcsec, 1), fmt(r.distance_m, mm),
                   "-" if not np.isfinite(r.max_standardized) else f"{r.max_standardized:.1f}",
-                  r.reason if r.flagged else "ok", style=style)
+                  escape(str(r.reason)) if r.flagged else "ok", style=style)
     return t
 
 

@@ -14,6 +14,9 @@ from typing import Annotated, Optional
 import typer
 
 from survey.commands.options import ImuPreset, JsonAlways
+from survey.limits import check_allocation
+from survey.names import inside
+from rich.markup import escape
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
@@ -118,11 +121,43 @@ def project_settings(project: Path):
     if not isinstance(design, str):
         raise ProjectFileError(f"{fname}: key design.alignment: missing (the LandXML design)")
     try:
-        xml = (project / design).read_text(encoding="utf-8")
+        xml = inside(project, design, f"{fname}: key design.alignment").read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ProjectFileError(f"{fname}: key design.alignment: {project / design} not found") \
             from None
+    except (UnicodeDecodeError, IsADirectoryError) as exc:
+        raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: {exc}") from None
+    except ValueError as exc:
+        raise ProjectFileError(str(exc)) from None
     return kwargs, preset, xml
+
+
+def _file_or_option(key: str) -> str:
+    """The option that sets a SimulationConfig field (the same key of project.toml's [simulation])."""
+    return {"imu_rate_hz": "--rate-hz"}.get(key, "--" + key.replace("_", "-")) + f" / project.toml simulation.{key}"
+
+
+#: Memory one simulated IMU sample needs through the simulation and the writing (truth states,
+#: the six channels, noise, CSV text), bytes; one truth.csv row likewise.
+_SAMPLE_BYTES = 1024
+_TRUTH_ROW_BYTES = 256
+
+
+def check_simulation_size(config, truth_step_m: float) -> None:
+    """Refuse a simulation whose arrays would not fit in memory, before it starts.
+
+    The duration is the static period, the stops and the runs between them; every sensor
+    sample and every truth.csv row is counted (:func:`survey.limits.check_allocation`).
+    """
+    stops = config.length_m / config.fix_spacing_m + 1
+    duration_s = (config.static_s + stops * (config.stop_s + config.accel_time_s)
+                  + config.length_m / config.speed_m_s)
+    rates = config.imu_rate_hz + config.odometer_rate_hz + config.gauge_rate_hz
+    check_allocation(duration_s * rates, _SAMPLE_BYTES,
+                     f"--rate-hz {config.imu_rate_hz:g} over {duration_s:.4g} s (--length-m, --static-s, "
+                     f"--fix-spacing-m)")
+    check_allocation(config.length_m / truth_step_m, _TRUTH_ROW_BYTES,
+                     f"--truth-step-m {truth_step_m:g} over {config.length_m:g} m")
 
 
 def register(app: typer.Typer) -> None:
@@ -164,6 +199,9 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from survey import jsonout
+        from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite
+        from survey.commands.progress import progress_bar, share
+        from survey.limits import check_finite
         from survey.sessionio import write_session, write_truth_csv
         from trolley.landxml import parse_landxml
         from trolley.sensors import IMU_PRESETS
@@ -190,11 +228,20 @@ def register(app: typer.Typer) -> None:
                            ("static_s", static_s), ("imu_rate_hz", rate_hz)):
             if value is not None:
                 kwargs[key] = value
-        for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):
-            if key in kwargs and not kwargs[key] > 0:
-                fail(f"{key.replace('_', '-')}: must be > 0, got {kwargs[key]!r}")
-        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
-            fail(f"{out}: already exists and is not empty (use --force to replace it)")
+        try:
+            for option, value in (("--length-m", length_m), ("--fix-spacing-m", fix_spacing_m),
+                                  ("--rate-hz", rate_hz), ("--truth-step-m", step_m)):
+                check_finite(value, option, positive=True)
+            check_finite(static_s, "--static-s", minimum=0.0)
+            for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
+                check_finite(kwargs.get(key), f"{_file_or_option(key)}", positive=True)
+            check_simulation_size(SimulationConfig(**kwargs), step_m)
+        except (ValueError, TypeError) as exc:
+            fail(str(exc))
+        try:
+            guard_overwrite(out, "simulate", force)
+        except OutputError as exc:
+            fail(str(exc))
         try:
             alignment = parse_landxml(xml)
         except ValueError as exc:
@@ -220,20 +267,23 @@ def register(app: typer.Typer) -> None:
         t0 = time.perf_counter()
         err.print(f"simulating {config.length_m:g} m with the {preset} IMU at "
                   f"{config.imu_rate_hz:g} Hz ...", highlight=False)
-        try:
-            sim = simulate_survey(alignment, config)
-        except ValueError as exc:
-            fail(str(exc))
-        t1 = time.perf_counter()
-        session = replace(sim.session, meta=replace(sim.session.meta,
-                                                    design_alignment="alignment.xml"))
-        try:
-            write_session(out, session, xml, overwrite=force,
-                          extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m)})
-        except (OSError, ValueError) as exc:
-            fail(f"{out}: {exc}")
+        with progress_bar("simulating", console=err) as report:
+            try:
+                sim = simulate_survey(alignment, config, progress=share(report, 0.0, 0.55))
+            except ValueError as exc:
+                fail(str(exc))
+            t1 = time.perf_counter()
+            session = replace(sim.session, meta=replace(sim.session.meta,
+                                                        design_alignment="alignment.xml"))
+            try:
+                write_session(out, session, xml, overwrite=force,
+                              extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, step_m),
+                                           MARKER_NAME: lambda p: p.write_text("simulate\n", encoding="utf-8")},
+                              progress=share(report, 0.55, 1.0))
+            except (OSError, ValueError) as exc:
+                fail(f"{out}: {exc}")
         t2 = time.perf_counter()
-        err.print(f"wrote {out} (simulate {t1 - t0:.1f} s, write {t2 - t1:.1f} s)", highlight=False)
+        err.print(f"wrote {escape(str(out))} (simulate {t1 - t0:.1f} s, write {t2 - t1:.1f} s)", highlight=False)
         summary = {
             "out": str(out),
             "imu": preset,

@@ -13,6 +13,7 @@ from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 err = Console(stderr=True)
 survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True,
@@ -31,7 +32,7 @@ JsonOption = Annotated[bool, typer.Option("--json", help="print the final summar
 
 def fail(message: str, hint: str = "", code: int = 2) -> None:
     """One line on stderr (and what to try), exit code ``code``."""
-    err.print(f"[bold red]error:[/] {message}" + (f"\n  try: {hint}" if hint else ""), highlight=False,
+    err.print(f"[bold red]error:[/] {escape(str(message))}" + (f"\n  try: {escape(str(hint))}" if hint else ""), highlight=False,
               soft_wrap=True)
     raise typer.Exit(code=code)
 
@@ -129,7 +130,7 @@ def read_devices(path: Path) -> tuple[dict, dict]:
 
 def run_session(project: str, session: str, root: Path, devices: Optional[Path], simulate: bool,
                 script: Optional[Path], speedup: Optional[float], out: Optional[Path], resume: bool,
-                live: bool = True, con: Console | None = None):
+                live: bool = True, con: Console | None = None, reopen: bool = False):
     """Start or resume a session; prints where the results are (on ``con``, default stdout).
     Returns the outcome."""
     from survey.session.fieldsession import FieldSession, SessionAbort, SessionConfig
@@ -137,6 +138,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.session.script import ScriptError, read_script
     from survey.store import SessionEvent, StoreError
 
+    from survey.names import UnsafeNameError, check_name
+
+    try:
+        check_name("--session", session)
+    except UnsafeNameError as exc:
+        fail(str(exc))
     store = open_store(project, root)
     lock = session_lock(store.path.parent, session)
     with store, lock:
@@ -181,7 +188,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             tolerance_set(tolerances)  # a bad set stops the start, not the end of the survey
         except ToleranceError as exc:
             fail(f"project tolerance set: {exc}", "the file must exist where the project names it")
-        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances)
+        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances, reopen=reopen)
         fs = FieldSession(store, session, config, world=world, ports=ports, console=err, keys=keys,
                           resume=resume, device_options=options)
         try:
@@ -204,12 +211,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             if keys is not None:
                 keys.stop()
     con = con if con is not None else Console()
-    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False)
+    con.print(f"session {session}: {outcome.fixes_accepted} fixes accepted", highlight=False, markup=False)
     if outcome.xlsx is not None:
         con.print(f"raw session:  {outcome.session_dir}\ntrack:        {outcome.track_csv}\n"
-                  f"survey sheet: {outcome.xlsx}", highlight=False)
+                  f"survey sheet: {outcome.xlsx}", highlight=False, markup=False)
         for i, png in enumerate(outcome.plots):
-            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False)
+            con.print(f"{'plots:' if i == 0 else '':14}{png}", highlight=False, markup=False)
     outcome.world = world
     return outcome
 
@@ -222,15 +229,15 @@ def session_outcome_dict(session_name: str, outcome) -> dict:
 
 
 def _run_and_report(project, session, root, devices, simulate, script, speedup, out, resume: bool,
-                    json_output: bool) -> None:
+                    json_output: bool, reopen: bool = False) -> None:
     if json_output:
         from survey import jsonout
 
         outcome = run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume,
-                              con=err)
+                              con=err, reopen=reopen)
         jsonout.echo(session_outcome_dict(session, outcome))
     else:
-        run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume)
+        run_session(project, session, root, devices, simulate, script, speedup, out, resume=resume, reopen=reopen)
 
 
 @survey_app.command("start")
@@ -246,9 +253,11 @@ def start(project: Annotated[str, typer.Argument(help="project name (under --roo
 def resume(project: Annotated[str, typer.Argument(help="project name (under --root) or project folder")],
            session: SessionOption, root: RootOption = Path("projects"), devices: DevicesOption = None,
            simulate: SimulateOption = False, script: ScriptOption = None, speedup: SpeedupOption = None,
-           out: OutOption = None, json_output: JsonOption = False) -> None:
+           out: OutOption = None, json_output: JsonOption = False,
+           reopen: Annotated[bool, typer.Option("--reopen", help="reopen an ended session to add intervals "
+                                                "(it is processed again at its next end)")] = False) -> None:
     """Continue a session after a crash, a power loss or kill -9 (fixes taken are kept)."""
-    _run_and_report(project, session, root, devices, simulate, script, speedup, out, True, json_output)
+    _run_and_report(project, session, root, devices, simulate, script, speedup, out, True, json_output, reopen)
 
 
 def register(app: typer.Typer) -> None:

@@ -8,7 +8,6 @@
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -16,8 +15,12 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
+from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guard_overwrite, write_marker,
+                                write_text_atomic, write_with)
 from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
+from survey.limits import check_finite
+from rich.markup import escape
 
 console = Console(stderr=True)
 
@@ -26,7 +29,9 @@ tgms_app = typer.Typer(help="Track Geometry Measuring System: cameras + lasers +
 
 
 def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    from rich.text import Text
+
+    console.print(Text.assemble(("error:", "red"), " ", msg), highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 
@@ -101,8 +106,20 @@ def read_params(path: Path):
         raise ValueError(f"{path.name}: {exc}") from None
 
 
+def _params_file(path: Path) -> bool:
+    """True for a parameter file that ``tune`` wrote (its first line names the format)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return fh.readline().strip() == f'format = "{PARAMS_FORMAT}"'
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+PARAMS_FORMAT = "trolley-tgms-params/1"
+
+
 def params_toml_text(params, extra: dict | None = None) -> str:
-    lines = ['format = "trolley-tgms-params/1"']
+    lines = [f'format = "{PARAMS_FORMAT}"']
     for k, v in (extra or {}).items():
         lines.append(f"{k} = {v!r}")
     for k, v in params.to_dict().items():
@@ -126,12 +143,19 @@ def simulate_cmd(
     from trolley.tgms.simulate import SimulationSettings, simulate
     st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
                             camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
+    try:
+        check_finite(length_m, "--length-m")
+        guard_overwrite(out, "tgms simulate", force=False, reuse_own=True)
+    except ValueError as exc:
+        _fail(str(exc))
     with console.status("simulating"):
         rec, truth = simulate(st)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        tgms_io.write_recording(out, rec)
-        tgms_io.write_truth(out / "truth.csv", truth)
+        with all_or_nothing():
+            tgms_io.write_recording(out, rec)
+            tgms_io.write_truth(out / "truth.csv", truth)
+        write_marker(out, "tgms simulate")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     n_frames = int(max(rec.lasers["left"].frame.max(), rec.lasers["right"].frame.max())) + 1
@@ -166,10 +190,10 @@ def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[
         ax.grid(alpha=0.3)
         fig.tight_layout()
         p = out / f"{name}.png"
-        tmp = out / f".{name}.png.tmp"
-        fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
-        os.replace(tmp, p)
+        try:
+            write_with(p, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+        finally:
+            plt.close(fig)
         files.append(p.name)
     return files
 
@@ -208,6 +232,7 @@ def process_cmd(
     step = renamed(step, step_old, "--step-m", "--step", 0.25)
     try:
         bounds = parse_band(band, step)
+        check_outputs([], inputs=[folder], folders=[("--out", out)])
     except ValueError as exc:
         _fail(str(exc))
     params = TgmsParams()
@@ -227,7 +252,7 @@ def process_cmd(
     except ValueError as exc:
         _fail(str(exc))
     if params.trajectory == "ekf" and orientation is not None:
-        console.print(f"[yellow]warning:[/yellow] --orientation {orientation} is ignored: the 12-state smoother "
+        console.print(f"[yellow]warning:[/yellow] --orientation {escape(orientation)} is ignored: the 12-state smoother "
                       "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
     with progress_bar("reading the recording", console) as report:
         rec = _read_recording(folder)
@@ -264,11 +289,12 @@ def process_cmd(
             truth_on_grid[f"{name}_mm"] = v
     try:
         out.mkdir(parents=True, exist_ok=True)
-        tgms_io.write_irregularities(out / "irregularities.csv", cols)
-        files = ["irregularities.csv"]
-        if plots:
-            label = "none" if bounds is None else f"{bounds[0]:g}-{bounds[1]:g} m"
-            files += _plots(out, cols, label, truth_on_grid)
+        with all_or_nothing():
+            tgms_io.write_irregularities(out / "irregularities.csv", cols)
+            files = ["irregularities.csv"]
+            if plots:
+                label = "none" if bounds is None else f"{bounds[0]:g}-{bounds[1]:g} m"
+                files += _plots(out, cols, label, truth_on_grid)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     summary = {
@@ -302,9 +328,13 @@ def tune_cmd(
     --evaluations is a hard limit on the filter runs."""
     import numpy as np
 
-    from survey import tgms_io
     from survey.commands.progress import progress_bar
     from trolley.tgms.tuning import tune_cml
+
+    try:
+        check_outputs([("--out", out)], inputs=[folder / "tgms.toml"], made_before=_params_file)
+    except OutputError as exc:
+        _fail(str(exc))
     with progress_bar("reading the recording", console) as report:
         rec = _read_recording(folder)
         try:
@@ -315,7 +345,7 @@ def tune_cmd(
     if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
         _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
     try:
-        tgms_io.write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
+        write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     jsonout.echo({"out": out, "params": params.to_dict(), **info})

@@ -31,6 +31,7 @@ from survey.session.stationsetup import StationSetupSteps
 from survey.session.screen import KEYS_HELP, ScreenState, render
 from survey.session.script import Action
 from survey.store import FixRecord, NoteRecord, ProjectStore, RecordWriter, SessionEvent, StopRecord
+from rich.markup import escape
 
 #: the trolley stands when the odometer moved less than this over ``STAND_WINDOW_S``
 STAND_TOLERANCE_M = 0.002
@@ -57,6 +58,7 @@ class SessionConfig:
     live : process each interval as soon as its closing fix is accepted.
     tolerances : tolerance set of the live interval summaries and of the survey sheet (None: the
         project's setting); resolved once by :func:`survey.session.interval.tolerance_set_name`.
+    reopen : on resume, reopen an ended session to add intervals (the script, if any, starts again).
     """
 
     script: list[Action] | None = None
@@ -65,6 +67,7 @@ class SessionConfig:
     setup_points: int = 8
     live: bool = True
     tolerances: str | None = None
+    reopen: bool = False
 
 
 @dataclass
@@ -146,6 +149,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         #: resume: the setup number (1-based) of a station change the crash interrupted
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
+        self._resume_moved = False  # resume: the trolley moved in the interrupted ``move`` step
+        self._resume_seen_t = -math.inf  # resume: session time of the crew's last script step
+        self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
         self._key_prompt = ""  # a question of the station setup, shown instead of the loop's keys
@@ -196,7 +202,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     def say(self, text: str) -> None:
         """A message on the screen and in the scroll-back."""
         self.screen.message = text
-        self.console.print(text, highlight=False)
+        self.console.print(text, highlight=False, markup=False)  # labels and paths printed as they are
 
     # ================================================================== start
     def open_session(self) -> None:
@@ -207,13 +213,21 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         if self.resume:
             self.rec = self.store.session(self.name)
-            if self.rec.state == "ended":
-                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
-                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
-                                       "start a new session with `trolley survey start`")
-                return  # ended but its final processing did not finish: run() does only that
             if self.rec.source != "live":
                 raise SessionAbort(f"session {self.name!r} was imported, not recorded here")
+            if self.rec.state == "ended" and self.config.reopen:
+                # reopened to add intervals: the session goes on from its last data; the next end
+                # processes it again (a new "final" run)
+                last = max(self._stored_state()["last"].values(), default=0.0)
+                self.store.set_session_state(self.rec.session_id, "open")
+                self._event("reopened", f"data up to t = {last:.3f} s", t_s=last)
+                self.rec = self.store.session(self.name)
+            elif self.rec.state == "ended":
+                if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
+                    raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
+                                       f"`trolley survey resume PROJECT --session {self.name} --reopen` "
+                                       "reopens it to add intervals; or start a new session")
+                return  # ended but its final processing did not finish: run() does only that
         else:
             design = self.store.alignment()
             meta = self.store.session_meta("alignment.xml" if design else None)
@@ -347,7 +361,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             rel, ver, sub = self.ts.sw_version()
             table.add_row("totalstation", self.ports["totalstation"], f"[green]ok[/] GeoCOM {rel}.{ver}.{sub}")
         except (GeoComError, DeviceError) as exc:
-            table.add_row("totalstation", self.ports["totalstation"], f"[red]{exc}[/]")
+            table.add_row("totalstation", escape(str(self.ports["totalstation"])), f"[red]{escape(str(exc))}[/]")
             problems.append(("totalstation", str(exc), "switch the instrument on, check GeoCOM on the serial port "
                                                        "and its baud rate"))
         deadline = time.monotonic() + self.config.device_wait_s
@@ -362,7 +376,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 problems.append((name, str(mismatch), "set the counter width in the devices file"))
             elif n == 0:
                 err = self.acq.links[name].last_error or "no data"
-                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({err})[/]")
+                table.add_row(name, port, f"[red]no data in {self.config.device_wait_s:g} s ({escape(str(err))})[/]")
                 problems.append((name, f"no data from {port} in {self.config.device_wait_s:g} s",
                                  "check power, cable and baud rate; `trolley devices record` shows what arrives"))
             else:
@@ -377,7 +391,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _ask_key(self, prompt: str, allowed: str) -> str:
         """Wait for one of the ``allowed`` keys; ``prompt`` is the one set of keys on the screen."""
-        self.console.print(f"[bold]{prompt}[/]", highlight=False)
+        self.console.print(f"[bold]{escape(prompt)}[/]", highlight=False)
         self._key_prompt = prompt
         try:
             while True:
@@ -505,6 +519,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             try:
                 if self._live_thread is not None:
                     self._live_thread.join()
+                self._replay_due()
                 self._feed_live(fix.t_s)  # after a resume the filter has not seen these data yet
                 self._live.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
                                    np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), force_accept=True)
@@ -527,7 +542,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         fix = self.accepted_fixes.pop()
         self.store.decide_fix(fix.fix_id, False, "undone by the crew")
-        if self._live is not None:
+        replay = self._live_replay
+        if replay and replay[-1].fix_id == fix.fix_id:
+            replay.pop()  # resumed, and not replayed yet: it never will be
+        elif self._live is not None:
             try:
                 self._live.undo_last_fix()
             except Exception:
@@ -580,6 +598,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._check_health()
         self._alignment_step()
         self._settle_fix_distance()
+        self._replay_due()
         standing, speed, dist = self.motion()
         t = self.now()
         if standing and self.stop_started_s is None and self.aligned:
@@ -633,12 +652,13 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _hold_at_stop(self, standing: bool, dist: float) -> None:
         """An interactive simulated session: the simulated world waits at a stop until the crew has
-        taken its fix (a real trolley waits for its crew; the simulator's motion is scripted in
-        time, and at 40x a stop would last a fraction of a second)."""
+        taken its fix, at the start once the static alignment is done (a real trolley waits for its
+        crew; the simulator's motion is scripted in time, and at 40x a stop would last a fraction
+        of a second)."""
         if self.world is None or self.config.script is not None:
             return
-        hold = (standing and self.aligned and bool(self.accepted_fixes) and not self.ended
-                and abs(dist - self.last_fix_distance_m) > 1.0 and not self.world.finished(self.data_time()))
+        hold = (standing and self.aligned and not self.ended and not self.world.finished(self.data_time())
+                and (not self.accepted_fixes or abs(dist - self.last_fix_distance_m) > 1.0))
         if hold != self._stop_held:
             if hold:
                 self.world.clock.freeze()
@@ -692,6 +712,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def do(self, a: Action) -> bool:
         """Carry out (a step of) an action; True when it is done."""
+        if self.config.script is not None and self.data_time() < self._resume_seen_t:
+            return False  # resumed: the data have not caught up with what the crew had seen
         st = self._action_state
         standing = self.motion()[0]
         if a.name == "wait":
@@ -748,7 +770,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             if not self.aligned:
                 return False
             if not st.get("moved"):
-                st["moved"] = not standing
+                st["moved"], self._resume_moved = (not standing) or self._resume_moved, False
                 return False
             return standing
         if a.name == "station":
@@ -847,6 +869,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 self.direction = -self.direction
             elif ev.kind == "script":
                 self.script_index = int(ev.detail)
+            elif ev.kind == "reopened":  # the script of a reopened session starts again
+                self.script_index = 0
         fixes = self.store.fixes(sid, accepted_only=True)
         self.stop_count = len(self.store.stops(sid))
         self.accepted_fixes.extend(fixes)
@@ -875,9 +899,12 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if script is None or self.script_index >= len(script):
             return
         events = self.store.events(self.rec.session_id)
-        last = max((i for i, e in enumerate(events) if e.kind == "script"), default=-1)
+        last = max((i for i, e in enumerate(events) if e.kind in ("script", "reopened")), default=-1)
         last_step_t = events[last].t_s if last >= 0 else -math.inf
         a = script[self.script_index]
+        # the crew had seen the world up to its last step: the data streamed again from before it
+        # (committed up to 0.5 s late) are the past, not what the next step waits for
+        self._resume_seen_t = last_step_t
         done = False
         if a.name in ("fix", "remeasure"):
             done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t
@@ -887,6 +914,14 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             changes = [e for e in events[last + 1:] if e.kind == "station_change"]
             if changes:
                 self._station_resumed = int(changes[-1].detail.split()[-1])
+        elif a.name == "move":
+            # the trolley moved since the step began: the step waits for it to stand, not to move
+            # again (else the crew would miss the stop it was arriving at when the session died)
+            od = self._odometer()
+            if od.shape[0] and np.isfinite(last_step_t):
+                d0 = float(np.interp(last_step_t, od[:, 0], od[:, 1]))
+                self._resume_moved = bool(np.max(np.abs(od[od[:, 0] >= last_step_t, 1] - d0), initial=0.0)
+                                          > STAND_TOLERANCE_M)
         if done:
             self.script_index += 1
             self._event("script", str(self.script_index))

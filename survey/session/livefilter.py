@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from survey.store import FixRecord
+from rich.markup import escape
 
 #: a fix needs the data up to this long before its time (one period of the slowest stream it uses)
 DATA_SLACK_S = 0.02
@@ -80,11 +81,14 @@ class LiveFiltering:
                 return None
             if self._live_thread is not None:
                 self._live_thread.join()
+            self._replay_due()  # resumed: the stored fixes first, now that their data are in
+            if self._live is False:
+                return None
             self._feed_live(fix.t_s)
             return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
                               np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]))
         except Exception as exc:  # never stop the survey for the live view
-            self.console.print(f"[yellow]live processing unavailable: {exc}[/]", highlight=False)
+            self.console.print(f"[yellow]live processing unavailable: {escape(str(exc))}[/]", highlight=False)
             self._live = False
             return None
 
@@ -107,7 +111,7 @@ class LiveFiltering:
                 dt = time.perf_counter() - t0
                 self.interval_seconds.append(dt)
                 self.screen.last_interval = interval_summary_text(r, dt) + "; " + defects_text(chk, self._tolerances)
-                self.console.print(self.screen.last_interval, highlight=False)
+                self.console.print(self.screen.last_interval, highlight=False, markup=False)
                 # stored by the session's thread (the store's connection belongs to it)
                 self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
             except Exception as exc:
@@ -135,16 +139,32 @@ class LiveFiltering:
             self.store.add_event(self.rec.session_id, SessionEvent(t_end, "interval", json.dumps(detail)))
 
     def _replay_live(self) -> None:
+        """On resume: the stored accepted fixes into the live processor, each once the data up to
+        it are in (:meth:`_replay_due`). The fixes of the static alignment are added when the
+        processor is made."""
         lp = self._live_processor()
         if lp is None:
             return
+        self._live_replay = [f for f in self.accepted_fixes if f.t_s > self._live_fed_t]
+        self._replay_due()
+
+    def _replay_due(self) -> None:
+        """Replay the stored fixes whose data have arrived. After a crash the last fixes can be
+        newer than the data stored (committed every 0.5 s, the fixes at once): fed before their
+        data, a fix would anchor the live filter at the wrong place, and every later fix would fail
+        the innovation test. The data come again from the devices after the resume."""
+        lp = self._live if self._live not in (None, False) else None
+        pending = self._live_replay
+        if lp is None or not pending:
+            return
         try:
-            for f in self.accepted_fixes:
+            while pending and self.data_time() >= pending[0].t_s - DATA_SLACK_S:
+                f = pending.pop(0)
                 self._feed_live(f.t_s)
                 lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
                            np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
         except Exception as exc:
-            self.console.print(f"[yellow]live processing unavailable after resume: {exc}[/]")
+            self.console.print(f"[yellow]live processing unavailable after resume: {escape(str(exc))}[/]")
             self._live = False
 
 def interval_summary_text(r, seconds: float) -> str:

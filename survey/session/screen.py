@@ -18,7 +18,9 @@ import tty
 from dataclasses import dataclass, field
 
 from rich.console import Group
+from rich.markup import escape
 from rich.panel import Panel
+from rich.text import Text
 from rich.table import Table
 
 KEYS_HELP = "f fix | u undo | n note | p pause/resume | t turned | s station change | e end"
@@ -62,17 +64,17 @@ def render(s: ScreenState):
     for _ in range(4):
         dev.add_column()
     for h in s.devices:
-        mark = "[green]ok[/]" if h.ok else f"[bold red]{h.message or 'fault'}[/]"
+        mark = "[green]ok[/]" if h.ok else f"[bold red]{escape(h.message or 'fault')}[/]"
         dev.add_row(h.name, mark, f"{h.samples} samples", f"{h.errors} errors")
     parts = [top, dev]
     if s.progress is not None:
         n = int(30 * max(0.0, min(1.0, s.progress)))
-        parts.append(f"[{'#' * n}{'.' * (30 - n)}] {100 * s.progress:5.1f} %")
+        parts.append(Text(f"[{'#' * n}{'.' * (30 - n)}] {100 * s.progress:5.1f} %"))
     if s.last_interval:
-        parts.append(s.last_interval)
+        parts.append(Text(s.last_interval))  # data (defect labels, messages): printed literally
     if s.message:
-        parts.append(f"[bold yellow]{s.message}[/]")
-    parts.append(f"[dim]{s.prompt}[/]")
+        parts.append(f"[bold yellow]{escape(s.message)}[/]")
+    parts.append(f"[dim]{escape(s.prompt)}[/]")
     return Panel(Group(*parts), title=f"trolley survey {s.session}")
 
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from survey.session.errors import SessionAbort
 from survey.store import FixRecord, setup_rows
+from rich.markup import escape
 
 
 class StationSetupSteps:
@@ -140,7 +141,7 @@ class StationSetupSteps:
                 break
             if m is None:
                 continue
-            self.console.print(f"  {p.point_id}: Hz {m.hz_rad:.6f} rad, V {m.v_rad:.6f} rad, {m.slope_m:.4f} m",
+            self.console.print(f"  {escape(str(p.point_id))}: Hz {m.hz_rad:.6f} rad, V {m.v_rad:.6f} rad, {m.slope_m:.4f} m",
                                highlight=False)
             hz.append(m.hz_rad)
             v.append(m.v_rad)

@@ -1,0 +1,62 @@
+"""Resource limits, checked before anything is allocated (issue 12; DESIGN.md "bad input").
+
+A parameter such as ``--step 1e-7`` or ``--rate-hz 1e7`` asks for arrays larger than the
+machine's memory; numpy would try, swap the machine to a halt or die with a MemoryError deep
+inside the science code. The commands estimate the size first and refuse with the option's
+name. No paper section: this is input handling at the application's edge.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+#: Share of the physical memory one command may plan to use.
+MEMORY_SHARE = 0.5
+
+
+def physical_memory_bytes() -> int:
+    """Physical memory of the machine, bytes (8 GiB when the system does not say)."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+def check_allocation(count: float, bytes_each: float, what: str) -> None:
+    """Refuse a planned allocation larger than :data:`MEMORY_SHARE` of the physical memory.
+
+    Parameters
+    ----------
+    count : number of items (samples, stations, ...) the parameters ask for; may be inf or nan.
+    bytes_each : memory one item needs through the computation, bytes (an estimate).
+    what : what the user set, for the message (e.g. ``"--step 1e-07 over 120 m"``).
+
+    Raises
+    ------
+    ValueError
+        naming ``what``, the number of items and the memory they would need.
+    """
+    limit = MEMORY_SHARE * physical_memory_bytes()
+    if not math.isfinite(count) or count * bytes_each > limit:
+        need = "an unbounded amount" if not math.isfinite(count) else f"{count * bytes_each / 1e9:.3g} GB"
+        n = "unbounded" if not math.isfinite(count) else f"{count:.3g}"
+        raise ValueError(f"{what}: asks for {n} items, {need} of memory, more than this machine can give "
+                         f"({limit / 1e9:.3g} GB); choose a coarser value")
+
+
+def check_finite(value: float | None, option: str, *, positive: bool = False, minimum: float | None = None) -> None:
+    """Refuse nan, inf and (optionally) non-positive or too small option values.
+
+    Raises
+    ------
+    ValueError
+        ``<option>: must be a finite number ...``.
+    """
+    if value is None:
+        return
+    if not math.isfinite(value):
+        raise ValueError(f"{option}: must be a finite number, got {value}")
+    if positive and not value > 0:
+        raise ValueError(f"{option}: must be > 0, got {value}")
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{option}: must be >= {minimum:g}, got {value:g}")
