@@ -5,7 +5,7 @@ The estimator (trolley.inservice.estimator: simplified 1-wheelset + frame model,
 RTS smoother) is calibrated ONCE on a reference run of the full-vehicle truth simulator
 (trolley.inservice.vehicle, seed --cal-seed; identification Eq. 6, Q and R Eq. 26-29 with their
 cross covariance S: identification.calibrate), its tuning and sigma scale pooled over that run and the
-runs of --extra-seeds, and then evaluated on other runs (other seeds of the irregularities and the
+runs of --extra-seeds (tuning on them too with --tune-extra), and then evaluated on other runs (other seeds of the irregularities and the
 sensor noise; the evaluation seeds must not be among the calibration seeds):
 
 * standard case: straight track, 20 m/s, 400 m, noise and vertical irregularity on (paper Table 2);
@@ -27,7 +27,7 @@ Targets (issue 14): standard case J <= 0.30 mm and Jrel <= 0.20 over 3-200 m, ho
 * uncorrelated: the paper's Q and R without S (calibrate(correlated=False)), filter + smoother,
   on the same seeds (the estimator before S was added).
 
-    python benchmarks/bench_inservice.py [--seeds 1 2 3] [--cal-seed 1000] [--extra-seeds 1001 1002 1003]
+    python benchmarks/bench_inservice.py [--seeds 1 2 3] [--cal-seed 1000] [--extra-seeds 1001 1002 1003] [--tune-extra]
         [--radius-m 1500] [--sections standard robustness resonance curved forward uncorrelated]
 """
 from __future__ import annotations
@@ -95,6 +95,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--cal-seed", type=int, default=1000)
     ap.add_argument("--extra-seeds", type=int, nargs="*", default=[1001, 1002, 1003])
+    ap.add_argument("--tune-extra", action="store_true", help="tune on the extra seeds too (calibrate "
+                    "tune_on_extra_runs), not only on --cal-seed")
     ap.add_argument("--radius-m", type=float, default=1500.0)
     ap.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS)
     args = ap.parse_args()
@@ -116,7 +118,7 @@ def main() -> None:
         return
     t0 = time.process_time()
     mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, states(ref), sensors(ref),
-                    extra_runs=extra_runs)
+                    extra_runs=extra_runs, tune_on_extra_runs=args.tune_extra)
     cal_cpu = time.process_time() - t0
     p = mdl.params
     print(f"calibration (seed {args.cal_seed}, {cal_cpu:.1f} s CPU): kx {p.kx:.4g} N/m, cx {p.cx:.4g} N s/m, "

@@ -214,8 +214,8 @@ def calibrate_cmd(
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
     extra_runs: Annotated[int, typer.Option("--extra-runs", min=0, max=20,
-                                            help="further runs (seeds SEED+1...) the tuning and the sigma "
-                                                 "scale are pooled over")] = 3,
+                                            help="further runs (seeds SEED+1...) the sigma scale is pooled "
+                                                 "over")] = 3,
     json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
