@@ -105,7 +105,7 @@ def test_session_feed_values_reach_the_drivers_sigterm(tmp_path, session_dir):
 
     s = read_session(session_dir)
     out = tmp_path / "PORTS.json"
-    p, ports = _start(["--session", str(session_dir)], out)
+    p, ports = _start(["--session-dir", str(session_dir)], out)
     try:
         rec, opts = _record(out, seconds=1.5)
         with TotalStation(ports["totalstation"]) as ts:

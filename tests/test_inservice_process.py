@@ -78,7 +78,7 @@ def test_process_forward_filter_only_and_without_truth(recording, tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--smoother", "ukf"], "--smoother must be rts or none"),
+    (["--smoother", "ukf"], "'ukf' is not one of"),
     (["--truth", "MISSING"], "truth.csv"),
     (["--model", "MISSING"], "file not found"),
 ])

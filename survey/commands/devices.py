@@ -206,7 +206,8 @@ def _session_feed(folder: Path, station: str | None):
 @devices_app.command("simulate")
 def simulate(
     out: Path | None = typer.Option(None, "--out", help="Write the devices file (PORTS.json) here."),
-    session: Path | None = typer.Option(None, "--session", help="Feed the twins from this raw session folder."),
+    session_dir: Path | None = typer.Option(None, "--session-dir", help="Feed the twins from this raw session folder."),
+    session_old: Path | None = typer.Option(None, "--session", hidden=True, help=old_name("--session-dir")),
     device: list[Device] = typer.Option(list(Device), "--device",
                                         help="Twin to start (repeat the option; default: all four)."),
     seconds: float | None = typer.Option(None, "--seconds", min=0.0,
@@ -217,7 +218,7 @@ def simulate(
     imu_type: int = typer.Option(26, "--imu-type", help="IMU type of the IMU twin (scale table)."),
     speed_m_s: float = typer.Option(1.0, "--speed-m-s", help="Synthetic trolley speed (odometer twin)."),
     station: str | None = typer.Option(None, "--station", help="Total station E0,N0,H0,Hi "
-                                       "(default 0,0,0,1.5; with --session: beside the fixes)."),
+                                       "(default 0,0,0,1.5; with --session-dir: beside the fixes)."),
     target: str = typer.Option("10,20,0.5", "--target", help="Synthetic prism E,N,H."),
     noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad", min=0.0, help="Total station angle noise, 1-sigma."),
     noise_dist_m: float = typer.Option(0.0, "--noise-dist-m", min=0.0, help="Total station distance noise, 1-sigma."),
@@ -236,6 +237,9 @@ def simulate(
     interrupted (SIGINT/SIGTERM: ptys closed, the devices file removed, exit code 0)."""
     import signal
     import threading
+
+    # --session names a session in `project` and `survey`; here it is a folder (--session-dir)
+    session = renamed(session_dir, session_old, "--session-dir", "--session")
 
     from drivers.twins.base import Faults
     from drivers.twins.fleet import Fleet, FleetConfig, synthetic_feed

@@ -26,7 +26,7 @@ from rich.console import Console
 from survey import jsonout
 from survey.atomicwrite import write_with
 from survey.commands.inservice_simulate import simulate_cmd
-from survey.commands.options import JsonAlways
+from survey.commands.options import InserviceSmoother, JsonAlways
 
 console = Console(stderr=True)
 
@@ -122,7 +122,8 @@ def process_cmd(
     model: Annotated[Optional[Path], typer.Option(
         "--model", help="model.toml from `trolley inservice calibrate` (default: the recording's nominal "
                         "parameters with default noise)")] = None,
-    smoother: Annotated[str, typer.Option("--smoother", help="rts (forward filter + RTS smoother) or none")] = "rts",
+    smoother: Annotated[InserviceSmoother, typer.Option(
+        "--smoother", help="rts (forward filter + RTS smoother) or none (the paper's forward filter)")] = "rts",
     json_output: JsonAlways = False,
 ) -> None:
     """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
@@ -137,8 +138,6 @@ def process_cmd(
     from trolley.inservice.estimator import NoiseDensities, estimate
     from trolley.inservice.model import ModelParameters
 
-    if smoother not in ("rts", "none"):
-        _fail(f"--smoother must be rts or none, got {smoother!r}")
     try:
         rec = read_recording(recording)
         tru = read_truth(truth) if truth is not None else None

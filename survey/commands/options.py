@@ -19,6 +19,8 @@ ImuPreset = Literal["rlg", "fog", "mems"]
 BudgetImu = Literal["rlg", "fog", "mems", "custom"]
 #: trolley.engine.ProcessConfig.smoother.
 Smoother = Literal["rts", "tfs", "none"]
+#: trolley.inservice.estimator.estimate(smoother=...).
+InserviceSmoother = Literal["rts", "none"]
 #: trolley.tgms.params.TgmsParams.orientation and .trajectory, rail profiles of the TGMS simulator.
 TgmsOrientation = Literal["kf", "madgwick"]
 TgmsTrajectory = Literal["ltv", "ekf"]
