@@ -659,12 +659,18 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         hold = (standing and self.aligned and not self.ended and not self.world.finished(self.data_time())
                 and (not self.accepted_fixes or abs(dist - self.last_fix_distance_m) > 1.0))
-        if hold != self._stop_held:
-            if hold:
-                self.world.clock.freeze()
-            else:
-                self.world.clock.thaw()
-            self._stop_held = hold
+        self._freeze_for("_stop_held", hold)
+
+    def _freeze_for(self, flag: str, on: bool) -> None:
+        """Freeze (``on``) or thaw the simulated clock when the hold named ``flag`` changes (one
+        ``thaw`` per ``freeze``: the holds nest)."""
+        if on == getattr(self, flag):
+            return
+        if on:
+            self.world.clock.freeze()
+        else:
+            self.world.clock.thaw()
+        setattr(self, flag, on)
 
     def shown_station(self, chainage_m: float) -> float:
         """What the crew reads for an internal chainage: the drawing's station after the design's
@@ -811,13 +817,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _hold_world(self, on: bool) -> None:
         """Freeze (or let run) a simulated world's clock for a scripted crew."""
-        if self.world is None or self.config.script is None or on == self._world_held:
+        if self.world is None or self.config.script is None:
             return
-        if on:
-            self.world.clock.freeze()
-        else:
-            self.world.clock.thaw()
-        self._world_held = on
+        self._freeze_for("_world_held", on)
 
     def _blocked(self, why: str) -> bool:
         """A script waits for the condition; a key press is answered and dropped (so that the next
