@@ -590,3 +590,66 @@ def test_field_screen_shows_hostile_text_literally():
     assert "fix CP[/x]1 rejected [blink red]" in out and "aim at CP[/x]1" in out
     assert "interval CP[/x]1 -> CP[b]2: 1 defect [red]cant[/red]" in out
     assert "[###############...............]  50.0 %" in out
+
+
+# ------------------------------------------------------------------------------------------
+# unreadable files and a read-only store (the suite may run as root, for whom chmod changes
+# nothing: the operating system's refusal is reproduced where the file is opened)
+# ------------------------------------------------------------------------------------------
+def _refuse_opening(monkeypatch, name: str) -> None:
+    """Opening any file called ``name`` fails as it does for a file the user may not read."""
+    import builtins
+    import io
+
+    real = builtins.open
+
+    def guarded(file, *args, **kwargs):
+        if isinstance(file, (str, os.PathLike)) and Path(file).name == name:
+            raise PermissionError(13, "Permission denied", os.fspath(file))
+        return real(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", guarded)
+    monkeypatch.setattr(io, "open", guarded)
+
+
+@pytest.mark.parametrize("name, command", [
+    ("imu.csv", lambda i, t: ["process", str(i.session), "--out", str(t / "out")]),
+    ("session.toml", lambda i, t: ["process", str(i.session), "--out", str(t / "out")]),
+    ("track.csv", lambda i, t: ["export", str(i.processed), "--xlsx", str(t / "x.xlsx")]),
+])
+def test_unreadable_input_is_a_clear_error(tmp_path, inputs, monkeypatch, name, command):
+    args = command(inputs, tmp_path)
+    _refuse_opening(monkeypatch, name)
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 2, (r.exception, r.stderr)
+    assert "Traceback" not in r.stderr + r.stdout
+    one = " ".join(r.stderr.split())
+    assert name in one and "Permission denied" in one, one
+    assert not (tmp_path / "out").exists() and not (tmp_path / "x.xlsx").exists()
+
+
+def test_read_only_store_is_a_clear_error_and_stays_as_it_was(tmp_path, monkeypatch):
+    import survey.store as store
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["project", "new", "p", "--root", "r", "--no-toml"])
+    assert r.exit_code == 0, r.stderr
+    db = tmp_path / "r" / "p" / "project.sqlite"
+    (tmp_path / "c.csv").write_text("id,E_m,N_m,H_m\nCP1,100.0,200.0,10.0\n", encoding="utf-8")
+    before = hashlib.sha256(db.read_bytes()).hexdigest()
+    real = store.connect
+
+    def read_only(path, **kwargs):  # what SQLite does with a store on a read-only medium
+        conn = real(path, **kwargs)
+        conn.execute("PRAGMA query_only = ON")
+        return conn
+
+    monkeypatch.setattr(store, "connect", read_only)
+    r = CliRunner().invoke(app, ["project", "import-cpiii", "c.csv", "-p", "p", "--root", "r"])
+    assert r.exit_code == 2, (r.exception, r.stderr)
+    one = " ".join(r.stderr.split())
+    assert "Traceback" not in r.stderr + r.stdout and "project store" in one and "read" in one, one
+    monkeypatch.setattr(store, "connect", real)
+    assert hashlib.sha256(db.read_bytes()).hexdigest() == before
+    r = CliRunner().invoke(app, ["project", "import-cpiii", "c.csv", "-p", "p", "--root", "r"])
+    assert r.exit_code == 0, r.stderr  # the store was left usable
