@@ -726,8 +726,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def do(self, a: Action) -> bool:
         """Carry out (a step of) an action; True when it is done."""
-        if self.config.script is not None and self.data_time() < self._resume_seen_t:
-            return False  # resumed: the data have not caught up with what the crew had seen
+        if self.config.script is not None and self.data_time() < self._resume_seen_t and a.name != "accept":
+            # resumed: the data have not caught up with what the crew had seen (accepting a
+            # suspicious fix stored before the crash needs no new data: its distance is taken
+            # when the odometer data up to it are in, as for any fix)
+            return False
         st = self._action_state
         standing = self.motion()[0]
         if a.name == "wait":
