@@ -107,8 +107,9 @@ class VehicleParameters:
     m_wheelset: float = 1813.0
     ixx_wheelset: float = 1120.0
     izz_wheelset: float = 1120.0
-    r0: float = 0.46
-    b: float = 0.75
+    # wheel and contact figures: ContactParameters holds their one set of defaults
+    r0: float = ContactParameters.r0
+    b: float = ContactParameters.b
     a_wheelset: float = 1.28
     a_bogie: float = 9.5
     kx_p: float = 31.391e6
@@ -127,13 +128,13 @@ class VehicleParameters:
     d_s: float = 1.0
     h_s: float = 1.0
     k_antiroll: float = 2.45e6
-    conicity: float = 0.15
-    conicity_growth_m: float = 6.0e-3
-    f11: float = 1.0e7
-    f22: float = 8.7e6
-    mu: float = 0.3
-    flange_clearance_m: float = 9.1e-3
-    flange_stiffness_n_m: float = 14.6e6
+    conicity: float = ContactParameters.conicity
+    conicity_growth_m: float = ContactParameters.conicity_growth_m
+    f11: float = ContactParameters.f11
+    f22: float = ContactParameters.f22
+    mu: float = ContactParameters.mu
+    flange_clearance_m: float = ContactParameters.flange_clearance_m
+    flange_stiffness_n_m: float = ContactParameters.flange_stiffness_n_m
     conicity_factor: float = 1.0
     creep_factor: float = 1.0
     sensor_gravity: bool = False
