@@ -75,6 +75,14 @@ def test_sizing_round_trip(seed, which):
     x = B.max_allowed(case, parameter, direction, target)
     if np.isinf(x):
         return  # rare: the effect saturates below the target (inf is then the right answer)
+    cap = B.SIZABLE[parameter][2]
+    if B.worst_sigma(setter(case, cap), direction) < target * (1 + 1e-3):
+        # rare: the target lies within 0.1 % of the level at which the effect saturates, so the
+        # limit is ill-conditioned (seed 1931: saturation 1.0000114 x target; the limit 6.5e-4
+        # rad/s becomes inf for a target 1.2e-5 higher) and is met only in a narrow window of t
+        # that the grid method need not sample (documented in max_allowed_grid)
+        assert B.worst_sigma(setter(case, x), direction) == pytest.approx(target, rel=1e-9)
+        return
     assert B.worst_sigma(setter(case, x), direction) == pytest.approx(target, rel=1e-9)
     assert B.worst_sigma(setter(case, x * 1.001), direction) > target
     if parameter != "fix_spacing_m":

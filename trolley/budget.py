@@ -498,6 +498,13 @@ def max_allowed_grid(case: BudgetCase, parameter: str, direction: str, target_m,
     ndarray of limits in SI units of the parameter (bias rad/s, ARW rad/sqrt(s), noise
     1/sqrt(s)); ``nan`` where no value meets the target, ``inf`` where any value up to the
     cap of :data:`SIZABLE` does.
+
+    Notes
+    -----
+    Where the target lies within about 0.1 % of the level at which the parameter's effect
+    saturates (a gyro bias the fixes estimate, say), the target is exceeded only in a narrow
+    window of t around the worst point; the grid may miss it and report ``inf`` where
+    :func:`max_allowed` finds the finite (and ill-conditioned) limit.
     """
     c0, c1 = _linear_split(case, direction, parameter)
     T = np.asarray(case.interval_s, dtype=float)
