@@ -3,7 +3,8 @@
 One place for the idea every writer of the application shares (no paper section: this is file
 handling, DESIGN.md "bad input: never a partial output file, never a change to raw data"):
 
-- :func:`atomic_path` / :func:`write_text_atomic` / :func:`write_bytes_atomic`: the content goes
+- :func:`atomic_path` / :func:`write_text_atomic` / :func:`write_bytes_atomic` /
+  :func:`write_csv_frame`: the content goes
   to a temporary file in the target's folder, is flushed to disk (``fsync``), gets the mode a
   plain ``open()`` would have given it (``0o666 & ~umask``, typically 0644, not ``mkstemp``'s
   0600) and is ``os.replace``-d onto the target, so the target is always either the old file or
@@ -166,6 +167,13 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8", newline="") as fh:
             fh.write(text)
+    return Path(path)
+
+
+def write_csv_frame(path: str | os.PathLike, frame, float_format: str | None = None) -> Path:
+    """Write a pandas DataFrame as CSV (no index, ``\\n`` line ends) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
     return Path(path)
 
 

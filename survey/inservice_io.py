@@ -26,7 +26,8 @@ import numpy as np
 import pandas as pd
 
 from survey.atomicwrite import write_text_atomic
-from survey.tgms_io import TgmsFormatError, _atomic_write_csv, _num, _read_csv
+from survey.atomicwrite import write_csv_frame
+from survey.tgms_io import TgmsFormatError, _num, _read_csv
 
 FORMAT = "trolley-inservice/1"
 SENSOR_COLUMNS = ["t_s", "s_m", "speed_m_s", "wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2"]
@@ -122,7 +123,7 @@ def write_recording(folder: str | os.PathLike, rec: InserviceRecording) -> None:
                        "wheelset_ay_m_s2": -np.asarray(rec.wheelset_ay_m_s2),
                        "wheelset_wz_rad_s": -np.asarray(rec.wheelset_wz_rad_s),
                        "frame_ay_m_s2": -np.asarray(rec.frame_ay_m_s2)})
-    _atomic_write_csv(folder / "sensors.csv", df[SENSOR_COLUMNS], "%.9g")
+    write_csv_frame(folder / "sensors.csv", df[SENSOR_COLUMNS], "%.9g")
     write_text_atomic(folder / "inservice.toml", inservice_toml_text(rec))
 
 
@@ -210,7 +211,7 @@ def write_truth(path: str | os.PathLike, s_m, alignment_m, vertical_m, curvature
     df = pd.DataFrame({"s_m": s, "alignment_m": -np.asarray(alignment_m, float),
                        "vertical_m": np.asarray(vertical_m, float),
                        "curvature_1_m": -np.broadcast_to(np.asarray(curvature_1_m, float), s.shape)})
-    _atomic_write_csv(Path(path), df[TRUTH_COLUMNS], "%.9g")
+    write_csv_frame(Path(path), df[TRUTH_COLUMNS], "%.9g")
 
 
 def read_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:

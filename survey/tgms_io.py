@@ -23,7 +23,7 @@ from trolley.tgms.camera import Camera
 from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
 from trolley.tgms.recording import LaserPoints, Recording
 
-from survey.atomicwrite import atomic_path, write_text_atomic
+from survey.atomicwrite import write_csv_frame, write_text_atomic
 from survey.names import inside
 from survey.sessionio import PLAUSIBLE_ABS
 
@@ -33,13 +33,6 @@ IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignmen
 
 class TgmsFormatError(ValueError):
     """A recording folder or file that does not follow FORMATS.md section 3."""
-
-
-# ---------------------------------------------------------------------------------------------
-# atomic writing
-def _atomic_write_csv(path: Path, df: pd.DataFrame, float_format: str | None = None) -> None:
-    with atomic_path(path) as tmp:
-        df.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -264,14 +257,14 @@ def write_recording(folder: str | os.PathLike, rec: Recording) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     write_text_atomic(folder / rec.config.track.alignment, landxml_text(rec.alignment))
     w, f = rec.imu_w_rad_s, rec.imu_f_m_s2
-    _atomic_write_csv(folder / "imu.csv", pd.DataFrame({
+    write_csv_frame(folder / "imu.csv", pd.DataFrame({
         "t_s": rec.imu_t_s, "wx_rad_s": w[:, 0], "wy_rad_s": w[:, 1], "wz_rad_s": w[:, 2],
         "fx_m_s2": f[:, 0], "fy_m_s2": f[:, 1], "fz_m_s2": f[:, 2]}), "%.9g")
-    _atomic_write_csv(folder / "encoder.csv", pd.DataFrame({"t_s": rec.enc_t_s, "count": rec.enc_count}), "%.6f")
+    write_csv_frame(folder / "encoder.csv", pd.DataFrame({"t_s": rec.enc_t_s, "count": rec.enc_count}), "%.6f")
     for side, lp in rec.lasers.items():
         df = pd.DataFrame({"frame": lp.frame, "t_s": np.round(lp.t_s, 6),
                            "u_px": np.round(lp.u_px, 3), "v_px": np.round(lp.v_px, 3)})
-        _atomic_write_csv(folder / f"laser_{side}.csv", df)
+        write_csv_frame(folder / f"laser_{side}.csv", df)
     # tgms.toml last: a folder without it is not a recording
     write_text_atomic(folder / "tgms.toml", tgms_toml_text(rec.config))
 
@@ -282,7 +275,7 @@ TRUTH_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", 
 
 def write_truth(path: str | os.PathLike, truth) -> None:
     """Write ``truth.csv`` of a synthetic recording (columns :data:`TRUTH_COLUMNS`)."""
-    _atomic_write_csv(Path(path), pd.DataFrame({c: getattr(truth, c) for c in TRUTH_COLUMNS}), "%.9g")
+    write_csv_frame(Path(path), pd.DataFrame({c: getattr(truth, c) for c in TRUTH_COLUMNS}), "%.9g")
 
 
 def read_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -295,7 +288,7 @@ def write_irregularities(path: str | os.PathLike, columns: dict[str, np.ndarray]
     NaN cells are written empty."""
     df = pd.DataFrame(columns)
     order = IRREGULARITY_COLUMNS + [c for c in df.columns if c not in IRREGULARITY_COLUMNS]
-    _atomic_write_csv(Path(path), df[order], "%.4f")
+    write_csv_frame(Path(path), df[order], "%.4f")
 
 
 def read_irregularities(path: str | os.PathLike) -> dict[str, np.ndarray]:

@@ -132,7 +132,7 @@ def process_cmd(
 
     from survey.inservice_io import InserviceFormatError, read_recording, read_truth
     from survey.inservice_model import ModelFileError, read_model
-    from survey.tgms_io import _atomic_write_csv, write_text_atomic
+    from survey.atomicwrite import write_csv_frame, write_text_atomic
     from trolley import units
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.estimator import NoiseDensities, estimate
@@ -193,7 +193,7 @@ def process_cmd(
     est_mm, sig_mm = -units.m_to_mm(a_g), units.m_to_mm(s_g)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        _atomic_write_csv(out / "irregularities.csv",
+        write_csv_frame(out / "irregularities.csv",
                           pd.DataFrame({"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}), "%.6g")
         run_name = f"{recording.resolve().parent.name}/{recording.name}"
         _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {run_name}")
