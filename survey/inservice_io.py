@@ -40,6 +40,9 @@ VEHICLE_KEYS = {"m_wheelset_kg": "m", "izz_wheelset_kg_m2": "I", "half_contact_s
                 "cy_primary_n_s_m": "cy"}
 #: further [vehicle] keys (geometry of the whole car)
 VEHICLE_EXTRA_KEYS = ("half_wheelbase_m", "half_bogie_spacing_m", "m_frame_kg", "m_body_kg")
+#: optional [vehicle] keys of the bogie design model (trolley.inservice.bogie; per bogie) -> its parameter names
+BOGIE_KEYS = {"izz_frame_kg_m2": "If", "ky_secondary_n_m": "ky_s", "cy_secondary_n_s_m": "cy_s",
+              "kyaw_secondary_n_m_rad": "k_yaw_s", "cyaw_secondary_n_m_s_rad": "c_yaw_s"}
 
 
 class InserviceFormatError(ValueError):
@@ -53,7 +56,8 @@ class InserviceRecording:
     Attributes
     ----------
     nominal : nominal vehicle parameters, keys of ``VehicleParameters.nominal()`` (SI).
-    vehicle_extra : half_wheelbase_m, half_bogie_spacing_m, m_frame_kg, m_body_kg.
+    vehicle_extra : half_wheelbase_m, half_bogie_spacing_m, m_frame_kg, m_body_kg, and the keys of
+        :data:`BOGIE_KEYS` when the file has all of them.
     speed_m_s, rate_hz, start_chainage_m, curvature_1_m : run settings ([run]).
     sigma_acc_m_s2, sigma_gyro_rad_s : sensor noise standard deviations ([sensors]).
     wheelset_sensor_m, frame_sensor_m : sensor positions (x, y, z) from the car body centre, m.
@@ -80,12 +84,16 @@ class InserviceRecording:
 
 def recording_from_run(run, params, start_chainage_m: float = 0.0) -> InserviceRecording:
     """The recording of a simulated run (``trolley.inservice.vehicle.RunResult``) and its parameters."""
+    from trolley.inservice.bogie import nominal_from_vehicle
+
     nom = params.nominal()
     pos = params.sensor_positions()
+    bogie = nominal_from_vehicle(params)
     return InserviceRecording(
         nominal=nom,
         vehicle_extra={"half_wheelbase_m": params.a_wheelset, "half_bogie_spacing_m": params.a_bogie,
-                       "m_frame_kg": params.m_frame, "m_body_kg": params.m_body},
+                       "m_frame_kg": params.m_frame, "m_body_kg": params.m_body,
+                       **{k: bogie[v] for k, v in BOGIE_KEYS.items()}},
         speed_m_s=float(run.speed_m_s[0]), rate_hz=run.rate_hz, start_chainage_m=float(start_chainage_m),
         curvature_1_m=run.curvature_1_m, sigma_acc_m_s2=run.sigma_acc_m_s2, sigma_gyro_rad_s=run.sigma_gyro_rad_s,
         wheelset_sensor_m=tuple(pos["wheelset_accelerometer"]), frame_sensor_m=tuple(pos["frame_accelerometer"]),
@@ -104,6 +112,9 @@ def inservice_toml_text(rec: InserviceRecording) -> str:
     lines = [f'format = "{FORMAT}"', "", "# nominal parameters of the vehicle (SI); see docs/inservice.md", "[vehicle]"]
     lines += [f"{inv[k]} = {_f(rec.nominal[k])}" for k in VEHICLE_KEYS.values()]
     lines += [f"{k} = {_f(rec.vehicle_extra[k])}" for k in VEHICLE_EXTRA_KEYS]
+    if all(k in rec.vehicle_extra for k in BOGIE_KEYS):
+        lines += ["# the bogie design model's further parameters (totals per bogie)"]
+        lines += [f"{k} = {_f(rec.vehicle_extra[k])}" for k in BOGIE_KEYS]
     lines += ["", "[run]", f"speed_m_s = {_f(rec.speed_m_s)}", f"rate_hz = {_f(rec.rate_hz)}",
               f"start_chainage_m = {_f(rec.start_chainage_m)}",
               "# design curvature, constant; positive for a RIGHT turn", f"curvature_1_m = {_f(-rec.curvature_1_m)}",
@@ -177,6 +188,8 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     try:
         nominal = {v: _num(veh, k, "vehicle", fname) for k, v in VEHICLE_KEYS.items()}
         extra = {k: _num(veh, k, "vehicle", fname) for k in VEHICLE_EXTRA_KEYS}
+        if any(k in veh for k in BOGIE_KEYS):
+            extra.update({k: _num(veh, k, "vehicle", fname) for k in BOGIE_KEYS})
         speed = _num(run, "speed_m_s", "run", fname)
         rate = _num(run, "rate_hz", "run", fname)
         start = _num(run, "start_chainage_m", "run", fname, default=0.0, required=False)
@@ -203,6 +216,19 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
         t_s=cols["t_s"], s_m=cols["s_m"], speed_arr_m_s=cols["speed_m_s"],
         wheelset_ay_m_s2=-cols["wheelset_ay_m_s2"], wheelset_wz_rad_s=-cols["wheelset_wz_rad_s"],
         frame_ay_m_s2=-cols["frame_ay_m_s2"])
+
+
+def bogie_nominal(rec: InserviceRecording) -> dict | None:
+    """Nominal parameters of the bogie design model (trolley.inservice.bogie.BogieParameters) from a
+    recording's [vehicle] table, or None when it lacks the keys of :data:`BOGIE_KEYS`."""
+    x = rec.vehicle_extra
+    if not all(k in x for k in BOGIE_KEYS):
+        return None
+    n = rec.nominal
+    out = {k: n[k] for k in ("m", "I", "l", "ls", "conicity", "r0", "f11", "f22", "kx", "cx", "ky", "cy")}
+    out.update(a=x["half_wheelbase_m"], mf=x["m_frame_kg"], mb=x["m_body_kg"] / 2.0)
+    out.update({v: x[k] for k, v in BOGIE_KEYS.items()})
+    return out
 
 
 def write_truth(path: str | os.PathLike, s_m, alignment_m, vertical_m, curvature_1_m) -> None:

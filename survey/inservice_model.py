@@ -1,7 +1,8 @@
 """The calibrated estimator model file of ``trolley inservice`` (model.toml; docs/inservice.md).
 
-Holds a :class:`trolley.inservice.identification.EstimatorModel`: the simplified model's
-parameters (Munoz 2021 Eq. 4, with p_opt identified by Eq. 6), the diagonals of Q (per step of
+Holds a :class:`trolley.inservice.identification.EstimatorModel`: the design model's kind
+(``kind = "bogie"``, trolley.inservice.bogie, or ``"paper"``, the simplified model of Munoz 2021;
+files without the key are "paper") and its parameters (Munoz 2021 Eq. 4, with p_opt identified by Eq. 6), the diagonals of Q (per step of
 ``dt_s``) and R (Eq. 26-29, tuned), the sigma scale, and with correlated noises the full Q, R and
 their cross covariance S. SI units throughout. Written atomically;
 the reader names the file and the key of any bad value.
@@ -26,7 +27,9 @@ class ModelFileError(ValueError):
 
 def model_toml_text(model) -> str:
     """TOML text of an EstimatorModel."""
-    lines = [f'format = "{FORMAT}"', "", "# simplified model parameters (Munoz 2021 Eq. 4), SI", "[parameters]"]
+    lines = [f'format = "{FORMAT}"', f'kind = "{model.params.KIND}"', "",
+             "# design model parameters (Munoz 2021 Eq. 4; the bogie model: trolley.inservice.bogie), SI",
+             "[parameters]"]
     lines += [f"{k} = {float(v)!r}" for k, v in asdict(model.params).items()]
     lines += ["", "# filter noise (Munoz 2021 Eq. 26-29, tuned); Q per step of dt_s", "[noise]",
               f"dt_s = {model.dt_s!r}", "q_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.Q)) + "]",
@@ -34,8 +37,9 @@ def model_toml_text(model) -> str:
               f"sigma_scale = {model.sigma_scale!r}", f"q_dynamics_factor = {model.q_dynamics_factor!r}",
               f"q_xi_factor = {model.q_xi_factor!r}", f"sigma_xi_virtual_m = {model.sigma_xi_virtual_m!r}"]
     if model.S is not None:
-        lines += ["# correlated noises (identification.cross_covariance_from_residuals): full Q (7x7), R (4x4)",
-                  "# and S (7x4), row by row"]
+        n = len(model.Q)
+        lines += [f"# correlated noises (identification.cross_covariance_from_residuals): full Q ({n}x{n}), R (4x4)",
+                  f"# and S ({n}x4), row by row"]
         lines += [f"{key} = [" + ", ".join(repr(float(v)) for v in np.ravel(m)) + "]"
                   for key, m in (("q_matrix", model.Q), ("r_matrix", model.R), ("s_matrix", model.S))]
     return "\n".join(lines) + "\n"
@@ -68,6 +72,7 @@ def _vector(table: dict, key: str, n: int, fname: str, signed: bool = False) -> 
 
 def read_model(path: str | os.PathLike):
     """Read model.toml into an EstimatorModel (raises ModelFileError naming file and key)."""
+    from trolley.inservice.bogie import BogieParameters
     from trolley.inservice.identification import EstimatorModel
     from trolley.inservice.model import ModelParameters
 
@@ -75,8 +80,13 @@ def read_model(path: str | os.PathLike):
     fname = path.name
     data = parse_toml(path, FORMAT, ("parameters", "noise"), ModelFileError)
     par, noi = data["parameters"], data["noise"]
+    kinds = {c.KIND: c for c in (ModelParameters, BogieParameters)}
+    kind = data.get("kind", ModelParameters.KIND)
+    if kind not in kinds:
+        raise ModelFileError(f"{fname}: kind must be one of {', '.join(sorted(kinds))}, got {kind!r}")
+    cls = kinds[kind]
     try:
-        params = ModelParameters(**{f.name: _number(par, f.name, "parameters", fname) for f in fields(ModelParameters)})
+        params = cls(**{f.name: _number(par, f.name, "parameters", fname) for f in fields(cls)})
     except ValueError as exc:
         if isinstance(exc, ModelFileError):
             raise
@@ -84,11 +94,12 @@ def read_model(path: str | os.PathLike):
     dt = _number(noi, "dt_s", "noise", fname)
     if dt <= 0:
         raise ModelFileError(f"{fname}: noise.dt_s must be > 0, got {dt}")
-    Q, R, S = np.diag(_vector(noi, "q_diagonal", 7, fname)), np.diag(_vector(noi, "r_diagonal", 4, fname)), None
+    n = params.n_state
+    Q, R, S = np.diag(_vector(noi, "q_diagonal", n, fname)), np.diag(_vector(noi, "r_diagonal", 4, fname)), None
     if "s_matrix" in noi:
-        Q = _vector(noi, "q_matrix", 49, fname, signed=True).reshape(7, 7)
+        Q = _vector(noi, "q_matrix", n * n, fname, signed=True).reshape(n, n)
         R = _vector(noi, "r_matrix", 16, fname, signed=True).reshape(4, 4)
-        S = _vector(noi, "s_matrix", 28, fname, signed=True).reshape(7, 4)
+        S = _vector(noi, "s_matrix", 4 * n, fname, signed=True).reshape(n, 4)
     return EstimatorModel(params, Q, R, dt,
                           _number(noi, "sigma_scale", "noise", fname),
                           _number(noi, "q_dynamics_factor", "noise", fname),

@@ -3,13 +3,16 @@
 
 * ``trolley inservice simulate --out DIR`` writes a synthetic recording and truth.csv
   (survey/commands/inservice_simulate.py).
-* ``trolley inservice calibrate --out model.toml`` runs the full-vehicle truth simulator once (the
-  paper's reference simulation with the complete model), identifies the simplified model's
-  suspension (Eq. 6), estimates Q and R (Eq. 26-29) and tunes the filter (docs/inservice.md).
+* ``trolley inservice calibrate --out model.toml [--kind bogie|paper]`` runs the full-vehicle truth
+  simulator (the paper's reference simulation with the complete model), identifies the design
+  model's suspension (Eq. 6), estimates Q and R (Eq. 26-29) and tunes the filter
+  (docs/inservice.md). ``bogie`` (default) is the bogie design model of trolley.inservice.bogie,
+  ``paper`` the simplified model of Munoz 2021.
 * ``trolley inservice process RECORDING --out DIR [--truth FILE] [--model FILE] [--smoother rts|none]``
-  writes irregularities.csv (s_m, alignment_mm, sigma_alignment_mm; alignment positive to the
-  RIGHT as in every project file), summary.json (J/Jrel per EN 13848 band with --truth),
-  alignment.png and inservice.xlsx (one sheet in the survey workbook's style).
+  writes irregularities.csv (s_m, alignment_mm, sigma_alignment_mm, and the alignment band-passed
+  to 3-200 m with its own sigma; alignment positive to the RIGHT as in every project file),
+  summary.json (J/Jrel per EN 13848 band with --truth), alignment.png and inservice.xlsx (one
+  sheet in the survey workbook's style).
 
 Bad input: a message naming the file/row/column or key on stderr, exit 2, no output written.
 """
@@ -26,7 +29,7 @@ from rich.console import Console
 from survey import jsonout
 from survey.atomicwrite import write_with
 from survey.commands.inservice_simulate import simulate_cmd
-from survey.commands.options import InserviceSmoother, JsonAlways
+from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
 
 console = Console(stderr=True)
 
@@ -43,7 +46,7 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
-def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") -> None:
+def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -51,6 +54,8 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
 
     from trolley.bands import bandpass_wavelength
 
+    s_m, est_mm, sig_mm = cols["s_m"], cols["alignment_mm"], cols["sigma_alignment_mm"]
+    band = [k for k in cols if k.startswith("alignment_") and k != "alignment_mm"]
     step = float(s_m[1] - s_m[0])
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), dpi=110, sharex=True)
     ax = axes[0]
@@ -62,8 +67,10 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
     ax.set_ylabel("alignment, unfiltered [mm]")
     ax.set_title(title)
     ax = axes[1]
-    if len(s_m) * step > 200.0:
-        ax.plot(s_m, bandpass_wavelength(est_mm, step, 3.0, 200.0), lw=0.9, color="tab:blue", label="estimate 3-200 m")
+    if band:
+        b, sb = cols[band[0]], cols["sigma_" + band[0]]
+        ax.fill_between(s_m, b - 2 * sb, b + 2 * sb, color="tab:blue", alpha=0.2, lw=0, label="estimate +- 2 sigma")
+        ax.plot(s_m, b, lw=0.9, color="tab:blue", label="estimate 3-200 m")
         if truth_mm is not None:
             ax.plot(s_m, bandpass_wavelength(truth_mm, step, 3.0, 200.0), lw=0.8, color="k", label="truth 3-200 m")
     ax.set_ylabel("alignment 3-200 m [mm]")
@@ -79,7 +86,7 @@ def _write_png(path: Path, s_m, est_mm, sig_mm, truth_mm=None, title: str = "") 
         plt.close(fig)
 
 
-def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) -> None:
+def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     """One sheet in the survey workbook's style: a header row, the summary row, then the profile."""
     from openpyxl import Workbook
 
@@ -101,11 +108,11 @@ def _write_xlsx(path: Path, recording: str, summary: dict, s_m, est_mm, sig_mm) 
             put_text(ws, 2, j, summary["smoother"])
         else:
             _num(ws, 2, j, v, "0.000")
-    _header(ws, 4, ["s_m", "alignment_mm", "sigma_alignment_mm"])
-    for i, (s, a, g) in enumerate(zip(s_m, est_mm, sig_mm), start=5):
-        _num(ws, i, 1, s, "0.00")
-        _num(ws, i, 2, a, "0.000")
-        _num(ws, i, 3, g, "0.000")
+    _header(ws, 4, list(cols))
+    for j, (name, values) in enumerate(cols.items(), start=1):
+        fmt = "0.00" if name == "s_m" else "0.000"
+        for i, v in enumerate(values, start=5):
+            _num(ws, i, j, v, fmt)
     ws.freeze_panes = "A5"
     ws.page_setup.paperSize = ws.PAPERSIZE_A4
     ws.page_setup.fitToWidth, ws.page_setup.fitToHeight = 1, 0
@@ -121,7 +128,7 @@ def process_cmd(
     truth: Annotated[Optional[Path], typer.Option("--truth", help="truth.csv: adds J/Jrel per band to summary.json")] = None,
     model: Annotated[Optional[Path], typer.Option(
         "--model", help="model.toml from `trolley inservice calibrate` (default: the recording's nominal "
-                        "parameters with default noise)")] = None,
+                        "parameters with default noise; the bogie model when the recording has its keys)")] = None,
     smoother: Annotated[InserviceSmoother, typer.Option(
         "--smoother", help="rts (forward filter + RTS smoother) or none (the paper's forward filter)")] = "rts",
     json_output: JsonAlways = False,
@@ -130,12 +137,14 @@ def process_cmd(
     import numpy as np
     import pandas as pd
 
-    from survey.inservice_io import InserviceFormatError, read_recording, read_truth
+    from survey.inservice_io import InserviceFormatError, bogie_nominal, read_recording, read_truth
     from survey.inservice_model import ModelFileError, read_model
     from survey.atomicwrite import write_csv_frame, write_text_atomic
     from trolley import units
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
-    from trolley.inservice.estimator import NoiseDensities, estimate
+    from trolley.inservice.bogie import BogieParameters
+    from trolley.inservice.estimator import NoiseDensities, band_alignment, estimate
+    from trolley.inservice.identification import HONESTY_BAND_M
     from trolley.inservice.model import ModelParameters
 
     try:
@@ -163,42 +172,54 @@ def process_cmd(
         m = mdl.at_dt(dt)
         est = estimate(m.params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
-        scale = m.sigma_scale
+        scale, kind = m.sigma_scale, m.params.KIND
     else:
         noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4),
                                sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6))
-        est = estimate(ModelParameters(**rec.nominal), rec.t_s, rec.s_m, rec.speed_arr_m_s, z, noise=noise,
+        bog = bogie_nominal(rec)
+        params = BogieParameters(**bog) if bog is not None else ModelParameters(**rec.nominal)
+        est = estimate(params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, noise=noise,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
-        scale = 1.0
+        scale, kind = 1.0, params.KIND
+    length = float(rec.s_m[-1] - rec.s_m[0])
+    xi_true = np.interp(rec.s_m, tru["s_m"], tru["alignment_m"]) if tru is not None else None
+    band = None
+    if length >= HONESTY_BAND_M[1]:
+        band = band_alignment(est, *HONESTY_BAND_M, sigma_scale=scale, truth_m=xi_true)
     cpu = time.process_time() - t0
     sig = est.sigma_alignment_m * scale
     grid, (a_g, s_g) = uniform_grid(rec.s_m, est.alignment_m, sig, step_m=OUTPUT_STEP_M)
-    length = float(rec.s_m[-1] - rec.s_m[0])
     duration = float(rec.t_s[-1] - rec.t_s[0])
     summary = {"recording": str(recording), "samples": int(len(rec.t_s)), "length_m": length,
                "speed_m_s": float(np.mean(rec.speed_arr_m_s)), "curvature_1_m_right_positive": -rec.curvature_1_m,
                "smoother": smoother, "model": str(model) if model else "nominal (recording [vehicle])",
-               "cpu_s": round(cpu, 4), "duration_s": duration,
+               "design_model": kind, "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
     truth_mm = None
     if tru is not None:
-        xi_true = np.interp(rec.s_m, tru["s_m"], tru["alignment_m"])
         acc = band_accuracy(rec.s_m, est.alignment_m, xi_true)
         summary["accuracy"] = {b: {"J_mm": units.m_to_mm(a.J_m), "Jrel": a.Jrel, "rms_true_mm": units.m_to_mm(a.rms_true_m)}
                                for b, a in acc.items()}
         settle = rec.s_m >= rec.s_m[0] + 30.0
-        summary["honesty_rms_error_over_sigma"] = honesty(est.alignment_m[settle], sig[settle], xi_true[settle])
+        if band is not None:
+            bs = band[0] >= band[0][0] + 30.0
+            summary["honesty_rms_error_over_sigma"] = honesty(band[1][bs], band[2][bs], band[3][bs])
+        summary["honesty_unfiltered_rms_error_over_sigma"] = honesty(est.alignment_m[settle], sig[settle],
+                                                                     xi_true[settle])
         truth_mm = -units.m_to_mm(np.interp(grid, tru["s_m"], tru["alignment_m"]))
     # files: alignment positive to the RIGHT (FRD, docs/conventions.md)
     est_mm, sig_mm = -units.m_to_mm(a_g), units.m_to_mm(s_g)
+    cols = {"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}
+    lo, hi = (f"{v:g}" for v in HONESTY_BAND_M)
+    if band is not None:
+        cols[f"alignment_{lo}_{hi}m_mm"] = -units.m_to_mm(np.interp(grid, band[0], band[1]))
+        cols[f"sigma_alignment_{lo}_{hi}m_mm"] = units.m_to_mm(np.interp(grid, band[0], band[2]))
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_csv_frame(out / "irregularities.csv",
-                          pd.DataFrame({"s_m": grid, "alignment_mm": est_mm, "sigma_alignment_mm": sig_mm}), "%.6g")
+        write_csv_frame(out / "irregularities.csv", pd.DataFrame(cols), "%.6g")
         run_name = f"{recording.resolve().parent.name}/{recording.name}"
-        _write_png(out / "alignment.png", grid, est_mm, sig_mm, truth_mm, title=f"lateral alignment - {run_name}")
-        _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
-                    grid, est_mm, sig_mm)
+        _write_png(out / "alignment.png", cols, truth_mm, title=f"lateral alignment - {run_name}")
+        _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})}, cols)
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
@@ -215,12 +236,14 @@ def calibrate_cmd(
     extra_runs: Annotated[int, typer.Option("--extra-runs", min=0, max=20,
                                             help="further runs (seeds SEED+1...) the sigma scale is pooled "
                                                  "over")] = 3,
+    kind: Annotated[InserviceKind, typer.Option(
+        "--kind", help="design model of the filter: bogie (both wheelsets, the frame's yaw and the car body; "
+                       "beyond the paper) or paper (Munoz 2021's one-wheelset model)")] = "bogie",
     json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
-    import numpy as np
-
     from survey.inservice_model import write_model
+    from trolley.inservice.bogie import BogieParameters, nominal_from_vehicle
     from trolley.inservice.identification import calibrate
     from trolley.inservice.irregularity import irregularity_from_psd
     from trolley.inservice.model import ModelParameters
@@ -231,26 +254,22 @@ def calibrate_cmd(
     with console.status("simulating the reference run"):
         run = simulate_run(vp, irregularity_from_psd(length_m, seed=seed), speed_m_s, length_m, rate_hz=rate_hz,
                            seed=seed + 1)
-    X = np.column_stack([run.wheelset_y_m, run.wheelset_psi_rad, run.frame_y_m, run.wheelset_vy_m_s,
-                         run.wheelset_wz_rad_s_true, run.frame_vy_m_s, run.alignment_m])
-    def sensors(r):
-        return np.column_stack([r.wheelset_ay_m_s2, r.wheelset_wz_rad_s, r.frame_ay_m_s2])
-
     extra = []
     with console.status("simulating the further reference runs"):
         for sd in range(seed + 1, seed + 1 + extra_runs):
             r = simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m, rate_hz=rate_hz,
                              seed=sd + 1)
-            extra.append((r.t_s, r.s_m, speed_m_s, sensors(r), r.alignment_m))
+            extra.append((r.t_s, r.s_m, speed_m_s, r.sensors(), r.alignment_m))
+    p0 = BogieParameters(**nominal_from_vehicle(vp)) if kind == "bogie" else ModelParameters(**vp.nominal())
     with console.status("identifying and tuning"):
-        mdl = calibrate(ModelParameters(**vp.nominal()), speed_m_s, run.t_s, run.s_m, X, sensors(run),
+        mdl = calibrate(p0, speed_m_s, run.t_s, run.s_m, run.reference_states(kind), run.sensors(),
                         extra_runs=extra)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         write_model(out, mdl)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    jsonout.echo({"out": out, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
+    jsonout.echo({"out": out, "kind": kind, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
                   "speed_m_s": speed_m_s, "length_m": length_m,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,

@@ -21,6 +21,8 @@ BudgetImu = Literal["rlg", "fog", "mems", "custom"]
 Smoother = Literal["rts", "tfs", "none"]
 #: trolley.inservice.estimator.estimate(smoother=...).
 InserviceSmoother = Literal["rts", "none"]
+#: design model of the in-service filter: trolley.inservice.bogie or the paper's simplified model
+InserviceKind = Literal["bogie", "paper"]
 #: trolley.tgms.params.TgmsParams.orientation and .trajectory, rail profiles of the TGMS simulator.
 TgmsOrientation = Literal["kf", "madgwick"]
 TgmsTrajectory = Literal["ltv", "ekf"]

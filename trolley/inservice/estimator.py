@@ -32,10 +32,11 @@ H. E. Rauch, F. Tung, C. T. Striebel, AIAA J. 3 (1965) (RTS smoother).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from trolley.inservice.model import N_MEAS, N_STATE, ModelParameters, state_space
+from trolley.inservice.model import N_MEAS, N_STATE, XI_INDEX, ModelParameters
 
 #: speeds are grouped into bins of this width (m/s) for the speed-dependent F, Q
 SPEED_BIN_M_S = 0.1
@@ -97,10 +98,13 @@ class NoiseDensities:
     sigma_gyro_rad_s: float = 5.0e-4
     sigma_xi_virtual_m: float = 5.0e-3
 
-    def qc(self, speed_m_s: float) -> np.ndarray:
-        """Continuous Qc (7x7) at a given speed."""
-        return np.diag([0, 0, 0, self.force_m2_s3, self.yaw_rad2_s3, self.force_m2_s3,
-                        self.xi_m2_per_m * speed_m_s])
+    def qc(self, speed_m_s: float, n_state: int = N_STATE) -> np.ndarray:
+        """Continuous Qc (n x n) at a given speed: the SM's 7 states, and for the bogie model
+        (trolley.inservice.bogie) the trailing wheelset's and the frame's yaw rates too."""
+        d = [0, 0, 0, self.force_m2_s3, self.yaw_rad2_s3, self.force_m2_s3, self.xi_m2_per_m * speed_m_s]
+        if n_state > N_STATE:
+            d += [0, 0, 0, self.force_m2_s3, self.yaw_rad2_s3, self.yaw_rad2_s3, 0, self.force_m2_s3]
+        return np.diag(np.r_[d, np.zeros(n_state - len(d))])
 
     def r(self) -> np.ndarray:
         """Measurement covariance R (4x4, Eq. 17)."""
@@ -136,9 +140,9 @@ def discrete_model(p: ModelParameters, speed_m_s: float, dt: float, Q=None,
     -------
     DiscreteModel
     """
-    Fc, Bc, Hc, Dc = state_space(p, speed_m_s)
+    Fc, Bc, Hc, Dc = p.state_space(speed_m_s)
     if Q is None:
-        F, G, Qd = discretize(Fc, Bc, dt, (noise or NoiseDensities()).qc(speed_m_s))
+        F, G, Qd = discretize(Fc, Bc, dt, (noise or NoiseDensities()).qc(speed_m_s, Fc.shape[0]))
     else:
         F, G, _ = discretize(Fc, Bc, dt)
         Qd = np.asarray(Q, float)
@@ -176,6 +180,11 @@ class AlignmentEstimate:
     sigma : (N, 7) square roots of the diagonal of the state covariance.
     x_filtered : (N, 7) forward-filter estimates.
     smoother : "rts" or "none".
+    transitions : (N, n, n) how the estimation errors of neighbouring samples are linked, for
+        :func:`band_alignment`: with the smoother its gains C_k (e_k = C_k e_(k+1) + a part
+        independent of the later errors; the last one unused), else the filter's error transition
+        A_k = (I - K_k H) F_k (e_k = A_k e_(k-1) + a part independent of the earlier errors).
+    cov_xi : (N, n) column of the state covariance belonging to xi, P_k[:, 6].
     """
 
     t_s: np.ndarray
@@ -184,16 +193,18 @@ class AlignmentEstimate:
     sigma: np.ndarray
     x_filtered: np.ndarray
     smoother: str
+    transitions: np.ndarray | None = None
+    cov_xi: np.ndarray | None = None
 
     @property
     def alignment_m(self) -> np.ndarray:
         """Estimated alignment xi, m."""
-        return self.x[:, 6]
+        return self.x[:, XI_INDEX]
 
     @property
     def sigma_alignment_m(self) -> np.ndarray:
         """1-sigma of the estimated alignment, m."""
-        return self.sigma[:, 6]
+        return self.sigma[:, XI_INDEX]
 
 
 def _rts_from_priors(Xf, Pf, Xp, Pp, Fs):
@@ -213,11 +224,14 @@ def _rts_from_priors(Xf, Pf, Xp, Pp, Fs):
     for k in range(n - 2, -1, -1):
         Xs[k] = Xf[k] + C[k] @ (Xs[k + 1] - Xp[k + 1])
         Ps[k] = Pf[k] + C[k] @ (Ps[k + 1] - Pp[k + 1]) @ C[k].T
-    return Xs, Ps
+    return Xs, Ps, np.concatenate([C, np.zeros((1,) + C.shape[1:])])
 
 
-def _initial_covariance() -> np.ndarray:
-    return np.diag([5e-3, 2e-3, 5e-3, 5e-2, 2e-2, 5e-2, 5e-3]) ** 2
+def _initial_covariance(n_state: int = N_STATE) -> np.ndarray:
+    sig = [5e-3, 2e-3, 5e-3, 5e-2, 2e-2, 5e-2, 5e-3]
+    if n_state > N_STATE:      # bogie model: trailing wheelset, frame yaw, then the delay's states
+        sig += [5e-3, 2e-3, 2e-3, 5e-2, 2e-2, 2e-2, 5e-3, 5e-2]
+    return np.diag(np.r_[sig, np.full(n_state - len(sig), 5e-3)]) ** 2
 
 
 def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=None,
@@ -288,18 +302,20 @@ def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=No
     z = np.column_stack([zm, np.zeros(n)]) - Dk
     zcol = z[:, :, None]
 
-    Jz = np.zeros((n, N_STATE)) if S is None else z @ J.T      # J z_k, input of step k + 1
-    Xp = np.empty((n, N_STATE)) if S is not None else None      # priors for the smoother with inputs
-    Pp = np.empty((n, N_STATE, N_STATE)) if S is not None else None
-    kf = KalmanFilter(dim_x=N_STATE, dim_z=N_MEAS, dim_u=1)
+    ns = models[0].F.shape[0]
+    Jz = np.zeros((n, ns)) if S is None else z @ J.T      # J z_k, input of step k + 1
+    Xp = np.empty((n, ns)) if S is not None else None      # priors for the smoother with inputs
+    Pp = np.empty((n, ns, ns)) if S is not None else None
+    kf = KalmanFilter(dim_x=ns, dim_z=N_MEAS, dim_u=1)
     kf.H = H
     kf.R = R
-    kf.x = np.zeros((N_STATE, 1))
-    kf.P = _initial_covariance() if initial_covariance is None else np.asarray(initial_covariance, float)
-    Xf = np.empty((n, N_STATE))
-    Pf = np.empty((n, N_STATE, N_STATE))
-    det = np.zeros((n, N_STATE))          # deterministic response to the curvature input
-    d = np.zeros(N_STATE)
+    kf.x = np.zeros((ns, 1))
+    kf.P = _initial_covariance(ns) if initial_covariance is None else np.asarray(initial_covariance, float)
+    Xf = np.empty((n, ns))
+    Pf = np.empty((n, ns, ns))
+    Af = np.empty((n, ns, ns)) if smoother == "none" else None
+    det = np.zeros((n, ns))          # deterministic response to the curvature input
+    d = np.zeros(ns)
     u = np.zeros((1, 1))
     for k in range(n):
         if k:
@@ -316,14 +332,161 @@ def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=No
         kf.update(zcol[k])
         Xf[k] = kf.x[:, 0]
         Pf[k] = kf.P
+        if Af is not None:
+            Af[k] = (np.eye(ns) - kf.K @ H) @ models[which[k]].F
     if smoother == "rts" and S is not None:
-        X, P = _rts_from_priors(Xf, Pf, Xp, Pp, [models[w].F for w in which])
+        X, P, trans = _rts_from_priors(Xf, Pf, Xp, Pp, [models[w].F for w in which])
     elif smoother == "rts":
-        Fs = [models[w].F for w in which]
-        Qs = [models[w].Q for w in which]
-        Xs, Ps, _, _ = rts_smoother((Xf - det)[:, :, None], Pf, Fs, Qs)
+        # filterpy's F[k] takes step k to k + 1; ours (models[which[k]]) takes k - 1 to k
+        Fs = [models[w].F for w in which[1:]] + [models[which[-1]].F]
+        Qs = [models[w].Q for w in which[1:]] + [models[which[-1]].Q]
+        Xs, Ps, trans, _ = rts_smoother((Xf - det)[:, :, None], Pf, Fs, Qs)
         X, P = Xs[:, :, 0] + det, Ps
     else:
-        X, P = Xf, Pf
+        X, P, trans = Xf, Pf, Af
+    if smoother == "rts":
+        # The RTS covariance update P_k + C_k (P_(k+1)^s - P_(k+1|k)) C_k^T cancels badly right after a
+        # wide P0 (stiff dynamics, exact accelerometers) and can leave a negative variance in the first
+        # samples; the filter's P_k, which the smoothed one never exceeds, is used there instead.
+        bad = np.any(np.einsum("kii->ki", P) < 0.0, axis=1)
+        if bad.any():
+            P = P.copy()
+            P[bad] = Pf[bad]
     sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 0.0))
-    return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother)
+    return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother, trans, P[:, :, XI_INDEX].copy())
+
+
+def _coarse_alignment_covariance(est: AlignmentEstimate, idx: np.ndarray) -> np.ndarray:
+    """Covariance of the alignment errors at the equally spaced samples ``idx`` (m x m).
+
+    The smoother's errors obey e_k = C_k e_(k+1) + u_k with u_k independent of every later error,
+    so Cov(e_k, e_j) = C_k ... C_(j-1) P_j for k < j (Rauch et al. 1965); the forward filter's obey
+    e_j = A_j e_(j-1) + u_j, so Cov(e_j, e_k) = A_j ... A_(k+1) P_k for j > k. The products over
+    each step of ``idx`` are formed batched; one pass over the chosen samples then carries the xi
+    columns of P through them for all samples at once.
+    """
+    m = len(idx)
+    d = int(idx[1] - idx[0]) if m > 1 else 1
+    T = est.transitions
+    ns = T.shape[1]
+    G = np.broadcast_to(np.eye(ns), (max(m - 1, 0), ns, ns)).copy()
+    for r in range(d):
+        if est.smoother == "rts":          # C_k C_(k+1) ... C_(k+d-1), k = idx[c]
+            G = G @ T[idx[:-1] + r]
+        else:                              # A_(k+d) ... A_(k+1)
+            G = T[idx[:-1] + 1 + r] @ G
+    W = np.zeros((ns, m))
+    C = np.zeros((m, m))
+    P = est.cov_xi[idx]
+    if est.smoother == "rts":
+        for c in range(m - 1, -1, -1):
+            if c < m - 1:
+                W[:, c + 1:] = G[c] @ W[:, c + 1:]
+            W[:, c] = P[c]
+            C[c, c:] = W[XI_INDEX, c:]
+        return np.triu(C) + np.triu(C, 1).T
+    for c in range(m):
+        if c:
+            W[:, :c] = G[c - 1] @ W[:, :c]
+        W[:, c] = P[c]
+        C[c, :c + 1] = W[XI_INDEX, :c + 1]
+    return np.tril(C) + np.tril(C, -1).T
+
+
+def _interpolation_matrix(x: np.ndarray, grid: np.ndarray):
+    """Sparse (G, len(x)) matrix of linear interpolation from the increasing points x to grid."""
+    from scipy.sparse import csr_matrix
+
+    j = np.clip(np.searchsorted(x, grid, side="right") - 1, 0, len(x) - 2)
+    w = np.clip((grid - x[j]) / (x[j + 1] - x[j]), 0.0, 1.0)
+    rows = np.repeat(np.arange(len(grid)), 2)
+    return csr_matrix((np.column_stack([1.0 - w, w]).ravel(), (rows, np.column_stack([j, j + 1]).ravel())),
+                      shape=(len(grid), len(x)))
+
+
+@lru_cache(maxsize=4)
+def _bandpass_matrix(n: int, step_m: float, short_m: float, long_m: float) -> np.ndarray:
+    """trolley.bands.bandpass_wavelength as an (n, n) matrix (read-only; the blocks of a long
+    record share it)."""
+    from trolley.bands import bandpass_wavelength
+
+    B = bandpass_wavelength(np.eye(n), step_m, short_m, long_m, axis=0)
+    B.setflags(write=False)
+    return B
+
+
+#: grid step (m) of the band-passed alignment and its sigma, and the block length and margin (in long
+#: wavelengths) they are formed in
+BAND_STEP_M = 0.5
+BAND_BLOCK_M = 1000.0
+BAND_MARGIN_WAVES = 2.0
+
+
+def band_alignment(est: AlignmentEstimate, short_m: float, long_m: float, sigma_scale: float = 1.0,
+                   truth_m=None):
+    """The alignment band-passed to short_m-long_m (the EN 13848 wavelength range, trolley.bands)
+    and the 1-sigma of that band-passed estimate, on a uniform grid of :data:`BAND_STEP_M`.
+
+    The band-passed error is B e with B the (linear) band-pass, so its covariance is
+    B Cov(e) B^T; Cov(e) between the samples follows from the filter's or the smoother's own error
+    recursion (:func:`_coarse_alignment_covariance`). Waves longer than ``long_m``, which the
+    in-service sensors barely observe and which dominate the error of the unfiltered alignment,
+    then no longer enter the sigma.
+
+    Records longer than :data:`BAND_BLOCK_M` are band-passed in blocks of that length, each
+    filtered over a window reaching :data:`BAND_MARGIN_WAVES` long wavelengths beyond it on both
+    sides (trolley.bands: the D3 filter's leakage is 1.2e-2 two waves from a window end), so that
+    the estimate and its sigma come from the same operator and the work grows linearly with the
+    length. A record shorter than one block is filtered whole, exactly as ``bandpass_wavelength``.
+
+    Parameters
+    ----------
+    est : result of :func:`estimate`.
+    short_m, long_m : band limits (wavelengths), m.
+    sigma_scale : calibration factor of the sigmas (identification.EstimatorModel.sigma_scale).
+    truth_m : optional (N,) true alignment at ``est.s_m``, band-passed by the same operator.
+
+    Returns
+    -------
+    grid_m : (G,) chainages, m.
+    alignment_m : (G,) band-passed estimate, m.
+    sigma_m : (G,) its 1-sigma, m.
+    truth_band_m : (G,) the band-passed truth (only when ``truth_m`` is given).
+    """
+    from trolley.bands import bandpass_wavelength
+
+    if est.transitions is None or est.cov_xi is None:
+        raise ValueError("band_alignment needs an estimate made by estimate()")
+    s = np.asarray(est.s_m, float)
+    h = BAND_STEP_M
+    grid = s[0] + h * np.arange(int(np.floor((s[-1] - s[0]) / h + 1e-9)) + 1)
+    if grid[-1] - grid[0] < long_m:
+        raise ValueError(f"a {grid[-1] - grid[0]:.1f} m record cannot hold waves of {long_m} m")
+    d = max(1, int(round(h / float(np.median(np.diff(s))))))
+    margin = BAND_MARGIN_WAVES * long_m
+    values = [est.alignment_m] + ([np.asarray(truth_m, float)] if truth_m is not None else [])
+    out = np.empty((len(values) + 1, len(grid)))
+    start = grid[0]
+    while True:
+        stop = grid[-1] if grid[-1] - start <= 1.5 * BAND_BLOCK_M else start + BAND_BLOCK_M
+        w = (grid >= start - margin - 1e-9) & (grid <= stop + margin + 1e-9)
+        g = grid[w]
+        lo = max(np.searchsorted(s, g[0], side="right") - 1, 0)
+        hi = min(np.searchsorted(s, g[-1]) + 1, len(s))
+        idx = np.unique(np.r_[np.arange(lo, hi, d), hi - 1])
+        L = _interpolation_matrix(s[idx], g)
+        Cg = L @ (L @ _coarse_alignment_covariance(est, idx)).T
+        # diag(B Cg B^T) with B the band-pass as a matrix: filtering the columns of Cg gives B Cg,
+        # O(G^2) instead of a G^3 product
+        B = _bandpass_matrix(len(g), h, short_m, long_m)
+        var = np.sum(bandpass_wavelength(Cg, h, short_m, long_m, axis=0) * B, axis=1)
+        keep = (g >= start - 1e-9) & ((g < stop - 1e-9) | (stop >= grid[-1]))
+        rows = np.flatnonzero(w)[keep]
+        for r, v in enumerate(values):
+            out[r, rows] = bandpass_wavelength(np.interp(g, s, v), h, short_m, long_m)[keep]
+        out[-1, rows] = np.sqrt(np.maximum(var[keep], 0.0))
+        if stop >= grid[-1]:
+            break
+        start = stop
+    res = (grid, out[0], sigma_scale * out[-1])
+    return res + (out[1],) if truth_m is not None else res

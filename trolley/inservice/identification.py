@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from trolley.inservice.estimator import DiscreteModel
-from trolley.inservice.model import MEASUREMENT_NAMES, STATE_NAMES, ModelParameters, simulate_response
+from trolley.inservice.bogie import N_MECH as N_MECH_BOGIE
+from trolley.inservice.model import MEASUREMENT_NAMES, STATE_NAMES, XI_INDEX, ModelParameters, simulate_response
 
 
 #: bounds of p_opt = [kx, cx, ky, cy] (N/m, N s/m per axle box): the dampers are capped at 1 MN s/m,
@@ -204,10 +205,11 @@ def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_
     covariance :func:`~trolley.inservice.estimator.estimate` expects with S. R keeps the sensors'
     full 3x3 block; the virtual measurement is uncorrelated.
     """
+    f = np.full(len(Q), float(q_dynamics_factor))
+    f[XI_INDEX] = q_xi_factor
+    f[N_MECH_BOGIE:] = q_xi_factor       # the bogie model's delay states carry xi to the trailing wheelset
     if S is None:
-        Qt = np.diag(np.diag(Q)).copy()
-        Qt[:6, :6] *= q_dynamics_factor
-        Qt[6, 6] *= q_xi_factor
+        Qt = np.diag(np.diag(Q) * f)
         Rt = np.diag(np.diag(R)).copy()
         Rt[3, 3] = sigma_xi_virtual_m ** 2
         return Qt, Rt
@@ -216,13 +218,18 @@ def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_
     Rt[:, 3] = 0.0
     Rt[3, 3] = sigma_xi_virtual_m ** 2
     JS = S @ np.linalg.solve(Rt, S.T)
-    d = np.sqrt(np.r_[np.full(6, q_dynamics_factor), q_xi_factor])
+    d = np.sqrt(f)
     Qt = d[:, None] * (Q - JS) * d[None, :] + JS
     return 0.5 * (Qt + Qt.T), Rt
 
 
+#: the band the sigma scale and the honesty refer to: the whole EN 13848 range of Munoz 2021 Table 2
+HONESTY_BAND_M = (3.0, 200.0)
+
+
 def pooled_sigma_scale(mdl: "EstimatorModel", runs, skip_m: float = 30.0, smoother: str = "rts") -> float:
-    """Sigma scale from several calibration runs: rms(error / sigma) pooled over all their samples.
+    """Sigma scale from several calibration runs: rms(error / sigma) of the alignment band-passed
+    to 3-200 m (:data:`HONESTY_BAND_M`, estimator.band_alignment), pooled over all their samples.
 
     Parameters
     ----------
@@ -236,14 +243,14 @@ def pooled_sigma_scale(mdl: "EstimatorModel", runs, skip_m: float = 30.0, smooth
     -------
     float : the factor that makes rms(error / (factor sigma)) = 1 over the pooled samples.
     """
-    from trolley.inservice.estimator import estimate
+    from trolley.inservice.estimator import band_alignment, estimate
 
     num, cnt = 0.0, 0
     for t, s, v, zm, xi in runs:
-        s = np.asarray(s, float)
         e = estimate(mdl.params, t, s, v, zm, Q=mdl.Q, R=mdl.R, S=mdl.S, smoother=smoother)
-        ok = s >= s[0] + skip_m
-        num += float(np.sum(((e.alignment_m[ok] - np.asarray(xi, float)[ok]) / e.sigma_alignment_m[ok]) ** 2))
+        g, xb, sb, tb = band_alignment(e, *HONESTY_BAND_M, truth_m=xi)
+        ok = g >= g[0] + skip_m
+        num += float(np.sum(((xb[ok] - tb[ok]) / sb[ok]) ** 2))
         cnt += int(ok.sum())
     return float(np.sqrt(num / cnt))
 
@@ -260,7 +267,7 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
     part of Q, the random-walk density of xi and the virtual measurement's sigma are scaled to
     minimise J over 3-200 m (on this run, or the rms over it and ``extra_runs``; Nelder-Mead on
     their logarithms), because Eq. 27's Q for xi together with Eq. 29's R for the virtual sensor pull the estimate towards 0 at the long (D3) wavelengths; (4) the sigmas are
-    scaled so that rms(error / sigma) = 1 pooled over this run and ``extra_runs``
+    scaled so that rms(error / sigma) of the 3-200 m band-passed alignment = 1 pooled over this run and ``extra_runs``
     (:func:`pooled_sigma_scale`; one run alone gives a scale that varies from seed to seed).
     Evaluate on different runs.
 
@@ -269,7 +276,8 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
     p0 : nominal SM parameters (p_fix, and p_opt as a start).
     speed_m_s : constant speed of the reference run, m/s.
     t_s, s_m : (N,) times (uniform) and chainages.
-    states : (N, 7) CM states [y, psi, y_f, y', psi', y_f', xi] of the instrumented bodies.
+    states : (N, 7) CM states [y, psi, y_f, y', psi', y_f', xi] of the instrumented bodies (Eq. 7), or for
+        the bogie model (trolley.inservice.bogie) the (N, 13) states of its STATE_NAMES.
     measurements : (N, 3) sensor channels of the run (with noise).
     skip_m : chainage at the start left out of the tuning (the filter's start-up).
     smoother : the estimator the tuning is for: "rts" (filter + smoother) or "none" (forward
@@ -297,7 +305,7 @@ def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measureme
     from trolley.inservice.estimator import discrete_model, estimate
 
     t = np.asarray(t_s, float)
-    X = np.asarray(states, float)
+    X = p0.full_states(states, t, speed_m_s)
     Zm = np.asarray(measurements, float)
     ref = {c: X[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[:3])}
     ref.update({c: Zm[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[3:])})

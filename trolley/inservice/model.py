@@ -63,6 +63,8 @@ STATE_NAMES = ("y_m", "psi_rad", "yf_m", "vy_m_s", "wz_rad_s", "vyf_m_s", "xi_m"
 MEASUREMENT_NAMES = ("wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2", "xi_virtual_m")
 N_STATE = 7
 N_MEAS = 4
+#: index of the alignment xi in the state (Eq. 7; the bogie model keeps it there)
+XI_INDEX = 6
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,8 @@ class ModelParameters:
 
     #: names of the parameters identified by optimisation (Eq. 5)
     OPT = ("kx", "cx", "ky", "cy")
+    #: model kind written to model.toml (the bogie model of trolley.inservice.bogie is "bogie")
+    KIND = "paper"
 
     def __post_init__(self):
         for k, v in asdict(self).items():
@@ -122,6 +126,18 @@ class ModelParameters:
     def gravitational_stiffness(self) -> float:
         """K_g = (m + mf) g alpha / l, N/m (see the module docstring for the sign check)."""
         return (self.m + self.mf) * G_M_S2 * self.conicity / self.l
+
+    @property
+    def n_state(self) -> int:
+        return N_STATE
+
+    def state_space(self, speed_m_s: float):
+        """(Fc, Bc, Hc, Dc) of :func:`state_space` (the interface the estimator uses for any model)."""
+        return state_space(self, speed_m_s)
+
+    def full_states(self, states, t_s, speed_m_s: float) -> np.ndarray:
+        """Reference states for Eq. 26-27: the (N, 7) states of Eq. 7 as they are."""
+        return np.asarray(states, float)
 
 
 def matrices(p: ModelParameters, speed_m_s: float):
@@ -221,40 +237,42 @@ def eigenfrequencies(p: ModelParameters, speed_m_s: float) -> list[Mode]:
     return sorted(modes, key=lambda m: m.frequency_hz)
 
 
-def simulate_response(p: ModelParameters, speed_m_s: float, t_s, xi_m, curvature_1_m=None):
-    """Noise-free response of the SM to a prescribed alignment xi(t) (Eq. 3 as an ODE in q).
+def simulate_response(p, speed_m_s: float, t_s, xi_m, curvature_1_m=None):
+    """Noise-free response of a design model to a prescribed alignment xi(t) (Eq. 3 as an ODE in q).
 
     Parameters
     ----------
-    p : model parameters.
+    p : model parameters: :class:`ModelParameters` (the SM) or any model with the same interface
+        (``state_space(V)``, alignment at state 6), e.g. trolley.inservice.bogie.BogieParameters.
     speed_m_s : forward speed, m/s.
     t_s : (N,) uniformly increasing times, s.
-    xi_m : (N,) alignment under the wheelset at those times, m.
+    xi_m : (N,) alignment under the (leading) wheelset at those times, m.
     curvature_1_m : (N,) design curvature (1/m) or None for straight track.
 
     Returns
     -------
-    X : (N, 7) states [y, psi, y_f, y', psi', y_f', xi] (Eq. 7), starting at rest.
+    X : (N, n) states (Eq. 7 for the SM), starting at rest.
     Z : (N, 4) noise-free measurements (Eq. 8, 15; the virtual xi row holds 0).
 
     Notes
     -----
-    scipy.signal.lsim with a first-order hold on the inputs (xi and kappa).
+    scipy.signal.lsim with a first-order hold on the inputs (xi and kappa); xi leaves the state
+    and becomes the first input.
     """
     from scipy.signal import lsim
 
     t = np.asarray(t_s, float)
     xi = np.asarray(xi_m, float)
     kap = np.zeros_like(t) if curvature_1_m is None else np.broadcast_to(np.asarray(curvature_1_m, float), t.shape)
-    Fc, Bc, Hc, Dc = state_space(p, speed_m_s)
-    A = Fc[:6, :6]
-    B = np.column_stack([Fc[:6, 6], Bc[:6, 0]])
-    C = np.eye(6)
-    D = np.zeros((6, 2))
+    Fc, Bc, Hc, Dc = p.state_space(speed_m_s)
+    n = Fc.shape[0]
+    keep = np.r_[0:XI_INDEX, XI_INDEX + 1:n]
+    A = Fc[np.ix_(keep, keep)]
+    B = np.column_stack([Fc[keep, XI_INDEX], Bc[keep, 0]])
     u = np.column_stack([xi, kap])
-    _, _, xq = lsim((A, B, C, D), u, t, interp=True)
-    xq = np.atleast_2d(xq).reshape(len(t), 6)
-    X = np.column_stack([xq, xi])
+    _, _, xq = lsim((A, B, np.eye(n - 1), np.zeros((n - 1, 2))), u, t, interp=True)
+    xq = np.reshape(xq, (len(t), n - 1))
+    X = np.insert(xq, XI_INDEX, xi, axis=1)
     Z = X @ Hc.T + kap[:, None] * Dc[:, 0]
     Z[:, 3] = 0.0
     return X, Z

@@ -544,7 +544,12 @@ class RunResult:
     alignment_m, vertical_m, cross_level_m : the true irregularities at s_m.
     curvature_1_m : design curvature (constant).
     wheelset_y_m, wheelset_psi_rad, wheelset_vy_m_s, wheelset_wz_rad_s_true : leading wheelset states.
-    frame_y_m, frame_psi_rad, frame_vy_m_s : leading bogie frame states (centre).
+    frame_y_m, frame_psi_rad, frame_vy_m_s, frame_wz_rad_s : leading bogie frame states (centre).
+    trailing_y_m, trailing_psi_rad, trailing_vy_m_s, trailing_wz_rad_s : states of the leading bogie's
+        trailing wheelset (not instrumented; the bogie design model's reference, ``trolley.inservice.bogie``).
+    trailing_alignment_m : the true alignment under that wheelset.
+    body_y_m, body_vy_m_s : lateral displacement and velocity of the car body above the leading
+        bogie's centre.
     wheelset_ay_true_m_s2, frame_ay_true_m_s2 : the accelerations without noise.
     max_shift_m : largest |y - xi| of any wheelset during the recorded run (flange at 9.1 mm).
     sigma_acc_m_s2, sigma_gyro_rad_s : noise standard deviations applied (0 when off).
@@ -568,6 +573,14 @@ class RunResult:
     frame_y_m: np.ndarray
     frame_psi_rad: np.ndarray
     frame_vy_m_s: np.ndarray
+    frame_wz_rad_s: np.ndarray
+    trailing_y_m: np.ndarray
+    trailing_psi_rad: np.ndarray
+    trailing_vy_m_s: np.ndarray
+    trailing_wz_rad_s: np.ndarray
+    trailing_alignment_m: np.ndarray
+    body_y_m: np.ndarray
+    body_vy_m_s: np.ndarray
     wheelset_ay_true_m_s2: np.ndarray
     frame_ay_true_m_s2: np.ndarray
     max_shift_m: float
@@ -576,6 +589,28 @@ class RunResult:
     rate_hz: float
     step_s: float
     params: VehicleParameters = field(repr=False, default_factory=VehicleParameters)
+
+    def sensors(self) -> np.ndarray:
+        """(N, 3) measured channels [wheelset a_y, wheelset w_z, frame a_y] (the estimator's input)."""
+        return np.column_stack([self.wheelset_ay_m_s2, self.wheelset_wz_rad_s, self.frame_ay_m_s2])
+
+    def reference_states(self, kind: str = "paper") -> np.ndarray:
+        """The run's true states in the order of a design model's state vector (the reference of the
+        identification, Munoz 2021 Eq. 6 and 26-27).
+
+        ``kind="paper"``: (N, 7) [y, psi, y_f, y', psi', y_f', xi] of Eq. 7 (leading wheelset, leading
+        frame). ``kind="bogie"``: (N, 15) in the order of trolley.inservice.bogie.STATE_NAMES (the
+        Eq. 7 states, the trailing wheelset, the frame's yaw and the car body above the bogie).
+        """
+        paper = [self.wheelset_y_m, self.wheelset_psi_rad, self.frame_y_m, self.wheelset_vy_m_s,
+                 self.wheelset_wz_rad_s_true, self.frame_vy_m_s, self.alignment_m]
+        if kind == "paper":
+            return np.column_stack(paper)
+        if kind == "bogie":
+            return np.column_stack(paper + [self.trailing_y_m, self.trailing_psi_rad, self.frame_psi_rad,
+                                            self.trailing_vy_m_s, self.trailing_wz_rad_s, self.frame_wz_rad_s,
+                                            self.body_y_m, self.body_vy_m_s])
+        raise ValueError(f"kind must be 'paper' or 'bogie', got {kind!r}")
 
 
 def _rail_inputs(track: TrackIrregularity, s_lead: np.ndarray, offsets: np.ndarray, v: float, b: float) -> _Inputs:
@@ -678,7 +713,13 @@ def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s:
                      wheelset_psi_rad=keep[:, 4].copy(), wheelset_vy_m_s=keep[:, N_DOF].copy(),
                      wheelset_wz_rad_s_true=wz_true, frame_y_m=keep[:, _frame_dof(0, 0)].copy(),
                      frame_psi_rad=keep[:, _frame_dof(0, 1)].copy(),
-                     frame_vy_m_s=keep[:, N_DOF + _frame_dof(0, 0)].copy(), wheelset_ay_true_m_s2=ws_ay,
+                     frame_vy_m_s=keep[:, N_DOF + _frame_dof(0, 0)].copy(),
+                     frame_wz_rad_s=keep[:, N_DOF + _frame_dof(0, 1)].copy(), trailing_y_m=keep[:, 1].copy(),
+                     trailing_psi_rad=keep[:, 5].copy(), trailing_vy_m_s=keep[:, N_DOF + 1].copy(),
+                     trailing_wz_rad_s=keep[:, N_DOF + 5].copy(), trailing_alignment_m=inp.xi[hs, 1].copy(),
+                     body_y_m=keep[:, _BODY] + params.a_bogie * keep[:, _BODY + 1],
+                     body_vy_m_s=keep[:, N_DOF + _BODY] + params.a_bogie * keep[:, N_DOF + _BODY + 1],
+                     wheelset_ay_true_m_s2=ws_ay,
                      frame_ay_true_m_s2=fr_ay, max_shift_m=float(shift), sigma_acc_m_s2=sa, sigma_gyro_rad_s=sg,
                      rate_hz=float(rate_hz), step_s=float(dt), params=params)
 
