@@ -117,3 +117,55 @@ def test_model_file_round_trip_and_errors(tmp_path):
     (tmp_path / "bad2.toml").write_text(model_toml_text(m).replace("q_diagonal = [", "q_diagonal = [1.0, "))
     with pytest.raises(ModelFileError, match="noise.q_diagonal must be 7"):
         read_model(tmp_path / "bad2.toml")
+
+
+def test_process_writes_the_band_passed_alignment_with_its_sigma(tmp_path):
+    # a 300 m recording of the bogie design model itself (noise-free, 8 m + 20 m harmonics) whose
+    # [vehicle] table has the bogie keys: the nominal bogie model is used (uncalibrated: default noise),
+    # the 3-200 m columns are the band-pass of the unfiltered estimate and follow the band-passed
+    # truth (alignment positive to the RIGHT in the file)
+    from trolley.inservice.bogie import BogieParameters
+
+    b = BogieParameters()
+    V, dt = 20.0, 0.005
+    t = np.arange(3001) * dt
+    s = V * t
+    xi = 1e-3 * np.sin(2 * np.pi * s / 8.0) + 1e-3 * np.sin(2 * np.pi * s / 20.0)
+    _, Z = simulate_response(b, V, t, xi)
+    nominal = {**asdict(P), **{k: getattr(b, k) for k in ("m", "I", "l", "ls", "conicity", "r0", "f11", "f22",
+                                                          "kx", "cx", "ky", "cy")}}
+    extra = {"half_wheelbase_m": b.a, "half_bogie_spacing_m": 9.5, "m_frame_kg": b.mf, "m_body_kg": 2 * b.mb,
+             **{k: getattr(b, v) for k, v in io.BOGIE_KEYS.items()}}
+    rec = io.InserviceRecording(
+        nominal=nominal, vehicle_extra=extra, speed_m_s=V, rate_hz=200.0, start_chainage_m=0.0, curvature_1_m=0.0,
+        sigma_acc_m_s2=0.01, sigma_gyro_rad_s=5e-4, wheelset_sensor_m=(10.78, 1.0, 0.46),
+        frame_sensor_m=(9.5, 0.0, 0.6), t_s=t, s_m=s, speed_arr_m_s=np.full_like(t, V), wheelset_ay_m_s2=Z[:, 0],
+        wheelset_wz_rad_s=Z[:, 1], frame_ay_m_s2=Z[:, 2])
+    io.write_recording(tmp_path / "rec", rec)
+    assert io.bogie_nominal(io.read_recording(tmp_path / "rec")) == {**{k: getattr(b, k) for k in (
+        "m", "I", "l", "ls", "conicity", "r0", "f11", "f22", "kx", "cx", "ky", "cy", "a", "mf", "mb")},
+        **{v: getattr(b, v) for v in io.BOGIE_KEYS.values()}}
+    io.write_truth(tmp_path / "truth.csv", s, xi, np.zeros_like(s), 0.0)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / "rec"), "--out", str(out),
+                                      "--truth", str(tmp_path / "truth.csv")])
+    assert res.exit_code == 0, res.output
+    df = pd.read_csv(out / "irregularities.csv")
+    assert list(df.columns) == ["s_m", "alignment_mm", "sigma_alignment_mm", "alignment_3_200m_mm",
+                                "sigma_alignment_3_200m_mm"]
+    from trolley.bands import bandpass_wavelength
+    truth_band_right_mm = -1e3 * bandpass_wavelength(np.interp(df["s_m"], s, xi), 0.25, 3.0, 200.0)
+    inner = (df["s_m"] > 40.0) & (df["s_m"] < 260.0)
+    err = (df["alignment_3_200m_mm"] - truth_band_right_mm)[inner]
+    rms_true = np.sqrt(np.mean(truth_band_right_mm[inner] ** 2))
+    assert np.sqrt(np.mean(err ** 2)) < 0.3 * rms_true          # measured 0.25 (default noise)
+    own = bandpass_wavelength(df["alignment_mm"].to_numpy(), 0.25, 3.0, 200.0)
+    assert np.sqrt(np.mean((df["alignment_3_200m_mm"] - own)[inner] ** 2)) < 0.02 * rms_true
+    assert (df["sigma_alignment_3_200m_mm"][inner] > 0).all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["design_model"] == "bogie" and summary["calibrated"] is False
+    assert "uncalibrated" in res.stderr
+    assert np.isfinite(summary["honesty_rms_error_over_sigma"])
+    from openpyxl import load_workbook
+    ws = load_workbook(out / "inservice.xlsx").active
+    assert [ws.cell(4, j).value for j in range(1, 6)] == list(df.columns)

@@ -181,6 +181,9 @@ def process_cmd(
         est = estimate(params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, noise=noise,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = 1.0, params.KIND
+        console.print("note: no --model given: uncalibrated nominal parameters with default noise; "
+                      "`trolley inservice calibrate` gives the accuracy and honest sigmas of docs/inservice.md",
+                      highlight=False, markup=False, soft_wrap=True)
     length = float(rec.s_m[-1] - rec.s_m[0])
     xi_true = np.interp(rec.s_m, tru["s_m"], tru["alignment_m"]) if tru is not None else None
     band = None
@@ -193,7 +196,7 @@ def process_cmd(
     summary = {"recording": str(recording), "samples": int(len(rec.t_s)), "length_m": length,
                "speed_m_s": float(np.mean(rec.speed_arr_m_s)), "curvature_1_m_right_positive": -rec.curvature_1_m,
                "smoother": smoother, "model": str(model) if model else "nominal (recording [vehicle])",
-               "design_model": kind, "cpu_s": round(cpu, 4), "duration_s": duration,
+               "design_model": kind, "calibrated": mdl is not None, "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
     truth_mm = None
     if tru is not None:
