@@ -55,13 +55,13 @@ G. A. Baker, P. Graves-Morris, Pade Approximants (1996) (the delay exp(-sT)).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
 from math import factorial
 
 import numpy as np
 
-from trolley.inservice.model import G_M_S2
+from trolley.inservice.model import G_M_S2, DesignParameters
 
 #: positions of q = [y1, psi1, y_f, y2, psi2, psi_f, y_b] and of their rates in the state vector
 Q_POS = (0, 1, 2, 7, 8, 9, 13)
@@ -93,7 +93,7 @@ def pade_delay(delay_s: float, order: int):
 
 
 @dataclass(frozen=True)
-class BogieParameters:
+class BogieParameters(DesignParameters):
     """Parameters of the bogie design model, SI.
 
     Attributes
@@ -136,32 +136,18 @@ class BogieParameters:
     cy: float = 0.0
     pade_order: int = 5
 
-    #: names of the parameters identified by optimisation (Eq. 5-6)
-    OPT = ("kx", "cx", "ky", "cy")
     #: model kind written to model.toml
     KIND = "bogie"
+    POSITIVE = ("m", "I", "l", "a", "r0", "mf", "If", "mb")
 
     def __post_init__(self):
-        for k, v in asdict(self).items():
-            if not np.isfinite(v):
-                raise ValueError(f"bogie model parameter {k} = {v} is not finite")
-        for k in ("m", "I", "l", "a", "r0", "mf", "If", "mb"):
-            if getattr(self, k) <= 0:
-                raise ValueError(f"bogie model parameter {k} must be > 0, got {getattr(self, k)}")
+        self._check("bogie model parameter")
         if int(self.pade_order) != self.pade_order or not 1 <= self.pade_order <= 8:
             raise ValueError(f"pade_order must be an integer in 1-8, got {self.pade_order}")
 
     @property
     def n_state(self) -> int:
         return N_MECH + int(self.pade_order)
-
-    def with_opt(self, popt) -> "BogieParameters":
-        """A copy with p_opt = [kx, cx, ky, cy] replaced."""
-        return replace(self, **dict(zip(self.OPT, (float(v) for v in popt))))
-
-    @property
-    def popt(self) -> np.ndarray:
-        return np.array([getattr(self, k) for k in self.OPT])
 
     @property
     def gravitational_stiffness(self) -> float:

@@ -67,8 +67,35 @@ N_MEAS = 4
 XI_INDEX = 6
 
 
+class DesignParameters:
+    """What the parameters of every design model share (this SM and trolley.inservice.bogie): the
+    identified p_opt (Eq. 5) and the check of the values. Subclasses are frozen dataclasses with
+    the fields of :attr:`OPT` and name the fields that must be > 0 in :attr:`POSITIVE`."""
+
+    #: names of the parameters identified by optimisation (Eq. 5)
+    OPT = ("kx", "cx", "ky", "cy")
+    POSITIVE: tuple[str, ...] = ()
+
+    def _check(self, what: str) -> None:
+        for k, v in asdict(self).items():
+            if not np.isfinite(v):
+                raise ValueError(f"{what} {k} = {v} is not finite")
+        for k in self.POSITIVE:
+            if getattr(self, k) <= 0:
+                raise ValueError(f"{what} {k} must be > 0, got {getattr(self, k)}")
+
+    def with_opt(self, popt):
+        """A copy with p_opt = [kx, cx, ky, cy] replaced (Eq. 5)."""
+        return replace(self, **dict(zip(self.OPT, (float(v) for v in popt))))
+
+    @property
+    def popt(self) -> np.ndarray:
+        """p_opt = [kx, cx, ky, cy] (Eq. 5)."""
+        return np.array([getattr(self, k) for k in self.OPT])
+
+
 @dataclass(frozen=True)
-class ModelParameters:
+class ModelParameters(DesignParameters):
     """Parameters p of the SM (Munoz 2021 Eq. 4-5), SI.
 
     Attributes
@@ -100,27 +127,12 @@ class ModelParameters:
     ky: float = 1.5e6
     cy: float = 2.0e4
 
-    #: names of the parameters identified by optimisation (Eq. 5)
-    OPT = ("kx", "cx", "ky", "cy")
     #: model kind written to model.toml (the bogie model of trolley.inservice.bogie is "bogie")
     KIND = "paper"
+    POSITIVE = ("m", "I", "l", "r0", "mf")
 
     def __post_init__(self):
-        for k, v in asdict(self).items():
-            if not np.isfinite(v):
-                raise ValueError(f"model parameter {k} = {v} is not finite")
-        for k in ("m", "I", "l", "r0", "mf"):
-            if getattr(self, k) <= 0:
-                raise ValueError(f"model parameter {k} must be > 0, got {getattr(self, k)}")
-
-    def with_opt(self, popt) -> "ModelParameters":
-        """A copy with p_opt = [kx, cx, ky, cy] replaced (Eq. 5)."""
-        return replace(self, **dict(zip(self.OPT, (float(v) for v in popt))))
-
-    @property
-    def popt(self) -> np.ndarray:
-        """p_opt = [kx, cx, ky, cy] (Eq. 5)."""
-        return np.array([getattr(self, k) for k in self.OPT])
+        self._check("model parameter")
 
     @property
     def gravitational_stiffness(self) -> float:
