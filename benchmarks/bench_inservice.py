@@ -34,7 +34,7 @@ Targets (issue 14): standard case J <= 0.30 mm and Jrel <= 0.20 over 3-200 m, ho
 time counts every thread).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_inservice.py [--seeds 1 2 ... 10] [--cal-seed 1000]
-        [--extra-seeds 1001 1002 1003] [--kinds bogie paper] [--radius-m 1500]
+        [--extra-seeds 1001 1002 1003] [--kinds bogie paper] [--radius-m 1500] [--rate-hz 200]
         [--sections standard robustness resonance curved forward uncorrelated]
 """
 from __future__ import annotations
@@ -50,6 +50,7 @@ from trolley.inservice.estimator import band_alignment, discrete_model, estimate
 from trolley.inservice.identification import HONESTY_BAND_M, calibrate
 from trolley.inservice.irregularity import harmonic_irregularity, irregularity_from_psd
 from trolley.inservice.model import ModelParameters, eigenfrequencies
+from trolley.inservice.resample import FILTER_RATE_HZ, decimation_factor
 from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, simulate_run, with_factors
 
 V = 20.0
@@ -87,11 +88,17 @@ def header(title):
           "   (J in mm)", flush=True)
 
 
+#: sensor rate of the simulated runs (--rate-hz) and the decimation factor to the filter's 200 Hz
+RATE = {"hz": 200.0, "q": 1}
+
+
 def run_case(vp, seed, lateral=1.0, vertical=1.0, noise=True, harmonic=None, kappa=0.0):
     track = irregularity_from_psd(LENGTH, seed=seed, lateral_scale=lateral, vertical_scale=vertical)
     if harmonic is not None:
         track = track.plus(harmonic_irregularity(LENGTH, harmonic, 1e-3))
-    return simulate_run(vp, track, V, LENGTH, sensor_noise=noise, seed=seed + 1, curvature_1_m=kappa)
+    run = simulate_run(vp, track, V, LENGTH, rate_hz=RATE["hz"], sensor_noise=noise, seed=seed + 1,
+                       curvature_1_m=kappa)
+    return run.decimated(RATE["q"])
 
 
 def nominal(vp, kind):
@@ -110,12 +117,16 @@ def main() -> None:
     ap.add_argument("--kinds", nargs="+", default=["bogie", "paper"], choices=["bogie", "paper"],
                     help="design models; robustness, resonance and curved use the first")
     ap.add_argument("--radius-m", type=float, default=1500.0)
+    ap.add_argument("--rate-hz", type=float, default=200.0, help="sensor rate of the simulated runs; faster runs "
+                    "are decimated to 200 Hz before the filter (trolley.inservice.resample), as `process` does")
     ap.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS)
     args = ap.parse_args()
     used = set(args.seeds) & ({args.cal_seed} | set(args.extra_seeds))
     if used:
         ap.error(f"evaluation seeds {sorted(used)} are also calibration seeds")
 
+    RATE["hz"], RATE["q"] = args.rate_hz, decimation_factor(args.rate_hz, FILTER_RATE_HZ)
+    print(f"sensor rate {args.rate_hz:g} Hz, filter at {args.rate_hz / RATE['q']:g} Hz")
     vp = VehicleParameters()
     mode = first_lateral_mode(vp, V)
     t0 = time.process_time()

@@ -131,6 +131,9 @@ def process_cmd(
                         "parameters with default noise; the bogie model when the recording has its keys)")] = None,
     smoother: Annotated[InserviceSmoother, typer.Option(
         "--smoother", help="rts (forward filter + RTS smoother) or none (the paper's forward filter)")] = "rts",
+    filter_rate_hz: Annotated[float, typer.Option(
+        "--filter-rate-hz", min=20.0, max=5000.0,
+        help="faster recordings are low-passed and decimated to no less than this rate first")] = 200.0,
     json_output: JsonAlways = False,
 ) -> None:
     """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
@@ -146,6 +149,7 @@ def process_cmd(
     from trolley.inservice.estimator import NoiseDensities, band_alignment, estimate
     from trolley.inservice.identification import HONESTY_BAND_M
     from trolley.inservice.model import ModelParameters
+    from trolley.inservice.resample import decimated, decimation_factor
 
     try:
         rec = read_recording(recording)
@@ -168,42 +172,49 @@ def process_cmd(
     import filterpy.kalman  # noqa: F401  (imported before the clock: the speed is the filter's)
     import scipy.linalg  # noqa: F401
     t0 = time.process_time()
+    q = decimation_factor(1.0 / dt, filter_rate_hz)
+    try:
+        (t_f, s_f, v_f), z = decimated(q, [rec.t_s, rec.s_m, rec.speed_arr_m_s], z)
+    except ValueError as exc:
+        _fail(f"{recording / 'sensors.csv'}: {exc}")
     if mdl is not None:
-        m = mdl.at_dt(dt)
-        est = estimate(m.params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, Q=m.Q, R=m.R, S=m.S,
+        m = mdl.at_dt(dt * q)
+        est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
     else:
-        noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4),
-                               sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6))
+        # the sensors' white noise per sample, after decimation by q
+        noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4) / np.sqrt(q),
+                               sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6) / np.sqrt(q))
         bog = bogie_nominal(rec)
         params = BogieParameters(**bog) if bog is not None else ModelParameters(**rec.nominal)
-        est = estimate(params, rec.t_s, rec.s_m, rec.speed_arr_m_s, z, noise=noise,
-                       curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
+        est = estimate(params, t_f, s_f, v_f, z, noise=noise, curvature_1_m=rec.curvature_1_m or None,
+                       smoother=smoother)
         scale, kind = 1.0, params.KIND
         console.print("note: no --model given: uncalibrated nominal parameters with default noise; "
                       "`trolley inservice calibrate` gives the accuracy and honest sigmas of docs/inservice.md",
                       highlight=False, markup=False, soft_wrap=True)
     length = float(rec.s_m[-1] - rec.s_m[0])
-    xi_true = np.interp(rec.s_m, tru["s_m"], tru["alignment_m"]) if tru is not None else None
+    xi_true = np.interp(s_f, tru["s_m"], tru["alignment_m"]) if tru is not None else None
     band = None
     if length >= HONESTY_BAND_M[1]:
         band = band_alignment(est, *HONESTY_BAND_M, sigma_scale=scale, truth_m=xi_true)
     cpu = time.process_time() - t0
     sig = est.sigma_alignment_m * scale
-    grid, (a_g, s_g) = uniform_grid(rec.s_m, est.alignment_m, sig, step_m=OUTPUT_STEP_M)
+    grid, (a_g, s_g) = uniform_grid(s_f, est.alignment_m, sig, step_m=OUTPUT_STEP_M)
     duration = float(rec.t_s[-1] - rec.t_s[0])
     summary = {"recording": str(recording), "samples": int(len(rec.t_s)), "length_m": length,
                "speed_m_s": float(np.mean(rec.speed_arr_m_s)), "curvature_1_m_right_positive": -rec.curvature_1_m,
                "smoother": smoother, "model": str(model) if model else "nominal (recording [vehicle])",
-               "design_model": kind, "calibrated": mdl is not None, "cpu_s": round(cpu, 4), "duration_s": duration,
+               "design_model": kind, "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
+               "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
     truth_mm = None
     if tru is not None:
-        acc = band_accuracy(rec.s_m, est.alignment_m, xi_true)
+        acc = band_accuracy(s_f, est.alignment_m, xi_true)
         summary["accuracy"] = {b: {"J_mm": units.m_to_mm(a.J_m), "Jrel": a.Jrel, "rms_true_mm": units.m_to_mm(a.rms_true_m)}
                                for b, a in acc.items()}
-        settle = rec.s_m >= rec.s_m[0] + 30.0
+        settle = s_f >= s_f[0] + 30.0
         if band is not None:
             bs = band[0] >= band[0][0] + 30.0
             summary["honesty_rms_error_over_sigma"] = honesty(band[1][bs], band[2][bs], band[3][bs])
@@ -236,6 +247,9 @@ def calibrate_cmd(
     length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    filter_rate_hz: Annotated[float, typer.Option(
+        "--filter-rate-hz", min=20.0, max=5000.0,
+        help="faster runs are low-passed and decimated to no less than this rate, as `process` does")] = 200.0,
     extra_runs: Annotated[int, typer.Option("--extra-runs", min=0, max=20,
                                             help="further runs (seeds SEED+1...) the sigma scale is pooled "
                                                  "over")] = 3,
@@ -250,18 +264,20 @@ def calibrate_cmd(
     from trolley.inservice.identification import calibrate
     from trolley.inservice.irregularity import irregularity_from_psd
     from trolley.inservice.model import ModelParameters
+    from trolley.inservice.resample import decimation_factor
     from trolley.inservice.vehicle import VehicleParameters, simulate_run
 
     t0 = time.process_time()
     vp = VehicleParameters()
+    q = decimation_factor(rate_hz, filter_rate_hz)
     with console.status("simulating the reference run"):
         run = simulate_run(vp, irregularity_from_psd(length_m, seed=seed), speed_m_s, length_m, rate_hz=rate_hz,
-                           seed=seed + 1)
+                           seed=seed + 1).decimated(q)
     extra = []
     with console.status("simulating the further reference runs"):
         for sd in range(seed + 1, seed + 1 + extra_runs):
             r = simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m, rate_hz=rate_hz,
-                             seed=sd + 1)
+                             seed=sd + 1).decimated(q)
             extra.append((r.t_s, r.s_m, speed_m_s, r.sensors(), r.alignment_m))
     p0 = BogieParameters(**nominal_from_vehicle(vp)) if kind == "bogie" else ModelParameters(**vp.nominal())
     with console.status("identifying and tuning"):
@@ -273,7 +289,7 @@ def calibrate_cmd(
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     jsonout.echo({"out": out, "kind": kind, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
-                  "speed_m_s": speed_m_s, "length_m": length_m,
+                  "speed_m_s": speed_m_s, "length_m": length_m, "rate_hz": rate_hz, "filter_rate_hz": rate_hz / q,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
                   "cpu_s": round(time.process_time() - t0, 2)})

@@ -590,6 +590,26 @@ class RunResult:
     step_s: float
     params: VehicleParameters = field(repr=False, default_factory=VehicleParameters)
 
+    def decimated(self, q: int) -> "RunResult":
+        """The run as a recorder decimating by q would keep it (trolley.inservice.resample): the
+        sensor channels low-passed and decimated, every other per-sample array at every q-th sample."""
+        from dataclasses import fields
+
+        from trolley.inservice.resample import decimated
+
+        if q <= 1:
+            return self
+        n = len(self.t_s)
+        names = [f.name for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)
+                 and getattr(self, f.name).shape == (n,)]
+        chans = ("wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2")
+        kept, z = decimated(q, [getattr(self, k) for k in names if k not in chans], self.sensors())
+        new = dict(zip([k for k in names if k not in chans], kept))
+        new.update(zip(chans, z.T.copy()))
+        # white noise keeps about 1 / q of its power (1 / sqrt(q) of its std) below the new band
+        return replace(self, **new, rate_hz=self.rate_hz / q, sigma_acc_m_s2=float(self.sigma_acc_m_s2 / np.sqrt(q)),
+                       sigma_gyro_rad_s=float(self.sigma_gyro_rad_s / np.sqrt(q)))
+
     def sensors(self) -> np.ndarray:
         """(N, 3) measured channels [wheelset a_y, wheelset w_z, frame a_y] (the estimator's input)."""
         return np.column_stack([self.wheelset_ay_m_s2, self.wheelset_wz_rad_s, self.frame_ay_m_s2])
