@@ -1,6 +1,7 @@
 """The bogie design model (trolley.inservice.bogie) and the sigma of the band-passed alignment
 (estimator.band_alignment): hand calculations, the delay approximant against exp(-i w T), filter and
-band sigma on data from their own models, identification and the model file."""
+band sigma on data from their own models and the model file (the identification of both models:
+test_inservice_estimator.py)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -15,8 +16,8 @@ from trolley.bands import bandpass_wavelength
 from trolley.inservice.bogie import XI_POS, BogieParameters, matrices, pade_delay, state_space
 from trolley.inservice.estimator import (NoiseDensities, band_alignment, discrete_model, estimate,
                                          observability_rank)
-from trolley.inservice.identification import EstimatorModel, identify_suspension
-from trolley.inservice.model import ModelParameters, simulate_response
+from trolley.inservice.identification import EstimatorModel
+from trolley.inservice.model import ModelParameters
 
 B = BogieParameters()
 
@@ -143,22 +144,6 @@ def test_band_sigma_in_blocks_agrees_with_one_block(monkeypatch):
     assert np.max(np.abs(s2 / s1 - 1)[inner]) < 0.01
     assert np.max(np.abs(x2 - x1)[inner]) < 0.02 * np.std(x1)
     assert np.max(np.abs(s2 / s1 - 1)) < 0.1
-
-
-def test_identification_recovers_known_bogie_suspension():
-    V, dt = 20.0, 0.01
-    t = np.arange(2000) * dt
-    s = V * t
-    rng = np.random.default_rng(7)
-    lam = np.geomspace(5, 100, 25)
-    xi = (1e-3 / 5 * np.sin(2 * np.pi * s[:, None] / lam + rng.uniform(0, 2 * np.pi, lam.size))).sum(1)
-    true = B.with_opt([2.0e7, 1.0e4, 5.0e6, 2.0e4])
-    X, Z = simulate_response(true, V, t, xi)
-    start = B.with_opt([3.0e7, 3.0e3, 3.0e6, 5.0e4])
-    res = identify_suspension(start, V, t, xi, {"y_m": X[:, 0], "psi_rad": X[:, 1], "yf_m": X[:, 2],
-                                                "frame_ay_m_s2": Z[:, 2]})
-    assert res.cost < 1e-8 < res.cost_initial
-    assert np.allclose(res.params.popt, true.popt, rtol=5e-3), res.params.popt
 
 
 def test_bogie_model_file_round_trip(tmp_path):

@@ -131,19 +131,27 @@ def test_curved_track_input_is_removed_exactly():
     assert np.abs(ec.alignment_m - es.alignment_m)[400:].max() < 2e-5
 
 
-def test_identification_recovers_known_suspension():
+@pytest.mark.parametrize("model, true_opt, start_opt, channels, rtol", [
+    ("paper", [3.0e6, 3.0e4, 1.0e6, 1.5e4], [6.0e6, 1.0e4, 2.5e6, 4.0e4], ("y_m", "psi_rad"), 2e-3),
+    ("bogie", [2.0e7, 1.0e4, 5.0e6, 2.0e4], [3.0e7, 3.0e3, 3.0e6, 5.0e4], ("y_m", "psi_rad", "yf_m", "frame_ay"), 5e-3),
+])
+def test_identification_recovers_known_suspension(model, true_opt, start_opt, channels, rtol):
+    from trolley.inservice.bogie import BogieParameters
+
+    base = P if model == "paper" else BogieParameters()
     V, dt = 20.0, 0.01
     t = np.arange(2000) * dt
     s = V * t
     rng = np.random.default_rng(7)
     lam = np.geomspace(5, 100, 25)
     xi = (1e-3 / 5 * np.sin(2 * np.pi * s[:, None] / lam + rng.uniform(0, 2 * np.pi, lam.size))).sum(1)
-    true = P.with_opt([3.0e6, 3.0e4, 1.0e6, 1.5e4])
-    X, _ = simulate_response(true, V, t, xi)
-    start = P.with_opt([6.0e6, 1.0e4, 2.5e6, 4.0e4])
-    res = identify_suspension(start, V, t, xi, {"y_m": X[:, 0], "psi_rad": X[:, 1]})
+    true = base.with_opt(true_opt)
+    X, Z = simulate_response(true, V, t, xi)
+    ref = {"y_m": X[:, 0], "psi_rad": X[:, 1], "yf_m": X[:, 2], "frame_ay": Z[:, 2]}
+    ref = {("frame_ay_m_s2" if c == "frame_ay" else c): ref[c] for c in channels}
+    res = identify_suspension(base.with_opt(start_opt), V, t, xi, ref)
     assert res.cost < 1e-8 < res.cost_initial
-    assert np.allclose(res.params.popt, true.popt, rtol=2e-3), res.params.popt
+    assert np.allclose(res.params.popt, true.popt, rtol=rtol), res.params.popt
 
 
 def test_covariances_from_residuals_recover_q_and_r():

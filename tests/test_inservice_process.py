@@ -19,6 +19,21 @@ from trolley.inservice.identification import EstimatorModel
 from trolley.inservice.model import ModelParameters, simulate_response
 
 P = ModelParameters()
+#: the [vehicle] keys beyond the SM's (the whole car's geometry)
+EXTRA = {"half_wheelbase_m": 1.28, "half_bogie_spacing_m": 9.5, "m_frame_kg": 2615.0, "m_body_kg": 32000.0}
+
+
+def write_model_recording(folder, p, t, xi, V=20.0, start_m=0.0, nominal=None, extra=None):
+    """A noise-free recording of design model ``p`` itself running at V over the alignment xi(t)."""
+    _, Z = simulate_response(p, V, t, xi)
+    rate = 1.0 / float(t[1] - t[0])
+    rec = io.InserviceRecording(
+        nominal=nominal or asdict(P), vehicle_extra=extra or EXTRA, speed_m_s=V, rate_hz=rate,
+        start_chainage_m=start_m, curvature_1_m=0.0, sigma_acc_m_s2=0.01, sigma_gyro_rad_s=5e-4,
+        wheelset_sensor_m=(10.78, 1.0, 0.46), frame_sensor_m=(9.5, 0.0, 0.6), t_s=t, s_m=V * t + start_m,
+        speed_arr_m_s=np.full_like(t, V), wheelset_ay_m_s2=Z[:, 0], wheelset_wz_rad_s=Z[:, 1],
+        frame_ay_m_s2=Z[:, 2])
+    io.write_recording(folder, rec)
 
 
 @pytest.fixture(scope="module")
@@ -30,15 +45,7 @@ def recording(tmp_path_factory):
     t = np.arange(1501) * dt
     s = V * t
     xi = 1e-3 * np.sin(2 * np.pi * s / 12.0)
-    _, Z = simulate_response(P, V, t, xi)
-    rec = io.InserviceRecording(
-        nominal=asdict(P), vehicle_extra={"half_wheelbase_m": 1.28, "half_bogie_spacing_m": 9.5,
-                                          "m_frame_kg": 2615.0, "m_body_kg": 32000.0},
-        speed_m_s=V, rate_hz=200.0, start_chainage_m=100.0, curvature_1_m=0.0, sigma_acc_m_s2=0.01,
-        sigma_gyro_rad_s=5e-4, wheelset_sensor_m=(10.78, 1.0, 0.46), frame_sensor_m=(9.5, 0.0, 0.6),
-        t_s=t, s_m=s + 100.0, speed_arr_m_s=np.full_like(t, V), wheelset_ay_m_s2=Z[:, 0],
-        wheelset_wz_rad_s=Z[:, 1], frame_ay_m_s2=Z[:, 2])
-    io.write_recording(tmp / "recording", rec)
+    write_model_recording(tmp / "recording", P, t, xi, V, start_m=100.0)
     io.write_truth(tmp / "truth.csv", s + 100.0, xi, np.zeros_like(s), 0.0)
     return tmp
 
@@ -131,17 +138,11 @@ def test_process_writes_the_band_passed_alignment_with_its_sigma(tmp_path):
     t = np.arange(3001) * dt
     s = V * t
     xi = 1e-3 * np.sin(2 * np.pi * s / 8.0) + 1e-3 * np.sin(2 * np.pi * s / 20.0)
-    _, Z = simulate_response(b, V, t, xi)
     nominal = {**asdict(P), **{k: getattr(b, k) for k in ("m", "I", "l", "ls", "conicity", "r0", "f11", "f22",
                                                           "kx", "cx", "ky", "cy")}}
     extra = {"half_wheelbase_m": b.a, "half_bogie_spacing_m": 9.5, "m_frame_kg": b.mf, "m_body_kg": 2 * b.mb,
              **{k: getattr(b, v) for k, v in io.BOGIE_KEYS.items()}}
-    rec = io.InserviceRecording(
-        nominal=nominal, vehicle_extra=extra, speed_m_s=V, rate_hz=200.0, start_chainage_m=0.0, curvature_1_m=0.0,
-        sigma_acc_m_s2=0.01, sigma_gyro_rad_s=5e-4, wheelset_sensor_m=(10.78, 1.0, 0.46),
-        frame_sensor_m=(9.5, 0.0, 0.6), t_s=t, s_m=s, speed_arr_m_s=np.full_like(t, V), wheelset_ay_m_s2=Z[:, 0],
-        wheelset_wz_rad_s=Z[:, 1], frame_ay_m_s2=Z[:, 2])
-    io.write_recording(tmp_path / "rec", rec)
+    write_model_recording(tmp_path / "rec", b, t, xi, V, nominal=nominal, extra=extra)
     assert io.bogie_nominal(io.read_recording(tmp_path / "rec")) == {**{k: getattr(b, k) for k in (
         "m", "I", "l", "ls", "conicity", "r0", "f11", "f22", "kx", "cx", "ky", "cy", "a", "mf", "mb")},
         **{v: getattr(b, v) for v in io.BOGIE_KEYS.values()}}

@@ -3,17 +3,15 @@ truth simulator's runs and in `trolley inservice process`."""
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
-
 import numpy as np
 import pandas as pd
 import pytest
 from test_inservice_io import _app
+from test_inservice_process import write_model_recording
 from typer.testing import CliRunner
 
-from survey import inservice_io as io
 from trolley.inservice.irregularity import irregularity_from_psd
-from trolley.inservice.model import ModelParameters, simulate_response
+from trolley.inservice.model import ModelParameters
 from trolley.inservice.resample import decimated, decimation_factor
 from trolley.inservice.vehicle import VehicleParameters, simulate_run
 
@@ -61,15 +59,7 @@ def test_process_decimates_a_fast_recording_to_the_filter_rate(tmp_path):
         t = np.arange(int(7.5 * rate) + 1) / rate
         s = V * t
         xi = 1e-3 * np.sin(2 * np.pi * s / 12.0)
-        _, Z = simulate_response(P, V, t, xi)
-        rec = io.InserviceRecording(
-            nominal=asdict(P), vehicle_extra={"half_wheelbase_m": 1.28, "half_bogie_spacing_m": 9.5,
-                                              "m_frame_kg": 2615.0, "m_body_kg": 32000.0},
-            speed_m_s=V, rate_hz=rate, start_chainage_m=0.0, curvature_1_m=0.0, sigma_acc_m_s2=0.01,
-            sigma_gyro_rad_s=5e-4, wheelset_sensor_m=(10.78, 1.0, 0.46), frame_sensor_m=(9.5, 0.0, 0.6),
-            t_s=t, s_m=s, speed_arr_m_s=np.full_like(t, V), wheelset_ay_m_s2=Z[:, 0], wheelset_wz_rad_s=Z[:, 1],
-            frame_ay_m_s2=Z[:, 2])
-        io.write_recording(tmp_path / f"r{rate:g}", rec)
+        write_model_recording(tmp_path / f"r{rate:g}", P, t, xi, V)
         out = tmp_path / f"o{rate:g}"
         res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / f"r{rate:g}"), "--out", str(out)])
         assert res.exit_code == 0, res.output
