@@ -46,7 +46,8 @@ import numpy as np
 
 from trolley.inservice.accuracy import band_accuracy, honesty
 from trolley.inservice.bogie import BogieParameters, nominal_from_vehicle
-from trolley.inservice.estimator import band_alignment, discrete_model, estimate, observability_rank
+from trolley.inservice.estimator import (band_alignment, band_error_covariance, discrete_model, estimate,
+                                         honesty_spread, observability_rank)
 from trolley.inservice.identification import HONESTY_BAND_M, calibrate
 from trolley.inservice.irregularity import harmonic_irregularity, irregularity_from_psd
 from trolley.inservice.model import ModelParameters, eigenfrequencies
@@ -191,6 +192,15 @@ def standard(kind, mdl, runs):
     print(f"3-200 m J per seed: min {min(j):.3f}, max {max(j):.3f} mm, {sum(x <= 0.30 for x in j)} of {len(j)} <= 0.30;"
           f" honesty min {min(hb):.2f}, max {max(hb):.2f}, {sum(0.7 <= h <= 1.3 for h in hb)} of {len(hb)} in 0.7-1.3")
     print("true alignment rms per band (mm): " + ", ".join(f"{b} {mean[b].rms_true_m * 1e3:.2f}" for b in mean))
+    # what honest sigmas leave to chance on one 400 m run: draws from the filter's own band covariance
+    run = next(iter(runs.values()))
+    est = estimate(mdl.params, run.t_s, run.s_m, run.speed_m_s, run.sensors(), Q=mdl.Q, R=mdl.R, S=mdl.S)
+    g, cov = band_error_covariance(est, *HONESTY_BAND_M, sigma_scale=mdl.sigma_scale)
+    ok = g >= g[0] + SETTLE_M
+    neff, p_h, p_j = honesty_spread(cov[np.ix_(ok, ok)], j_limit_m=0.30e-3)
+    print(f"if the sigmas were exactly right (band covariance of seed {next(iter(runs))}): one run is worth {neff:.1f} "
+          f"independent samples; P(honesty in 0.7-1.3) = {p_h:.3f} (all {len(res)} runs: {p_h ** len(res):.3f}); "
+          f"expected J {np.sqrt(np.mean(np.diag(cov)[ok])) * 1e3:.3f} mm, P(J <= 0.30 mm) = {p_j:.3f}")
 
 
 def robustness(mdl, kind, vp, s0, std_run):

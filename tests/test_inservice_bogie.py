@@ -157,3 +157,25 @@ def test_bogie_model_file_round_trip(tmp_path):
     r = read_model(tmp_path / "model.toml")
     assert r.params == m.params and np.array_equal(r.Q, m.Q) and np.array_equal(r.S, m.S)
     assert r.params.n_state == n
+
+
+def test_band_error_covariance_is_the_band_sigma_and_sets_the_spread_of_honesty():
+    # its diagonal is band_alignment's sigma^2; drawing errors from it, the rms(error/sigma) of one
+    # record scatters as a chi distribution with about the effective number of samples
+    P = ModelParameters()
+    t, s, X, Z, noise = _own_model_run(P, 2400, 2, xi_density=4e-8)
+    e = estimate(P, t, s, 20.0, Z, noise=noise, initial_covariance=np.eye(7) * 1e-14)
+    g, cov = est_mod.band_error_covariance(e, 3.0, 200.0, sigma_scale=1.3)
+    g2, _, sb = band_alignment(e, 3.0, 200.0, sigma_scale=1.3)
+    assert np.array_equal(g, g2)
+    assert np.allclose(np.sqrt(np.diag(cov)), sb, rtol=1e-6, atol=1e-12)
+    neff, p_h, p_j = est_mod.honesty_spread(cov, j_limit_m=np.sqrt(np.mean(np.diag(cov))))
+    assert 1.0 < neff < len(g)
+    # a chi^2 with neff degrees of freedom puts rms(error/sigma) in 0.7-1.3 with about this probability
+    from scipy.stats import chi2
+    p_chi = chi2.cdf(1.3 ** 2 * neff, neff) - chi2.cdf(0.7 ** 2 * neff, neff)
+    assert p_h == pytest.approx(p_chi, abs=0.08)
+    assert 0.3 < p_j < 0.8          # J at most its own rms value: about half the records
+    # an identity covariance (independent samples): the rms of n = 400 unit normals is 1 +- 0.035
+    neff, p_h, _ = est_mod.honesty_spread(np.eye(400))
+    assert neff == pytest.approx(400) and p_h > 0.999

@@ -422,6 +422,59 @@ BAND_BLOCK_M = 1000.0
 BAND_MARGIN_WAVES = 2.0
 
 
+def band_error_covariance(est: AlignmentEstimate, short_m: float, long_m: float, sigma_scale: float = 1.0):
+    """Covariance of the band-passed alignment error between all points of a record's grid,
+    B Cov(e) B^T (:func:`band_alignment` gives its diagonal), for records of at most one block.
+
+    With it the spread that honest sigmas leave in one record's rms(error / sigma) follows: that
+    rms is a quadratic form of a Gaussian vector with this covariance (see
+    :func:`honesty_spread`).
+
+    Returns
+    -------
+    grid_m : (G,) chainages, m (the grid of :func:`band_alignment`).
+    covariance : (G, G) m^2, times sigma_scale^2.
+    """
+    from trolley.bands import bandpass_wavelength
+
+    s = np.asarray(est.s_m, float)
+    if s[-1] - s[0] > 1.5 * BAND_BLOCK_M:
+        raise ValueError(f"band_error_covariance covers records up to {1.5 * BAND_BLOCK_M:g} m")
+    h = BAND_STEP_M
+    grid = s[0] + h * np.arange(int(np.floor((s[-1] - s[0]) / h + 1e-9)) + 1)
+    d = max(1, int(round(h / float(np.median(np.diff(s))))))
+    idx = np.unique(np.r_[np.arange(0, len(s), d), len(s) - 1])
+    L = _interpolation_matrix(s[idx], grid)
+    Cg = L @ (L @ _coarse_alignment_covariance(est, idx)).T
+    BC = bandpass_wavelength(Cg, h, short_m, long_m, axis=0)
+    cov = bandpass_wavelength(np.ascontiguousarray(BC.T), h, short_m, long_m, axis=0)
+    return grid, sigma_scale ** 2 * 0.5 * (cov + cov.T)
+
+
+def honesty_spread(covariance: np.ndarray, low: float = 0.7, high: float = 1.3, j_limit_m: float | None = None,
+                   draws: int = 20000, seed: int = 0) -> tuple[float, float, float | None]:
+    """How one record's rms(error / sigma) and J = rms(error) scatter when the sigmas are exactly right.
+
+    ``draws`` records of errors are drawn from N(0, covariance); each record's rms(error / sigma),
+    sigma = sqrt(diag(covariance)), and rms(error) are formed.
+
+    Returns
+    -------
+    effective_samples : n^2 / tr(R^2), R the correlation matrix: the number of independent
+        samples the record is worth.
+    p_honest : fraction of records whose rms(error / sigma) lies in [low, high].
+    p_j : fraction of records whose J is at most ``j_limit_m`` (None without a limit).
+    """
+    sd = np.sqrt(np.diag(covariance))
+    R = covariance / np.outer(sd, sd)
+    w, U = np.linalg.eigh(R)
+    w = np.clip(w, 0.0, None)
+    z = (np.random.default_rng(seed).standard_normal((draws, len(w))) * np.sqrt(w)) @ U.T
+    rms = np.sqrt(np.mean(z ** 2, axis=1))
+    p_j = None if j_limit_m is None else float(np.mean(np.sqrt(np.mean((z * sd) ** 2, axis=1)) <= j_limit_m))
+    return float(len(w) ** 2 / np.sum(w ** 2)), float(np.mean((rms >= low) & (rms <= high))), p_j
+
+
 def band_alignment(est: AlignmentEstimate, short_m: float, long_m: float, sigma_scale: float = 1.0,
                    truth_m=None):
     """The alignment band-passed to short_m-long_m (the EN 13848 wavelength range, trolley.bands)
