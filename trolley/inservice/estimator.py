@@ -36,7 +36,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from trolley.inservice.model import N_MEAS, N_STATE, XI_INDEX, ModelParameters
+from trolley.inservice.model import N_MEAS, N_STATE, XI_INDEX, DesignParameters
 
 #: speeds are grouped into bins of this width (m/s) for the speed-dependent F, Q
 SPEED_BIN_M_S = 0.1
@@ -123,16 +123,16 @@ class DiscreteModel:
     Q: np.ndarray
 
 
-def discrete_model(p: ModelParameters, speed_m_s: float, dt: float, Q=None,
+def discrete_model(p: DesignParameters, speed_m_s: float, dt: float, Q=None,
                    noise: NoiseDensities | None = None) -> DiscreteModel:
-    """F, G (curvature input), H, D and Q of the SM at one speed.
+    """F, G (curvature input), H, D and Q of a design model at one speed.
 
     Parameters
     ----------
-    p : model parameters.
+    p : design model parameters (model.ModelParameters, the paper's SM, or bogie.BogieParameters).
     speed_m_s : forward speed, m/s.
     dt : sample interval, s.
-    Q : (7, 7) discrete process covariance per step (e.g. from Eq. 26-27), or None to build it
+    Q : (n, n) discrete process covariance per step (e.g. from Eq. 26-27), or None to build it
         from ``noise`` by Van Loan.
     noise : continuous densities used when Q is None (default NoiseDensities()).
 
@@ -176,9 +176,10 @@ class AlignmentEstimate:
     Attributes
     ----------
     t_s, s_m : sample times (s) and chainages (m).
-    x : (N, 7) state estimates (smoothed when the smoother ran, else filtered).
-    sigma : (N, 7) square roots of the diagonal of the state covariance.
-    x_filtered : (N, 7) forward-filter estimates.
+    x : (N, n) state estimates (smoothed when the smoother ran, else filtered); n = 7 for the
+        paper's model (Eq. 7), 20 for the bogie model, the alignment at index 6 in both.
+    sigma : (N, n) square roots of the diagonal of the state covariance.
+    x_filtered : (N, n) forward-filter estimates.
     smoother : "rts" or "none".
     transitions : (N, n, n) how the estimation errors of neighbouring samples are linked, for
         :func:`band_alignment`: with the smoother its gains C_k (e_k = C_k e_(k+1) + a part
@@ -234,27 +235,28 @@ def _initial_covariance(n_state: int = N_STATE) -> np.ndarray:
     return np.diag(np.r_[sig, np.full(n_state - len(sig), 5e-3)]) ** 2
 
 
-def estimate(p: ModelParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=None,
+def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=None,
              noise: NoiseDensities | None = None, curvature_1_m=None,
              smoother: str = "rts", initial_covariance=None, S=None) -> AlignmentEstimate:
     """Estimate the lateral alignment along a run (Munoz 2021 Sec. IV, plus an RTS smoother).
 
     Parameters
     ----------
-    p : SM parameters (nominal, or with p_opt identified by identification.py).
+    p : design model parameters, the SM (model.ModelParameters) or the bogie model
+        (bogie.BogieParameters); nominal, or with p_opt identified by identification.py.
     t_s : (N,) sample times, s (uniform).
     s_m : (N,) chainage of the instrumented wheelset, m.
     speed_m_s : (N,) or scalar forward speed, m/s.
     measurements : (N, 3) [wheelset lateral acc (m/s^2), wheelset yaw rate (rad/s), frame lateral
         acc (m/s^2)]; the virtual xi = 0 is appended here (Eq. 8).
     R : (4, 4) measurement covariance (Eq. 29), default ``noise.r()``.
-    Q : (7, 7) discrete process covariance per step (Eq. 27), default from ``noise`` (Van Loan).
+    Q : (n, n) discrete process covariance per step (Eq. 27), default from ``noise`` (Van Loan).
     noise : continuous densities and sensor sigmas for the defaults.
     curvature_1_m : (N,) or scalar design curvature (1/m, positive to the left) or None.
     smoother : "rts" (filterpy.kalman.rts_smoother) or "none" (forward filter only, as the paper).
-    initial_covariance : (7, 7) P0 (Eq. 19) around x0 = 0 (Eq. 18); default: 5 mm, 2 mrad and their
+    initial_covariance : (n, n) P0 (Eq. 19) around x0 = 0 (Eq. 18); default: 5 mm, 2 mrad and their
         rates of a few cm/s.
-    S : (7, 4) cross covariance E[v_k w_(k-1)^T] of the process noise of step k and the measurement
+    S : (n, 4) cross covariance E[v_k w_(k-1)^T] of the process noise of step k and the measurement
         error of the sample before it (identification.covariances_from_residuals), or None
         (uncorrelated, the paper). Given S, the previous measurement becomes an input
         (x_k = (F - J H) x_(k-1) + J z_(k-1) + v_k - J w_(k-1), J = S R^-1, process covariance

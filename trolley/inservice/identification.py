@@ -21,9 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trolley.inservice.estimator import DiscreteModel
 from trolley.inservice.bogie import N_MECH as N_MECH_BOGIE
-from trolley.inservice.model import MEASUREMENT_NAMES, STATE_NAMES, XI_INDEX, ModelParameters, simulate_response
+from trolley.inservice.estimator import DiscreteModel
+from trolley.inservice.model import (MEASUREMENT_NAMES, STATE_NAMES, XI_INDEX, DesignParameters,
+                                     simulate_response)
 
 
 #: bounds of p_opt = [kx, cx, ky, cy] (N/m, N s/m per axle box): the dampers are capped at 1 MN s/m,
@@ -36,14 +37,14 @@ BOUNDS = (np.array([1e3, 1e2, 1e3, 1e2]), np.array([1e9, 1e6, 1e9, 1e6]))
 class IdentificationResult:
     """Identified parameters, the normalised Eq. 6 cost at the start and at the optimum."""
 
-    params: ModelParameters
+    params: DesignParameters
     cost_initial: float
     cost: float
     nfev: int
     channels: tuple[str, ...]
 
 
-def sm_channels(p: ModelParameters, speed_m_s: float, t_s, xi_m, channels, curvature_1_m=None) -> np.ndarray:
+def sm_channels(p: DesignParameters, speed_m_s: float, t_s, xi_m, channels, curvature_1_m=None) -> np.ndarray:
     """Chosen channels (names in STATE_NAMES or MEASUREMENT_NAMES[:3]) of the SM response, (N, C)."""
     X, Z = simulate_response(p, speed_m_s, t_s, xi_m, curvature_1_m)
     cols = []
@@ -57,7 +58,7 @@ def sm_channels(p: ModelParameters, speed_m_s: float, t_s, xi_m, channels, curva
     return np.column_stack(cols)
 
 
-def identify_suspension(p0: ModelParameters, speed_m_s: float, t_s, xi_m, reference: dict,
+def identify_suspension(p0: DesignParameters, speed_m_s: float, t_s, xi_m, reference: dict,
                         skip_s: float = 2.0, curvature_1_m=None) -> IdentificationResult:
     """Equivalent primary suspension p_opt = [kx, cx, ky, cy] by least squares (Eq. 6).
 
@@ -106,12 +107,12 @@ def covariances_from_residuals(model: DiscreteModel, X, Z):
     Parameters
     ----------
     model : discrete SM (F, H) at the reference run's speed and sample interval.
-    X : (N, 7) reference states [y, psi, y_f, y', psi', y_f', xi] (from the CM).
+    X : (N, n) reference states (from the CM; [y, psi, y_f, y', psi', y_f', xi] for the SM).
     Z : (N, 4) measurements [y'', psi', y_f'', 0] (sensor data with noise, virtual xi = 0).
 
     Returns
     -------
-    Q : (7, 7) mean of e_x e_x^T, e_x,k = x_k - F x_(k-1) (Eq. 26-27).
+    Q : (n, n) mean of e_x e_x^T, e_x,k = x_k - F x_(k-1) (Eq. 26-27).
     R : (4, 4) mean of e_z e_z^T, e_z,k = z_k - H x_k (Eq. 28-29).
     """
     X = np.asarray(X, float)
@@ -131,11 +132,12 @@ CALIBRATION_CHANNELS = ("y_m", "psi_rad", "yf_m", "wheelset_ay_m_s2", "wheelset_
 
 @dataclass(frozen=True)
 class EstimatorModel:
-    """Everything the estimator needs besides the sensors: the SM with identified p_opt, the
-    discrete Q (7x7, per step of ``dt_s``) and R (4x4), and the factor the reported sigmas are
+    """Everything the estimator needs besides the sensors: the design model (the SM or the bogie
+    model) with identified p_opt, the
+    discrete Q (n x n, per step of ``dt_s``) and R (4x4), and the factor the reported sigmas are
     multiplied by (``sigma_scale``, from the calibration run's error / sigma)."""
 
-    params: ModelParameters
+    params: DesignParameters
     Q: np.ndarray
     R: np.ndarray
     dt_s: float
@@ -144,7 +146,7 @@ class EstimatorModel:
     q_dynamics_factor: float = 1.0
     q_xi_factor: float = 1.0
     sigma_xi_virtual_m: float = 5e-3
-    #: (7, 4) cross covariance of the process noise and the previous measurement's error
+    #: (n, 4) cross covariance of the process noise and the previous measurement's error
     #: (cross_covariance_from_residuals), or None (the paper's uncorrelated noises)
     S: np.ndarray | None = None
 
@@ -178,11 +180,11 @@ def cross_covariance_from_residuals(model: DiscreteModel, X, Z) -> np.ndarray:
     Parameters
     ----------
     model : discrete SM (F, H) at the reference run's speed and sample interval.
-    X : (N, 7) reference states; Z : (N, 4) measurements (virtual xi = 0 last).
+    X : (N, n) reference states; Z : (N, 4) measurements (virtual xi = 0 last).
 
     Returns
     -------
-    S : (7, 4) cross covariance, for :func:`trolley.inservice.estimator.estimate`.
+    S : (n, 4) cross covariance, for :func:`trolley.inservice.estimator.estimate`.
     """
     X = np.asarray(X, float)
     Z = np.asarray(Z, float)
@@ -255,7 +257,7 @@ def pooled_sigma_scale(mdl: "EstimatorModel", runs, skip_m: float = 30.0, smooth
     return float(np.sqrt(num / cnt))
 
 
-def calibrate(p0: ModelParameters, speed_m_s: float, t_s, s_m, states, measurements,
+def calibrate(p0: DesignParameters, speed_m_s: float, t_s, s_m, states, measurements,
               skip_m: float = 30.0, smoother: str = "rts", correlated: bool = True,
               extra_runs=None, tune_on_extra_runs: bool = False) -> EstimatorModel:
     """Identify the SM and tune the filter on one reference run of the complete model.
