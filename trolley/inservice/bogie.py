@@ -72,6 +72,7 @@ XI_POS = 6
 N_MECH = 15
 STATE_NAMES = ("y_m", "psi_rad", "yf_m", "vy_m_s", "wz_rad_s", "vyf_m_s", "xi_m", "y2_m", "psi2_rad",
                "psif_rad", "vy2_m_s", "wz2_rad_s", "wzf_rad_s", "yb_m", "vyb_m_s")
+STATE_KINDS = ("y", "psi", "y", "vy", "wz", "vy", "xi", "y", "psi", "psi", "vy", "wz", "wz", "y", "vy")
 
 
 @lru_cache(maxsize=8)
@@ -148,6 +149,11 @@ class BogieParameters(DesignParameters):
     @property
     def n_state(self) -> int:
         return N_MECH + int(self.pade_order)
+
+    @property
+    def state_kinds(self) -> tuple[str, ...]:
+        """Kinds of the states (model.DesignParameters.state_kinds), in the order of STATE_NAMES."""
+        return STATE_KINDS + ("delay",) * int(self.pade_order)
 
     @property
     def gravitational_stiffness(self) -> float:

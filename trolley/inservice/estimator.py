@@ -36,7 +36,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from trolley.inservice.model import N_MEAS, N_STATE, XI_INDEX, DesignParameters
+from trolley.inservice.model import N_MEAS, STATE_KINDS, XI_INDEX, DesignParameters
 
 #: speeds are grouped into bins of this width (m/s) for the speed-dependent F, Q
 SPEED_BIN_M_S = 0.1
@@ -98,13 +98,11 @@ class NoiseDensities:
     sigma_gyro_rad_s: float = 5.0e-4
     sigma_xi_virtual_m: float = 5.0e-3
 
-    def qc(self, speed_m_s: float, n_state: int = N_STATE) -> np.ndarray:
-        """Continuous Qc (n x n) at a given speed: the SM's 7 states, and for the bogie model
-        (trolley.inservice.bogie) the trailing wheelset's and the frame's yaw rates too."""
-        d = [0, 0, 0, self.force_m2_s3, self.yaw_rad2_s3, self.force_m2_s3, self.xi_m2_per_m * speed_m_s]
-        if n_state > N_STATE:
-            d += [0, 0, 0, self.force_m2_s3, self.yaw_rad2_s3, self.yaw_rad2_s3, 0, self.force_m2_s3]
-        return np.diag(np.r_[d, np.zeros(n_state - len(d))])
+    def qc(self, speed_m_s: float, state_kinds=STATE_KINDS) -> np.ndarray:
+        """Continuous Qc at a given speed for states of the given kinds
+        (DesignParameters.state_kinds): the densities drive the velocities and xi."""
+        per_kind = {"vy": self.force_m2_s3, "wz": self.yaw_rad2_s3, "xi": self.xi_m2_per_m * speed_m_s}
+        return np.diag([per_kind.get(k, 0.0) for k in state_kinds])
 
     def r(self) -> np.ndarray:
         """Measurement covariance R (4x4, Eq. 17)."""
@@ -142,7 +140,7 @@ def discrete_model(p: DesignParameters, speed_m_s: float, dt: float, Q=None,
     """
     Fc, Bc, Hc, Dc = p.state_space(speed_m_s)
     if Q is None:
-        F, G, Qd = discretize(Fc, Bc, dt, (noise or NoiseDensities()).qc(speed_m_s, Fc.shape[0]))
+        F, G, Qd = discretize(Fc, Bc, dt, (noise or NoiseDensities()).qc(speed_m_s, p.state_kinds))
     else:
         F, G, _ = discretize(Fc, Bc, dt)
         Qd = np.asarray(Q, float)
@@ -228,11 +226,12 @@ def _rts_from_priors(Xf, Pf, Xp, Pp, Fs):
     return Xs, Ps, np.concatenate([C, np.zeros((1,) + C.shape[1:])])
 
 
-def _initial_covariance(n_state: int = N_STATE) -> np.ndarray:
-    sig = [5e-3, 2e-3, 5e-3, 5e-2, 2e-2, 5e-2, 5e-3]
-    if n_state > N_STATE:      # bogie model: trailing wheelset, frame yaw, then the delay's states
-        sig += [5e-3, 2e-3, 2e-3, 5e-2, 2e-2, 2e-2, 5e-3, 5e-2]
-    return np.diag(np.r_[sig, np.full(n_state - len(sig), 5e-3)]) ** 2
+#: default initial sigmas per kind of state (Eq. 19): 5 mm, 2 mrad and their rates of a few cm/s
+INITIAL_SIGMA = {"y": 5e-3, "psi": 2e-3, "vy": 5e-2, "wz": 2e-2, "xi": 5e-3, "delay": 5e-3}
+
+
+def _initial_covariance(state_kinds=STATE_KINDS) -> np.ndarray:
+    return np.diag([INITIAL_SIGMA[k] for k in state_kinds]) ** 2
 
 
 def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=None,
@@ -312,7 +311,7 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
     kf.H = H
     kf.R = R
     kf.x = np.zeros((ns, 1))
-    kf.P = _initial_covariance(ns) if initial_covariance is None else np.asarray(initial_covariance, float)
+    kf.P = _initial_covariance(p.state_kinds) if initial_covariance is None else np.asarray(initial_covariance, float)
     Xf = np.empty((n, ns))
     Pf = np.empty((n, ns, ns))
     Af = np.empty((n, ns, ns)) if smoother == "none" else None

@@ -21,9 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trolley.inservice.bogie import N_MECH as N_MECH_BOGIE
 from trolley.inservice.estimator import DiscreteModel
-from trolley.inservice.model import (MEASUREMENT_NAMES, STATE_NAMES, XI_INDEX, DesignParameters,
+from trolley.inservice.model import (MEASUREMENT_NAMES, STATE_KINDS, STATE_NAMES, DesignParameters,
                                      simulate_response)
 
 
@@ -196,7 +195,7 @@ def cross_covariance_from_residuals(model: DiscreteModel, X, Z) -> np.ndarray:
 
 
 def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_xi_factor: float,
-                      sigma_xi_virtual_m: float, S: np.ndarray | None = None):
+                      sigma_xi_virtual_m: float, S: np.ndarray | None = None, state_kinds=STATE_KINDS):
     """Q, R from the Eq. 27/29 estimates with the three tuning factors applied.
 
     Without S: the diagonals of Q and R, the dynamics part of Q times ``q_dynamics_factor``, the xi
@@ -205,11 +204,12 @@ def tuned_covariances(Q: np.ndarray, R: np.ndarray, q_dynamics_factor: float, q_
     Qp = Q - S R^-1 S^T (a Schur complement of the residuals' joint covariance, so >= 0), as
     D Qp D with D = diag(sqrt(factors)); the returned Q is D Qp D + S R^-1 S^T, the full process
     covariance :func:`~trolley.inservice.estimator.estimate` expects with S. R keeps the sensors'
-    full 3x3 block; the virtual measurement is uncorrelated.
+    full 3x3 block; the virtual measurement is uncorrelated. Which states are "xi part" (xi and the
+    states that carry it to a later wheelset) comes from ``state_kinds``
+    (DesignParameters.state_kinds; default the SM's Eq. 7).
     """
-    f = np.full(len(Q), float(q_dynamics_factor))
-    f[XI_INDEX] = q_xi_factor
-    f[N_MECH_BOGIE:] = q_xi_factor       # the bogie model's delay states carry xi to the trailing wheelset
+    # xi and the states that carry it to a later wheelset take the xi factor, all others the dynamics'
+    f = np.array([q_xi_factor if k in ("xi", "delay") else q_dynamics_factor for k in state_kinds], float)
     if S is None:
         Qt = np.diag(np.diag(Q) * f)
         Rt = np.diag(np.diag(R)).copy()
@@ -323,7 +323,7 @@ def calibrate(p0: DesignParameters, speed_m_s: float, t_s, s_m, states, measurem
     tune = runs if tune_on_extra_runs else runs[:1]
 
     def cost(logf):
-        Qt, Rt = tuned_covariances(Q, R, *np.exp(logf), S=S)
+        Qt, Rt = tuned_covariances(Q, R, *np.exp(logf), S=S, state_kinds=p.state_kinds)
         js = []
         for tr, sr, vr, zr, xir in tune:
             use = sr >= sr[0] + skip_m
@@ -334,7 +334,7 @@ def calibrate(p0: DesignParameters, speed_m_s: float, t_s, s_m, states, measurem
 
     f0 = np.log([1.0, 30.0, 0.4] if correlated else [0.1, 30.0, 0.3])
     sol = minimize(cost, f0, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-6, "maxfev": 60})
-    Qt, Rt = tuned_covariances(Q, R, *np.exp(sol.x), S=S)
+    Qt, Rt = tuned_covariances(Q, R, *np.exp(sol.x), S=S, state_kinds=p.state_kinds)
     f = np.exp(sol.x)
     mdl = EstimatorModel(p, Qt, Rt, dt, 1.0, float(f[0]), float(f[1]), float(f[2]), S)
     return replace(mdl, sigma_scale=pooled_sigma_scale(mdl, runs, skip_m, smoother))

@@ -65,6 +65,8 @@ N_STATE = 7
 N_MEAS = 4
 #: index of the alignment xi in the state (Eq. 7; the bogie model keeps it there)
 XI_INDEX = 6
+#: kinds of the states of Eq. 7 (DesignParameters.state_kinds)
+STATE_KINDS = ("y", "psi", "y", "vy", "wz", "vy", "xi")
 
 
 class DesignParameters:
@@ -75,6 +77,13 @@ class DesignParameters:
     #: names of the parameters identified by optimisation (Eq. 5)
     OPT = ("kx", "cx", "ky", "cy")
     POSITIVE: tuple[str, ...] = ()
+
+    @property
+    def state_kinds(self) -> tuple[str, ...]:
+        """What each state is, for the defaults that depend on it (estimator's Qc and P0, the
+        tuning of identification): "y" lateral position, "psi" yaw, "vy" lateral velocity, "wz"
+        yaw rate, "xi" the alignment, "delay" a state carrying xi to a later wheelset."""
+        return STATE_KINDS
 
     def _check(self, what: str) -> None:
         for k, v in asdict(self).items():
