@@ -45,12 +45,12 @@ import time
 import numpy as np
 
 from trolley.inservice.accuracy import band_accuracy, honesty
-from trolley.inservice.bogie import BogieParameters, nominal_from_vehicle
+from trolley.inservice.bogie import nominal_parameters
 from trolley.inservice.estimator import (band_alignment, band_error_covariance, discrete_model, estimate,
                                          honesty_spread, observability_rank)
 from trolley.inservice.identification import HONESTY_BAND_M, calibrate
 from trolley.inservice.irregularity import harmonic_irregularity, irregularity_from_psd
-from trolley.inservice.model import ModelParameters, eigenfrequencies
+from trolley.inservice.model import eigenfrequencies
 from trolley.inservice.resample import FILTER_RATE_HZ, decimation_factor
 from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, simulate_run, with_factors
 
@@ -102,10 +102,6 @@ def run_case(vp, seed, lateral=1.0, vertical=1.0, noise=True, harmonic=None, kap
     return run.decimated(RATE["q"])
 
 
-def nominal(vp, kind):
-    return BogieParameters(**nominal_from_vehicle(vp)) if kind == "bogie" else ModelParameters(**vp.nominal())
-
-
 def rms(values):
     return float(np.sqrt(np.mean(np.square(values))))
 
@@ -142,7 +138,7 @@ def main() -> None:
     if "standard" in args.sections or set(args.sections) & {"robustness", "resonance", "curved"}:
         for kind in args.kinds:
             t0 = time.process_time()
-            mdl = calibrate(nominal(vp, kind), V, ref.t_s, ref.s_m, ref.reference_states(kind), ref.sensors(),
+            mdl = calibrate(nominal_parameters(vp, kind), V, ref.t_s, ref.s_m, ref.reference_states(kind), ref.sensors(),
                             extra_runs=extra_runs)
             models[kind] = mdl
             p = mdl.params
@@ -231,7 +227,7 @@ def curved(mdl, kind, vp, s0, radius_m):
 def forward(vp, ref, runs, extra_runs):
     """The paper's estimator: the paper's model, forward filter only, calibrated for it."""
     t0 = time.process_time()
-    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, ref.reference_states("paper"),
+    mdl = calibrate(nominal_parameters(vp, "paper"), V, ref.t_s, ref.s_m, ref.reference_states("paper"),
                     ref.sensors(), smoother="none", extra_runs=extra_runs)
     print(f"\nforward-only calibration ({time.process_time() - t0:.1f} s CPU): Q factors dyn "
           f"{mdl.q_dynamics_factor:.3g} xi {mdl.q_xi_factor:.3g}, virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm,"
@@ -244,7 +240,7 @@ def forward(vp, ref, runs, extra_runs):
 
 def uncorrelated(vp, ref, runs, extra_runs):
     """The paper's model with uncorrelated Q and R (no S), filter + smoother."""
-    mdl = calibrate(ModelParameters(**vp.nominal()), V, ref.t_s, ref.s_m, ref.reference_states("paper"),
+    mdl = calibrate(nominal_parameters(vp, "paper"), V, ref.t_s, ref.s_m, ref.reference_states("paper"),
                     ref.sensors(), correlated=False, extra_runs=extra_runs)
     print(f"\nuncorrelated calibration: Q factors dyn {mdl.q_dynamics_factor:.3g} xi {mdl.q_xi_factor:.3g}, "
           f"virtual sigma {mdl.sigma_xi_virtual_m * 1e3:.1f} mm, sigma scale {mdl.sigma_scale:.3f}")

@@ -260,10 +260,9 @@ def calibrate_cmd(
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
     from survey.inservice_model import write_model
-    from trolley.inservice.bogie import BogieParameters, nominal_from_vehicle
+    from trolley.inservice.bogie import nominal_parameters
     from trolley.inservice.identification import calibrate
     from trolley.inservice.irregularity import irregularity_from_psd
-    from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimation_factor
     from trolley.inservice.vehicle import VehicleParameters, simulate_run
 
@@ -279,7 +278,7 @@ def calibrate_cmd(
             r = simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m, rate_hz=rate_hz,
                              seed=sd + 1).decimated(q)
             extra.append((r.t_s, r.s_m, speed_m_s, r.sensors(), r.alignment_m))
-    p0 = BogieParameters(**nominal_from_vehicle(vp)) if kind == "bogie" else ModelParameters(**vp.nominal())
+    p0 = nominal_parameters(vp, kind)
     with console.status("identifying and tuning"):
         mdl = calibrate(p0, speed_m_s, run.t_s, run.s_m, run.reference_states(kind), run.sensors(),
                         extra_runs=extra)

@@ -265,3 +265,16 @@ def nominal_from_vehicle(vehicle) -> dict:
             "f22": vehicle.f22, "k_yaw_s": 2 * vehicle.kx_s * vehicle.d_s ** 2,
             "c_yaw_s": 2 * vehicle.cx_s * vehicle.d_s ** 2, "kx": vehicle.kx_p, "cx": vehicle.cx_p,
             "ky": vehicle.ky_p, "cy": vehicle.cy_p}
+
+
+def nominal_parameters(vehicle, kind: str = "bogie"):
+    """The nominal design model of ``kind`` ("bogie" or "paper") for a truth VehicleParameters:
+    BogieParameters from :func:`nominal_from_vehicle`, or the paper's ModelParameters from
+    ``vehicle.nominal()``."""
+    from trolley.inservice.model import ModelParameters
+
+    if kind == "bogie":
+        return BogieParameters(**nominal_from_vehicle(vehicle))
+    if kind == "paper":
+        return ModelParameters(**vehicle.nominal())
+    raise ValueError(f"kind must be 'bogie' or 'paper', got {kind!r}")
