@@ -2,10 +2,11 @@
 
 Holds a :class:`trolley.inservice.identification.EstimatorModel`: the design model's kind
 (``kind = "bogie"``, trolley.inservice.bogie, or ``"paper"``, the simplified model of Munoz 2021;
-files without the key are "paper") and its parameters (Munoz 2021 Eq. 4, with p_opt identified by Eq. 6), the diagonals of Q (per step of
-``dt_s``) and R (Eq. 26-29, tuned), the sigma scale, and with correlated noises the full Q, R and
-their cross covariance S. SI units throughout. Written atomically;
-the reader names the file and the key of any bad value.
+files without the key are "paper") and its parameters (Munoz 2021 Eq. 4, with p_opt identified by
+Eq. 6), the diagonals of Q (per step of ``dt_s``) and R (Eq. 26-29, tuned), the sigma scale, the
+calibration runs' rms normalized innovations (the reference of the consistency check; optional),
+and with correlated noises the full Q, R and their cross covariance S. SI units throughout.
+Written atomically; the reader names the file and the key of any bad value.
 """
 from __future__ import annotations
 
@@ -36,6 +37,10 @@ def model_toml_text(model) -> str:
               "r_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.R)) + "]",
               f"sigma_scale = {model.sigma_scale!r}", f"q_dynamics_factor = {model.q_dynamics_factor!r}",
               f"q_xi_factor = {model.q_xi_factor!r}", f"sigma_xi_virtual_m = {model.sigma_xi_virtual_m!r}"]
+    if model.innovation_rms is not None:
+        lines += ["# rms normalized innovations [wheelset acc, gyro, frame acc] on the calibration runs",
+                  "# (identification.model_consistency compares recordings with them)",
+                  "innovation_rms = [" + ", ".join(repr(float(v)) for v in model.innovation_rms) + "]"]
     if model.S is not None:
         n = len(model.Q)
         lines += [f"# correlated noises (identification.cross_covariance_from_residuals): full Q ({n}x{n}), R (4x4)",
@@ -100,8 +105,13 @@ def read_model(path: str | os.PathLike):
         Q = _vector(noi, "q_matrix", n * n, fname, signed=True).reshape(n, n)
         R = _vector(noi, "r_matrix", 16, fname, signed=True).reshape(4, 4)
         S = _vector(noi, "s_matrix", 4 * n, fname, signed=True).reshape(n, 4)
+    nu = None
+    if "innovation_rms" in noi:      # (optional: files written before the consistency check lack it)
+        nu = _vector(noi, "innovation_rms", 3, fname)
+        if not np.all(nu > 0):
+            raise ModelFileError(f"{fname}: noise.innovation_rms must be 3 numbers > 0, got {noi['innovation_rms']!r}")
     return EstimatorModel(params, Q, R, dt,
                           _number(noi, "sigma_scale", "noise", fname),
                           _number(noi, "q_dynamics_factor", "noise", fname),
                           _number(noi, "q_xi_factor", "noise", fname),
-                          _number(noi, "sigma_xi_virtual_m", "noise", fname), S)
+                          _number(noi, "sigma_xi_virtual_m", "noise", fname), S, nu)

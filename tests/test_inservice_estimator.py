@@ -8,10 +8,11 @@ import pytest
 
 from trolley.bands import band_gain
 from trolley.inservice.accuracy import band_accuracy, honesty
-from trolley.inservice.estimator import (NoiseDensities, discrete_model, estimate, observability_matrix,
-                                         observability_rank)
+from trolley.inservice.estimator import (NoiseDensities, discrete_model, estimate, innovation_rms,
+                                         observability_matrix, observability_rank)
 from trolley.inservice.identification import (EstimatorModel, covariances_from_residuals,
-                                              cross_covariance_from_residuals, identify_suspension)
+                                              cross_covariance_from_residuals, identify_suspension,
+                                              model_consistency)
 from trolley.inservice.model import (G_M_S2, ModelParameters, eigenfrequencies, matrices, simulate_response,
                                      state_space)
 
@@ -69,10 +70,10 @@ def test_observability_rank_is_seven_and_six_without_the_virtual_measurement():
     assert np.allclose(control.obsv(dm.F, dm.H), observability_matrix(dm.F, dm.H))
 
 
-def _own_model_run(n=3000, dt=0.005, V=20.0, seed=3, xi_density=1e-7):
+def _own_model_run(n=3000, dt=0.005, V=20.0, seed=3, xi_density=1e-7, p=P):
     rng = np.random.default_rng(seed)
     noise = NoiseDensities(force_m2_s3=1e-3, yaw_rad2_s3=1e-4, xi_m2_per_m=xi_density)
-    dm = discrete_model(P, V, dt, noise=noise)
+    dm = discrete_model(p, V, dt, noise=noise)
     L = np.linalg.cholesky(dm.Q + 1e-30 * np.eye(7))
     X = np.zeros((n, 7))
     w = rng.standard_normal((n, 7)) @ L.T
@@ -99,6 +100,47 @@ def test_filter_on_its_own_model_has_errors_within_sigma():
     for smoother, v in sq.items():
         nees = np.sqrt(np.mean(np.concatenate(v), axis=0))
         assert np.all((nees > 0.8) & (nees < 1.25)), (smoother, nees)
+
+
+def test_normalized_innovations_have_rms_one_on_the_filters_own_model():
+    # with the model and the noises exactly right the innovations are white with covariance
+    # H P H^T + R: rms 1 per channel (spread over 2700 samples ~0.014)
+    t, s, X, Z, noise, dm = _own_model_run(n=3000, seed=11)
+    est = estimate(P, t, s, 20.0, Z, noise=replace(noise, sigma_xi_virtual_m=10.0),
+                   initial_covariance=np.eye(7) * 1e-14)
+    nu = innovation_rms(est, skip_m=30.0)
+    assert np.all(np.abs(nu[:3] - 1.0) < 0.06), nu
+
+
+@pytest.mark.parametrize("flipped", [0, 1, 2])
+def test_model_consistency_flags_a_sensor_mounted_backwards(flipped):
+    # the SM's response to random alignments (German spectrum) plus white sensor noise, filtered
+    # with a tight Q: other alignments fit the reference run's innovations within 5 %; a sensor
+    # whose sign is reversed (mounted the wrong way round) raises a ratio several times
+    from trolley.inservice.irregularity import irregularity_from_psd
+
+    V, dt = 20.0, 0.005
+    t = np.arange(3000) * dt
+    s = V * t
+    noise = NoiseDensities(force_m2_s3=1e-6, yaw_rad2_s3=1e-7, xi_m2_per_m=1e-7, sigma_xi_virtual_m=10.0)
+
+    def recording(seed, flip=None):
+        track = irregularity_from_psd(150.0, seed=seed)
+        _, Z = simulate_response(P, V, t, np.interp(s, track.s_m - track.s_m[0], track.lateral_m))
+        Z = Z[:, :3] + np.random.default_rng(seed).standard_normal((len(t), 3)) * [0.01, 5e-4, 0.01]
+        if flip is not None:
+            Z[:, flip] *= -1.0
+        return estimate(P, t, s, V, Z, noise=noise)
+
+    mdl = EstimatorModel(P, discrete_model(P, V, dt, noise=noise).Q, noise.r(), dt,
+                         innovation_rms=innovation_rms(recording(1))[:3])
+    same = model_consistency(recording(2), mdl)
+    assert same.consistent and np.all(np.abs(same.ratio - 1.0) < 0.05), same.ratio
+    wrong = model_consistency(recording(2, flipped), mdl)
+    assert not wrong.consistent and wrong.ratio[flipped] > 1.4 and wrong.ratio.max() > 5.0, wrong.ratio
+    # the reference holds for the calibration's rate only
+    assert model_consistency(same_est := recording(3), mdl.at_dt(dt / 2)) is None
+    assert model_consistency(same_est, mdl.at_dt(dt * (1 + 1e-9))).consistent
 
 
 def test_filter_recovers_a_harmonic_alignment_from_noise_free_sensors():

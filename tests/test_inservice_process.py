@@ -23,9 +23,15 @@ P = ModelParameters()
 EXTRA = {"half_wheelbase_m": 1.28, "half_bogie_spacing_m": 9.5, "m_frame_kg": 2615.0, "m_body_kg": 32000.0}
 
 
-def write_model_recording(folder, p, t, xi, V=20.0, start_m=0.0, nominal=None, extra=None):
-    """A noise-free recording of design model ``p`` itself running at V over the alignment xi(t)."""
+def write_model_recording(folder, p, t, xi, V=20.0, start_m=0.0, nominal=None, extra=None, noise_seed=None,
+                          flip=None):
+    """A recording of design model ``p`` itself running at V over the alignment xi(t): noise-free, or
+    with the sensors' white noise drawn from ``noise_seed``; ``flip`` reverses one channel's sign."""
     _, Z = simulate_response(p, V, t, xi)
+    if noise_seed is not None:
+        Z = Z[:, :3] + np.random.default_rng(noise_seed).standard_normal((len(t), 3)) * [0.01, 5e-4, 0.01]
+    if flip is not None:
+        Z[:, flip] *= -1.0
     rate = 1.0 / float(t[1] - t[0])
     rec = io.InserviceRecording(
         nominal=nominal or asdict(P), vehicle_extra=extra or EXTRA, speed_m_s=V, rate_hz=rate,
@@ -116,7 +122,13 @@ def test_model_file_round_trip_and_errors(tmp_path):
     write_model(tmp_path / "model_s.toml", replace(m, Q=Qf, S=S))
     rs = read_model(tmp_path / "model_s.toml")
     assert np.array_equal(rs.Q, Qf) and np.array_equal(rs.S, S) and np.array_equal(rs.R, m.R)
-    assert r.S is None
+    assert r.S is None and r.innovation_rms is None
+    # the consistency reference is optional (older files) and checked when present
+    write_model(tmp_path / "model_nu.toml", replace(m, innovation_rms=np.array([0.14, 0.41, 0.19])))
+    assert np.array_equal(read_model(tmp_path / "model_nu.toml").innovation_rms, [0.14, 0.41, 0.19])
+    (tmp_path / "bad3.toml").write_text((tmp_path / "model_nu.toml").read_text().replace("[0.14,", "[-0.14,"))
+    with pytest.raises(ModelFileError, match="bad3.toml: noise.innovation_rms must be 3 finite numbers"):
+        read_model(tmp_path / "bad3.toml")
     bad = model_toml_text(m).replace("kx = 1000000.0", 'kx = "stiff"')
     (tmp_path / "bad.toml").write_text(bad)
     with pytest.raises(ModelFileError, match="bad.toml: parameters.kx must be a finite number"):
@@ -170,3 +182,53 @@ def test_process_writes_the_band_passed_alignment_with_its_sigma(tmp_path):
     from openpyxl import load_workbook
     ws = load_workbook(out / "inservice.xlsx").active
     assert [ws.cell(4, j).value for j in range(1, 6)] == list(df.columns)
+
+
+def test_process_checks_that_the_recording_fits_the_calibrated_model(tmp_path):
+    # recordings of the SM itself (random alignments, sensor noise) against a model file whose
+    # innovation reference comes from another such recording: a recording like it fits; one with
+    # the wheelset accelerometer mounted the wrong way round does not: warning on stderr, flagged in
+    # summary.json and the workbook, and the outputs are still written (exit 0)
+    from openpyxl import load_workbook
+
+    from trolley.inservice.estimator import NoiseDensities, discrete_model, estimate, innovation_rms
+    from trolley.inservice.irregularity import irregularity_from_psd
+
+    V, dt = 20.0, 0.005
+    t = np.arange(3000) * dt
+    noise = NoiseDensities(force_m2_s3=1e-6, yaw_rad2_s3=1e-7, xi_m2_per_m=1e-7, sigma_xi_virtual_m=10.0)
+
+    def alignment(seed):
+        track = irregularity_from_psd(150.0, seed=seed)
+        return np.interp(V * t, track.s_m - track.s_m[0], track.lateral_m)
+
+    _, Z = simulate_response(P, V, t, alignment(1))
+    Z = Z[:, :3] + np.random.default_rng(1).standard_normal((len(t), 3)) * [0.01, 5e-4, 0.01]
+    # (without S the model file keeps Q's diagonal only)
+    Q = np.diag(np.diag(discrete_model(P, V, dt, noise=noise).Q))
+    ref = innovation_rms(estimate(P, t, V * t, V, Z, Q=Q, R=noise.r()))[:3]
+    write_model(tmp_path / "model.toml", EstimatorModel(P, Q, noise.r(), dt, innovation_rms=ref))
+    results = {}
+    for name, flip in (("fits", None), ("backwards", 0)):
+        write_model_recording(tmp_path / name, P, t, alignment(2), V, noise_seed=2, flip=flip)
+        out = tmp_path / f"out_{name}"
+        res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / name), "--out", str(out),
+                                          "--model", str(tmp_path / "model.toml")])
+        assert res.exit_code == 0, res.output
+        cons = json.loads((out / "summary.json").read_text())["consistency"]
+        results[name] = (cons, res.stderr, load_workbook(out / "inservice.xlsx").active)
+    cons, err, ws = results["fits"]
+    assert cons["checked"] and cons["consistent"] and cons["limit"] == 1.6
+    assert all(abs(v - 1.0) < 0.05 for v in cons["innovation_rms_ratio"].values()), cons
+    assert "does not fit" not in err
+    assert ws.cell(1, ws.max_column).value == "model_check" and ws.cell(2, ws.max_column).value.startswith("fits")
+    cons, err, ws = results["backwards"]
+    assert cons["checked"] and not cons["consistent"] and cons["innovation_rms_ratio"]["wheelset_ay"] > 5.0, cons
+    assert "does not fit the calibrated model" in err and "wheelset accelerometer" in err
+    assert ws.cell(2, ws.max_column).value.startswith("DOES NOT FIT")
+    # without a model nothing is compared, and summary.json says why
+    out = tmp_path / "out_nominal"
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / "fits"), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert json.loads((out / "summary.json").read_text())["consistency"] == {
+        "checked": False, "reason": "no calibrated model (--model)"}

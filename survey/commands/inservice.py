@@ -39,6 +39,12 @@ inservice_app.command("simulate")(simulate_cmd)
 
 #: output grid step of irregularities.csv, m
 OUTPUT_STEP_M = 0.25
+#: chainage at a recording's start left out of the consistency check (the filter's start-up), m
+CONSISTENCY_SKIP_M = 30.0
+#: the sensor channels as named in messages
+SENSOR_LABELS = ("wheelset accelerometer", "wheelset gyro", "frame accelerometer")
+#: and as keys of summary.json
+CONSISTENCY_KEYS = ("wheelset_ay", "wheelset_wz", "frame_ay")
 
 
 def _fail(msg: str) -> None:
@@ -86,6 +92,18 @@ def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
         plt.close(fig)
 
 
+def _consistency_text(cons: dict) -> str:
+    """The summary's consistency check in words, for the workbook."""
+    if not cons["checked"]:
+        return f"not checked: {cons['reason']}"
+    key, worst = max(cons["innovation_rms_ratio"].items(), key=lambda kv: kv[1])
+    label = SENSOR_LABELS[CONSISTENCY_KEYS.index(key)]
+    if cons["consistent"]:
+        return f"fits the calibration (largest innovation ratio {worst:.2f} <= {cons['limit']:g}, {label})"
+    return (f"DOES NOT FIT the calibration: {label} innovations {worst:.2f} x the calibration's "
+            f"(> {cons['limit']:g}); the sigmas cannot be trusted")
+
+
 def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     """One sheet in the survey workbook's style: a header row, the summary row, then the profile."""
     from openpyxl import Workbook
@@ -98,9 +116,10 @@ def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     ws.title = "Alignment"
     head = ["recording", "length_m", "speed_m_s", "smoother", "cpu_s", "real_time_ratio"]
     bands = list(summary.get("accuracy", {}))
-    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands]
+    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands] + ["model_check"]
     _header(ws, 1, head)
     put_text(ws, 2, 1, recording)
+    put_text(ws, 2, len(head), _consistency_text(summary["consistency"]))
     vals = [summary["length_m"], summary["speed_m_s"], None, summary["cpu_s"], summary["real_time_ratio"]]
     vals += [summary["accuracy"][b]["J_mm"] for b in bands] + [summary["accuracy"][b]["Jrel"] for b in bands]
     for j, v in enumerate(vals, start=2):
@@ -147,7 +166,7 @@ def process_cmd(
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.bogie import BogieParameters
     from trolley.inservice.estimator import NoiseDensities, band_alignment, estimate
-    from trolley.inservice.identification import HONESTY_BAND_M
+    from trolley.inservice.identification import HONESTY_BAND_M, model_consistency
     from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimated, decimation_factor
 
@@ -182,7 +201,17 @@ def process_cmd(
         est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
+        fit, not_checked = None, None
+        if mdl.innovation_rms is None:
+            not_checked = "the model file has no innovation reference (calibrated before the check existed)"
+        elif m.innovation_rms is None:
+            not_checked = "the filter rate differs from the calibration's"
+        elif s_f[-1] - s_f[0] <= 2 * CONSISTENCY_SKIP_M:
+            not_checked = f"the recording is not longer than {2 * CONSISTENCY_SKIP_M:g} m"
+        else:
+            fit = model_consistency(est, m, skip_m=CONSISTENCY_SKIP_M)
     else:
+        fit, not_checked = None, "no calibrated model (--model)"
         # the sensors' white noise per sample, after decimation by q
         noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4) / np.sqrt(q),
                                sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6) / np.sqrt(q))
@@ -209,6 +238,20 @@ def process_cmd(
                "design_model": kind, "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
                "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
+    summary["consistency"] = {"checked": False, "reason": not_checked} if fit is None else {
+        "checked": True, "innovation_rms_ratio": dict(zip(CONSISTENCY_KEYS, map(float, fit.ratio))),
+        "limit": fit.limit, "consistent": fit.consistent}
+    if fit is not None and not fit.consistent:
+        worst = int(np.argmax(fit.ratio))
+        console.print(f"warning: the recording does not fit the calibrated model: the {SENSOR_LABELS[worst]}'s "
+                      f"normalized innovations are {fit.ratio[worst]:.2f} times the calibration runs' (limit "
+                      f"{fit.limit:g}): the wheel-rail contact, the curvature or the speed differ from the calibration "
+                      "runs', and the sigmas cannot be trusted; calibrate for these conditions (docs/inservice.md, "
+                      "\"Does the recording fit the model?\")",
+                      highlight=False, markup=False, soft_wrap=True)
+    elif mdl is not None and not_checked:
+        console.print(f"note: model consistency not checked: {not_checked}", highlight=False, markup=False,
+                      soft_wrap=True)
     truth_mm = None
     if tru is not None:
         acc = band_accuracy(s_f, est.alignment_m, xi_true)

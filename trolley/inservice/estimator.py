@@ -184,6 +184,9 @@ class AlignmentEstimate:
         independent of the later errors; the last one unused), else the filter's error transition
         A_k = (I - K_k H) F_k (e_k = A_k e_(k-1) + a part independent of the earlier errors).
     cov_xi : (N, n) column of the state covariance belonging to xi, P_k[:, 6].
+    normalized_innovations : (N, 4) the forward filter's innovations divided by their predicted
+        sigmas sqrt(diag(H P H^T + R)), per channel [wheelset acc, gyro, frame acc, virtual xi]
+        (:func:`innovation_rms`).
     """
 
     t_s: np.ndarray
@@ -194,6 +197,7 @@ class AlignmentEstimate:
     smoother: str
     transitions: np.ndarray | None = None
     cov_xi: np.ndarray | None = None
+    normalized_innovations: np.ndarray | None = None
 
     @property
     def alignment_m(self) -> np.ndarray:
@@ -315,6 +319,7 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
     Xf = np.empty((n, ns))
     Pf = np.empty((n, ns, ns))
     Af = np.empty((n, ns, ns)) if smoother == "none" else None
+    Nu = np.empty((n, N_MEAS))
     det = np.zeros((n, ns))          # deterministic response to the curvature input
     d = np.zeros(ns)
     u = np.zeros((1, 1))
@@ -331,6 +336,7 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
                 d = mdl.F @ d + mdl.G[:, 0] * kap[k - 1]
                 det[k] = d
         kf.update(zcol[k])
+        Nu[k] = kf.y[:, 0] / np.sqrt(np.diag(kf.S))
         Xf[k] = kf.x[:, 0]
         Pf[k] = kf.P
         if Af is not None:
@@ -354,7 +360,36 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
             P = P.copy()
             P[bad] = Pf[bad]
     sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 0.0))
-    return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother, trans, P[:, :, XI_INDEX].copy())
+    return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother, trans, P[:, :, XI_INDEX].copy(), Nu)
+
+
+def innovation_rms(est: AlignmentEstimate, skip_m: float = 30.0) -> np.ndarray:
+    """Root mean square of the forward filter's normalized innovations per channel.
+
+    Parameters
+    ----------
+    est : result of :func:`estimate`.
+    skip_m : chainage at the start left out (the filter's start-up from its wide P0).
+
+    Returns
+    -------
+    (4,) rms of innovation / predicted sigma for [wheelset acc, gyro, frame acc, virtual xi]. With
+    the model and the noises exactly right every entry is 1 (the innovations are then white with
+    covariance H P H^T + R: Kalman 1960, Mehra 1970). On real data the calibrated covariances absorb
+    model error, so the values are not 1; what carries information is their ratio to the same
+    figure on the calibration runs (identification.model_consistency).
+
+    References
+    ----------
+    R. K. Mehra, "On the identification of variances and adaptive Kalman filtering", IEEE Trans.
+    Automatic Control 15 (1970) 175-184 (innovation whiteness and covariance as a model check).
+    """
+    if est.normalized_innovations is None:
+        raise ValueError("the estimate carries no innovations")
+    use = est.s_m >= est.s_m[0] + skip_m
+    if not use.any():
+        raise ValueError(f"the record is shorter than skip_m = {skip_m} m")
+    return np.sqrt(np.mean(np.square(est.normalized_innovations[use]), axis=0))
 
 
 def _coarse_alignment_covariance(est: AlignmentEstimate, idx: np.ndarray) -> np.ndarray:
