@@ -27,7 +27,8 @@ Sections:
   bogie mode at 20 m/s (no random alignment), Case 3 the harmonic plus the random alignment;
 * curved track (beyond the paper): constant design curvature 1/R as a known input;
 * consistency (beyond the paper): truths that differ from the calibration runs (Kalker
-  coefficients 75-50 %, conicity +20 %, curves R 6000 and 3000 m, 15 and 25 m/s), each with the
+  coefficients 75-50 %, conicity +20 %, curves R 6000 and 3000 m, 15 and 25 m/s, the paper's
+  smoother track), each with the
   ratio of its normalized innovations to the calibration runs' (identification.model_consistency)
   next to its honesty: does the check flag the runs whose sigmas are not honest?
 * paper-level: the standard case with the alignment scaled to the paper's level (about 1.44 mm rms
@@ -264,6 +265,8 @@ def consistency(mdl, kind, vp, seeds):
     show(f"R 3000 m right, seed {s1}", mdl, run_case(vp, s1, kappa=-1 / 3000))
     for v in (15.0, 25.0):
         show(f"{v:g} m/s (calibrated at {V:g}), seed {s0}", mdl, run_case(vp, s0, speed=v))
+    for sd in (s0, s1):
+        show(f"alignment x {PAPER_LEVEL_SCALE:.3f}, seed {sd}", mdl, run_case(vp, sd, lateral=PAPER_LEVEL_SCALE))
 
 
 def paper_level(kind, vp, args):

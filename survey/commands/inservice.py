@@ -334,6 +334,7 @@ def calibrate_cmd(
                   "speed_m_s": speed_m_s, "length_m": length_m, "rate_hz": rate_hz, "filter_rate_hz": rate_hz / q,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,
+                  "innovation_rms": dict(zip(CONSISTENCY_KEYS, map(float, mdl.innovation_rms))),
                   "cpu_s": round(time.process_time() - t0, 2)})
 
 
