@@ -319,7 +319,8 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
     Xf = np.empty((n, ns))
     Pf = np.empty((n, ns, ns))
     Af = np.empty((n, ns, ns)) if smoother == "none" else None
-    Nu = np.empty((n, N_MEAS))
+    Nu = np.empty((n, N_MEAS))       # innovations, then normalized by their predicted sigmas
+    Su = np.empty((n, N_MEAS))
     det = np.zeros((n, ns))          # deterministic response to the curvature input
     d = np.zeros(ns)
     u = np.zeros((1, 1))
@@ -336,7 +337,8 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
                 d = mdl.F @ d + mdl.G[:, 0] * kap[k - 1]
                 det[k] = d
         kf.update(zcol[k])
-        Nu[k] = kf.y[:, 0] / np.sqrt(np.diag(kf.S))
+        Nu[k] = kf.y[:, 0]
+        Su[k] = kf.S.diagonal()
         Xf[k] = kf.x[:, 0]
         Pf[k] = kf.P
         if Af is not None:
@@ -360,6 +362,7 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
             P = P.copy()
             P[bad] = Pf[bad]
     sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 0.0))
+    Nu /= np.sqrt(Su)
     return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother, trans, P[:, :, XI_INDEX].copy(), Nu)
 
 
