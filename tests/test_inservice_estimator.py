@@ -70,10 +70,10 @@ def test_observability_rank_is_seven_and_six_without_the_virtual_measurement():
     assert np.allclose(control.obsv(dm.F, dm.H), observability_matrix(dm.F, dm.H))
 
 
-def _own_model_run(n=3000, dt=0.005, V=20.0, seed=3, xi_density=1e-7, p=P):
+def _own_model_run(n=3000, dt=0.005, V=20.0, seed=3, xi_density=1e-7):
     rng = np.random.default_rng(seed)
     noise = NoiseDensities(force_m2_s3=1e-3, yaw_rad2_s3=1e-4, xi_m2_per_m=xi_density)
-    dm = discrete_model(p, V, dt, noise=noise)
+    dm = discrete_model(P, V, dt, noise=noise)
     L = np.linalg.cholesky(dm.Q + 1e-30 * np.eye(7))
     X = np.zeros((n, 7))
     w = rng.standard_normal((n, 7)) @ L.T
@@ -112,27 +112,36 @@ def test_normalized_innovations_have_rms_one_on_the_filters_own_model():
     assert np.all(np.abs(nu[:3] - 1.0) < 0.06), nu
 
 
-@pytest.mark.parametrize("flipped", [0, 1, 2])
-def test_model_consistency_flags_a_sensor_mounted_backwards(flipped):
-    # the SM's response to random alignments (German spectrum) plus white sensor noise, filtered
-    # with a tight Q: other alignments fit the reference run's innovations within 5 %; a sensor
-    # whose sign is reversed (mounted the wrong way round) raises a ratio several times
+#: a tight Q for the SM's deterministic response (noisy_sm_run): its innovations then see the sensors
+TIGHT_NOISE = NoiseDensities(force_m2_s3=1e-6, yaw_rad2_s3=1e-7, xi_m2_per_m=1e-7, sigma_xi_virtual_m=10.0)
+
+
+def noisy_sm_run(seed, flip=None, n=3000, V=20.0, dt=0.005):
+    """The SM's response to a random alignment (German spectrum, ``seed``) plus the sensors' white
+    noise (0.01 m/s^2, 5e-4 rad/s); ``flip`` reverses one channel's sign. Returns t, xi, Z (n, 3)."""
     from trolley.inservice.irregularity import irregularity_from_psd
 
+    t = np.arange(n) * dt
+    track = irregularity_from_psd(V * n * dt, seed=seed)
+    xi = np.interp(V * t, track.s_m - track.s_m[0], track.lateral_m)
+    _, Z = simulate_response(P, V, t, xi)
+    Z = Z[:, :3] + np.random.default_rng(seed).standard_normal((n, 3)) * [0.01, 5e-4, 0.01]
+    if flip is not None:
+        Z[:, flip] *= -1.0
+    return t, xi, Z
+
+
+@pytest.mark.parametrize("flipped", [0, 1, 2])
+def test_model_consistency_flags_a_sensor_mounted_backwards(flipped):
+    # filtered with a tight Q, other alignments fit the reference run's innovations within 5 %; a
+    # sensor whose sign is reversed (mounted the wrong way round) raises a ratio several times
     V, dt = 20.0, 0.005
-    t = np.arange(3000) * dt
-    s = V * t
-    noise = NoiseDensities(force_m2_s3=1e-6, yaw_rad2_s3=1e-7, xi_m2_per_m=1e-7, sigma_xi_virtual_m=10.0)
 
     def recording(seed, flip=None):
-        track = irregularity_from_psd(150.0, seed=seed)
-        _, Z = simulate_response(P, V, t, np.interp(s, track.s_m - track.s_m[0], track.lateral_m))
-        Z = Z[:, :3] + np.random.default_rng(seed).standard_normal((len(t), 3)) * [0.01, 5e-4, 0.01]
-        if flip is not None:
-            Z[:, flip] *= -1.0
-        return estimate(P, t, s, V, Z, noise=noise)
+        t, _, Z = noisy_sm_run(seed, flip)
+        return estimate(P, t, V * t, V, Z, noise=TIGHT_NOISE)
 
-    mdl = EstimatorModel(P, discrete_model(P, V, dt, noise=noise).Q, noise.r(), dt,
+    mdl = EstimatorModel(P, discrete_model(P, V, dt, noise=TIGHT_NOISE).Q, TIGHT_NOISE.r(), dt,
                          innovation_rms=innovation_rms(recording(1))[:3])
     same = model_consistency(recording(2), mdl)
     assert same.consistent and np.all(np.abs(same.ratio - 1.0) < 0.05), same.ratio

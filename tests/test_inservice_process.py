@@ -23,15 +23,10 @@ P = ModelParameters()
 EXTRA = {"half_wheelbase_m": 1.28, "half_bogie_spacing_m": 9.5, "m_frame_kg": 2615.0, "m_body_kg": 32000.0}
 
 
-def write_model_recording(folder, p, t, xi, V=20.0, start_m=0.0, nominal=None, extra=None, noise_seed=None,
-                          flip=None):
-    """A recording of design model ``p`` itself running at V over the alignment xi(t): noise-free, or
-    with the sensors' white noise drawn from ``noise_seed``; ``flip`` reverses one channel's sign."""
-    _, Z = simulate_response(p, V, t, xi)
-    if noise_seed is not None:
-        Z = Z[:, :3] + np.random.default_rng(noise_seed).standard_normal((len(t), 3)) * [0.01, 5e-4, 0.01]
-    if flip is not None:
-        Z[:, flip] *= -1.0
+def write_model_recording(folder, p, t, xi, V=20.0, start_m=0.0, nominal=None, extra=None, sensors=None):
+    """A recording of design model ``p`` itself running at V over the alignment xi(t), noise-free,
+    or of the given ``sensors`` (N, 3)."""
+    Z = simulate_response(p, V, t, xi)[1] if sensors is None else sensors
     rate = 1.0 / float(t[1] - t[0])
     rec = io.InserviceRecording(
         nominal=nominal or asdict(P), vehicle_extra=extra or EXTRA, speed_m_s=V, rate_hz=rate,
@@ -191,26 +186,20 @@ def test_process_checks_that_the_recording_fits_the_calibrated_model(tmp_path):
     # summary.json and the workbook, and the outputs are still written (exit 0)
     from openpyxl import load_workbook
 
-    from trolley.inservice.estimator import NoiseDensities, discrete_model, estimate, innovation_rms
-    from trolley.inservice.irregularity import irregularity_from_psd
+    from test_inservice_estimator import TIGHT_NOISE, noisy_sm_run
+
+    from trolley.inservice.estimator import discrete_model, estimate, innovation_rms
 
     V, dt = 20.0, 0.005
-    t = np.arange(3000) * dt
-    noise = NoiseDensities(force_m2_s3=1e-6, yaw_rad2_s3=1e-7, xi_m2_per_m=1e-7, sigma_xi_virtual_m=10.0)
-
-    def alignment(seed):
-        track = irregularity_from_psd(150.0, seed=seed)
-        return np.interp(V * t, track.s_m - track.s_m[0], track.lateral_m)
-
-    _, Z = simulate_response(P, V, t, alignment(1))
-    Z = Z[:, :3] + np.random.default_rng(1).standard_normal((len(t), 3)) * [0.01, 5e-4, 0.01]
+    t, _, Z = noisy_sm_run(1)
     # (without S the model file keeps Q's diagonal only)
-    Q = np.diag(np.diag(discrete_model(P, V, dt, noise=noise).Q))
-    ref = innovation_rms(estimate(P, t, V * t, V, Z, Q=Q, R=noise.r()))[:3]
-    write_model(tmp_path / "model.toml", EstimatorModel(P, Q, noise.r(), dt, innovation_rms=ref))
+    Q = np.diag(np.diag(discrete_model(P, V, dt, noise=TIGHT_NOISE).Q))
+    ref = innovation_rms(estimate(P, t, V * t, V, Z, Q=Q, R=TIGHT_NOISE.r()))[:3]
+    write_model(tmp_path / "model.toml", EstimatorModel(P, Q, TIGHT_NOISE.r(), dt, innovation_rms=ref))
     results = {}
     for name, flip in (("fits", None), ("backwards", 0)):
-        write_model_recording(tmp_path / name, P, t, alignment(2), V, noise_seed=2, flip=flip)
+        t, xi, Z = noisy_sm_run(2, flip)
+        write_model_recording(tmp_path / name, P, t, xi, V, sensors=Z)
         out = tmp_path / f"out_{name}"
         res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / name), "--out", str(out),
                                           "--model", str(tmp_path / "model.toml")])
