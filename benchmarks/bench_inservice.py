@@ -28,7 +28,7 @@ Sections:
 * curved track (beyond the paper): constant design curvature 1/R as a known input;
 * consistency (beyond the paper): truths that differ from the calibration runs (Kalker
   coefficients 75-50 %, conicity +20 %, curves R 6000 and 3000 m, 15 and 25 m/s, the paper's
-  smoother track), each with the
+  smoother track, a sensor mounted the wrong way round), each with the
   ratio of its normalized innovations to the calibration runs' (identification.model_consistency)
   next to its honesty: does the check flag the runs whose sigmas are not honest?
 * paper-level: the standard case with the alignment scaled to the paper's level (about 1.44 mm rms
@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -267,6 +268,9 @@ def consistency(mdl, kind, vp, seeds):
         show(f"{v:g} m/s (calibrated at {V:g}), seed {s0}", mdl, run_case(vp, s0, speed=v))
     for sd in (s0, s1):
         show(f"alignment x {PAPER_LEVEL_SCALE:.3f}, seed {sd}", mdl, run_case(vp, sd, lateral=PAPER_LEVEL_SCALE))
+    std = run_case(vp, s0)
+    for name in ("wheelset_ay_m_s2", "wheelset_wz_rad_s", "frame_ay_m_s2"):
+        show(f"{name} reversed, seed {s0}", mdl, replace(std, **{name: -getattr(std, name)}))
 
 
 def paper_level(kind, vp, args):
