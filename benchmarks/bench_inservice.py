@@ -54,7 +54,7 @@ import numpy as np
 
 from trolley.inservice.accuracy import band_accuracy, honesty
 from trolley.inservice.bogie import nominal_parameters
-from trolley.inservice.estimator import (band_alignment, band_error_covariance, discrete_model, estimate,
+from trolley.inservice.estimator import (SETTLE_M, band_alignment, band_error_covariance, discrete_model, estimate,
                                          honesty_spread, observability_rank)
 from trolley.inservice.identification import CONSISTENCY_LIMIT, HONESTY_BAND_M, calibrate, model_consistency
 from trolley.inservice.irregularity import harmonic_irregularity, irregularity_from_psd
@@ -64,7 +64,6 @@ from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, sim
 
 V = 20.0
 LENGTH = 400.0
-SETTLE_M = 30.0
 SECTIONS = ("standard", "robustness", "resonance", "curved", "consistency", "paper-level", "forward", "uncorrelated")
 #: the alignment amplitude factor that gives the paper's track: its J / Jrel = 0.36 mm / 0.25 over
 #: 3-200 m (Table 2) mean 1.44 mm rms, the standard seeds 1-10 have 2.46 mm (docs/inservice.md)

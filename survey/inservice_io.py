@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from survey.atomicwrite import write_text_atomic
-from survey.atomicwrite import write_csv_frame
+from survey.atomicwrite import write_csv_frame, write_text_atomic
 from survey.tgms_io import TgmsFormatError, _num, _read_csv
 
 FORMAT = "trolley-inservice/1"

@@ -39,8 +39,6 @@ inservice_app.command("simulate")(simulate_cmd)
 
 #: output grid step of irregularities.csv, m
 OUTPUT_STEP_M = 0.25
-#: chainage at a recording's start left out of the consistency check (the filter's start-up), m
-CONSISTENCY_SKIP_M = 30.0
 #: the sensor channels as named in messages
 SENSOR_LABELS = ("wheelset accelerometer", "wheelset gyro", "frame accelerometer")
 #: and as keys of summary.json
@@ -165,7 +163,7 @@ def process_cmd(
     from trolley import units
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.bogie import BogieParameters
-    from trolley.inservice.estimator import NoiseDensities, band_alignment, estimate
+    from trolley.inservice.estimator import SETTLE_M, NoiseDensities, band_alignment, estimate
     from trolley.inservice.identification import HONESTY_BAND_M, model_consistency
     from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimated, decimation_factor
@@ -206,10 +204,10 @@ def process_cmd(
             not_checked = "the model file has no innovation reference (calibrated before the check existed)"
         elif m.innovation_rms is None:
             not_checked = "the filter rate differs from the calibration's"
-        elif s_f[-1] - s_f[0] <= 2 * CONSISTENCY_SKIP_M:
-            not_checked = f"the recording is not longer than {2 * CONSISTENCY_SKIP_M:g} m"
+        elif s_f[-1] - s_f[0] <= 2 * SETTLE_M:
+            not_checked = f"the recording is not longer than {2 * SETTLE_M:g} m"
         else:
-            fit = model_consistency(est, m, skip_m=CONSISTENCY_SKIP_M)
+            fit = model_consistency(est, m)
     else:
         fit, not_checked = None, "no calibrated model (--model)"
         # the sensors' white noise per sample, after decimation by q
@@ -257,9 +255,9 @@ def process_cmd(
         acc = band_accuracy(s_f, est.alignment_m, xi_true)
         summary["accuracy"] = {b: {"J_mm": units.m_to_mm(a.J_m), "Jrel": a.Jrel, "rms_true_mm": units.m_to_mm(a.rms_true_m)}
                                for b, a in acc.items()}
-        settle = s_f >= s_f[0] + 30.0
+        settle = s_f >= s_f[0] + SETTLE_M
         if band is not None:
-            bs = band[0] >= band[0][0] + 30.0
+            bs = band[0] >= band[0][0] + SETTLE_M
             summary["honesty_rms_error_over_sigma"] = honesty(band[1][bs], band[2][bs], band[3][bs])
         summary["honesty_unfiltered_rms_error_over_sigma"] = honesty(est.alignment_m[settle], sig[settle],
                                                                      xi_true[settle])

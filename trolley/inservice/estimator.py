@@ -40,6 +40,9 @@ from trolley.inservice.model import N_MEAS, STATE_KINDS, XI_INDEX, DesignParamet
 
 #: speeds are grouped into bins of this width (m/s) for the speed-dependent F, Q
 SPEED_BIN_M_S = 0.1
+#: chainage at a record's start that every statistic of an estimate leaves out (the filter's
+#: start-up from its wide P0): honesty, sigma scale, innovations, m
+SETTLE_M = 30.0
 
 
 def discretize(Fc: np.ndarray, Bc: np.ndarray, dt: float, Qc: np.ndarray | None = None):
@@ -366,7 +369,7 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
     return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother, trans, P[:, :, XI_INDEX].copy(), Nu)
 
 
-def innovation_rms(est: AlignmentEstimate, skip_m: float = 30.0) -> np.ndarray:
+def innovation_rms(est: AlignmentEstimate, skip_m: float = SETTLE_M) -> np.ndarray:
     """Root mean square of the forward filter's normalized innovations per channel.
 
     Parameters

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trolley.inservice.estimator import DiscreteModel
+from trolley.inservice.estimator import SETTLE_M, DiscreteModel
 from trolley.inservice.model import (MEASUREMENT_NAMES, STATE_KINDS, STATE_NAMES, DesignParameters,
                                      simulate_response)
 
@@ -249,7 +249,7 @@ class PooledStatistics:
     innovation_rms: np.ndarray
 
 
-def pooled_statistics(mdl: "EstimatorModel", runs, skip_m: float = 30.0, smoother: str = "rts") -> PooledStatistics:
+def pooled_statistics(mdl: "EstimatorModel", runs, skip_m: float = SETTLE_M, smoother: str = "rts") -> PooledStatistics:
     """Sigma scale and innovation reference from several calibration runs.
 
     The sigma scale is rms(error / sigma) of the alignment band-passed to 3-200 m
@@ -312,7 +312,7 @@ class ModelConsistency:
     consistent: bool
 
 
-def model_consistency(est, mdl: "EstimatorModel", skip_m: float = 30.0,
+def model_consistency(est, mdl: "EstimatorModel", skip_m: float = SETTLE_M,
                       limit: float = CONSISTENCY_LIMIT) -> ModelConsistency | None:
     """Compare a recording's normalized innovations with the calibration runs' (beyond the paper).
 
@@ -348,7 +348,7 @@ def model_consistency(est, mdl: "EstimatorModel", skip_m: float = 30.0,
 
 
 def calibrate(p0: DesignParameters, speed_m_s: float, t_s, s_m, states, measurements,
-              skip_m: float = 30.0, smoother: str = "rts", correlated: bool = True,
+              skip_m: float = SETTLE_M, smoother: str = "rts", correlated: bool = True,
               extra_runs=None, tune_on_extra_runs: bool = False) -> EstimatorModel:
     """Identify the SM and tune the filter on one reference run of the complete model.
 
