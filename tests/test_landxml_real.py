@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
@@ -255,15 +255,23 @@ def test_stationing_backward_equation_resolves_by_order():
 
 @given(st.lists(st.floats(0.0, 1000.0), min_size=1, max_size=20),
        st.lists(st.tuples(st.floats(1.0, 999.0), st.floats(-5000.0, 5000.0)), max_size=4))
+@example(points=[2.0], eqs=[(1.0, 0.0)])  # station 1.0 occurs first as the back station at 1.0
 @settings(max_examples=80, deadline=None)
 def test_stationing_round_trip(points, eqs):
     eqs = sorted({round(i, 3): a for i, a in eqs}.items())
     st_ = Stationing(0.0, 1000.0, [StationEquation(i, a) for i, a in eqs])
     s = np.sort(np.asarray(points))
-    back = st_.internal_of(st_.station(s), tol_m=1e-9)
+    wanted = st_.station(s)
+    back = st_.internal_of(wanted, tol_m=1e-9)
     # the same drawing stations, in order, each at its earliest place (a station that occurs
-    # twice after a backward jump resolves to the first occurrence not behind its predecessor)
-    np.testing.assert_allclose(st_.station(back), st_.station(s), atol=1e-6)
+    # twice after a backward jump resolves to the first occurrence not behind its predecessor).
+    # That place may be an equation itself, reached as its back station, where station() gives
+    # the station ahead: there the back station is the one to compare.
+    ahead = st_.station(back)
+    behind = ahead.copy()
+    for k, (internal, _) in enumerate(eqs):
+        behind[np.abs(back - internal) <= 1e-9] = st_.back_station(k)
+    assert np.all((np.abs(ahead - wanted) <= 1e-6) | (np.abs(behind - wanted) <= 1e-6)), (ahead, behind, wanted)
     assert np.all(np.diff(back) >= -1e-6) and np.all(back <= s + 1e-6)
     if all(a >= st_.back_station(k) for k, (_, a) in enumerate(eqs)):  # forward jumps only
         np.testing.assert_allclose(back, s, atol=1e-6)
