@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from trolley.sectionquality import section_quality
 
@@ -41,6 +41,7 @@ def test_bad_arguments():
 
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.floats(-50, 50), min_size=3, max_size=300), st.floats(5.0, 120.0), st.floats(-500, 500))
+@example(values=[0.0, 0.0, 0.0], length=5.0, s0=-5e-324)  # s / length rounds up to the boundary 0
 def test_equals_numpy_std_of_each_section(values, length, s0):
     x = np.array(values)
     s = s0 + 1.7 * np.arange(x.size)

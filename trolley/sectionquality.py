@@ -82,6 +82,10 @@ def section_quality(chainage_m: np.ndarray, x: np.ndarray, length_m: float = SEC
         empty = np.zeros(0)
         return SectionQuality(empty, empty, np.zeros(0, int), np.zeros(0, int), empty, empty)
     k = np.floor(s / length_m).astype(np.int64)
+    # s / length_m can round onto a section boundary that s has not reached (or past one it has):
+    # a station belongs to the section whose reported start <= s < start + length_m
+    k -= s < k * length_m
+    k += s >= k * length_m + length_m
     k0 = int(k[0])
     idx = k - k0
     n_sec = int(idx[-1]) + 1
