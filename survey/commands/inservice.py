@@ -90,12 +90,17 @@ def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
         plt.close(fig)
 
 
+def _worst_sensor(cons: dict) -> tuple[str, float]:
+    """The sensor with the largest innovation ratio in a checked summary consistency: (label, ratio)."""
+    key, worst = max(cons["innovation_rms_ratio"].items(), key=lambda kv: kv[1])
+    return SENSOR_LABELS[CONSISTENCY_KEYS.index(key)], worst
+
+
 def _consistency_text(cons: dict) -> str:
     """The summary's consistency check in words, for the workbook."""
     if not cons["checked"]:
         return f"not checked: {cons['reason']}"
-    key, worst = max(cons["innovation_rms_ratio"].items(), key=lambda kv: kv[1])
-    label = SENSOR_LABELS[CONSISTENCY_KEYS.index(key)]
+    label, worst = _worst_sensor(cons)
     if cons["consistent"]:
         return f"fits the calibration (largest innovation ratio {worst:.2f} <= {cons['limit']:g}, {label})"
     return (f"DOES NOT FIT the calibration: {label} innovations {worst:.2f} x the calibration's "
@@ -240,9 +245,9 @@ def process_cmd(
         "checked": True, "innovation_rms_ratio": dict(zip(CONSISTENCY_KEYS, map(float, fit.ratio))),
         "limit": fit.limit, "consistent": fit.consistent}
     if fit is not None and not fit.consistent:
-        worst = int(np.argmax(fit.ratio))
-        console.print(f"warning: the recording does not fit the calibrated model: the {SENSOR_LABELS[worst]}'s "
-                      f"normalized innovations are {fit.ratio[worst]:.2f} times the calibration runs' (limit "
+        label, worst = _worst_sensor(summary["consistency"])
+        console.print(f"warning: the recording does not fit the calibrated model: the {label}'s "
+                      f"normalized innovations are {worst:.2f} times the calibration runs' (limit "
                       f"{fit.limit:g}): the wheel-rail contact, the curvature or the speed differ from the calibration "
                       "runs', and the sigmas cannot be trusted; calibrate for these conditions (docs/inservice.md, "
                       "\"Does the recording fit the model?\")",
