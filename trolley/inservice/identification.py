@@ -269,7 +269,7 @@ def pooled_statistics(mdl: "EstimatorModel", runs, skip_m: float = SETTLE_M, smo
     -------
     PooledStatistics
     """
-    from trolley.inservice.estimator import band_alignment, estimate
+    from trolley.inservice.estimator import band_alignment, estimate, innovation_rms
 
     num, cnt = 0.0, 0
     nu2, nnu = np.zeros(3), 0
@@ -279,9 +279,9 @@ def pooled_statistics(mdl: "EstimatorModel", runs, skip_m: float = SETTLE_M, smo
         ok = g >= g[0] + skip_m
         num += float(np.sum(((xb[ok] - tb[ok]) / sb[ok]) ** 2))
         cnt += int(ok.sum())
-        use = e.s_m >= e.s_m[0] + skip_m
-        nu2 += np.sum(np.square(e.normalized_innovations[use, :3]), axis=0)
-        nnu += int(use.sum())
+        n_use = int(np.count_nonzero(e.s_m >= e.s_m[0] + skip_m))
+        nu2 += n_use * np.square(innovation_rms(e, skip_m)[:3])
+        nnu += n_use
     return PooledStatistics(float(np.sqrt(num / cnt)), np.sqrt(nu2 / nnu))
 
 
