@@ -151,8 +151,7 @@ def main() -> None:
     sim_cpu = time.process_time() - t0
     print(f"truth: first lateral mode {mode.frequency_hz:.3f} Hz, wavelength {mode.wavelength_m:.2f} m at {V} m/s;"
           f" reference run {sim_cpu:.1f} s CPU")
-    extra_runs = [(r.t_s, r.s_m, r.speed_m_s, r.sensors(), r.alignment_m)
-                  for r in (run_case(vp, sd) for sd in args.extra_seeds)]
+    extra_runs = [run_case(vp, sd).calibration_run() for sd in args.extra_seeds]
     runs = {seed: run_case(vp, seed) for seed in args.seeds}
     models = {}
     if "standard" in args.sections or set(args.sections) & {"robustness", "resonance", "curved", "consistency"}:
@@ -276,8 +275,7 @@ def paper_level(kind, vp, args):
     """The standard case on a track as smooth as the paper's, calibrated on such runs."""
     sc = PAPER_LEVEL_SCALE
     ref = run_case(vp, args.cal_seed, lateral=sc)
-    extra = [(r.t_s, r.s_m, r.speed_m_s, r.sensors(), r.alignment_m)
-             for r in (run_case(vp, sd, lateral=sc) for sd in args.extra_seeds)]
+    extra = [run_case(vp, sd, lateral=sc).calibration_run() for sd in args.extra_seeds]
     mdl = calibrate(nominal_parameters(vp, kind), V, ref.t_s, ref.s_m, ref.reference_states(kind), ref.sensors(),
                     extra_runs=extra)
     header(f"the paper's track level, {kind} model: alignment x {sc:.3f}, calibrated on such runs (Q factors dyn "

@@ -321,9 +321,8 @@ def calibrate_cmd(
     extra = []
     with console.status("simulating the further reference runs"):
         for sd in range(seed + 1, seed + 1 + extra_runs):
-            r = simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m, rate_hz=rate_hz,
-                             seed=sd + 1).decimated(q)
-            extra.append((r.t_s, r.s_m, speed_m_s, r.sensors(), r.alignment_m))
+            extra.append(simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m,
+                                      rate_hz=rate_hz, seed=sd + 1).decimated(q).calibration_run())
     p0 = nominal_parameters(vp, kind)
     with console.status("identifying and tuning"):
         mdl = calibrate(p0, speed_m_s, run.t_s, run.s_m, run.reference_states(kind), run.sensors(),

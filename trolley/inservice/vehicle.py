@@ -614,6 +614,11 @@ class RunResult:
         """(N, 3) measured channels [wheelset a_y, wheelset w_z, frame a_y] (the estimator's input)."""
         return np.column_stack([self.wheelset_ay_m_s2, self.wheelset_wz_rad_s, self.frame_ay_m_s2])
 
+    def calibration_run(self) -> tuple:
+        """(t_s, s_m, speed_m_s, sensors, true alignment): the run as a further calibration run of
+        identification.calibrate (``extra_runs``) and identification.pooled_statistics."""
+        return self.t_s, self.s_m, self.speed_m_s, self.sensors(), self.alignment_m
+
     def reference_states(self, kind: str = "paper") -> np.ndarray:
         """The run's true states in the order of a design model's state vector (the reference of the
         identification, Munoz 2021 Eq. 6 and 26-27).
