@@ -19,6 +19,7 @@ from trolley.engine import ProcessResult
 from trolley.session import RawSession
 from trolley.stationing import Stationing
 
+from survey.fieldrecord import FIELD_RECORD
 from survey.sessionio import move_into_place, write_csv_columns
 from survey.sheet_text import csv_safe_text
 from survey.track_reader import equipment_figures
@@ -128,6 +129,10 @@ def summary_dict(result: ProcessResult, session: RawSession, session_dir: Path, 
 
 
 OUTPUT_NAMES = ("track.csv", "fixes.csv", "summary.json")
+#: what a processed folder may hold besides OUTPUT_NAMES and is replaced with them: the field
+#: session's record of the crew's decisions, which the session's end writes beside track.csv after
+#: processing (survey.session.final) and rewrites from the store on every run
+COMPANION_NAMES = (FIELD_RECORD,)
 
 
 class OutputFolderError(ValueError):
@@ -148,8 +153,9 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
 
     Raises
     ------
-    OutputFolderError if ``out_dir`` is a file or holds anything but these three files (it is
-    replaced as a whole, so it must not be, say, the session folder).
+    OutputFolderError if ``out_dir`` is a file or holds anything but these three files and a field
+    session's ``field_record.json`` (:data:`COMPANION_NAMES`; it is replaced as a whole, so it must
+    not be, say, the session folder).
     """
     import secrets
 
@@ -157,7 +163,7 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
     if out_dir.exists():
         if not out_dir.is_dir():
             raise OutputFolderError(f"{out_dir}: exists and is not a folder")
-        others = sorted(p.name for p in out_dir.iterdir() if p.name not in OUTPUT_NAMES)
+        others = sorted(p.name for p in out_dir.iterdir() if p.name not in OUTPUT_NAMES + COMPANION_NAMES)
         if others:
             raise OutputFolderError(f"{out_dir}: holds {others[0]!r} (and {len(others) - 1} more), not only the "
                                     f"outputs of trolley process; give a new folder or one that trolley process "

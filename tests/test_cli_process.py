@@ -87,6 +87,17 @@ def test_rerun_replaces_the_output_folder_whole_and_a_failure_keeps_the_old(sess
     assert sorted(p.name for p in tmp_path.iterdir()) == ["processed"]
 
 
+def test_a_field_sessions_processed_folder_is_replaced_field_record_and_all(session, tmp_path):
+    # the end of a field session writes field_record.json beside track.csv; running the session (or
+    # trolley process) again into that folder replaces it as a whole instead of refusing
+    out = tmp_path / "processed"
+    assert runner.invoke(app, ["process", str(session), "--out", str(out)]).exit_code == 0
+    (out / "field_record.json").write_text("{}")
+    r = runner.invoke(app, ["process", str(session), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in out.iterdir()) == ["fixes.csv", "summary.json", "track.csv"]
+
+
 def test_output_folder_with_other_files_is_refused_and_left_alone(session, tmp_path):
     out = tmp_path / "mine"
     out.mkdir()
