@@ -242,7 +242,7 @@ class StationSetupSteps:
         oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], list(here),
                            self.settings.overlap_tolerance_m)
         d = oc.difference_enh_mm
-        verdict = "within" if oc.within_tolerance else "[bold red]OUTSIDE[/]"
+        verdict = "within" if oc.within_tolerance else "OUTSIDE"   # say() prints without markup
         self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
                  f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
         sigma = self.rec.meta.fix_sigma_m
