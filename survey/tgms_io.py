@@ -12,6 +12,7 @@ Optional keys we added where FORMATS.md is silent (documented in ``docs/tgms.md`
 from __future__ import annotations
 
 import os
+import re
 import tomllib
 from pathlib import Path
 
@@ -158,9 +159,16 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
     if not path.exists():
         raise TgmsFormatError(f"{name}: file not found in {path.parent}")
     try:
-        df = pd.read_csv(path, skipinitialspace=True)
+        # low_memory=False: a text cell in a long numeric column is reported below, not as a DtypeWarning
+        df = pd.read_csv(path, skipinitialspace=True, low_memory=False)
     except Exception as exc:  # pandas raises several types for broken CSV
-        raise TgmsFormatError(f"{name}: cannot read as CSV ({exc})") from None
+        text = " ".join(str(exc).split())
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+        if m:
+            raise TgmsFormatError(f"{name}: row {m[2]}: {m[3]} cells, the header has {m[1]} columns (a decimal "
+                                  "comma? use a point: 0.5)") from None
+        raise TgmsFormatError(f"{name}: cannot read as CSV ({text})") from None
+    line = _data_row_lines(path, len(df))
     df.columns = [str(c).strip() for c in df.columns]
     missing = [c for c in columns if c not in df.columns]
     if missing:
@@ -178,17 +186,17 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         bad = ~np.isfinite(vals)
         if bad.any():
             i = int(np.argmax(bad))
-            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not a finite number ({str(col.iloc[i])!r})")
+            raise TgmsFormatError(f"{name}: row {line[i]}, column {c}: not a finite number ({str(col.iloc[i])!r})")
         limit = PLAUSIBLE_ABS.get(c, _TGMS_PLAUSIBLE_ABS.get(c, np.inf))
         far = np.abs(vals) > limit
         if far.any():
             i = int(np.argmax(far))
-            raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: {float(vals[i]):g} is not a plausible value "
+            raise TgmsFormatError(f"{name}: row {line[i]}, column {c}: {float(vals[i]):g} is not a plausible value "
                                   f"(|{c}| <= {limit:g})")
         if c in integer:
             if np.any(vals != np.round(vals)):
                 i = int(np.argmax(vals != np.round(vals)))
-                raise TgmsFormatError(f"{name}: row {i + 2}, column {c}: not an integer")
+                raise TgmsFormatError(f"{name}: row {line[i]}, column {c}: not an integer")
             vals = vals.astype(np.int64)
         out[c] = vals
     if monotonic is not None:
@@ -196,8 +204,29 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         back = d <= 0 if strict else d < 0
         if back.any():
             i = int(np.argmax(back)) + 1
-            raise TgmsFormatError(f"{name}: row {i + 2}, column {monotonic}: time goes backwards")
+            what = (f"repeats the previous row's {out[monotonic][i]:g} (a duplicated row?)" if d[i - 1] == 0
+                    else "goes backwards")
+            label = "time" if monotonic == "t_s" else "chainage"
+            raise TgmsFormatError(f"{name}: row {line[i]}, column {monotonic}: {label} {what}")
+    out["_line"] = line
     return out
+
+
+def _data_row_lines(path: Path, n: int) -> np.ndarray:
+    """The file's line numbers (1-based, as an editor shows them) of the ``n`` data rows pandas read:
+    blank and whitespace-only lines are skipped by pandas but counted by the editor."""
+    try:
+        data = np.frombuffer(path.read_bytes(), np.uint8)
+    except OSError:
+        data = np.zeros(0, np.uint8)
+    ends = np.r_[np.flatnonzero(data == ord("\n")), data.size]
+    starts = np.r_[0, ends[:-1] + 1]
+    printable = np.r_[0, np.cumsum(data > ord(" "))]
+    used = np.flatnonzero(printable[ends] - printable[starts] > 0) + 1
+    rows = used[1:]                  # after the header
+    if rows.size != n:               # (quoted line breaks: fall back to counting data rows)
+        rows = np.arange(n) + 2
+    return rows
 
 
 def read_recording(folder: str | os.PathLike) -> Recording:
@@ -241,9 +270,10 @@ def read_recording(folder: str | os.PathLike) -> Recording:
         f = d["frame"]
         if np.any(np.diff(f) < 0):
             i = int(np.argmax(np.diff(f) < 0)) + 1
-            raise TgmsFormatError(f"laser_{side}.csv: row {i + 2}, column frame: frame number goes backwards")
+            raise TgmsFormatError(f"laser_{side}.csv: row {d['_line'][i]}, column frame: frame number goes backwards")
         if f.min() < 0:
-            raise TgmsFormatError(f"laser_{side}.csv: row {int(np.argmin(f)) + 2}, column frame: negative frame number")
+            raise TgmsFormatError(f"laser_{side}.csv: row {d['_line'][int(np.argmin(f))]}, column frame: negative "
+                                  "frame number")
         lasers[side] = LaserPoints(frame=f, t_s=d["t_s"], u_px=d["u_px"], v_px=d["v_px"])
     return Recording(config=cfg, alignment=alignment, imu_t_s=imu["t_s"],
                      imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),

@@ -72,6 +72,18 @@ def keep_rows(path: Path, n: int) -> None:
     path.write_text("\n".join(lines[:n + 1]) + "\n", encoding="utf-8")
 
 
+def insert_line(path: Path, after: int, text: str) -> None:
+    """Insert a line after file line ``after`` (1-based)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    path.write_text("\n".join(lines[:after] + [text] + lines[after:]) + "\n", encoding="utf-8")
+
+
+def duplicate_line(path: Path, line: int) -> None:
+    """Repeat file line ``line`` (1-based) right after itself."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    insert_line(path, line, lines[line - 1])
+
+
 def edit_text(path: Path, old: str, new: str) -> None:
     text = path.read_text(encoding="utf-8")
     assert old in text, (path, old)
@@ -130,6 +142,12 @@ def export_probe(edit: Callable[[Path], None], *extra: str) -> Callable[[Path, I
         edit(p)
         return ["export", str(p), *[a.replace("{t}", str(t)) for a in extra]]
     return make
+
+
+def tgms_params_probe(t: Path, i: Inputs, params_text: str) -> list[str]:
+    """tgms process with --params a file holding ``params_text``."""
+    (t / "e.toml").write_text(params_text, encoding="utf-8")
+    return tgms_process_probe(lambda r: None, "--params", str(t / "e.toml"))(t, i)
 
 
 def tgms_process_probe(edit: Callable[[Path], None], *extra: str) -> Callable[[Path, Inputs], list[str]]:
@@ -292,6 +310,22 @@ PROBES: list[Probe] = [
     Probe("tgms-simulate/length-inf", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--length-m", "inf"],
           ("--length-m",)),
     Probe("tgms-process/one-row-imu", tgms_process_probe(lambda r: keep_rows(r / "imu.csv", 1)), ("imu.csv",)),
+    Probe("tgms-process/two-row-imu", tgms_process_probe(lambda r: keep_rows(r / "imu.csv", 2)),
+          ("imu.csv covers", "needs at least")),
+    Probe("tgms-process/100-row-imu", tgms_process_probe(lambda r: keep_rows(r / "imu.csv", 100)),
+          ("imu.csv covers 0.198 s", "needs at least 0.52 s")),
+    Probe("tgms-process/two-row-encoder", tgms_process_probe(lambda r: keep_rows(r / "encoder.csv", 2)),
+          ("encoder.csv gives 0.00 m of track", "at least 10 m")),
+    Probe("tgms-process/params-empty", lambda t, i: tgms_params_probe(t, i, ""), ("e.toml", "no parameters")),
+    Probe("tgms-process/params-foreign-format", lambda t, i: tgms_params_probe(t, i, 'format = "x"\n'),
+          ("e.toml", "format must be")),
+    Probe("tgms-process/decimal-comma", tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "0,5")),
+          ("imu.csv: row 40: 8 cells, the header has 7 columns", "decimal comma")),
+    Probe("tgms-process/bad-cell-after-a-blank-line",
+          tgms_process_probe(lambda r: (insert_line(r / "imu.csv", 10, ""), set_cell(r / "imu.csv", 41, "fx_m_s2", "abc"))),
+          ("imu.csv: row 41, column fx_m_s2: not a finite number",)),
+    Probe("tgms-process/duplicated-row", tgms_process_probe(lambda r: duplicate_line(r / "imu.csv", 30)),
+          ("imu.csv: row 31, column t_s: time repeats the previous row's", "a duplicated row?")),
     Probe("tgms-process/imu-1e308", tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "1e308")),
           ("imu.csv", "40", "wz_rad_s")),
     Probe("tgms-process/encoder-count-1e308",

@@ -98,8 +98,14 @@ def read_params(path: Path):
         d = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ValueError(f"{path.name}: cannot read parameters ({exc})") from None
-    d.pop("format", None)
+    fmt = d.pop("format", None)
+    if fmt is not None and fmt != PARAMS_FORMAT:
+        raise ValueError(f"{path.name}: format must be \"{PARAMS_FORMAT}\", got {fmt!r}")
     d.pop("loglik", None)
+    if not d:
+        # an empty (or format-only) file would silently mean the defaults
+        raise ValueError(f"{path.name}: no parameters (a file written by `trolley tgms tune`, or keys of "
+                         "docs/tgms.md)")
     try:
         return TgmsParams.from_dict(d)
     except ValueError as exc:

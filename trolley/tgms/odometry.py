@@ -254,11 +254,21 @@ def encoder_motion(t_grid: np.ndarray, t_enc: np.ndarray, counts: np.ndarray, me
     dt = float(t_grid[1] - t_grid[0])
     # counts are floor(distance / step): the mid-step is the unbiased distance estimate
     s = s0_m + np.interp(t_grid, t_enc, (counts + 0.5) * metres_per_count)
-    win = max(5, int(round(window_s / dt)) | 1)
+    win = _smoothing_window(dt, window_s)
     s_s = savgol_filter(s, win, 2, mode="interp")
     v = savgol_filter(s, win, 2, deriv=1, delta=dt, mode="interp")
     a = savgol_filter(s, 2 * win + 1, 2, deriv=2, delta=dt, mode="interp")
     return s_s, np.maximum(v, 0.0), a
+
+
+def _smoothing_window(dt: float, window_s: float) -> int:
+    return max(5, int(round(window_s / dt)) | 1)
+
+
+def min_grid_samples(dt: float, window_s: float = 0.25) -> int:
+    """Fewest processing-grid samples :func:`encoder_motion` can smooth: its acceleration's
+    Savitzky-Golay window, 2 w + 1 samples."""
+    return 2 * _smoothing_window(dt, window_s) + 1
 
 
 def curve_windows(alignment: Alignment) -> list[tuple[float, float]]:

@@ -16,7 +16,7 @@ import numpy as np
 from trolley.tgms.camera import pixels_to_tgms
 from trolley.tgms.irregularities import (Irregularities, irregularities, rails_in_laser_track_frame,
                                           resample_irregularities)
-from trolley.tgms.odometry import Odometry, odometry
+from trolley.tgms.odometry import Odometry, min_grid_samples, odometry
 from trolley.tgms.orientation import RelativeAttitude, attitude_kf, attitude_madgwick, relative_yaw
 from trolley.tgms.params import TgmsParams
 from trolley.tgms.profiles import rail_profile
@@ -24,6 +24,9 @@ from trolley.tgms.recording import Recording
 from trolley.tgms.track import TrackKinematics, track_kinematics
 from trolley.tgms.trajectory import RelativeTrajectory, trajectory_ltv
 from trolley.tgms.vision import FitOptions, RailFit, fit_rail
+
+#: shortest stretch of track a recording must cover, m (a few camera frames' worth of irregularity)
+MIN_TRACK_M = 10.0
 
 
 @dataclass
@@ -141,12 +144,21 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
     t1 = time.perf_counter()
     dt = 1.0 / params.process_rate_hz
     t_grid = np.arange(rec.imu_t_s[0] + dt / 2, rec.imu_t_s[-1] - dt / 2, dt)
+    need = min_grid_samples(dt)
+    if t_grid.size < need:
+        raise ValueError(f"imu.csv covers {rec.imu_t_s[-1] - rec.imu_t_s[0]:.3g} s; the encoder's smoothing at "
+                         f"{params.process_rate_hz:g} Hz needs at least {(need + 1) * dt:.3g} s")
     w = average_to_grid(rec.imu_t_s, rec.imu_w_rad_s, t_grid)
     f = average_to_grid(rec.imu_t_s, rec.imu_f_m_s2, t_grid)
     s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else rec.alignment.start_chainage_m
     odo = odometry(t_grid, rec.enc_t_s, rec.enc_count, cfg.encoder.metres_per_count, s0, w[:, 2],
                    rec.alignment, match=match_curves, windows=params.odometry_windows,
                    method=params.odometry_method)
+    covered = float(np.ptp(odo.s_m))
+    if not covered >= MIN_TRACK_M:
+        raise ValueError(f"encoder.csv gives {max(covered, 0.0):.2f} m of track during the IMU record "
+                         f"({rec.enc_t_s[0]:g}-{rec.enc_t_s[-1]:g} s against {rec.imu_t_s[0]:g}-{rec.imu_t_s[-1]:g} s); "
+                         f"at least {MIN_TRACK_M:g} m are needed")
     tim["odometry"] = time.perf_counter() - t1
     # nominal offset of the TGMS above the rails (Gonzalez-Carbajal 2023 Eq. 14's delta), from the vision
     Zv = 0.5 * (vis.left.z_m + vis.right.z_m)
