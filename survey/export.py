@@ -142,7 +142,7 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     folder = path.parent
     file = read_track_file(path)
     track = file.track
-    notes: list[str] = []
+    notes: list[str] = list(file.notes)
     info = survey_info(folder, project_name, session_name)
     fixes = read_fixes_csv(folder / "fixes.csv") if (folder / "fixes.csv").is_file() else None
     record = read_field_record(folder / FIELD_RECORD) if (folder / FIELD_RECORD).is_file() else None
@@ -168,6 +168,9 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     if np.isnan(track.lateral_dev_m).all():
         notes.append("track.csv has no lateral/vertical deviations: alignment, level, long-chord and "
                      "band values are empty")
+    for name, values in (("gauge_mm", track.gauge_m), ("cant_mm", track.cant_m)):
+        if np.isnan(values).all():
+            notes.append(f"track.csv has no {name}: its tolerances are not checked")
     t1 = time.perf_counter()
     geometry = track_geometry(track, cfg)
     t2 = time.perf_counter()

@@ -191,6 +191,11 @@ def _read_csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
             # cells after it would be read into the wrong columns (trolley process refuses it too)
             raise ExportInputError(f"{path}: row {i}: {len(r)} cells, the header has {len(header)} columns "
                                    "(a decimal comma? use a point: 0.5)")
+        if len(r) < len(header) and any(c.strip() for c in r):
+            # fewer: a row cut short (a file copied while it was written, a lost separator); its
+            # missing cells would silently read as "not measured"
+            raise ExportInputError(f"{path}: row {i}: {len(r)} cells, the header has {len(header)} columns "
+                                   "(a truncated row?)")
     body = [r for r in rows[1:] if any(c.strip() for c in r)]
     return header, body
 
@@ -221,6 +226,25 @@ def _numeric_columns(path: Path, header: list[str], body: list[list[str]], names
     return out
 
 
+def _same_cell_count_on_every_line(path: Path) -> bool:
+    """True when every non-blank line of an unquoted CSV has the header's number of commas
+    (counted vectorised over the bytes; a file with quotes or unreadable gives False)."""
+    try:
+        data = np.frombuffer(path.read_bytes(), np.uint8)
+    except OSError:
+        return False
+    if (data == ord('"')).any():
+        return False
+    ends = np.r_[np.flatnonzero(data == ord("\n")), data.size]
+    starts = np.r_[0, ends[:-1] + 1]
+    commas = np.r_[0, np.cumsum(data == ord(","))]
+    per_line = commas[ends] - commas[starts]
+    # a blank line ("", "\r", spaces) has no commas and no other characters
+    printable = np.r_[0, np.cumsum(data > ord(" "))]
+    used = printable[ends] - printable[starts] > 0
+    return bool(used.any()) and bool(np.all(per_line[used] == per_line[used][0]))
+
+
 def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
     """The track.csv columns parsed by pandas' C reader, or None when anything is unusual.
 
@@ -231,6 +255,8 @@ def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
     """
     import pandas as pd
 
+    if not _same_cell_count_on_every_line(path):
+        return None          # pandas would fill a short row with NaN: the strict reader names it
     try:
         df = pd.read_csv(path, encoding="utf-8-sig", keep_default_na=False, na_values=[""], engine="c")
     except (ValueError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError):
@@ -318,6 +344,8 @@ class TrackFile:
     track: TrackInput
     twist_file_m: np.ndarray
     stationing: Stationing | None = None
+    #: what the reader noticed and ignored (a misspelled optional column), for the report
+    notes: list[str] = field(default_factory=list)
 
 
 def read_track_csv(path: Path) -> tuple[TrackInput, np.ndarray]:
@@ -350,7 +378,29 @@ def read_track_file(path: Path) -> TrackFile:
         lateral_dev_m=mm(cols.get("lateral_dev_mm", nan)), vertical_dev_m=mm(cols.get("vertical_dev_mm", nan)),
         gauge_m=mm(cols.get("gauge_mm", nan)), cant_m=mm(cols.get("cant_mm", nan)))
     st = stationing_of_track(s, cols["chainage_m"]) if along == "distance_m" else None
-    return TrackFile(track, mm(cols.get("twist_mm", nan)), st)
+    return TrackFile(track, mm(cols.get("twist_mm", nan)), st, _ignored_column_notes(path, set(cols)))
+
+
+def _ignored_column_notes(path: Path, read: set[str]) -> list[str]:
+    """Notes on header names that look like a track.csv column but are not one ("gauge" for
+    gauge_mm): FORMATS.md ignores unknown columns, so the user must hear that the values were not
+    read (a misspelled gauge_mm would otherwise pass every gauge tolerance unseen)."""
+    import difflib
+
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            header = next(csv.reader(f), [])
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return []
+    known = TRACK_REQUIRED + TRACK_OPTIONAL
+    notes = []
+    for name in (h.strip() for h in header):
+        if name in known:
+            continue
+        close = [c for c in difflib.get_close_matches(name, known, n=1, cutoff=0.6) if c not in read]
+        if close:
+            notes.append(f"track.csv column {name!r} is not a track.csv column and was ignored (meant {close[0]}?)")
+    return notes
 
 
 def read_fixes_csv(path: Path) -> list[FixRow]:

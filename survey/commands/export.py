@@ -94,6 +94,10 @@ def export(
         typer.echo(f"error: {e.filename or ''}: {e.strerror or e}", err=True)
         raise typer.Exit(code=2)
     rep = result.report
+    for note in rep.notes:
+        if note.startswith("track.csv column") or note.startswith("track.csv has no gauge_mm"):
+            # what was not checked, before a PASS is believed
+            console.print(f"note: {note}", highlight=False, markup=False, soft_wrap=True)
     verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
     console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {escape(rep.tolerances.name)}: {verdict}")
     jsonout.echo(result.as_dict())
