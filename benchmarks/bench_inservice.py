@@ -33,6 +33,9 @@ Sections:
   next to its honesty: does the check flag the runs whose sigmas are not honest?
 * paper-level: the standard case with the alignment scaled to the paper's level (about 1.44 mm rms
   over 3-200 m), calibrated on runs scaled alike;
+* gravity (beyond the paper): accelerometers that sense g times their roll, as real ones do; the
+  standard model, the same design model calibrated on such runs, and that model with the
+  cross-level roll state (trolley.inservice.model.with_sensor_gravity);
 * forward: forward filter only (the paper's estimator: the paper's model, tuned for it);
 * uncorrelated: the paper's model with the paper's Q and R (no S), filter + smoother.
 
@@ -42,7 +45,7 @@ time counts every thread).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_inservice.py [--seeds 1 2 ... 10] [--cal-seed 1000]
         [--extra-seeds 1001 1002 1003] [--kinds bogie paper] [--radius-m 1500] [--rate-hz 200]
-        [--sections standard robustness resonance curved consistency paper-level forward uncorrelated]
+        [--sections standard robustness resonance curved consistency paper-level gravity forward uncorrelated]
 """
 from __future__ import annotations
 
@@ -64,7 +67,8 @@ from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, sim
 
 V = 20.0
 LENGTH = 400.0
-SECTIONS = ("standard", "robustness", "resonance", "curved", "consistency", "paper-level", "forward", "uncorrelated")
+SECTIONS = ("standard", "robustness", "resonance", "curved", "consistency", "paper-level", "gravity", "forward",
+            "uncorrelated")
 #: the alignment amplitude factor that gives the paper's track: its J / Jrel = 0.36 mm / 0.25 over
 #: 3-200 m (Table 2) mean 1.44 mm rms, the standard seeds 1-10 have 2.46 mm (docs/inservice.md)
 PAPER_LEVEL_SCALE = 1.44 / 2.457
@@ -154,7 +158,7 @@ def main() -> None:
     extra_runs = [run_case(vp, sd).calibration_run() for sd in args.extra_seeds]
     runs = {seed: run_case(vp, seed) for seed in args.seeds}
     models = {}
-    if "standard" in args.sections or set(args.sections) & {"robustness", "resonance", "curved", "consistency"}:
+    if "standard" in args.sections or set(args.sections) & {"robustness", "resonance", "curved", "consistency", "gravity"}:
         for kind in args.kinds:
             t0 = time.process_time()
             mdl = calibrate(nominal_parameters(vp, kind), V, ref.t_s, ref.s_m, ref.reference_states(kind), ref.sensors(),
@@ -186,6 +190,8 @@ def main() -> None:
         consistency(models[main_kind], main_kind, vp, args.seeds[:2])
     if "paper-level" in args.sections:
         paper_level(main_kind, vp, args)
+    if "gravity" in args.sections:
+        gravity(main_kind, vp, args, models.get(main_kind))
     if "forward" in args.sections:
         forward(vp, ref, runs, extra_runs)
     if "uncorrelated" in args.sections:
@@ -284,12 +290,41 @@ def paper_level(kind, vp, args):
     for seed in args.seeds:
         acc, hb, _ = show(f"seed {seed}", mdl, run_case(vp, seed, lateral=sc))
         res.append((acc["3-200"], hb))
+    print(seeds_summary(res) + " (the paper's true alignment about 1.44 mm)")
+
+
+def seeds_summary(res):
+    """One line over the seeds of a section; res holds (3-200 m BandAccuracy, honesty) per seed."""
     j = [a.J_m * 1e3 for a, _ in res]
     hb = [h for _, h in res]
-    print(f"3-200 m over {len(res)} seeds: true alignment rms {rms([a.rms_true_m for a, _ in res]) * 1e3:.3f} mm "
-          f"(paper about 1.44); J rms {rms(j):.3f} mm ({min(j):.3f}-{max(j):.3f}, {sum(x <= 0.30 for x in j)} of "
-          f"{len(j)} <= 0.30), Jrel rms {rms([a.Jrel for a, _ in res]):.3f}; honesty rms {rms(hb):.2f}, "
-          f"{sum(0.7 <= h <= 1.3 for h in hb)} of {len(hb)} in 0.7-1.3")
+    return (f"3-200 m over {len(res)} seeds: true alignment rms {rms([a.rms_true_m for a, _ in res]) * 1e3:.3f} mm; "
+            f"J rms {rms(j):.3f} mm ({min(j):.3f}-{max(j):.3f}, {sum(x <= 0.30 for x in j)} of {len(j)} <= 0.30), "
+            f"Jrel rms {rms([a.Jrel for a, _ in res]):.3f}; honesty rms {rms(hb):.2f} ({min(hb):.2f}-{max(hb):.2f}), "
+            f"{sum(0.7 <= h <= 1.3 for h in hb)} of {len(hb)} in 0.7-1.3")
+
+
+def gravity(kind, vp, args, virtual=None):
+    """Real accelerometers (beyond the paper): the truth's accelerometers also sense g times their
+    roll (VehicleParameters.sensor_gravity). Evaluated on such runs: the model calibrated on the
+    paper's virtual sensors (``virtual``, the standard case's), the same design model calibrated on
+    gravity runs, and that model with the cross-level roll state (sensor_gravity,
+    trolley.inservice.model.with_sensor_gravity) calibrated on them."""
+    gvp = replace(vp, sensor_gravity=True)
+    ref = run_case(gvp, args.cal_seed)
+    extra = [run_case(gvp, sd).calibration_run() for sd in args.extra_seeds]
+    runs = {seed: run_case(gvp, seed) for seed in args.seeds}
+    models = {} if virtual is None else {"calibrated on virtual sensors": virtual}
+    for roll in (False, True):
+        p0 = replace(nominal_parameters(vp, kind), sensor_gravity=roll)
+        models[f"calibrated on gravity runs{', roll state' if roll else ''}"] = calibrate(
+            p0, V, ref.t_s, ref.s_m, ref.reference_states(kind, roll=roll), ref.sensors(), extra_runs=extra)
+    for name, mdl in models.items():
+        header(f"accelerometers sensing gravity, {kind} model {name} (sigma scale {mdl.sigma_scale:.3f})")
+        res = []
+        for seed, run in runs.items():
+            acc, hb, _ = show(f"seed {seed}", mdl, run)
+            res.append((acc["3-200"], hb))
+        print(seeds_summary(res))
 
 
 def forward(vp, ref, runs, extra_runs):

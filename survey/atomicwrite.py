@@ -31,11 +31,12 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 # Files a raw session folder holds (FORMATS.md sections 1 and 3): never an output target.
+# The in-service recordings' (docs/inservice.md) too.
 RAW_FILES = frozenset({"imu.csv", "odometer.csv", "gauge.csv", "fixes.csv", "session.toml", "stats.json",
-                       "tgms.toml", "encoder.csv", "lasers.csv", "track.csv"})
+                       "tgms.toml", "encoder.csv", "lasers.csv", "track.csv", "inservice.toml", "sensors.csv"})
 
 #: Files that make a folder a raw session or a recording: no output folder may be one.
-RAW_FOLDER_MARKS = ("session.toml", "tgms.toml")
+RAW_FOLDER_MARKS = ("session.toml", "tgms.toml", "inservice.toml")
 
 _UMASK_LOCK = threading.Lock()
 # (temporary, target) pairs whose os.replace waits for the enclosing all_or_nothing() block
@@ -96,8 +97,12 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     Path of the temporary file (hidden: its name starts with a dot).
     """
     path = Path(path)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
-                                    suffix=path.suffix if suffix is None else suffix)
+    try:
+        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
+                                        suffix=path.suffix if suffix is None else suffix)
+    except OSError as exc:
+        # name the user's file, not the hidden temporary one that could not be made
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
     os.close(fd)
     tmp = Path(tmp_name)
     pending = _PENDING.get()

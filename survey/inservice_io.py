@@ -44,6 +44,14 @@ BOGIE_KEYS = {"izz_frame_kg_m2": "If", "ky_secondary_n_m": "ky_s", "cy_secondary
               "kyaw_secondary_n_m_rad": "k_yaw_s", "cyaw_secondary_n_m_s_rad": "c_yaw_s"}
 
 
+#: [vehicle] values that may be 0 (spin creep, springs and dampers); every other one must be > 0
+MAY_BE_ZERO = frozenset({"f23_n_m", "f33_n_m2", "kx_primary_n_m", "cx_primary_n_s_m", "ky_primary_n_m",
+                         "cy_primary_n_s_m", "ky_secondary_n_m", "cy_secondary_n_s_m", "kyaw_secondary_n_m_rad",
+                         "cyaw_secondary_n_m_s_rad"})
+#: largest design curvature of a recording, 1/m (R 100 m, as `trolley inservice simulate` allows)
+MAX_CURVATURE_1_M = 0.01
+
+
 class InserviceFormatError(ValueError):
     """A recording folder or truth file that does not follow docs/inservice.md."""
 
@@ -201,12 +209,21 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     for key, val in (("run.speed_m_s", speed), ("run.rate_hz", rate)):
         if val <= 0:
             raise InserviceFormatError(f"{fname}: {key} must be > 0, got {val}")
+    # (the values were read as finite numbers above)
+    for key in (k for k in (*VEHICLE_KEYS, *VEHICLE_EXTRA_KEYS, *BOGIE_KEYS) if k in veh):
+        val = float(veh[key])
+        if val < 0 or (val == 0 and key not in MAY_BE_ZERO):
+            raise InserviceFormatError(f"{fname}: vehicle.{key} must be {'>= 0' if key in MAY_BE_ZERO else '> 0'}, "
+                                       f"got {val}")
+    if abs(curv) > MAX_CURVATURE_1_M:
+        raise InserviceFormatError(f"{fname}: run.curvature_1_m must be within +-{MAX_CURVATURE_1_M:g} 1/m (radius "
+                                   f"{1 / MAX_CURVATURE_1_M:g} m or more), got {curv:g}: a radius typed for 1/R?")
     for key, val in (("sensors.sigma_acc_m_s2", sa), ("sensors.sigma_gyro_rad_s", sg)):
         if val < 0:
             raise InserviceFormatError(f"{fname}: {key} must be >= 0, got {val}")
     if np.any(cols["speed_m_s"] <= 0):
         i = int(np.argmax(cols["speed_m_s"] <= 0))
-        raise InserviceFormatError(f"sensors.csv: row {i + 2}, column speed_m_s: must be > 0")
+        raise InserviceFormatError(f"sensors.csv: row {cols['_line'][i]}, column speed_m_s: must be > 0")
     return InserviceRecording(
         nominal=nominal, vehicle_extra=extra, speed_m_s=speed, rate_hz=rate, start_chainage_m=start,
         curvature_1_m=-curv, sigma_acc_m_s2=sa, sigma_gyro_rad_s=sg,

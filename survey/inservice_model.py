@@ -3,7 +3,7 @@
 Holds a :class:`trolley.inservice.identification.EstimatorModel`: the design model's kind
 (``kind = "bogie"``, trolley.inservice.bogie, or ``"paper"``, the simplified model of Munoz 2021;
 files without the key are "paper") and its parameters (Munoz 2021 Eq. 4, with p_opt identified by
-Eq. 6), the diagonals of Q (per step of ``dt_s``) and R (Eq. 26-29, tuned), the sigma scale, the
+Eq. 6; ``sensor_gravity`` a boolean, false when absent), the diagonals of Q (per step of ``dt_s``) and R (Eq. 26-29, tuned), the sigma scale, the
 calibration runs' rms normalized innovations (the reference of the consistency check; optional),
 and with correlated noises the full Q, R and their cross covariance S. SI units throughout.
 Written atomically; the reader names the file and the key of any bad value.
@@ -20,6 +20,8 @@ from survey.atomicwrite import write_text_atomic
 from survey.inservice_io import parse_toml
 
 FORMAT = "trolley-inservice-model/1"
+#: sample intervals a model file may hold, s (filter rates 5 Hz to 100 kHz)
+MIN_DT_S, MAX_DT_S = 1e-5, 0.2
 
 
 class ModelFileError(ValueError):
@@ -31,7 +33,8 @@ def model_toml_text(model) -> str:
     lines = [f'format = "{FORMAT}"', f'kind = "{model.params.KIND}"', "",
              "# design model parameters (Munoz 2021 Eq. 4; the bogie model: trolley.inservice.bogie), SI",
              "[parameters]"]
-    lines += [f"{k} = {float(v)!r}" for k, v in asdict(model.params).items()]
+    lines += [f"{k} = {str(v).lower()}" if isinstance(v, bool) else f"{k} = {float(v)!r}"
+              for k, v in asdict(model.params).items()]
     lines += ["", "# filter noise (Munoz 2021 Eq. 26-29, tuned); Q per step of dt_s", "[noise]",
               f"dt_s = {model.dt_s!r}", "q_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.Q)) + "]",
               "r_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.R)) + "]",
@@ -64,6 +67,14 @@ def _number(table: dict, key: str, where: str, fname: str) -> float:
     return float(v)
 
 
+def _flag(table: dict, key: str, where: str, fname: str) -> bool:
+    # optional: files written before the key existed are the paper's virtual sensors
+    v = table.get(key, False)
+    if not isinstance(v, bool):
+        raise ModelFileError(f"{fname}: {where}.{key} must be true or false, got {v!r}")
+    return v
+
+
 def _vector(table: dict, key: str, n: int, fname: str, signed: bool = False) -> np.ndarray:
     v = table.get(key)
     try:
@@ -91,27 +102,46 @@ def read_model(path: str | os.PathLike):
         raise ModelFileError(f"{fname}: kind must be one of {', '.join(sorted(kinds))}, got {kind!r}")
     cls = kinds[kind]
     try:
-        params = cls(**{f.name: _number(par, f.name, "parameters", fname) for f in fields(cls)})
+        params = cls(**{f.name: (_flag if f.type in (bool, "bool") else _number)(par, f.name, "parameters", fname)
+                        for f in fields(cls)})
     except ValueError as exc:
         if isinstance(exc, ModelFileError):
             raise
         raise ModelFileError(f"{fname}: {exc}") from None
     dt = _number(noi, "dt_s", "noise", fname)
-    if dt <= 0:
-        raise ModelFileError(f"{fname}: noise.dt_s must be > 0, got {dt}")
+    if not MIN_DT_S <= dt <= MAX_DT_S:
+        raise ModelFileError(f"{fname}: noise.dt_s must be {MIN_DT_S:g}-{MAX_DT_S:g} s (a filter rate of "
+                             f"{1 / MAX_DT_S:g}-{1 / MIN_DT_S:g} Hz), got {dt}")
     n = params.n_state
     Q, R, S = np.diag(_vector(noi, "q_diagonal", n, fname)), np.diag(_vector(noi, "r_diagonal", 4, fname)), None
     if "s_matrix" in noi:
         Q = _vector(noi, "q_matrix", n * n, fname, signed=True).reshape(n, n)
         R = _vector(noi, "r_matrix", 16, fname, signed=True).reshape(4, 4)
         S = _vector(noi, "s_matrix", 4 * n, fname, signed=True).reshape(n, 4)
+    _check_covariances(Q, R, fname)
     nu = None
     if "innovation_rms" in noi:      # (optional: files written before the consistency check lack it)
         nu = _vector(noi, "innovation_rms", 3, fname)
         if not np.all(nu > 0):
             raise ModelFileError(f"{fname}: noise.innovation_rms must be 3 numbers > 0, got {noi['innovation_rms']!r}")
-    return EstimatorModel(params, Q, R, dt,
-                          _number(noi, "sigma_scale", "noise", fname),
-                          _number(noi, "q_dynamics_factor", "noise", fname),
-                          _number(noi, "q_xi_factor", "noise", fname),
-                          _number(noi, "sigma_xi_virtual_m", "noise", fname), S, nu)
+    scalars = {k: _number(noi, k, "noise", fname)
+               for k in ("sigma_scale", "q_dynamics_factor", "q_xi_factor", "sigma_xi_virtual_m")}
+    for k, v in scalars.items():
+        if v <= 0:
+            raise ModelFileError(f"{fname}: noise.{k} must be > 0, got {v}")
+    return EstimatorModel(params, Q, R, dt, scalars["sigma_scale"], scalars["q_dynamics_factor"],
+                          scalars["q_xi_factor"], scalars["sigma_xi_virtual_m"], S, nu)
+
+
+def _check_covariances(Q: np.ndarray, R: np.ndarray, fname: str) -> None:
+    """Q symmetric and positive semi-definite, R symmetric and positive definite (the filter
+    inverts R and its innovation covariance): a hand-edited sign is caught here, not as NaN later."""
+    for key, m, strict in (("q", Q, False), ("r", R, True)):
+        scale = float(np.abs(m).max()) or 1.0
+        if not np.allclose(m, m.T, rtol=0.0, atol=1e-9 * scale):
+            raise ModelFileError(f"{fname}: noise.{key}_matrix must be symmetric")
+        low = float(np.linalg.eigvalsh(0.5 * (m + m.T)).min())
+        if (strict and low <= 0.0) or low < -1e-9 * scale:
+            what = "positive definite" if strict else "positive semi-definite"
+            raise ModelFileError(f"{fname}: noise.{key}_matrix (or {key}_diagonal) must be {what}; smallest "
+                                 f"eigenvalue {low:.3g}")

@@ -3,11 +3,13 @@
 
 * ``trolley inservice simulate --out DIR`` writes a synthetic recording and truth.csv
   (survey/commands/inservice_simulate.py).
-* ``trolley inservice calibrate --out model.toml [--kind bogie|paper]`` runs the full-vehicle truth
-  simulator (the paper's reference simulation with the complete model), identifies the design
-  model's suspension (Eq. 6), estimates Q and R (Eq. 26-29) and tunes the filter
-  (docs/inservice.md). ``bogie`` (default) is the bogie design model of trolley.inservice.bogie,
-  ``paper`` the simplified model of Munoz 2021.
+* ``trolley inservice calibrate --out model.toml [--kind bogie|paper] [--sensor-gravity]`` runs the
+  full-vehicle truth simulator (the paper's reference simulation with the complete model),
+  identifies the design model's suspension (Eq. 6), estimates Q and R (Eq. 26-29) and tunes the
+  filter (docs/inservice.md). ``bogie`` (default) is the bogie design model of
+  trolley.inservice.bogie, ``paper`` the simplified model of Munoz 2021. ``--sensor-gravity``: the
+  accelerometers sense g times their roll, as real ones do, and the filter gains the cross-level
+  roll (trolley.inservice.model.with_sensor_gravity).
 * ``trolley inservice process RECORDING --out DIR [--truth FILE] [--model FILE] [--smoother rts|none]``
   writes irregularities.csv (s_m, alignment_mm, sigma_alignment_mm, and the alignment band-passed
   to 3-200 m with its own sigma; alignment positive to the RIGHT as in every project file),
@@ -18,7 +20,6 @@ Bad input: a message naming the file/row/column or key on stderr, exit 2, no out
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -27,8 +28,8 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.atomicwrite import write_with
-from survey.commands.inservice_simulate import simulate_cmd
+from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
+from survey.commands.inservice_simulate import _fail, simulate_cmd
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
 
 console = Console(stderr=True)
@@ -39,15 +40,14 @@ inservice_app.command("simulate")(simulate_cmd)
 
 #: output grid step of irregularities.csv, m
 OUTPUT_STEP_M = 0.25
+#: shortest calibration run, m: the tuning's J over 3-200 m starts after the filter's 30 m start-up
+MIN_CALIBRATION_LENGTH_M = 250.0
+#: the files `process` writes into --out
+OUTPUT_NAMES = ("irregularities.csv", "alignment.png", "inservice.xlsx", "summary.json")
 #: the sensor channels as named in messages
 SENSOR_LABELS = ("wheelset accelerometer", "wheelset gyro", "frame accelerometer")
 #: and as keys of summary.json
 CONSISTENCY_KEYS = ("wheelset_ay", "wheelset_wz", "frame_ay")
-
-
-def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code=2)
 
 
 def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
@@ -174,10 +174,13 @@ def process_cmd(
     from trolley.inservice.resample import decimated, decimation_factor
 
     try:
+        check_outputs([], inputs=[recording, truth, model], folders=[("--out", out)])
+        if out.is_dir():
+            check_outputs([("--out", out / name) for name in OUTPUT_NAMES], inputs=[truth, model])
         rec = read_recording(recording)
         tru = read_truth(truth) if truth is not None else None
         mdl = read_model(model) if model is not None else None
-    except (InserviceFormatError, ModelFileError) as exc:
+    except (InserviceFormatError, ModelFileError, OutputError) as exc:
         _fail(str(exc))
     if len(rec.t_s) < 10:
         _fail(f"{recording / 'sensors.csv'}: needs at least 10 rows, got {len(rec.t_s)}")
@@ -238,7 +241,8 @@ def process_cmd(
     summary = {"recording": str(recording), "samples": int(len(rec.t_s)), "length_m": length,
                "speed_m_s": float(np.mean(rec.speed_arr_m_s)), "curvature_1_m_right_positive": -rec.curvature_1_m,
                "smoother": smoother, "model": str(model) if model else "nominal (recording [vehicle])",
-               "design_model": kind, "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
+               "design_model": kind, "sensor_gravity": bool(mdl.params.sensor_gravity) if mdl is not None else False,
+               "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
                "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
     summary["consistency"] = {"checked": False, "reason": not_checked} if fit is None else {
@@ -276,11 +280,14 @@ def process_cmd(
         cols[f"sigma_alignment_{lo}_{hi}m_mm"] = units.m_to_mm(np.interp(grid, band[0], band[2]))
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_csv_frame(out / "irregularities.csv", pd.DataFrame(cols), "%.6g")
-        run_name = f"{recording.resolve().parent.name}/{recording.name}"
-        _write_png(out / "alignment.png", cols, truth_mm, title=f"lateral alignment - {run_name}")
-        _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})}, cols)
-        write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+        with all_or_nothing():
+            write_csv_frame(out / "irregularities.csv", pd.DataFrame(cols), "%.6g")
+            run_name = f"{recording.resolve().parent.name}/{recording.name}"
+            _write_png(out / "alignment.png", cols, truth_mm, title=f"lateral alignment - {run_name}")
+            _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
+                        cols)
+            # jsonout: a band longer than a short recording has no J (null, not NaN: valid JSON)
+            write_text_atomic(out / "summary.json", jsonout.dumps(summary, indent=2) + "\n")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     jsonout.echo(summary)
@@ -290,7 +297,9 @@ def process_cmd(
 def calibrate_cmd(
     out: Annotated[Path, typer.Option("--out", help="model.toml to write")],
     speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=2.0, max=60.0, help="speed of the reference run, m/s")] = 20.0,
-    length_m: Annotated[float, typer.Option("--length-m", min=100.0, max=5000.0, help="reference run length, m")] = 400.0,
+    length_m: Annotated[float, typer.Option(
+        "--length-m", min=MIN_CALIBRATION_LENGTH_M, max=5000.0,
+        help="reference run length, m (the 3-200 m band after the filter's start-up needs 250 m)")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
     filter_rate_hz: Annotated[float, typer.Option(
@@ -302,9 +311,14 @@ def calibrate_cmd(
     kind: Annotated[InserviceKind, typer.Option(
         "--kind", help="design model of the filter: bogie (both wheelsets, the frame's yaw and the car body; "
                        "beyond the paper) or paper (Munoz 2021's one-wheelset model)")] = "bogie",
+    sensor_gravity: Annotated[bool, typer.Option(
+        "--sensor-gravity", help="the accelerometers sense g x their roll, as real ones do: the runs are simulated so "
+                                 "and the filter gains the cross-level roll (not in the paper's virtual sensors)")] = False,
     json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
+    from dataclasses import replace
+
     from survey.inservice_model import write_model
     from trolley.inservice.bogie import nominal_parameters
     from trolley.inservice.identification import calibrate
@@ -312,8 +326,15 @@ def calibrate_cmd(
     from trolley.inservice.resample import decimation_factor
     from trolley.inservice.vehicle import VehicleParameters, simulate_run
 
+    try:
+        # before minutes of simulation: a folder, a recording's file or an unwritable place is
+        # refused now (a missing folder is made at the end)
+        if out.parent.is_dir():
+            check_outputs([("--out", out)])
+    except OutputError as exc:
+        _fail(str(exc))
     t0 = time.process_time()
-    vp = VehicleParameters()
+    vp = VehicleParameters(sensor_gravity=sensor_gravity)
     q = decimation_factor(rate_hz, filter_rate_hz)
     with console.status("simulating the reference run"):
         run = simulate_run(vp, irregularity_from_psd(length_m, seed=seed), speed_m_s, length_m, rate_hz=rate_hz,
@@ -323,16 +344,16 @@ def calibrate_cmd(
         for sd in range(seed + 1, seed + 1 + extra_runs):
             extra.append(simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m,
                                       rate_hz=rate_hz, seed=sd + 1).decimated(q).calibration_run())
-    p0 = nominal_parameters(vp, kind)
+    p0 = replace(nominal_parameters(vp, kind), sensor_gravity=sensor_gravity)
     with console.status("identifying and tuning"):
-        mdl = calibrate(p0, speed_m_s, run.t_s, run.s_m, run.reference_states(kind), run.sensors(),
-                        extra_runs=extra)
+        mdl = calibrate(p0, speed_m_s, run.t_s, run.s_m, run.reference_states(kind, roll=sensor_gravity),
+                        run.sensors(), extra_runs=extra)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         write_model(out, mdl)
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    jsonout.echo({"out": out, "kind": kind, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
+    jsonout.echo({"out": out, "kind": kind, "sensor_gravity": sensor_gravity, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
                   "speed_m_s": speed_m_s, "length_m": length_m, "rate_hz": rate_hz, "filter_rate_hz": rate_hz / q,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,

@@ -2,7 +2,9 @@
 
 Runs the full-vehicle truth simulator (``trolley.inservice.vehicle``) over PSD irregularities
 (and/or a harmonic alignment, the resonance case of Munoz 2021 Sec. V-E) and writes
-``OUT/recording/`` (inservice.toml + sensors.csv) and ``OUT/truth.csv`` outside the recording.
+``OUT/recording/`` (inservice.toml + sensors.csv) and ``OUT/truth.csv`` outside the recording, all
+or none of them; an existing OUT is written again only if this command made it (its marker), so
+a recording is never replaced.
 Command-line values are at the edge: curvature positive for a RIGHT turn (as in the files),
 harmonic amplitude in mm. A JSON summary goes to stdout, errors to stderr (exit 2).
 """
@@ -16,13 +18,18 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
+from survey.atomicwrite import OutputError, all_or_nothing, guard_overwrite, write_marker
 from survey.commands.options import JsonAlways
 
 console = Console(stderr=True)
 
 
 def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    """One line on stderr, exit 2. The message is printed as text, not markup: a path or a value
+    with brackets ("data/[old]/rec", "[x, y, z]") must appear as written."""
+    from rich.text import Text
+
+    console.print(Text.assemble(("error:", "red"), " ", msg), highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 
@@ -60,6 +67,11 @@ def simulate_cmd(
 
     if harmonic_wavelength_m is not None and resonance:
         _fail("give --harmonic-wavelength-m or --resonance, not both")
+    try:
+        # a recording is raw data: only a folder this command made may be written again
+        guard_overwrite(out, "inservice simulate", force=False, reuse_own=True)
+    except OutputError as exc:
+        _fail(str(exc))
     params = VehicleParameters(conicity_factor=conicity_factor, creep_factor=creep_factor,
                                sensor_gravity=sensor_gravity)
     mode = first_lateral_mode(params, speed_m_s)
@@ -78,8 +90,11 @@ def simulate_cmd(
     cpu = time.process_time() - t0
     try:
         out.mkdir(parents=True, exist_ok=True)
-        inservice_io.write_recording(out / "recording", inservice_io.recording_from_run(run, params))
-        inservice_io.write_truth(out / "truth.csv", run.s_m, run.alignment_m, run.vertical_m, run.curvature_1_m)
+        with all_or_nothing():
+            inservice_io.write_recording(out / "recording", inservice_io.recording_from_run(run, params))
+            inservice_io.write_truth(out / "truth.csv", run.s_m, run.alignment_m, run.vertical_m,
+                                     run.curvature_1_m)
+        write_marker(out, "inservice simulate")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
     import numpy as np

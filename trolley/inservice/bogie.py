@@ -113,6 +113,8 @@ class BogieParameters(DesignParameters):
     kx, cx, ky, cy : primary longitudinal and lateral stiffness (N/m) and damping (N s/m) per axle
         box; the equivalent values are identified (Eq. 6).
     pade_order : order of the Pade approximant of the wheelbase delay.
+    sensor_gravity : the accelerometers also sense g times their roll, as real ones do (one more
+        state, trolley.inservice.model.with_sensor_gravity); False: the paper's virtual sensors.
     """
 
     m: float = 1813.0
@@ -136,6 +138,7 @@ class BogieParameters(DesignParameters):
     ky: float = 3.884e6
     cy: float = 0.0
     pade_order: int = 5
+    sensor_gravity: bool = False
 
     #: model kind written to model.toml
     KIND = "bogie"
@@ -147,12 +150,11 @@ class BogieParameters(DesignParameters):
             raise ValueError(f"pade_order must be an integer in 1-8, got {self.pade_order}")
 
     @property
-    def n_state(self) -> int:
+    def _n_design_states(self) -> int:
         return N_MECH + int(self.pade_order)
 
     @property
-    def state_kinds(self) -> tuple[str, ...]:
-        """Kinds of the states (model.DesignParameters.state_kinds), in the order of STATE_NAMES."""
+    def _design_state_kinds(self) -> tuple[str, ...]:
         return STATE_KINDS + ("delay",) * int(self.pade_order)
 
     @property
@@ -160,11 +162,10 @@ class BogieParameters(DesignParameters):
         """K_g per wheelset = (m + (mf + mb) / 2) g alpha / l, N/m (sign as model.ModelParameters)."""
         return (self.m + 0.5 * (self.mf + self.mb)) * G_M_S2 * self.conicity / self.l
 
-    def state_space(self, speed_m_s: float):
-        """(Fc, Bc, Hc, Dc) as :func:`trolley.inservice.model.state_space`, for this model."""
+    def _design_state_space(self, speed_m_s: float):
         return state_space(self, speed_m_s)
 
-    def full_states(self, mechanical, t_s, speed_m_s: float) -> np.ndarray:
+    def _design_full_states(self, mechanical, t_s, speed_m_s: float) -> np.ndarray:
         """Reference states with the Pade states appended (for Eq. 26-27 on a reference run).
 
         Parameters
@@ -227,7 +228,8 @@ def state_space(p: BogieParameters, speed_m_s: float):
 
     Returns
     -------
-    Fc : (n, n) state matrix, n = 13 + pade_order.
+    Fc : (n, n) state matrix, n = 15 + pade_order (the roll of model.with_sensor_gravity is added
+        by BogieParameters.state_space).
     Bc : (n, 1) input matrix of the design curvature kappa.
     Hc : (4, n) measurement matrix: leading wheelset y'', psi', frame y_f'' and the virtual xi.
     Dc : (4, 1) direct feed of kappa (V^2 kappa, V kappa, V^2 kappa, 0).
@@ -236,7 +238,7 @@ def state_space(p: BogieParameters, speed_m_s: float):
     M, C, K, Kd1, Kd2, Bk = matrices(p, V)
     Mi = np.linalg.inv(M)
     Ap, Bp, Cp, Dp = pade_delay(2 * p.a / V, int(p.pade_order))
-    n = p.n_state
+    n = N_MECH + int(p.pade_order)
     qp, vp = list(Q_POS), list(V_POS)
     zp = list(range(N_MECH, n))
     Fc = np.zeros((n, n))

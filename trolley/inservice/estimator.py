@@ -92,6 +92,10 @@ class NoiseDensities:
         the time density is this times the speed.
     sigma_acc_m_s2, sigma_gyro_rad_s : sensor noise (Munoz 2021 Sec. V: 0.01 m/s^2, 5e-4 rad/s).
     sigma_xi_virtual_m : sigma of the virtual measurement xi = 0 (paper: 5 mm).
+    roll_rad2_per_m : spectral density of the cross-level roll's random walk per metre of track
+        (rad^2/m), for models whose accelerometers sense gravity (model.with_sensor_gravity): the
+        Eq. 27 estimate of a calibration on the benchmark's track (5e-9 rad^2 per 5 ms step at
+        20 m/s).
     """
 
     force_m2_s3: float = 2.0e-3
@@ -100,11 +104,13 @@ class NoiseDensities:
     sigma_acc_m_s2: float = 0.01
     sigma_gyro_rad_s: float = 5.0e-4
     sigma_xi_virtual_m: float = 5.0e-3
+    roll_rad2_per_m: float = 5.0e-8
 
     def qc(self, speed_m_s: float, state_kinds=STATE_KINDS) -> np.ndarray:
         """Continuous Qc at a given speed for states of the given kinds
         (DesignParameters.state_kinds): the densities drive the velocities and xi."""
-        per_kind = {"vy": self.force_m2_s3, "wz": self.yaw_rad2_s3, "xi": self.xi_m2_per_m * speed_m_s}
+        per_kind = {"vy": self.force_m2_s3, "wz": self.yaw_rad2_s3, "xi": self.xi_m2_per_m * speed_m_s,
+                    "roll": self.roll_rad2_per_m * speed_m_s}
         return np.diag([per_kind.get(k, 0.0) for k in state_kinds])
 
     def r(self) -> np.ndarray:
@@ -233,8 +239,9 @@ def _rts_from_priors(Xf, Pf, Xp, Pp, Fs):
     return Xs, Ps, np.concatenate([C, np.zeros((1,) + C.shape[1:])])
 
 
-#: default initial sigmas per kind of state (Eq. 19): 5 mm, 2 mrad and their rates of a few cm/s
-INITIAL_SIGMA = {"y": 5e-3, "psi": 2e-3, "vy": 5e-2, "wz": 2e-2, "xi": 5e-3, "delay": 5e-3}
+#: default initial sigmas per kind of state (Eq. 19): 5 mm, 2 mrad and their rates of a few cm/s; the
+#: cross-level roll 3 mrad (4.3 mm of cross level)
+INITIAL_SIGMA = {"y": 5e-3, "psi": 2e-3, "vy": 5e-2, "wz": 2e-2, "xi": 5e-3, "delay": 5e-3, "roll": 3e-3}
 
 
 def _initial_covariance(state_kinds=STATE_KINDS) -> np.ndarray:

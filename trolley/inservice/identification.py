@@ -370,7 +370,9 @@ def calibrate(p0: DesignParameters, speed_m_s: float, t_s, s_m, states, measurem
     speed_m_s : constant speed of the reference run, m/s.
     t_s, s_m : (N,) times (uniform) and chainages.
     states : (N, 7) CM states [y, psi, y_f, y', psi', y_f', xi] of the instrumented bodies (Eq. 7), or for
-        the bogie model (trolley.inservice.bogie) the (N, 13) states of its STATE_NAMES.
+        the bogie model (trolley.inservice.bogie) the (N, 15) states of its STATE_NAMES; when
+        ``p0.sensor_gravity``, the true cross-level roll as one more column
+        (trolley.inservice.vehicle.RunResult.reference_states(kind, roll=True)).
     measurements : (N, 3) sensor channels of the run (with noise).
     skip_m : chainage at the start left out of the tuning (the filter's start-up).
     smoother : the estimator the tuning is for: "rts" (filter + smoother) or "none" (forward
@@ -400,8 +402,13 @@ def calibrate(p0: DesignParameters, speed_m_s: float, t_s, s_m, states, measurem
     t = np.asarray(t_s, float)
     X = p0.full_states(states, t, speed_m_s)
     Zm = np.asarray(measurements, float)
+    Zid = Zm
+    if p0.sensor_gravity:
+        # the design response of Eq. 6 starts the roll state at 0 and has no input for it: the
+        # reference run's true cross-level roll is taken out of its accelerometers for the fit
+        Zid = Zm - np.outer(X[:, -1], p0.state_space(speed_m_s)[2][:3, -1])
     ref = {c: X[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[:3])}
-    ref.update({c: Zm[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[3:])})
+    ref.update({c: Zid[:, i] for i, c in enumerate(CALIBRATION_CHANNELS[3:])})
     p = identify_suspension(p0, speed_m_s, t, X[:, 6], ref).params
     dt = float(np.median(np.diff(t)))
     dm = discrete_model(p, speed_m_s, dt)

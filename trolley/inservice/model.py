@@ -71,19 +71,49 @@ STATE_KINDS = ("y", "psi", "y", "vy", "wz", "vy", "xi")
 
 class DesignParameters:
     """What the parameters of every design model share (this SM and trolley.inservice.bogie): the
-    identified p_opt (Eq. 5) and the check of the values. Subclasses are frozen dataclasses with
-    the fields of :attr:`OPT` and name the fields that must be > 0 in :attr:`POSITIVE`."""
+    identified p_opt (Eq. 5), the check of the values, and the sensed gravity.
+
+    Subclasses are frozen dataclasses with the fields of :attr:`OPT`, a field ``sensor_gravity``
+    (bool), and name the fields that must be > 0 in :attr:`POSITIVE`. They give their own
+    mechanics through ``_design_state_space``, ``_n_design_states``, ``_design_state_kinds`` and
+    ``_design_full_states``; this class adds the roll state when ``sensor_gravity`` is set
+    (:func:`with_sensor_gravity`)."""
 
     #: names of the parameters identified by optimisation (Eq. 5)
     OPT = ("kx", "cx", "ky", "cy")
     POSITIVE: tuple[str, ...] = ()
 
     @property
+    def n_state(self) -> int:
+        """Number of states: the design model's, plus the roll with ``sensor_gravity``."""
+        return self._n_design_states + int(self.sensor_gravity)
+
+    @property
     def state_kinds(self) -> tuple[str, ...]:
         """What each state is, for the defaults that depend on it (estimator's Qc and P0, the
         tuning of identification): "y" lateral position, "psi" yaw, "vy" lateral velocity, "wz"
-        yaw rate, "xi" the alignment, "delay" a state carrying xi to a later wheelset."""
-        return STATE_KINDS
+        yaw rate, "xi" the alignment, "delay" a state carrying xi to a later wheelset, "roll" the
+        cross-level roll the accelerometers sense gravity through (last, with ``sensor_gravity``)."""
+        return self._design_state_kinds + ((ROLL_KIND,) if self.sensor_gravity else ())
+
+    def state_space(self, speed_m_s: float):
+        """(Fc, Bc, Hc, Dc) of the design model (the interface the estimator uses for any model),
+        with the roll state of :func:`with_sensor_gravity` appended when ``sensor_gravity`` is set."""
+        mats = self._design_state_space(speed_m_s)
+        return with_sensor_gravity(*mats, self.conicity, self.l) if self.sensor_gravity else mats
+
+    def full_states(self, states, t_s, speed_m_s: float) -> np.ndarray:
+        """Reference states for Eq. 26-27 in the order of the state vector.
+
+        ``states`` holds the design model's reference states (each model's ``_design_full_states``
+        says which) and, with ``sensor_gravity``, the true roll (cross level / 2 l under the
+        instrumented wheelset, rad) as its last column
+        (trolley.inservice.vehicle.RunResult.reference_states(kind, roll=True)).
+        """
+        X = np.asarray(states, float)
+        if not self.sensor_gravity:
+            return self._design_full_states(X, t_s, speed_m_s)
+        return np.column_stack([self._design_full_states(X[:, :-1], t_s, speed_m_s), X[:, -1]])
 
     def _check(self, what: str) -> None:
         for k, v in asdict(self).items():
@@ -92,6 +122,8 @@ class DesignParameters:
         for k in self.POSITIVE:
             if getattr(self, k) <= 0:
                 raise ValueError(f"{what} {k} must be > 0, got {getattr(self, k)}")
+        if not isinstance(self.sensor_gravity, bool):
+            raise ValueError(f"{what} sensor_gravity must be true or false, got {self.sensor_gravity!r}")
 
     def with_opt(self, popt):
         """A copy with p_opt = [kx, cx, ky, cy] replaced (Eq. 5)."""
@@ -101,6 +133,52 @@ class DesignParameters:
     def popt(self) -> np.ndarray:
         """p_opt = [kx, cx, ky, cy] (Eq. 5)."""
         return np.array([getattr(self, k) for k in self.OPT])
+
+
+#: kind of the state a design model gains when its accelerometers sense gravity
+ROLL_KIND = "roll"
+
+
+def with_sensor_gravity(Fc, Bc, Hc, Dc, conicity: float, l: float):
+    """A design model whose accelerometers also sense gravity through their roll (beyond the paper).
+
+    An accelerometer fixed to a body that rolls by phi reads its lateral acceleration plus g phi
+    (small angles). Munoz 2021's virtual sensors leave this out; real axle-box and frame
+    accelerometers do not. Two rolls reach the sensors of the instrumented bogie:
+
+    * the cross level under the wheelset, phi_c = cross level / 2 l: an unknown track input, here one
+      more state, a random walk like xi (Eq. 10-11), appended last; the wheelset follows it, and
+      the frame, carried on both wheelsets by the stiff vertical primary springs, follows it at the
+      long wavelengths where it matters (its own roll on the secondary suspension is left to the
+      model error of Eq. 26-29);
+    * the profile roll of conical treads, alpha (y - xi) / l (as for the gravitational stiffness,
+      module docstring), which depends on states the model already has.
+
+    So the wheelset accelerometer's row of Hc gains g on phi_c and g alpha / l on y - xi, the frame
+    accelerometer's row g on phi_c. At the long wavelengths g phi_c looks like a lateral
+    acceleration; the gyro, which senses no gravity, is what tells them apart there.
+
+    Parameters
+    ----------
+    Fc, Bc, Hc, Dc : the design model's state space (state_space of this module or of
+        trolley.inservice.bogie); y at state 0, xi at :data:`XI_INDEX`.
+    conicity, l : the treads' conicity alpha (-) and half the contact distance l (m).
+
+    Returns
+    -------
+    Fc, Bc, Hc, Dc with one more state (the roll, rad; zero row of Fc: a random walk).
+    """
+    n = Fc.shape[0] + 1
+    F = np.zeros((n, n))
+    F[:-1, :-1] = Fc
+    B = np.zeros((n, Bc.shape[1]))
+    B[:-1] = Bc
+    H = np.zeros((Hc.shape[0], n))
+    H[:, :-1] = Hc
+    H[[0, 2], -1] = G_M_S2
+    H[0, 0] += G_M_S2 * conicity / l
+    H[0, XI_INDEX] -= G_M_S2 * conicity / l
+    return F, B, H, Dc
 
 
 @dataclass(frozen=True)
@@ -118,6 +196,8 @@ class ModelParameters(DesignParameters):
     f11, f22, f23, f33 : Kalker's linear creep coefficients per wheel (N, N m, N m, N m^2).
     kx, cx : longitudinal primary stiffness (N/m) and damping (N s/m) per axle box (p_opt).
     ky, cy : lateral primary stiffness (N/m) and damping (N s/m) per axle box (p_opt).
+    sensor_gravity : the accelerometers also sense g times their roll, as real ones do (one more
+        state, :func:`with_sensor_gravity`); False: the paper's virtual sensors.
     """
 
     m: float = 1300.0
@@ -135,6 +215,7 @@ class ModelParameters(DesignParameters):
     cx: float = 2.0e4
     ky: float = 1.5e6
     cy: float = 2.0e4
+    sensor_gravity: bool = False
 
     #: model kind written to model.toml (the bogie model of trolley.inservice.bogie is "bogie")
     KIND = "paper"
@@ -148,17 +229,15 @@ class ModelParameters(DesignParameters):
         """K_g = (m + mf) g alpha / l, N/m (see the module docstring for the sign check)."""
         return (self.m + self.mf) * G_M_S2 * self.conicity / self.l
 
-    @property
-    def n_state(self) -> int:
-        return N_STATE
+    _n_design_states = N_STATE
+    _design_state_kinds = STATE_KINDS
 
-    def state_space(self, speed_m_s: float):
-        """(Fc, Bc, Hc, Dc) of :func:`state_space` (the interface the estimator uses for any model)."""
+    def _design_state_space(self, speed_m_s: float):
         return state_space(self, speed_m_s)
 
-    def full_states(self, states, t_s, speed_m_s: float) -> np.ndarray:
-        """Reference states for Eq. 26-27: the (N, 7) states of Eq. 7 as they are."""
-        return np.asarray(states, float)
+    def _design_full_states(self, states, t_s, speed_m_s: float) -> np.ndarray:
+        """The (N, 7) states of Eq. 7 as they are."""
+        return states
 
 
 def matrices(p: ModelParameters, speed_m_s: float):

@@ -619,23 +619,27 @@ class RunResult:
         identification.calibrate (``extra_runs``) and identification.pooled_statistics."""
         return self.t_s, self.s_m, self.speed_m_s, self.sensors(), self.alignment_m
 
-    def reference_states(self, kind: str = "paper") -> np.ndarray:
+    def reference_states(self, kind: str = "paper", roll: bool = False) -> np.ndarray:
         """The run's true states in the order of a design model's state vector (the reference of the
         identification, Munoz 2021 Eq. 6 and 26-27).
 
         ``kind="paper"``: (N, 7) [y, psi, y_f, y', psi', y_f', xi] of Eq. 7 (leading wheelset, leading
         frame). ``kind="bogie"``: (N, 15) in the order of trolley.inservice.bogie.STATE_NAMES (the
         Eq. 7 states, the trailing wheelset, the frame's yaw and the car body above the bogie).
+        ``roll``: one more column, the cross-level roll under the leading wheelset, cross level / 2 b
+        (rad), the state of a design model whose accelerometers sense gravity
+        (trolley.inservice.model.with_sensor_gravity).
         """
         paper = [self.wheelset_y_m, self.wheelset_psi_rad, self.frame_y_m, self.wheelset_vy_m_s,
                  self.wheelset_wz_rad_s_true, self.frame_vy_m_s, self.alignment_m]
         if kind == "paper":
-            return np.column_stack(paper)
-        if kind == "bogie":
-            return np.column_stack(paper + [self.trailing_y_m, self.trailing_psi_rad, self.frame_psi_rad,
-                                            self.trailing_vy_m_s, self.trailing_wz_rad_s, self.frame_wz_rad_s,
-                                            self.body_y_m, self.body_vy_m_s])
-        raise ValueError(f"kind must be 'paper' or 'bogie', got {kind!r}")
+            cols = paper
+        elif kind == "bogie":
+            cols = paper + [self.trailing_y_m, self.trailing_psi_rad, self.frame_psi_rad, self.trailing_vy_m_s,
+                            self.trailing_wz_rad_s, self.frame_wz_rad_s, self.body_y_m, self.body_vy_m_s]
+        else:
+            raise ValueError(f"kind must be 'paper' or 'bogie', got {kind!r}")
+        return np.column_stack(cols + ([self.cross_level_m / (2.0 * self.params.b)] if roll else []))
 
 
 def _rail_inputs(track: TrackIrregularity, s_lead: np.ndarray, offsets: np.ndarray, v: float, b: float) -> _Inputs:
