@@ -388,6 +388,21 @@ def _require(path: Path, header: list[str], required: list[str]) -> dict[str, st
     return stripped
 
 
+def _check_no_implicit_index(path: Path, df) -> None:
+    """Refuse rows wider than the header that pandas took as an index.
+
+    When *every* data row has more cells than the header (decimal commas throughout: "0,5"),
+    pandas reads the first cells as the index without a word and every column shifts; the
+    files' values would be silently wrong (review of 2026-11-26: an odometer.csv read so ended
+    as a CRS error)."""
+    import pandas as pd
+
+    if not isinstance(df.index, pd.RangeIndex):
+        n = len(df.columns)
+        raise SessionFormatError(f"{path.name}: row 2: {n + df.index.nlevels} cells, the header has {n} columns "
+                                 "(a decimal comma? use a point: 0.5)")
+
+
 def _parser_error(path: Path, exc: Exception) -> SessionFormatError:
     import re
 
@@ -636,6 +651,7 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
         if isinstance(exc, pd.errors.ParserError):
             raise _parser_error(path, exc) from None
         raise _locate_bad_cell(path, names, required, exc) from None
+    _check_no_implicit_index(path, df)
     if len(df) < min_rows:
         raise SessionFormatError(f"{path.name}: {len(df)} data row(s), at least {min_rows} needed"
                                  if len(df) else f"{path.name}: row 2: no data rows")
@@ -675,6 +691,7 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         raise _utf8_error(path) from None
     except pd.errors.ParserError as exc:
         raise _parser_error(path, exc) from None
+    _check_no_implicit_index(path, raw)
     n = len(raw)
     if n < 1:
         raise SessionFormatError(f"{path.name}: row 2: no data rows")
@@ -1014,6 +1031,7 @@ def _read_numeric_generic(path: Path, required: list[str]) -> dict[str, np.ndarr
         raise _utf8_error(path) from None
     except ValueError:
         raise _locate_bad_cell(path, names, required) from None
+    _check_no_implicit_index(path, df)
     out = {c: df[names[c]].to_numpy(dtype=float, copy=True) for c in required}
     if any(not np.all(np.isfinite(v)) for v in out.values()):
         raise _locate_bad_cell(path, names, required)

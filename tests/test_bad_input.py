@@ -72,6 +72,12 @@ def keep_rows(path: Path, n: int) -> None:
     path.write_text("\n".join(lines[:n + 1]) + "\n", encoding="utf-8")
 
 
+def decimal_commas(path: Path) -> None:
+    """Write every data row with decimal commas (a spreadsheet in a comma locale)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    path.write_text("\n".join(lines[:1] + [r.replace(".", ",") for r in lines[1:]]) + "\n", encoding="utf-8")
+
+
 def insert_line(path: Path, after: int, text: str) -> None:
     """Insert a line after file line ``after`` (1-based)."""
     lines = path.read_text(encoding="utf-8").splitlines()
@@ -199,6 +205,10 @@ def _project_toml_design(t: Path, design: str) -> Path:
 
 PROBES: list[Probe] = [
     # ---- process ------------------------------------------------------------------------
+    Probe("process/decimal-commas-odometer", process_probe(lambda s: decimal_commas(s / "odometer.csv")),
+          ("odometer.csv: row 2: 4 cells, the header has 2 columns", "decimal comma")),
+    Probe("process/decimal-commas-fixes", process_probe(lambda s: decimal_commas(s / "fixes.csv")),
+          ("fixes.csv: row 2:", "the header has", "decimal comma")),
     Probe("process/missing-folder", lambda t, i: ["process", str(t / "nope"), "--out", str(t / "o")], ("nope",)),
     Probe("process/session-is-a-file", lambda t, i: (t / "f.csv").write_text("x") and
           ["process", str(t / "f.csv"), "--out", str(t / "o")], ("f.csv",)),
