@@ -126,6 +126,13 @@ def _sess(t: Path, i: Inputs) -> Path:
     return copy(i.session, t / "sess")
 
 
+def _sess_in(t: Path, i: Inputs, folder: str) -> Path:
+    """A copy of the raw session as ``t/folder/session``; returns ``t/folder``."""
+    (t / folder).mkdir()
+    copy(i.session, t / folder / "session")
+    return t / folder
+
+
 def _proc(t: Path, i: Inputs) -> Path:
     return copy(i.processed, t / "proc")
 
@@ -410,6 +417,14 @@ PROBES: list[Probe] = [
                                                    str(t / "r")], ("nope",)),
     Probe("survey-start/markup-session", lambda t, i: ["survey", "start", "[blink red]", "--session", "[bold]s1",
                                                        "--root", str(t / "r")], ("[blink red]",)),
+    Probe("devices-probe/timeout-inf", lambda t, i: ["devices", "probe", "--totalstation-port", str(t / "nodev"),
+                                                       "--timeout-s", "inf"], ("--timeout-s", "positive finite")),
+    Probe("devices-probe/timeout-negative", lambda t, i: ["devices", "probe", "--totalstation-port", str(t / "nodev"),
+                                                            "--timeout-s", "-1"], ("--timeout-s",)),
+    Probe("simulate/seed-negative", lambda t, i: ["simulate", "--seed", "-1", "--out", str(t / "s")],
+          ("--seed must be an integer >= 0",)),
+    Probe("simulate/site-east-beyond-the-grid", lambda t, i: ["simulate", "--site-east-m", "1e12", "--length-m", "100",
+                                                              "--out", str(t / "s")], ("--site-east-m must be within",)),
     Probe("devices-record/out-existing-file", lambda t, i: (t / "o").write_text("x") and
           ["devices", "record", "--imu-port", str(t / "nodev"), "--seconds", "1", "--out", str(t / "o")], ("o",)),
     Probe("devices-record/out-existing-session", lambda t, i: ["devices", "record", "--imu-port", str(t / "nodev"),
@@ -419,6 +434,13 @@ PROBES: list[Probe] = [
     Probe("budget/fix-sigma-nan", lambda t, i: ["budget", "--fix-sigma-mm", "nan"], ("--fix-sigma-mm",)),
     Probe("demo/out-a-file", lambda t, i: (t / "o").write_text("x") and ["demo", "--direct", "--out", str(t / "o")],
           ("o",)),
+    Probe("demo/out-holds-a-folder-named-project", lambda t, i: (t / "o" / "project").mkdir(parents=True) or
+          (t / "o" / "project" / "notes.txt").write_text("mine") and ["demo", "--out", str(t / "o")],
+          ("project exists and was not made by `trolley demo`",)),
+    Probe("demo/out-is-a-raw-session", lambda t, i: ["demo", "--out", str(_sess(t, i))], ("session.toml",)),
+    Probe("demo/direct-over-a-raw-session", lambda t, i: ["demo", "--direct", "--out", str(_sess_in(t, i, "d"))],
+          ("session exists and was not made by `trolley demo`",)),
+    Probe("demo/seed-negative", lambda t, i: ["demo", "--seed", "-3", "--out", str(t / "d")], ("--seed", ">= 0")),
     Probe("demo/speedup-zero", lambda t, i: ["demo", "--speedup", "0", "--out", str(t / "d")], ("--speedup",)),
 ]
 

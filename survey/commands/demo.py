@@ -21,10 +21,26 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
+from survey.atomicwrite import MARKER_NAME, OutputError, check_outputs, made_by, write_marker
 from survey.commands.options import ImuPreset
 from survey.commands.survey import session_outcome_dict
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
+
+
+def _guard_demo_store(root: Path) -> None:
+    """Refuse to replace ``root`` (OUT/project) unless the demo made it: its marker, or (demos
+    before the marker) nothing in it but the demo's own project folder with its store."""
+    if not root.exists():
+        return
+    if made_by(root, "demo"):
+        return
+    entries = {p.name for p in root.iterdir()} if root.is_dir() else None
+    if entries == {"demo"} and (root / "demo" / "project.sqlite").is_file() and \
+            (root / "demo" / "project.toml").is_file():
+        return
+    raise OutputError(f"--out {root.parent}: {root} exists and was not made by `trolley demo`; the demo rebuilds "
+                      "OUT/project on every run and never deletes a folder it did not make: choose another --out")
 
 
 def _demo_project() -> Path:
@@ -49,10 +65,21 @@ def demo(
         check_finite(speedup, "--speedup", positive=True)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--speedup") from None
+    if seed is not None and seed < 0:
+        raise typer.BadParameter(f"must be an integer >= 0, got {seed}", param_hint="--seed")
     if out is not None and out.exists() and not out.is_dir():
         raise typer.BadParameter(f"{out}: exists and is not a folder", param_hint="--out")
     project = _demo_project()
     out = out if out is not None else project / "out"
+    try:
+        # never into a raw session or recording, and never over a project store the demo did not make
+        check_outputs([], folders=[("--out", out)])
+        if not direct:
+            _guard_demo_store(out / "project")
+    except OutputError as exc:
+        from survey.commands.engine import fail
+
+        fail(str(exc))
     con = Console(stderr=True) if json_output else Console()
     if direct:
         doc = demo_direct(project, out, imu, seed, con)
@@ -95,9 +122,14 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
         fail(f"--imu: unknown IMU preset {imu!r} (choose {', '.join(IMU_PRESETS)})")
     root = out / "project"
     folder = root / "demo"
+    try:
+        _guard_demo_store(root)      # (the command checked it already; other callers of this function too)
+    except OutputError as exc:
+        fail(str(exc))
     if root.exists():
         shutil.rmtree(root)  # the demo's own copy of the project, rebuilt every run
     folder.mkdir(parents=True)
+    write_marker(root, "demo")
     toml = (project / "project.toml").read_text(encoding="utf-8")
     if imu is not None:
         toml = re.sub(r'(?m)^preset\s*=\s*"[^"]*"', f'preset = "{imu}"', toml)
@@ -146,6 +178,11 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     con = con if con is not None else Console()
     err = Console(stderr=True)
     t_start = time.perf_counter()
+    session_dir = out / "session"
+    if session_dir.is_dir() and any(session_dir.iterdir()) and not made_by(session_dir, "demo"):
+        # a raw session is recorded data: only the demo's own is replaced
+        fail(f"--out {out}: {session_dir} exists and was not made by `trolley demo` (no {MARKER_NAME}); the demo "
+             "never replaces a raw session it did not make: choose another --out")
     try:
         kwargs, preset, xml = project_settings(project)
     except ProjectFileError as exc:
@@ -161,10 +198,10 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     err.print(f"1/4 simulating {config.length_m:g} m of {project.resolve().name} with the {preset} IMU "
               f"at {config.imu_rate_hz:g} Hz ...", highlight=False, markup=False)
     sim = simulate_survey(design, config)
-    session_dir = out / "session"
     session = replace(sim.session, meta=replace(sim.session.meta, design_alignment="alignment.xml"))
     write_session(session_dir, session, xml, overwrite=True,
                   extra_files={"truth.csv": lambda p: write_truth_csv(p, sim.truth, 0.1)})
+    write_marker(session_dir, "demo")
     err.print("2/4 processing (dead reckoning, filtering, RTS smoothing) ...")
     result, _, written = run_process(session_dir, out / "processed")
     print_summary(result, written, con)

@@ -50,6 +50,9 @@ def probe(
     if totalstation is None:
         raise typer.BadParameter("the serial port of the total station is required",
                                  param_hint="--totalstation-port")
+    if not (math.isfinite(timeout_s) and 0.0 < timeout_s <= 600.0):
+        raise typer.BadParameter(f"must be a positive finite number of seconds up to 600, got {timeout_s}",
+                                 param_hint="--timeout-s")
     from drivers import geocom
     from drivers.serialport import DeviceError
     from drivers.totalstation import TotalStation
@@ -171,7 +174,7 @@ def record_cmd(
         f"recorded {len(rec.imu_t_s)} IMU samples"
         + (f", {len(rec.odo_t_s)} odometer reads" if rec.odo_t_s is not None else "")
         + (f", {len(rec.gauge_t_s)} gauge readings" if rec.gauge_t_s is not None else "")
-        + f" into {out}", highlight=False)
+        + f" into {out}", highlight=False, markup=False)
 
 
 def _floats(s: str, n: int, name: str) -> tuple[float, ...]:

@@ -26,6 +26,8 @@ _SIM_KEYS = ("length_m", "start_chainage_m", "fix_spacing_m", "stop_s", "static_
              "gauge_sigma_m", "irregularity_rms_m", "imu_residual_misalignment_rad",
              "gyro_correlation_time_s", "turn_s", "lift_tilt_rad", "placement_offset_m")
 _SIM_INT_KEYS = ("seed", "fixes_per_stop")
+#: largest --site-east-m, m: a tenth of the grid coordinates `trolley process` accepts (sessionio.PLAUSIBLE_ABS)
+SITE_EAST_LIMIT_M = 1e7
 _SIM_INT_LIST_KEYS = ("turn_at_stops", "lift_at_stops")
 
 
@@ -233,6 +235,12 @@ def register(app: typer.Typer) -> None:
                                   ("--rate-hz", rate_hz), ("--truth-step-m", step_m)):
                 check_finite(value, option, positive=True)
             check_finite(static_s, "--static-s", minimum=0.0)
+            if seed is not None and seed < 0:
+                raise ValueError(f"--seed must be an integer >= 0, got {seed}")
+            check_finite(site_east_m, "--site-east-m")
+            if abs(site_east_m) > SITE_EAST_LIMIT_M:
+                # the session's grid coordinates must stay readable by `trolley process` (|E_m| <= 1e8)
+                raise ValueError(f"--site-east-m must be within +-{SITE_EAST_LIMIT_M:g} m, got {site_east_m:g}")
             for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
                 check_finite(kwargs.get(key), f"{_file_or_option(key)}", positive=True)
             check_simulation_size(SimulationConfig(**kwargs), step_m)
