@@ -189,6 +189,30 @@ def write_with(path: str | os.PathLike, writer: Callable[[Path], object]) -> Pat
     return Path(path)
 
 
+def remove_stale_temporaries(folder: str | os.PathLike, names: Iterable[str] | None) -> list[Path]:
+    """Delete the hidden temporaries :func:`atomic_path` left in ``folder`` when a process was
+    killed while writing (``.NAME.xxxxxxxx.ext``, and ``..NAME...`` of a writer that wrote through
+    a temporary of its own). ``names``: the outputs whose temporaries may go; None: any output's.
+    Call it only on a folder the caller owns, right before writing those outputs again. Returns
+    the files deleted."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    import re
+
+    # mkstemp's names: the prefix, 8 characters of [a-z0-9_], the suffix
+    temporary = re.compile(r"^\.{1,2}(?P<name>.+)\.[a-z0-9_]{8}(\.[A-Za-z0-9]+)?$")
+    gone = []
+    for p in folder.iterdir():
+        m = temporary.match(p.name)
+        if not p.is_file() or m is None or p.name == MARKER_NAME:
+            continue
+        if names is None or any(m["name"] == n or m["name"].startswith(n + ".") for n in names):
+            p.unlink(missing_ok=True)
+            gone.append(p)
+    return gone
+
+
 # ------------------------------------------------------------------------------------------
 # checks before writing
 # ------------------------------------------------------------------------------------------

@@ -285,3 +285,94 @@ def test_resume_of_an_ended_session_is_refused(project):
     r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "ref"], root)
     assert r.returncode == 2 and "has ended" in r.stderr and "Traceback" not in r.stderr
     assert "--reopen" in r.stderr  # the way to add intervals to it
+
+
+def _copy_without_final_run(root: Path, dst: Path) -> Path:
+    """A copy of the project in the state a kill during the end's sheet leaves: the session
+    ended and processed, but no "final" run (stored after the sheet), no survey.xlsx, and the
+    writers' hidden temporaries. Returns the session's output folder in the copy."""
+    import shutil
+
+    shutil.copytree(root, dst)
+    with sqlite3.connect(dst / "projects" / "t1" / "project.sqlite") as c:
+        sid = c.execute("SELECT id FROM session WHERE name = 'ref'").fetchone()[0]
+        runs = [r for (r,) in c.execute("SELECT id FROM processing_run WHERE session_id = ? AND kind = 'final'",
+                                         (sid,))]
+        for table in ("track_row", "processing_run"):
+            trig = c.execute("SELECT name, sql FROM sqlite_master WHERE type = 'trigger' AND tbl_name = ? "
+                             "AND name LIKE '%no_delete'", (table,)).fetchall()
+            for name, _ in trig:
+                c.execute(f"DROP TRIGGER {name}")
+            key = "run_id" if table == "track_row" else "id"
+            c.executemany(f"DELETE FROM {table} WHERE {key} = ?", [(r,) for r in runs])
+            for _, sql in trig:
+                c.execute(sql)
+    out = dst / "projects" / "t1" / "sessions" / "ref"
+    (out / "survey.xlsx").unlink()
+    (out / ".survey.xlsx.abcd1234.xlsx").write_bytes(b"half a workbook")
+    (out / "plots" / ".twist.png.k2j3h4g5.png").write_bytes(b"half a plot")
+    return out
+
+
+def test_an_end_killed_before_the_sheet_is_done_again_on_resume(project, tmp_path):
+    """kill -9 while the end writes the survey sheet (review of 2026-11-26): the session had
+    ended, its "final" run was stored before the sheet, so resume said "nothing to resume" and the
+    crew never got a sheet. The run is now stored last, and resume does the whole end again, the
+    killed writers' temporaries removed."""
+    root, _ = project
+    out = _copy_without_final_run(root, tmp_path / "copy")
+    sheet = root / "projects" / "t1" / "sessions" / "ref" / "survey.xlsx"
+    before = sheet.stat().st_mtime_ns
+    r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "ref", "--simulate",
+                 "--speedup", SPEEDUP], tmp_path / "copy")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert (out / "survey.xlsx").is_file() and (out / "plots" / "twist.png").is_file()
+    # the copy resumed into its own folder: the start event keeps sessions/ref relative to the project
+    assert sheet.stat().st_mtime_ns == before
+    assert not [p.name for p in out.rglob(".*") if p.name != ".made-by-trolley"], list(out.rglob(".*"))
+    with store(root) as st:
+        original = final_track(st, "ref")
+    with store(tmp_path / "copy") as st:
+        sid = st.session("ref").session_id
+        assert [p.kind for p in st.processing_runs(sid)].count("final") == 1
+        again = final_track(st, "ref")
+        assert st.session("ref").state == "ended"
+    assert np.array_equal(again.chainage_m, original.chainage_m) and np.array_equal(again.enh_m, original.enh_m)
+
+
+def test_the_final_run_is_stored_only_once_the_sheet_is_written(project, tmp_path, monkeypatch):
+    from rich.console import Console
+
+    import survey.export
+    from survey.session.fieldsession import SessionOutcome
+    from survey.session.final import process_stored_session
+
+    root, _ = project
+    out = _copy_without_final_run(root, tmp_path / "copy")
+
+    def sheet_killed(*args, **kwargs):
+        raise KeyboardInterrupt("killed while writing the sheet")
+
+    monkeypatch.setattr(survey.export, "export_outputs", sheet_killed)
+    with store(tmp_path / "copy") as st:
+        sid = st.session("ref").session_id
+        with pytest.raises(KeyboardInterrupt):
+            process_stored_session(st, "ref", out, SessionOutcome(sid, 4), Console(file=open(os.devnull, "w")),
+                                   "en13848_5_alert")
+        assert [p.kind for p in st.processing_runs(sid)].count("final") == 0
+    # the temporaries of the killed run before were removed as the end started again
+    assert not (out / ".survey.xlsx.abcd1234.xlsx").exists() and not (out / "plots" / ".twist.png.k2j3h4g5.png").exists()
+
+
+def test_reopening_a_simulated_session_recorded_to_its_end_is_refused_and_leaves_it_ended(project, tmp_path):
+    root, _ = project
+    import shutil
+
+    shutil.copytree(root, tmp_path / "copy")
+    (tmp_path / "copy" / "end.txt").write_text("end\n")
+    r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "ref", "--simulate", "--speedup",
+                 SPEEDUP, "--reopen", "--script", "end.txt"], tmp_path / "copy")
+    assert r.returncode == 2 and "recorded to the end" in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
+    with store(tmp_path / "copy") as st:
+        assert st.session("ref").state == "ended"
+        assert "reopened" not in [e.kind for e in st.events(st.session("ref").session_id)]

@@ -37,6 +37,16 @@ def fail(message: str, hint: str = "", code: int = 2) -> None:
     raise typer.Exit(code=code)
 
 
+def _stored_out(out: Path, store) -> str:
+    """The output folder as the start event keeps it: relative to the project folder when inside
+    it (the default sessions/NAME), else absolute."""
+    out, home = out.resolve(), store.path.parent.resolve()
+    try:
+        return out.relative_to(home).as_posix()
+    except ValueError:
+        return str(out)
+
+
 def open_store(project: str, root: Path):
     """The project store of PROJECT (a project folder, or a name under --root)."""
     from survey.store import ProjectStore, StoreError
@@ -157,7 +167,10 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             speedup = speedup if speedup is not None else start.get("speedup")
             script = script if script is not None else (Path(start["script"]) if start.get("script") else None)
             devices = devices if devices is not None else (Path(start["devices"]) if start.get("devices") else None)
-            out = out if out is not None else (Path(start["out"]) if start.get("out") else None)
+            if out is None and start.get("out"):
+                # relative to the project folder (sessions/NAME): a project copied or moved to
+                # another disk resumes into its own folder, never into the old place
+                out = Path(start["out"]) if Path(start["out"]).is_absolute() else store.path.parent / start["out"]
         if simulate == (devices is not None):
             fail("give exactly one of --simulate and --devices PORTS.json")
         actions = None
@@ -197,7 +210,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                 store.add_event(fs.rec.session_id, SessionEvent(0.0, "start", json.dumps({
                     "simulate": simulate, "speedup": speedup,
                     "script": str(script.resolve()) if script else None,
-                    "devices": str(devices.resolve()) if devices else None, "out": str(out.resolve())})))
+                    "devices": str(devices.resolve()) if devices else None, "out": _stored_out(out, store)})))
             outcome = fs.run()
         except KeyboardInterrupt:
             fail("interrupted; everything recorded so far is in the store",

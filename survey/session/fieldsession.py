@@ -219,6 +219,12 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 # reopened to add intervals: the session goes on from its last data; the next end
                 # processes it again (a new "final" run)
                 last = max(self._stored_state()["last"].values(), default=0.0)
+                if self.world is not None and self.world.finished(last):
+                    # checked before the session is switched back to open: a failed reopen must
+                    # leave it ended as it was
+                    raise SessionAbort(f"session {self.name!r}: its simulated survey is recorded to the end "
+                                       f"(t = {last:.3f} s); reopening it has nothing to add",
+                                       "start a new session to survey more")
                 self.store.set_session_state(self.rec.session_id, "open")
                 self._event("reopened", f"data up to t = {last:.3f} s", t_s=last)
                 self.rec = self.store.session(self.name)

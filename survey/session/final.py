@@ -33,11 +33,16 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     (:func:`survey.session.interval.tolerance_set_name`), the same as the live interval summaries.
     Returns the ``outcome`` with its paths filled in.
     """
+    from survey.atomicwrite import remove_stale_temporaries
     from survey.commands.engine import run_process
     from survey.export import export_outputs
     from survey.sessionio import write_session
 
     out_dir = Path(out_dir)
+    # a final processing killed half-way left hidden temporaries of its outputs: this run replaces them
+    remove_stale_temporaries(out_dir, ("survey.xlsx",))
+    remove_stale_temporaries(out_dir / "plots", None)
+    remove_stale_temporaries(out_dir / "processed", None)
     raw, xml = store.raw_session(name)
     session_dir = out_dir / "session"
     raw = replace(raw, meta=replace(raw.meta, design_alignment="alignment.xml" if xml else None))
@@ -46,13 +51,15 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     result, _, written = run_process(session_dir, out_dir / "processed")
     rec = store.session(name)
     st = result.stations
-    store.add_track(rec.session_id, "final", float(raw.imu_t_s[0]), float(raw.imu_t_s[-1]), track_result(st))
     from survey.fieldrecord import field_record, write_field_record
 
     # the crew's rejected and undone fixes, the setups and the overlap checks, for the sheet
     write_field_record(out_dir / "processed", field_record(store, name))
     exported = export_outputs(out_dir / "processed", out_dir / "survey.xlsx", None, out_dir / "plots",
                               tolerances=tolerances, project_name=store.info().name, session_name=name)
+    # stored last: the "final" run is what tells a resume that the end is done, so a kill before
+    # the sheet and the plots are written makes the resume do the whole end again
+    store.add_track(rec.session_id, "final", float(raw.imu_t_s[0]), float(raw.imu_t_s[-1]), track_result(st))
     outcome.session_dir = session_dir
     outcome.track_csv = written.track_csv
     outcome.xlsx = exported.xlsx
