@@ -425,6 +425,9 @@ PROBES: list[Probe] = [
           ("--seed must be an integer >= 0",)),
     Probe("simulate/site-east-beyond-the-grid", lambda t, i: ["simulate", "--site-east-m", "1e12", "--length-m", "100",
                                                               "--out", str(t / "s")], ("--site-east-m must be within",)),
+    Probe("devices-record/port-missing-leaves-no-folder",
+          lambda t, i: ["devices", "record", "--imu-port", str(t / "nodev"), "--seconds", "1", "--out", str(t / "rx")],
+          ("imu", "cannot open")),
     Probe("devices-record/out-existing-file", lambda t, i: (t / "o").write_text("x") and
           ["devices", "record", "--imu-port", str(t / "nodev"), "--seconds", "1", "--out", str(t / "o")], ("o",)),
     Probe("devices-record/out-existing-session", lambda t, i: ["devices", "record", "--imu-port", str(t / "nodev"),

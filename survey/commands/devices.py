@@ -14,7 +14,7 @@ from pathlib import Path
 import typer
 
 from survey import jsonout
-from survey.atomicwrite import OutputError, guard_overwrite, write_marker, write_text_atomic
+from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite, write_marker, write_text_atomic
 from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
@@ -135,6 +135,7 @@ def record_cmd(
     except OutputError as e:
         _err(str(e))
         raise typer.Exit(code=2)
+    made_here = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     write_marker(out, "devices record")
     cfg = RecordConfig(imu_port=imu, seconds=seconds, odometer_port=odometer, gauge_port=gauge, raw_dir=out,
@@ -142,14 +143,10 @@ def record_cmd(
                        imu_baud=imu_baud, odometer_baud=odometer_baud, gauge_baud=gauge_baud)
     try:
         rec = record(cfg)
-    except DeviceError as e:
-        _err(str(e))
-        raise typer.Exit(code=2)
-    except novatel.UnknownImuType as e:
-        _err(f"IMU on {imu}: {e}")
-        raise typer.Exit(code=2)
-    except encoder.CounterWidthMismatch as e:
-        _err(str(e))
+    except (DeviceError, novatel.UnknownImuType, encoder.CounterWidthMismatch) as e:
+        if made_here:
+            _remove_if_nothing_recorded(out)
+        _err(f"IMU on {imu}: {e}" if isinstance(e, novatel.UnknownImuType) else str(e))
         raise typer.Exit(code=2)
     stats = {k: v.as_dict() for k, v in rec.stats.items()}
     write_text_atomic(out / "stats.json", json.dumps(stats, indent=2) + "\n")
@@ -175,6 +172,27 @@ def record_cmd(
         + (f", {len(rec.odo_t_s)} odometer reads" if rec.odo_t_s is not None else "")
         + (f", {len(rec.gauge_t_s)} gauge readings" if rec.gauge_t_s is not None else "")
         + f" into {out}", highlight=False, markup=False)
+
+
+def _remove_if_nothing_recorded(out: Path) -> None:
+    """Remove a recording folder this run made when the devices failed before any byte came: only
+    the marker and raw logs without a record in them (a port that does not exist). A folder with
+    any recorded byte is kept: raw data are never deleted."""
+    import shutil
+
+    from drivers.rawlog import read_rawlog
+
+    for p in out.iterdir():
+        if p.name == MARKER_NAME:
+            continue
+        if not (p.is_file() and p.suffix == ".rawlog"):
+            return
+        try:
+            if next(iter(read_rawlog(p)), None) is not None:
+                return
+        except (OSError, ValueError):
+            return
+    shutil.rmtree(out)
 
 
 def _floats(s: str, n: int, name: str) -> tuple[float, ...]:
