@@ -93,7 +93,7 @@ def test_record_missing_frames_counted_with_the_rate_inferred(tmp_path):
     w, f = np.array([0.01, -0.02, 0.03]), np.array([0.1, 0.2, -9.8])
     imu = ImuTwin(t[keep], np.tile(w, (keep.size, 1)), np.tile(f, (keep.size, 1)), imu_type=26, rate_hz=rate,
                   realtime=False).start(wait_client_s=30)
-    out = tmp_path / "rec"
+    out = tmp_path / "rec [night 3]"     # printed literally, brackets and all (no rich markup)
     try:
         r = runner.invoke(app, ["devices", "record", "--imu", imu.port, "--seconds", "1.5", "--out", str(out),
                                 "--imu-baud", "230400"])
@@ -101,6 +101,7 @@ def test_record_missing_frames_counted_with_the_rate_inferred(tmp_path):
     finally:
         imu.stop()
     assert r.exit_code == 0, r.output
+    assert f"into {out}" in " ".join(r.stderr.split()), r.stderr
     assert speed == termios.B230400
     st = json.loads((out / "stats.json").read_text())["imu"]
     assert st["frames_ok"] == keep.size
