@@ -94,6 +94,9 @@ def parse_cpiii_csv(text: str, name: str = "<csv>") -> list[ControlPoint]:
         for col in _CSV_COLUMNS[1:]:
             cell = row[index[col]].strip()
             try:
+                # Python's float() also takes "1_000" (digit grouping): not a number in a CSV
+                if "_" in cell:
+                    raise ValueError(cell)
                 v = float(cell)
             except ValueError:
                 raise CpiiiError(name, line, f"column {col}: {cell!r} is not a number") from None

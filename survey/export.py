@@ -122,7 +122,7 @@ def survey_info(folder: Path, project_name: str | None = None, session_name: str
 
 def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
                  project_name: str | None = None, session_name: str | None = None,
-                 **config_overrides) -> tuple[SurveyReport, dict[str, float]]:
+                 design_name: str | None = None, **config_overrides) -> tuple[SurveyReport, dict[str, float]]:
     """Read the inputs, compute the geometry and the defects.
 
     Parameters
@@ -131,6 +131,8 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     tolerances : built-in tolerance set name or a TOML file path.
     design : LandXML file overriding the one the session names (optional).
     project_name, session_name : names for the Summary sheet (override summary.json's).
+    design_name : the alignment to read from a LandXML file holding several (default: the
+        session's [design] name).
     config_overrides : GeometryConfig fields (twist_base_m, versine_chord_m, cant_sign, ...).
 
     Returns
@@ -157,7 +159,8 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     if design_file is not None:
         if not design_file.is_file():
             raise ExportInputError(f"{design_file}: design alignment file not found")
-        track, design_stationing = add_design(track, design_file, cfg.rail_spacing_m, design_alignment_name(info),
+        track, design_stationing = add_design(track, design_file, cfg.rail_spacing_m,
+                                              design_name or design_alignment_name(info),
                                               notes)
         stationing = design_stationing or stationing
     else:
@@ -213,7 +216,7 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
                    tolerances: str = DEFAULT_TOLERANCES, design: Path | None = None,
                    project_name: str | None = None, session_name: str | None = None,
                    progress: Callable[[str, float], None] | None = None, pdf: Path | None = None,
-                   **config_overrides) -> ExportResult:
+                   design_name: str | None = None, **config_overrides) -> ExportResult:
     """Compute the survey sheet of a processed track and write the requested outputs.
 
     Parameters
@@ -226,6 +229,8 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
     tolerances : built-in set name (``hsr_ballastless_static``, ``en13848_5_alert``) or a TOML
         file path.
     design : LandXML alignment to use instead of the one named by the session.
+    design_name : the alignment to read from a LandXML file holding several (default: the
+        session's [design] name).
     project_name, session_name : project and session names for the Summary sheet and the plot
         titles; they override summary.json's (which knows only what ``trolley process`` was
         told). The field session passes its project store's and session's names.
@@ -257,7 +262,8 @@ def export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, plots_d
         done += shares[stage]
 
     report("computing the track geometry", "geometry")
-    rep, timings = build_report(track_csv, tolerances, design, project_name, session_name, **config_overrides)
+    rep, timings = build_report(track_csv, tolerances, design, project_name, session_name, design_name,
+                                **config_overrides)
     result = ExportResult(report=rep, timings_s=timings)
     with all_or_nothing():  # every output complete, then all renamed into place; or none
         if xlsx is not None:

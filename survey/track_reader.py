@@ -553,13 +553,15 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
     stationing : the design's drawing stationing (trolley.stationing.Stationing) when it has
         station equations, else None (the drawing stationing is the internal station).
     """
-    from trolley.landxml import LandXmlError, read_landxml
+    from trolley.landxml import AlignmentChoiceError, LandXmlError, read_landxml
 
     try:
         design = read_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
                               rail_spacing_m=rail_spacing_m)
     except (OSError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
+    except AlignmentChoiceError as e:
+        raise ExportInputError(f"{landxml_path}: {e} (trolley export --design-name NAME)") from None
     except LandXmlError as e:
         raise ExportInputError(f"{landxml_path}: {e}") from None
     alignment = design.alignment

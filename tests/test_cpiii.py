@@ -61,6 +61,7 @@ GOOD16 = "*" + gsi16("110001", "A1") + gsi16("81..06", "5001234567") + gsi16("82
 @pytest.mark.parametrize("name, text, line, message", [
     ("a.csv", "id,E_m,N_m\nA,1,2\n", 1, "missing column"),
     ("a.csv", "id,E_m,N_m,H_m\nA,1,2,3\nB,1,x2,3\n", 3, "column N_m: 'x2' is not a number"),
+    ("a.csv", "id,E_m,N_m,H_m\nA,1,2,3\nCP10,1_000,2,3\n", 3, "column E_m: '1_000' is not a number"),
     ("a.csv", "id,E_m,N_m,H_m\nA,1,2,nan\n", 2, "column H_m: 'nan' is not finite"),
     ("a.csv", "id,E_m,N_m,H_m\nA,1,2,3\n,1,2,3\n", 3, "empty point id"),
     ("a.csv", "id,E_m,N_m,H_m\nA,1,2,3\nB,1,2\n", 3, "3 fields, the header has 4"),

@@ -76,6 +76,42 @@ def test_several_alignments_listed_and_chosen_by_name():
     siding = read_landxml(t, "Abstellgleis 3").alignment
     assert siding.name == "Abstellgleis 3" and siding.end_chainage_m == pytest.approx(120.0, abs=1e-9)
     assert float(siding.evaluate(60.0).E_m) == pytest.approx(E0 + 60.0, abs=1e-9)
+    # two alignments of one name: a name cannot pick one (the first was taken without a word)
+    twin = t.replace('<Alignment name="Gleis 2"', '<Alignment name="Gleis 1"')
+    with pytest.raises(AlignmentChoiceError, match="2 alignments are named 'Gleis 1'"):
+        read_landxml(twin, "Gleis 1")
+    assert read_landxml(twin, "Abstellgleis 3").alignment.name == "Abstellgleis 3"
+
+
+def test_export_names_the_alignment_of_a_file_holding_several(tmp_path):
+    # trolley export --design FILE --design-name NAME (review of 2026-11-26: the error said to
+    # choose by name, and export had no option for it)
+    from typer.testing import CliRunner
+
+    from survey.cli import app
+
+    rows = ["chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,lateral_dev_mm,vertical_dev_mm,gauge_mm,"
+            "cant_mm,twist_mm,distance_m"]
+    for d in 1296.0 + np.arange(40) * 0.625:
+        e, n = hand_position(d, e0=E0 - 4.5)           # the trolley on Gleis 2
+        rows.append(f"{d:.6f},{e:.6f},{n:.6f},100.0,0.5,0.5,0.5,,,1435.0,0.0,,{d:.6f}")
+    (tmp_path / "track.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    (tmp_path / "design.xml").write_text(text("several_alignments.xml"), encoding="utf-8")
+    run = CliRunner().invoke
+    base = ["export", str(tmp_path / "track.csv"), "--design", str(tmp_path / "design.xml")]
+    r = run(app, base + ["--csv", str(tmp_path / "a.csv")])
+    assert r.exit_code == 2 and "3 alignments" in r.stderr and "--design-name" in r.stderr
+    assert not (tmp_path / "a.csv").exists()
+    r = run(app, base + ["--csv", str(tmp_path / "b.csv"), "--design-name", "Gleis 2"])
+    assert r.exit_code == 0, r.stderr
+    import pandas as pd
+
+    b = pd.read_csv(tmp_path / "b.csv")
+    assert np.allclose(b["design_E_m"], b["E_m"], atol=1e-5) and np.allclose(b["design_N_m"], b["N_m"], atol=1e-5)
+    r = run(app, base + ["--csv", str(tmp_path / "c.csv"), "--design-name", "Gleis 1"])
+    assert r.exit_code == 0
+    c = pd.read_csv(tmp_path / "c.csv")                       # Gleis 1 lies 4.5 m east of Gleis 2
+    assert np.allclose(np.hypot(c["design_E_m"] - c["E_m"], c["design_N_m"] - c["N_m"]), 4.5, atol=1e-5)
 
 
 def test_cli_lists_the_names_then_imports_by_name(tmp_path):

@@ -804,7 +804,7 @@ def read_landxml(text: str, alignment_name: str | None = None, *,
     Raises
     ------
     AlignmentChoiceError
-        Several alignments and no ``alignment_name``, or no alignment of that name.
+        Several alignments and no ``alignment_name``, no alignment of that name, or several.
     LandXmlError
         Malformed XML, missing or malformed attributes, unsupported element types, elements
         that do not join (gap above :data:`GAP_REFUSE_M` or a break above
@@ -828,6 +828,10 @@ def read_landxml(text: str, alignment_name: str | None = None, *,
         if not chosen:
             raise AlignmentChoiceError(f"no <Alignment name={alignment_name!r}> (found {listing})",
                                        names)
+        if len(chosen) > 1:
+            # the first one would be taken without a word, and the others never
+            raise AlignmentChoiceError(f"{len(chosen)} alignments are named {alignment_name!r} (found {listing}): "
+                                       "a name must pick one; rename them in the design tool", names)
         al = chosen[0]
     aname = f"<Alignment name={al.get('name')!r}>"
     for attr in ("name", "staStart", "length"):

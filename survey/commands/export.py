@@ -44,6 +44,8 @@ def export(
     csv: Path = typer.Option(None, "--csv", help="Track table as CSV (injection-safe)."),
     plots: Path = typer.Option(None, "--plots", help="Folder for PNG plots."),
     design: Path = typer.Option(None, "--design", help="LandXML design alignment (default: the one the session names)."),
+    design_name: str = typer.Option(None, "--design-name", help="the alignment to read from a LandXML file holding "
+                                                                "several (default: the session's [design] name)."),
     twist_base_m: float = typer.Option(None, "--twist-base-m", help="Twist base, m (default from the tolerance set, else 3)."),
     chord_m: float = typer.Option(None, "--chord-m", help="Versine chord, m (default from the tolerance set, else 10)."),
     gauge_rate_base_m: float = typer.Option(None, "--gauge-rate-base-m", help="Gauge change-rate base, m."),
@@ -83,6 +85,7 @@ def export(
     try:
         with progress_bar("computing the track geometry", console) as report:
             result = export_outputs(track, xlsx, csv, plots, tolerances=tolerances, design=design,
+                                    design_name=design_name,
                                     project_name=project, session_name=session, progress=report, pdf=pdf,
                                     twist_base_m=twist_base_m, versine_chord_m=chord_m,
                                     gauge_rate_base_m=gauge_rate_base_m, lateral_sign=lateral_sign.value,
