@@ -84,9 +84,12 @@ def test_bogie_gravitational_stiffness_and_a_uniform_shift_of_track_and_vehicle_
     assert Kd1[0] == pytest.approx((B.m + (B.mf + B.mb) / 2) * 9.80665 * B.conicity / B.l)
 
 
-def _own_model_run(p, n, seed, dt=0.005, V=20.0, xi_density=1e-7):
+def _own_model_run(p, n, seed, dt=0.005, V=20.0, xi_density=1e-7, roll_density=2e-8):
+    """A run of design model ``p`` itself (process noise drawn from its own Q, sensor noise of Munoz
+    2021 Sec. V); ``roll_density`` drives the roll of a model with sensor_gravity."""
     rng = np.random.default_rng(seed)
-    noise = NoiseDensities(force_m2_s3=1e-3, yaw_rad2_s3=1e-4, xi_m2_per_m=xi_density, sigma_xi_virtual_m=10.0)
+    noise = NoiseDensities(force_m2_s3=1e-3, yaw_rad2_s3=1e-4, xi_m2_per_m=xi_density, sigma_xi_virtual_m=10.0,
+                           roll_rad2_per_m=roll_density)
     dm = discrete_model(p, V, dt, noise=noise)
     ns = dm.F.shape[0]
     w, U = np.linalg.eigh(dm.Q)

@@ -8,11 +8,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_inservice_bogie import _own_model_run
 
 from survey.inservice_model import ModelFileError, read_model, write_model
 from trolley.inservice.bogie import XI_POS, BogieParameters
 from trolley.inservice.contact import ContactParameters, rolling_radius_difference
-from trolley.inservice.estimator import NoiseDensities, discrete_model, estimate, observability_rank
+from trolley.inservice.estimator import discrete_model, estimate, observability_rank
 from trolley.inservice.identification import EstimatorModel
 from trolley.inservice.irregularity import irregularity_from_psd
 from trolley.inservice.model import G_M_S2, ModelParameters
@@ -63,23 +64,6 @@ def test_with_gravity_every_state_stays_observable_but_not_from_the_gyro_alone(p
     assert observability_rank(dm.F, dm.H[[1, 3]]) < n
 
 
-def _own_gravity_run(p, n, seed, dt=0.005, V=20.0):
-    rng = np.random.default_rng(seed)
-    noise = NoiseDensities(force_m2_s3=1e-3, yaw_rad2_s3=1e-4, xi_m2_per_m=1e-7, sigma_xi_virtual_m=10.0,
-                           roll_rad2_per_m=2e-8)
-    dm = discrete_model(p, V, dt, noise=noise)
-    ns = dm.F.shape[0]
-    w, U = np.linalg.eigh(dm.Q)
-    L = U * np.sqrt(np.clip(w, 0, None))
-    X = np.zeros((n, ns))
-    e = rng.standard_normal((n, ns)) @ L.T
-    for k in range(1, n):
-        X[k] = dm.F @ X[k - 1] + e[k]
-    Z = X @ dm.H[:3].T + rng.standard_normal((n, 3)) * np.array([0.01, 5e-4, 0.01])
-    t = np.arange(n) * dt
-    return t, V * t, X, Z, noise
-
-
 def test_the_gravity_filter_on_its_own_model_has_errors_within_sigma():
     g = replace(BogieParameters(), sensor_gravity=True)
     n = g.n_state - 1
@@ -87,7 +71,7 @@ def test_the_gravity_filter_on_its_own_model_has_errors_within_sigma():
     # the roll's error is correlated over the whole run (16 runs: rms 0.96, single runs 0.61-1.82),
     # so the normalised errors are pooled over 8 runs
     for seed in range(8):
-        t, s, X, Z, noise = _own_gravity_run(g, 3000, seed)
+        t, s, X, Z, noise = _own_model_run(g, 3000, seed)
         e = estimate(g, t, s, 20.0, Z, noise=noise, initial_covariance=np.eye(g.n_state) * 1e-14)
         sq.append(((e.x - X)[100:, [0, 1, 2, 6, n]] / e.sigma[100:, [0, 1, 2, 6, n]]) ** 2)
     nees = np.sqrt(np.mean(np.concatenate(sq), axis=0))
