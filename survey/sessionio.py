@@ -388,19 +388,26 @@ def _require(path: Path, header: list[str], required: list[str]) -> dict[str, st
     return stripped
 
 
-def _check_no_implicit_index(path: Path, df) -> None:
-    """Refuse rows wider than the header that pandas took as an index.
+def implicit_index_problem(path: Path, df) -> str | None:
+    """The message for rows wider than the header that pandas took as an index, or None.
 
     When *every* data row has more cells than the header (decimal commas throughout: "0,5"),
     pandas reads the first cells as the index without a word and every column shifts; the
     files' values would be silently wrong (review of 2026-11-26: an odometer.csv read so ended
-    as a CRS error)."""
+    as a CRS error). Every reader of the recorded CSV files (this module's, survey.tgms_io's)
+    checks the frame pandas gave it with this."""
     import pandas as pd
 
-    if not isinstance(df.index, pd.RangeIndex):
-        n = len(df.columns)
-        raise SessionFormatError(f"{path.name}: row 2: {n + df.index.nlevels} cells, the header has {n} columns "
-                                 "(a decimal comma? use a point: 0.5)")
+    if isinstance(df.index, pd.RangeIndex):
+        return None
+    n = len(df.columns)
+    return f"{path.name}: row 2: {n + df.index.nlevels} cells, the header has {n} columns (a decimal comma? use a point: 0.5)"
+
+
+def _check_no_implicit_index(path: Path, df) -> None:
+    problem = implicit_index_problem(path, df)
+    if problem:
+        raise SessionFormatError(problem)
 
 
 def _parser_error(path: Path, exc: Exception) -> SessionFormatError:

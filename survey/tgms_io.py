@@ -26,7 +26,7 @@ from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import write_csv_frame, write_text_atomic
 from survey.names import inside
-from survey.sessionio import PLAUSIBLE_ABS
+from survey.sessionio import PLAUSIBLE_ABS, implicit_index_problem
 
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
@@ -168,6 +168,9 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
             raise TgmsFormatError(f"{name}: row {m[2]}: {m[3]} cells, the header has {m[1]} columns (a decimal "
                                   "comma? use a point: 0.5)") from None
         raise TgmsFormatError(f"{name}: cannot read as CSV ({text})") from None
+    problem = implicit_index_problem(path, df)
+    if problem:
+        raise TgmsFormatError(problem)
     line = _data_row_lines(path, len(df))
     df.columns = [str(c).strip() for c in df.columns]
     missing = [c for c in columns if c not in df.columns]

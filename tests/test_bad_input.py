@@ -338,6 +338,8 @@ PROBES: list[Probe] = [
           ("e.toml", "format must be")),
     Probe("tgms-process/decimal-comma", tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "0,5")),
           ("imu.csv: row 40: 8 cells, the header has 7 columns", "decimal comma")),
+    Probe("tgms-process/decimal-commas-encoder", tgms_process_probe(lambda r: decimal_commas(r / "encoder.csv")),
+          ("encoder.csv: row 2: 3 cells, the header has 2 columns", "decimal comma")),
     Probe("tgms-process/bad-cell-after-a-blank-line",
           tgms_process_probe(lambda r: (insert_line(r / "imu.csv", 10, ""), set_cell(r / "imu.csv", 41, "fx_m_s2", "abc"))),
           ("imu.csv: row 41, column fx_m_s2: not a finite number",)),
