@@ -26,7 +26,7 @@ from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import write_csv_frame, write_text_atomic
 from survey.names import inside
-from survey.sessionio import PLAUSIBLE_ABS, implicit_index_problem
+from survey.sessionio import PLAUSIBLE_ABS, implicit_index_problem, line_spans
 
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
@@ -222,10 +222,7 @@ def _data_row_lines(path: Path, n: int) -> np.ndarray:
         data = np.frombuffer(path.read_bytes(), np.uint8)
     except OSError:
         data = np.zeros(0, np.uint8)
-    ends = np.r_[np.flatnonzero(data == ord("\n")), data.size]
-    starts = np.r_[0, ends[:-1] + 1]
-    printable = np.r_[0, np.cumsum(data > ord(" "))]
-    used = np.flatnonzero(printable[ends] - printable[starts] > 0) + 1
+    used = np.flatnonzero(line_spans(data)[2]) + 1
     rows = used[1:]                  # after the header
     if rows.size != n:               # (quoted line breaks: fall back to counting data rows)
         rows = np.arange(n) + 2

@@ -26,7 +26,7 @@ from trolley.stationing import StationEquation, Stationing
 from trolley.trackgeometry import TrackInput
 
 from survey.names import inside
-from survey.sessionio import PLAUSIBLE_ABS
+from survey.sessionio import PLAUSIBLE_ABS, line_spans
 from survey.sheet_text import csv_read_text
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
@@ -235,13 +235,9 @@ def _same_cell_count_on_every_line(path: Path) -> bool:
         return False
     if (data == ord('"')).any():
         return False
-    ends = np.r_[np.flatnonzero(data == ord("\n")), data.size]
-    starts = np.r_[0, ends[:-1] + 1]
+    starts, ends, used = line_spans(data)
     commas = np.r_[0, np.cumsum(data == ord(","))]
     per_line = commas[ends] - commas[starts]
-    # a blank line ("", "\r", spaces) has no commas and no other characters
-    printable = np.r_[0, np.cumsum(data > ord(" "))]
-    used = printable[ends] - printable[starts] > 0
     return bool(used.any()) and bool(np.all(per_line[used] == per_line[used][0]))
 
 
