@@ -247,6 +247,45 @@ def bogie_nominal(rec: InserviceRecording) -> dict | None:
     return out
 
 
+#: design-model parameters that calibration identifies (Munoz 2021 Eq. 6): they differ from the
+#: recording's nominal values by design
+IDENTIFIED = frozenset({"kx", "cx", "ky", "cy"})
+
+
+def vehicle_differences(rec: InserviceRecording, params, rel_tol: float = 1e-6) -> dict:
+    """The recording's [vehicle] values that differ from a calibrated design model's.
+
+    A model is calibrated for one vehicle (``trolley inservice calibrate --vehicle``); a recording
+    from another one (other masses, wheel radius, conicity, creep coefficients...) needs its own
+    calibration, and neither its estimate nor its sigmas say so. The identified suspension values
+    (:data:`IDENTIFIED`) are not compared; nor are the bogie keys a recording does not have.
+
+    Parameters
+    ----------
+    rec : the recording.
+    params : the model's ModelParameters (kind "paper") or BogieParameters (kind "bogie").
+    rel_tol : relative tolerance (a value typed with six or more significant digits matches).
+
+    Returns
+    -------
+    {[vehicle] key: (recording's value, model's value)} in the file's units, empty when they agree.
+    """
+    pairs = {k: (rec.nominal[v], v) for k, v in VEHICLE_KEYS.items() if v not in IDENTIFIED}
+    if params.KIND == "bogie":
+        # the bogie model holds the frame and half the body, not the paper's supported mass
+        pairs = {k: pv for k, pv in pairs.items() if hasattr(params, pv[1]) and pv[1] != "mf"}
+        x = rec.vehicle_extra
+        pairs.update({"half_wheelbase_m": (x["half_wheelbase_m"], "a"), "m_frame_kg": (x["m_frame_kg"], "mf"),
+                      "m_body_kg": (x["m_body_kg"], "mb")})
+        pairs.update({k: (x[k], v) for k, v in BOGIE_KEYS.items() if k in x})
+    out = {}
+    for key, (value, name) in pairs.items():
+        model = float(getattr(params, name)) * (2.0 if key == "m_body_kg" else 1.0)
+        if not np.isclose(value, model, rtol=rel_tol, atol=0.0):
+            out[key] = (float(value), model)
+    return out
+
+
 def write_truth(path: str | os.PathLike, s_m, alignment_m, vertical_m, curvature_1_m) -> None:
     """Write truth.csv from internal signs (alignment left +, curvature left +) as FRD (right +)."""
     s = np.asarray(s_m, float)

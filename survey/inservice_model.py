@@ -28,9 +28,13 @@ class ModelFileError(ValueError):
     """A model.toml that does not follow docs/inservice.md."""
 
 
-def model_toml_text(model) -> str:
-    """TOML text of an EstimatorModel."""
-    lines = [f'format = "{FORMAT}"', f'kind = "{model.params.KIND}"', "",
+def model_toml_text(model, provenance: str | None = None) -> str:
+    """TOML text of an EstimatorModel; ``provenance`` (the vehicle and runs it was calibrated on)
+    becomes a comment line, for the reader of the file."""
+    lines = [f'format = "{FORMAT}"', f'kind = "{model.params.KIND}"']
+    if provenance:
+        lines += ["# " + " ".join(provenance.split())]
+    lines += ["",
              "# design model parameters (Munoz 2021 Eq. 4; the bogie model: trolley.inservice.bogie), SI",
              "[parameters]"]
     lines += [f"{k} = {str(v).lower()}" if isinstance(v, bool) else f"{k} = {float(v)!r}"
@@ -53,9 +57,9 @@ def model_toml_text(model) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_model(path: str | os.PathLike, model) -> None:
-    """Write model.toml atomically."""
-    write_text_atomic(Path(path), model_toml_text(model))
+def write_model(path: str | os.PathLike, model, provenance: str | None = None) -> None:
+    """Write model.toml atomically (``provenance``: see :func:`model_toml_text`)."""
+    write_text_atomic(Path(path), model_toml_text(model, provenance))
 
 
 def _number(table: dict, key: str, where: str, fname: str) -> float:

@@ -210,14 +210,61 @@ def test_process_checks_that_the_recording_fits_the_calibrated_model(tmp_path):
     assert cons["checked"] and cons["consistent"] and cons["limit"] == 1.6
     assert all(abs(v - 1.0) < 0.05 for v in cons["innovation_rms_ratio"].values()), cons
     assert "does not fit" not in err
-    assert ws.cell(1, ws.max_column).value == "model_check" and ws.cell(2, ws.max_column).value.startswith("fits")
+    head = [c.value for c in ws[1]]
+    col = head.index("model_check") + 1
+    assert ws.cell(2, col).value.startswith("fits")
+    assert ws.cell(2, head.index("vehicle_check") + 1).value == "the recording's vehicle is the model's"
     cons, err, ws = results["backwards"]
     assert cons["checked"] and not cons["consistent"] and cons["innovation_rms_ratio"]["wheelset_ay"] > 5.0, cons
     assert "does not fit the calibrated model" in err and "wheelset accelerometer" in err
-    assert ws.cell(2, ws.max_column).value.startswith("DOES NOT FIT")
+    assert ws.cell(2, col).value.startswith("DOES NOT FIT")
     # without a model nothing is compared, and summary.json says why
     out = tmp_path / "out_nominal"
     res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / "fits"), "--out", str(out)])
     assert res.exit_code == 0, res.output
-    assert json.loads((out / "summary.json").read_text())["consistency"] == {
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["consistency"] == summary["vehicle_check"] == {
         "checked": False, "reason": "no calibrated model (--model)"}
+
+
+def test_process_says_when_the_recording_is_of_another_vehicle(tmp_path):
+    # a model is calibrated for one vehicle: a recording whose [vehicle] has another conicity and
+    # body mass is processed (exit 0) but said to differ, on stderr, in summary.json and the
+    # workbook, naming each key with both values; the identified suspension values (Eq. 6) and a
+    # value typed to 7 significant digits are not differences
+    from openpyxl import load_workbook
+
+    from trolley.inservice.estimator import NoiseDensities, discrete_model
+
+    V, dt = 20.0, 0.005
+    t = np.arange(800) * dt
+    xi = 1e-3 * np.sin(2 * np.pi * V * t / 15.0)
+    model = replace(P, kx=2.0e6, cy=3.0e5)            # as identified: not the nominal primary values
+    noise = NoiseDensities()
+    write_model(tmp_path / "model.toml", EstimatorModel(model, discrete_model(P, V, dt, noise=noise).Q, noise.r(), dt))
+    typed = {**asdict(P), "mf": round(P.mf * (1 + 3e-7), 4)}
+    other = {**asdict(P), "conicity": 0.2}
+    extra = {**EXTRA, "m_body_kg": 28000.0}           # (the paper model compares the supported mass only)
+    for name, nominal, ex in (("same", typed, EXTRA), ("other", other, extra)):
+        write_model_recording(tmp_path / name, P, t, xi, V, nominal=nominal, extra=ex)
+        res = CliRunner().invoke(_app(), ["inservice", "process", str(tmp_path / name), "--out",
+                                          str(tmp_path / f"out_{name}"), "--model", str(tmp_path / "model.toml")])
+        assert res.exit_code == 0, res.output
+    same = json.loads((tmp_path / "out_same" / "summary.json").read_text())["vehicle_check"]
+    assert same == {"checked": True, "matches": True, "differences": {}}
+    summary = json.loads((tmp_path / "out_other" / "summary.json").read_text())
+    assert summary["vehicle_check"] == {"checked": True, "matches": False,
+                                        "differences": {"conicity": {"recording": 0.2, "model": 0.15}}}
+    assert "conicity 0.2 (model 0.15)" in res.stderr and "--vehicle" in res.stderr
+    ws = load_workbook(tmp_path / "out_other" / "inservice.xlsx").active
+    head = [c.value for c in ws[1]]
+    assert ws.cell(2, head.index("vehicle_check") + 1).value.startswith("DIFFERS from the model's vehicle: conicity")
+    # the bogie model compares the whole car's keys as well: the body mass (half of it per bogie)
+    from trolley.inservice.bogie import BogieParameters
+
+    bog = BogieParameters()
+    rec = io.read_recording(tmp_path / "other")
+    rec.vehicle_extra.update({k: 1.0 for k in io.BOGIE_KEYS})
+    diffs = io.vehicle_differences(rec, bog)
+    assert diffs["m_body_kg"] == (28000.0, 32000.0) and diffs["conicity"] == (0.2, 0.15)
+    assert diffs["izz_frame_kg_m2"] == (1.0, bog.If) and "kx_primary_n_m" not in diffs

@@ -10,6 +10,9 @@
   trolley.inservice.bogie, ``paper`` the simplified model of Munoz 2021. ``--sensor-gravity``: the
   accelerometers sense g times their roll, as real ones do, and the filter gains the cross-level
   roll (trolley.inservice.model.with_sensor_gravity).
+* ``trolley inservice vehicle --out FILE`` writes the default vehicle as a vehicle file to edit;
+  ``simulate`` and ``calibrate`` take one with ``--vehicle FILE`` (survey/inservice_vehicle.py), and
+  ``process --model`` says when the recording's [vehicle] differs from the model's.
 * ``trolley inservice process RECORDING --out DIR [--truth FILE] [--model FILE] [--smoother rts|none]``
   writes irregularities.csv (s_m, alignment_mm, sigma_alignment_mm, and the alignment band-passed
   to 3-200 m with its own sigma; alignment positive to the RIGHT as in every project file),
@@ -29,7 +32,7 @@ from rich.console import Console
 
 from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
-from survey.commands.inservice_simulate import _fail, simulate_cmd
+from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
 
 console = Console(stderr=True)
@@ -37,6 +40,7 @@ console = Console(stderr=True)
 inservice_app = typer.Typer(help="In-service vehicle: wheelset/bogie inertial sensors -> lateral alignment.",
                             no_args_is_help=True)
 inservice_app.command("simulate")(simulate_cmd)
+inservice_app.command("vehicle")(vehicle_cmd)
 
 #: output grid step of irregularities.csv, m
 OUTPUT_STEP_M = 0.25
@@ -107,6 +111,16 @@ def _consistency_text(cons: dict) -> str:
             f"(> {cons['limit']:g}); the sigmas cannot be trusted")
 
 
+def _vehicle_text(check: dict) -> str:
+    """The summary's vehicle check in words, for the workbook and the warning."""
+    if not check["checked"]:
+        return f"not checked: {check['reason']}"
+    if check["matches"]:
+        return "the recording's vehicle is the model's"
+    diffs = ", ".join(f"{k} {d['recording']:g} (model {d['model']:g})" for k, d in check["differences"].items())
+    return f"DIFFERS from the model's vehicle: {diffs}; calibrate for this vehicle (--vehicle)"
+
+
 def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     """One sheet in the survey workbook's style: a header row, the summary row, then the profile."""
     from openpyxl import Workbook
@@ -119,10 +133,11 @@ def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     ws.title = "Alignment"
     head = ["recording", "length_m", "speed_m_s", "smoother", "cpu_s", "real_time_ratio"]
     bands = list(summary.get("accuracy", {}))
-    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands] + ["model_check"]
+    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands] + ["model_check", "vehicle_check"]
     _header(ws, 1, head)
     put_text(ws, 2, 1, recording)
-    put_text(ws, 2, len(head), _consistency_text(summary["consistency"]))
+    put_text(ws, 2, len(head) - 1, _consistency_text(summary["consistency"]))
+    put_text(ws, 2, len(head), _vehicle_text(summary["vehicle_check"]))
     vals = [summary["length_m"], summary["speed_m_s"], None, summary["cpu_s"], summary["real_time_ratio"]]
     vals += [summary["accuracy"][b]["J_mm"] for b in bands] + [summary["accuracy"][b]["Jrel"] for b in bands]
     for j, v in enumerate(vals, start=2):
@@ -162,7 +177,8 @@ def process_cmd(
     import numpy as np
     import pandas as pd
 
-    from survey.inservice_io import InserviceFormatError, bogie_nominal, read_recording, read_truth
+    from survey.inservice_io import (InserviceFormatError, bogie_nominal, read_recording, read_truth,
+                                     vehicle_differences)
     from survey.inservice_model import ModelFileError, read_model
     from survey.atomicwrite import write_csv_frame, write_text_atomic
     from trolley import units
@@ -245,6 +261,17 @@ def process_cmd(
                "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
                "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
+    if mdl is None:
+        summary["vehicle_check"] = {"checked": False, "reason": "no calibrated model (--model)"}
+    else:
+        diffs = vehicle_differences(rec, mdl.params)
+        summary["vehicle_check"] = {"checked": True, "matches": not diffs, "differences": {
+            k: {"recording": a, "model": b} for k, (a, b) in diffs.items()}}
+        if diffs:
+            console.print(f"warning: {recording / 'inservice.toml'}: [vehicle] "
+                          + _vehicle_text(summary["vehicle_check"]).replace("DIFFERS", "differs", 1)
+                          + "; the estimate and its sigmas are for the model's vehicle",
+                          highlight=False, markup=False, soft_wrap=True)
     summary["consistency"] = {"checked": False, "reason": not_checked} if fit is None else {
         "checked": True, "innovation_rms_ratio": dict(zip(CONSISTENCY_KEYS, map(float, fit.ratio))),
         "limit": fit.limit, "consistent": fit.consistent}
@@ -314,6 +341,7 @@ def calibrate_cmd(
     sensor_gravity: Annotated[bool, typer.Option(
         "--sensor-gravity", help="the accelerometers sense g x their roll, as real ones do: the runs are simulated so "
                                  "and the filter gains the cross-level roll (not in the paper's virtual sensors)")] = False,
+    vehicle: VehicleOption = None,
     json_output: JsonAlways = False,
 ) -> None:
     """Identify and tune the estimator on one reference run of the full-vehicle simulator (Munoz 2021 Sec. III-D, IV-B)."""
@@ -324,36 +352,38 @@ def calibrate_cmd(
     from trolley.inservice.identification import calibrate
     from trolley.inservice.irregularity import irregularity_from_psd
     from trolley.inservice.resample import decimation_factor
-    from trolley.inservice.vehicle import VehicleParameters, simulate_run
+    from trolley.inservice.vehicle import simulate_run
 
     try:
-        # before minutes of simulation: a folder, a recording's file or an unwritable place is
-        # refused now (a missing folder is made at the end)
+        # before minutes of simulation: a folder, a recording's file, the vehicle file or an
+        # unwritable place is refused now (a missing folder is made at the end)
         if out.parent.is_dir():
-            check_outputs([("--out", out)])
+            check_outputs([("--out", out)], inputs=[vehicle])
     except OutputError as exc:
         _fail(str(exc))
+    vp, vehicle_name, (sigma_acc, sigma_gyro) = vehicle_for_run(vehicle, speed_m_s, sensor_gravity=sensor_gravity)
     t0 = time.process_time()
-    vp = VehicleParameters(sensor_gravity=sensor_gravity)
     q = decimation_factor(rate_hz, filter_rate_hz)
+    noise = {"sigma_acc_m_s2": sigma_acc, "sigma_gyro_rad_s": sigma_gyro}
     with console.status("simulating the reference run"):
         run = simulate_run(vp, irregularity_from_psd(length_m, seed=seed), speed_m_s, length_m, rate_hz=rate_hz,
-                           seed=seed + 1).decimated(q)
+                           seed=seed + 1, **noise).decimated(q)
     extra = []
     with console.status("simulating the further reference runs"):
         for sd in range(seed + 1, seed + 1 + extra_runs):
             extra.append(simulate_run(vp, irregularity_from_psd(length_m, seed=sd), speed_m_s, length_m,
-                                      rate_hz=rate_hz, seed=sd + 1).decimated(q).calibration_run())
+                                      rate_hz=rate_hz, seed=sd + 1, **noise).decimated(q).calibration_run())
     p0 = replace(nominal_parameters(vp, kind), sensor_gravity=sensor_gravity)
     with console.status("identifying and tuning"):
         mdl = calibrate(p0, speed_m_s, run.t_s, run.s_m, run.reference_states(kind, roll=sensor_gravity),
                         run.sensors(), extra_runs=extra)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_model(out, mdl)
+        write_model(out, mdl, provenance=f"calibrated for {vehicle_name} at {speed_m_s:g} m/s, {rate_hz:g} Hz, "
+                                          f"{length_m:g} m, seeds {seed}-{seed + extra_runs}")
     except OSError as exc:
         _fail(f"{out}: cannot write ({exc})")
-    jsonout.echo({"out": out, "kind": kind, "sensor_gravity": sensor_gravity, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
+    jsonout.echo({"out": out, "vehicle": vehicle_name, "kind": kind, "sensor_gravity": sensor_gravity, "seed": seed, "extra_seeds": list(range(seed + 1, seed + 1 + extra_runs)),
                   "speed_m_s": speed_m_s, "length_m": length_m, "rate_hz": rate_hz, "filter_rate_hz": rate_hz / q,
                   "kx_n_m": mdl.params.kx, "cx_n_s_m": mdl.params.cx, "ky_n_m": mdl.params.ky,
                   "cy_n_s_m": mdl.params.cy, "sigma_scale": mdl.sigma_scale,

@@ -1,4 +1,6 @@
-"""``trolley inservice simulate``: a synthetic in-service recording (docs/inservice.md) plus its truth.
+"""``trolley inservice simulate``: a synthetic in-service recording (docs/inservice.md) plus its truth;
+``trolley inservice vehicle``: the default vehicle as a vehicle file, and the reading of ``--vehicle``
+that simulate and calibrate share (:func:`vehicle_for_run`).
 
 Runs the full-vehicle truth simulator (``trolley.inservice.vehicle``) over PSD irregularities
 (and/or a harmonic alignment, the resonance case of Munoz 2021 Sec. V-E) and writes
@@ -33,6 +35,62 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
+VehicleOption = Annotated[Optional[Path], typer.Option(
+    "--vehicle", help="vehicle file (`trolley inservice vehicle --out FILE` writes one to edit; docs/inservice.md, "
+                      "\"Your vehicle\"); default: the Manchester benchmark vehicle with the paper's sensor noise")]
+
+
+def vehicle_for_run(vehicle: Optional[Path], speed_m_s: float, **conditions):
+    """The truth simulator's vehicle for a run: the vehicle file's (or the default one) with the run
+    conditions (``conicity_factor``, ``creep_factor``, ``sensor_gravity``), and its sensor noise
+    sigmas. Exits 2 on a bad file, and on a vehicle that hunts at ``speed_m_s`` (its centred running
+    is unstable: the run would be a flange-bounded limit cycle, not the response to the track)."""
+    from dataclasses import replace
+
+    from survey.inservice_vehicle import VehicleFileError, read_vehicle
+    from trolley.inservice.vehicle import (DEFAULT_VEHICLE_NAME, SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S,
+                                           VehicleParameters, largest_growth_rate)
+
+    if vehicle is None:
+        params, name, sigmas = VehicleParameters(), DEFAULT_VEHICLE_NAME, (SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S)
+    else:
+        try:
+            vf = read_vehicle(vehicle)
+        except VehicleFileError as exc:
+            _fail(str(exc))
+        params, name, sigmas = vf.params, vf.name, (vf.sigma_acc_m_s2, vf.sigma_gyro_rad_s)
+        if vf.defaults:
+            console.print(f"note: {vehicle} leaves {len(vf.defaults)} values at the {DEFAULT_VEHICLE_NAME}'s: "
+                          + ", ".join(vf.defaults), highlight=False, markup=False, soft_wrap=True)
+    params = replace(params, **conditions)
+    rate = largest_growth_rate(params, speed_m_s)
+    if rate > 0:
+        _fail(f"{vehicle or name}: the vehicle hunts at {speed_m_s:g} m/s (its linearised lateral motion grows at "
+              f"{rate:.3g} 1/s): a lower speed, or more yaw stiffness or conicity damping in the vehicle")
+    return params, name, sigmas
+
+
+def vehicle_cmd(
+    out: Annotated[Path, typer.Option("--out", help="vehicle file to write (TOML)")],
+    json_output: JsonAlways = False,
+) -> None:
+    """Write the default vehicle (the Manchester benchmark vehicle) as a vehicle file to edit for yours."""
+    from survey.atomicwrite import check_outputs
+    from survey.inservice_vehicle import write_vehicle
+    from trolley.inservice.vehicle import DEFAULT_VEHICLE_NAME, SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S, VehicleParameters
+
+    try:
+        check_outputs([("--out", out)])
+        if out.exists():
+            raise OutputError(f"--out {out}: exists; a vehicle file is not replaced, choose another name")
+        write_vehicle(out, VehicleParameters(), DEFAULT_VEHICLE_NAME, SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S)
+    except OutputError as exc:
+        _fail(str(exc))
+    except OSError as exc:
+        _fail(f"{out}: cannot write ({exc})")
+    jsonout.echo({"out": str(out), "vehicle": DEFAULT_VEHICLE_NAME})
+
+
 def simulate_cmd(
     out: Annotated[Path, typer.Option("--out", help="output folder: OUT/recording/ and OUT/truth.csv")],
     speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=2.0, max=60.0, help="constant speed, m/s")] = 20.0,
@@ -57,13 +115,14 @@ def simulate_cmd(
     rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
     sensor_gravity: Annotated[bool, typer.Option(
         "--sensor-gravity", help="accelerometers also sense g x their roll (not in the paper)")] = False,
+    vehicle: VehicleOption = None,
     json_output: JsonAlways = False,
 ) -> None:
     """Write a synthetic in-service recording (wheelset and bogie frame inertial sensors) plus truth.csv."""
     from survey import inservice_io
     from trolley import units
     from trolley.inservice import irregularity as irr
-    from trolley.inservice.vehicle import VehicleParameters, first_lateral_mode, simulate_run
+    from trolley.inservice.vehicle import first_lateral_mode, simulate_run
 
     if harmonic_wavelength_m is not None and resonance:
         _fail("give --harmonic-wavelength-m or --resonance, not both")
@@ -72,9 +131,14 @@ def simulate_cmd(
         guard_overwrite(out, "inservice simulate", force=False, reuse_own=True)
     except OutputError as exc:
         _fail(str(exc))
-    params = VehicleParameters(conicity_factor=conicity_factor, creep_factor=creep_factor,
-                               sensor_gravity=sensor_gravity)
-    mode = first_lateral_mode(params, speed_m_s)
+    params, vehicle_name, (sigma_acc, sigma_gyro) = vehicle_for_run(
+        vehicle, speed_m_s, conicity_factor=conicity_factor, creep_factor=creep_factor, sensor_gravity=sensor_gravity)
+    try:
+        mode = first_lateral_mode(params, speed_m_s)
+    except ValueError:
+        mode = None     # a vehicle file whose bogies have no oscillatory lateral mode at this speed
+    if resonance and mode is None:
+        _fail(f"--resonance: the vehicle ({vehicle_name}) has no oscillatory lateral bogie mode at {speed_m_s:g} m/s")
     wavelength = mode.wavelength_m if resonance else harmonic_wavelength_m
     if no_random_lateral and wavelength is None:
         _fail("--no-random-lateral needs a harmonic (--harmonic-wavelength-m or --resonance)")
@@ -86,7 +150,7 @@ def simulate_cmd(
         track = track.plus(irr.harmonic_irregularity(length_m, wavelength, units.mm_to_m(harmonic_amplitude_mm)))
     with console.status("simulating the vehicle"):
         run = simulate_run(params, track, speed_m_s, length_m, rate_hz=rate_hz, sensor_noise=not no_noise,
-                           seed=seed + 1, curvature_1_m=kappa)
+                           seed=seed + 1, curvature_1_m=kappa, sigma_acc_m_s2=sigma_acc, sigma_gyro_rad_s=sigma_gyro)
     cpu = time.process_time() - t0
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -99,11 +163,12 @@ def simulate_cmd(
         _fail(f"{out}: cannot write ({exc})")
     import numpy as np
     jsonout.echo({
-        "out": str(out), "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m, "samples": int(len(run.t_s)),
+        "out": str(out), "vehicle": vehicle_name, "seed": seed, "speed_m_s": speed_m_s, "length_m": length_m, "samples": int(len(run.t_s)),
         "curvature_1_m": curvature_1_m, "conicity_factor": conicity_factor, "creep_factor": creep_factor,
         "noise": not no_noise, "vertical": not no_vertical, "random_lateral": not no_random_lateral,
         "harmonic_wavelength_m": wavelength, "harmonic_amplitude_mm": harmonic_amplitude_mm if wavelength else None,
-        "first_lateral_mode_hz": mode.frequency_hz, "first_lateral_mode_wavelength_m": mode.wavelength_m,
+        "first_lateral_mode_hz": mode.frequency_hz if mode else None,
+        "first_lateral_mode_wavelength_m": mode.wavelength_m if mode else None,
         "alignment_rms_mm": float(units.m_to_mm(np.sqrt(np.mean(run.alignment_m ** 2)))),
         "max_wheel_rail_shift_mm": float(units.m_to_mm(run.max_shift_m)),
         "step_s": run.step_s, "cpu_s": round(cpu, 2)})

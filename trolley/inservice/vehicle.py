@@ -77,6 +77,8 @@ G_M_S2 = 9.81
 #: sensor noise of Munoz 2021 Sec. V
 SIGMA_ACC_M_S2 = 0.01
 SIGMA_GYRO_RAD_S = 5.0e-4
+#: the vehicle of VehicleParameters' defaults
+DEFAULT_VEHICLE_NAME = "Manchester benchmark vehicle 1"
 #: number of generalised coordinates and of rail inputs
 N_DOF = 23
 N_INPUT = 8
@@ -484,6 +486,17 @@ def modes(p: VehicleParameters, speed_m_s: float) -> list[Mode]:
     return sorted(out, key=lambda m: m.frequency_hz)
 
 
+def largest_growth_rate(p: VehicleParameters, speed_m_s: float) -> float:
+    """The largest real part of the linearised vehicle's eigenvalues at ``speed_m_s``, 1/s.
+
+    Positive when the centred running on a perfect straight track is unstable: above its critical
+    speed a vehicle hunts (Wickens 2003, ch. 3), and its lateral motion is then a limit cycle set by
+    the flanges, not the response to the irregularities that the estimator assumes. (The
+    Manchester vehicle: -0.60 1/s at 60 m/s, +0.99 1/s at 80 m/s.)
+    """
+    return float(np.max(np.linalg.eigvals(_System(p, speed_m_s, 0.0).jacobian()).real))
+
+
 def first_lateral_mode(p: VehicleParameters, speed_m_s: float) -> Mode:
     """The first lateral mode of the bogie (resonance case of Munoz 2021 Sec. V-E).
 
@@ -655,7 +668,8 @@ def _rail_inputs(track: TrackIrregularity, s_lead: np.ndarray, offsets: np.ndarr
 
 def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s: float, length_m: float,
                  rate_hz: float = 200.0, sensor_noise: bool = True, seed: int = 0,
-                 curvature_1_m: float = 0.0) -> RunResult:
+                 curvature_1_m: float = 0.0, sigma_acc_m_s2: float = SIGMA_ACC_M_S2,
+                 sigma_gyro_rad_s: float = SIGMA_GYRO_RAD_S) -> RunResult:
     """Simulate the full vehicle over ``length_m`` of ``track`` and sample the sensors.
 
     Parameters
@@ -665,9 +679,11 @@ def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s:
     speed_m_s : constant forward speed, m/s (> 0).
     length_m : recorded length from chainage 0, m.
     rate_hz : sensor rate.
-    sensor_noise : add white noise (0.01 m/s^2, 5e-4 rad/s, Munoz 2021 Sec. V).
+    sensor_noise : add white noise to the sensors.
     seed : seed of the sensor noise.
     curvature_1_m : constant design curvature, 1/m, left positive (0: straight track).
+    sigma_acc_m_s2, sigma_gyro_rad_s : standard deviations of that white noise per sample
+        (default Munoz 2021 Sec. V: 0.01 m/s^2 on both accelerometers, 5e-4 rad/s on the gyro).
 
     Returns
     -------
@@ -677,6 +693,8 @@ def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s:
         raise ValueError(f"simulate_run: speed_m_s must be > 0, got {speed_m_s}")
     if not (length_m > 0 and rate_hz > 0):
         raise ValueError(f"simulate_run: length_m and rate_hz must be > 0, got {length_m}, {rate_hz}")
+    if not (sigma_acc_m_s2 >= 0 and sigma_gyro_rad_s >= 0):
+        raise ValueError(f"simulate_run: the noise sigmas must be >= 0, got {sigma_acc_m_s2}, {sigma_gyro_rad_s}")
     xw = _wheelset_x(params)
     offsets = xw[0] - xw
     if length_m > track.end_m + 1e-9:
@@ -731,7 +749,7 @@ def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s:
         fr_ay = fr_ay + G_M_S2 * keep[:, _frame_dof(0, 2)]
     wz_true = keep[:, N_DOF + 4] + speed_m_s * curvature_1_m
     rng = np.random.default_rng(seed)
-    sa, sg = (SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S) if sensor_noise else (0.0, 0.0)
+    sa, sg = (float(sigma_acc_m_s2), float(sigma_gyro_rad_s)) if sensor_noise else (0.0, 0.0)
     noise = rng.standard_normal((3, n_rec)) if sensor_noise else np.zeros((3, n_rec))
     lat, vert, cl = track.at(s)
     shift = np.max(np.abs(keep[:, :4] - inp.xi[hs]))

@@ -1,0 +1,169 @@
+"""The vehicle file of ``trolley inservice simulate | calibrate --vehicle`` (docs/inservice.md, "Your vehicle").
+
+Munoz 2021 identifies its simplified model against a complete multibody model of the vehicle
+that carries the sensors (Sec. III-B, III-D, Eq. 6). Here the truth simulator
+(``trolley.inservice.vehicle``) plays that role, and this file describes the vehicle to it: the
+fields of :class:`trolley.inservice.vehicle.VehicleParameters` under names that carry their units,
+and optionally the sensors' white-noise sigmas. A key left out keeps the Manchester benchmark
+vehicle's value (the simulator's default); an unknown key (a typo) is refused with the nearest
+known one, so a partial file never silently means the default. SI units, heights above the rail
+top, primary values per axle box, secondary values per side.
+
+    format = "trolley-inservice-vehicle/1"
+    name = "my EMU, trailer car"          # optional
+    [vehicle]
+    m_body_kg = 32000.0
+    ...
+    [sensors]                             # optional
+    sigma_acc_m_s2 = 0.01
+    sigma_gyro_rad_s = 0.0005
+"""
+from __future__ import annotations
+
+import difflib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from survey.atomicwrite import write_text_atomic
+from survey.inservice_io import parse_toml
+
+FORMAT = "trolley-inservice-vehicle/1"
+
+#: file key -> VehicleParameters field (the robustness factors and sensor_gravity are run
+#: conditions, given on the command line, not properties of the vehicle)
+KEYS = {
+    "m_body_kg": "m_body", "ixx_body_kg_m2": "ixx_body", "iyy_body_kg_m2": "iyy_body",
+    "izz_body_kg_m2": "izz_body", "h_body_m": "h_body",
+    "m_frame_kg": "m_frame", "ixx_frame_kg_m2": "ixx_frame", "iyy_frame_kg_m2": "iyy_frame",
+    "izz_frame_kg_m2": "izz_frame", "h_frame_m": "h_frame",
+    "m_wheelset_kg": "m_wheelset", "ixx_wheelset_kg_m2": "ixx_wheelset", "izz_wheelset_kg_m2": "izz_wheelset",
+    "r0_m": "r0", "half_contact_spacing_m": "b", "half_wheelbase_m": "a_wheelset",
+    "half_bogie_spacing_m": "a_bogie",
+    "kx_primary_n_m": "kx_p", "ky_primary_n_m": "ky_p", "kz_primary_n_m": "kz_p",
+    "cx_primary_n_s_m": "cx_p", "cy_primary_n_s_m": "cy_p", "cz_primary_n_s_m": "cz_p",
+    "half_primary_spacing_m": "d_p",
+    "kx_secondary_per_side_n_m": "kx_s", "ky_secondary_per_side_n_m": "ky_s",
+    "kz_secondary_per_side_n_m": "kz_s", "cx_secondary_per_side_n_s_m": "cx_s",
+    "cy_secondary_per_side_n_s_m": "cy_s", "cz_secondary_per_side_n_s_m": "cz_s",
+    "half_secondary_spacing_m": "d_s", "h_secondary_m": "h_s", "k_antiroll_n_m_rad": "k_antiroll",
+    "conicity": "conicity", "conicity_growth_m": "conicity_growth_m", "f11_n": "f11", "f22_n": "f22",
+    "friction_coefficient": "mu", "flange_clearance_m": "flange_clearance_m",
+    "flange_stiffness_n_m": "flange_stiffness_n_m",
+}
+#: keys that may be 0 (springs and dampers that a vehicle may lack); every other value must be > 0
+#: (the vertical springs carry the weight, so kz_primary and kz_secondary may not be 0)
+MAY_BE_ZERO = frozenset({"kx_primary_n_m", "ky_primary_n_m", "cx_primary_n_s_m", "cy_primary_n_s_m",
+                         "cz_primary_n_s_m", "kx_secondary_per_side_n_m", "ky_secondary_per_side_n_m",
+                         "cx_secondary_per_side_n_s_m", "cy_secondary_per_side_n_s_m",
+                         "cz_secondary_per_side_n_s_m", "k_antiroll_n_m_rad"})
+SENSOR_KEYS = ("sigma_acc_m_s2", "sigma_gyro_rad_s")
+
+
+class VehicleFileError(ValueError):
+    """A vehicle file that does not follow docs/inservice.md ("Your vehicle")."""
+
+
+@dataclass(frozen=True)
+class VehicleFile:
+    """A vehicle file read.
+
+    Attributes
+    ----------
+    params : the truth simulator's vehicle (run conditions at their defaults).
+    name : the file's ``name`` or its file name.
+    defaults : file keys the file left out (they keep the Manchester benchmark vehicle's values).
+    sigma_acc_m_s2, sigma_gyro_rad_s : the sensors' white-noise sigmas per sample.
+    """
+
+    params: object
+    name: str
+    defaults: tuple
+    sigma_acc_m_s2: float
+    sigma_gyro_rad_s: float
+
+
+def _finite(table: dict, key: str, where: str, fname: str) -> float:
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise VehicleFileError(f"{fname}: {where}.{key} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _unknown(table: dict, known, where: str, fname: str) -> None:
+    for key in table:
+        if key not in known:
+            near = difflib.get_close_matches(key, list(known), n=1)
+            hint = f" (did you mean {near[0]}?)" if near else f" (known keys: docs/inservice.md, \"Your vehicle\")"
+            raise VehicleFileError(f"{fname}: unknown key {where}.{key}{hint}")
+
+
+def read_vehicle(path: str | os.PathLike) -> VehicleFile:
+    """Read a vehicle file (raises :class:`VehicleFileError` naming the file and the key).
+
+    Besides each value's sign, the geometry must hold together: the bogies may not overlap
+    (half_bogie_spacing_m > half_wheelbase_m) and the car body's centre of gravity must be above
+    the frame's; the vehicle must also build (VehicleParameters' own checks).
+    """
+    from trolley.inservice.vehicle import SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S, VehicleParameters
+
+    path = Path(path)
+    fname = path.name
+    data = parse_toml(path, FORMAT, ("vehicle",), VehicleFileError)
+    for key in data:
+        if key not in ("format", "name", "vehicle", "sensors"):
+            raise VehicleFileError(f"{fname}: unknown key or table {key!r} (the file has format, name, "
+                                   "[vehicle] and [sensors])")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name.strip():
+        raise VehicleFileError(f"{fname}: name must be a text, got {name!r}")
+    veh = data["vehicle"]
+    _unknown(veh, KEYS, "vehicle", fname)
+    values = {}
+    for key, val in ((k, _finite(veh, k, "vehicle", fname)) for k in veh):
+        if val < 0 or (val == 0 and key not in MAY_BE_ZERO):
+            raise VehicleFileError(f"{fname}: vehicle.{key} must be {'>= 0' if key in MAY_BE_ZERO else '> 0'}, "
+                                   f"got {val:g}")
+        values[KEYS[key]] = val
+    sen = data.get("sensors", {})
+    if not isinstance(sen, dict):
+        raise VehicleFileError(f"{fname}: sensors must be a table [sensors]")
+    _unknown(sen, SENSOR_KEYS, "sensors", fname)
+    sigmas = {k: (_finite(sen, k, "sensors", fname) if k in sen else d)
+              for k, d in zip(SENSOR_KEYS, (SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S))}
+    for k, v in sigmas.items():
+        if v < 0:
+            raise VehicleFileError(f"{fname}: sensors.{k} must be >= 0, got {v:g}")
+    try:
+        params = VehicleParameters(**values)
+    except ValueError as exc:
+        raise VehicleFileError(f"{fname}: {exc}") from None
+    inv = {v: k for k, v in KEYS.items()}
+    if params.a_bogie <= params.a_wheelset:
+        raise VehicleFileError(f"{fname}: vehicle.{inv['a_bogie']} ({params.a_bogie:g} m) must exceed "
+                               f"vehicle.{inv['a_wheelset']} ({params.a_wheelset:g} m): the bogies would overlap")
+    if params.h_body <= params.h_frame:
+        raise VehicleFileError(f"{fname}: vehicle.{inv['h_body']} ({params.h_body:g} m) must exceed "
+                               f"vehicle.{inv['h_frame']} ({params.h_frame:g} m): heights are above the rail top")
+    return VehicleFile(params=params, name=name.strip(), defaults=tuple(k for k in KEYS if k not in veh),
+                       sigma_acc_m_s2=sigmas["sigma_acc_m_s2"], sigma_gyro_rad_s=sigmas["sigma_gyro_rad_s"])
+
+
+def vehicle_toml_text(params, name: str, sigma_acc_m_s2: float, sigma_gyro_rad_s: float) -> str:
+    """The vehicle file of ``params`` (a VehicleParameters), every key written."""
+    lines = [f'format = "{FORMAT}"', f"name = {json.dumps(name, ensure_ascii=False)}", "",
+             "# the truth simulator's vehicle (SI; heights above the rail top; primary values per axle box,",
+             "# secondary per side); docs/inservice.md, \"Your vehicle\"", "[vehicle]"]
+    lines += [f"{key} = {float(getattr(params, field))!r}" for key, field in KEYS.items()]
+    lines += ["", "# white noise of the sensors per sample", "[sensors]",
+              f"sigma_acc_m_s2 = {float(sigma_acc_m_s2)!r}", f"sigma_gyro_rad_s = {float(sigma_gyro_rad_s)!r}"]
+    return "\n".join(lines) + "\n"
+
+
+def write_vehicle(path: str | os.PathLike, params, name: str, sigma_acc_m_s2: float, sigma_gyro_rad_s: float) -> None:
+    """Write a vehicle file atomically."""
+    write_text_atomic(Path(path), vehicle_toml_text(params, name, sigma_acc_m_s2, sigma_gyro_rad_s))
+
