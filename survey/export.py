@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from trolley.tolerances import ToleranceSet, find_defects
-from trolley.trackgeometry import GeometryConfig, column_stats, track_geometry
+from trolley.trackgeometry import GAP_STEPS, GeometryConfig, column_stats, track_geometry
 
 from survey.atomicwrite import all_or_nothing, check_outputs, write_text_atomic
 from survey.fieldrecord import FIELD_RECORD, read_field_record
@@ -176,6 +176,11 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
             notes.append(f"track.csv has no {name}: its tolerances are not checked")
     t1 = time.perf_counter()
     geometry = track_geometry(track, cfg)
+    if geometry.gaps_m:
+        shown = (lambda x: x) if stationing is None else (lambda x: float(stationing.station(x)))
+        spans = ", ".join(f"{shown(a):.3f}-{shown(b):.3f} m" for a, b in geometry.gaps_m)
+        notes.append(f"track.csv has no stations in {spans} (longer than {GAP_STEPS:g} steps of "
+                     f"{geometry.step_m:g} m): the stations there are empty, not interpolated")
     t2 = time.perf_counter()
     defects = find_defects(geometry.chainage_m, geometry.columns, tol)
     stats = {k: column_stats(k, v) for k, v in geometry.columns.items()}

@@ -105,7 +105,9 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
                                "twist bases, filters and sections run along the distance")
     kv("Station step [m]", float(g.step_m), "0.000")
     if g.resampled:
-        kv("Note", "input chainage not uniform: values interpolated linearly onto the grid")
+        kv("Note", "input chainage not uniform: values interpolated linearly onto the grid"
+           + (f"; no stations in {len(g.gaps_m)} gap(s), left empty: " + ", ".join(
+               f"{rep.station(a):.3f}-{rep.station(b):.3f} m" for a, b in g.gaps_m) if g.gaps_m else ""))
     r += 1
     put_text(ws, r, 1, "Equipment").font = Font(bold=True, size=12)
     r += 1

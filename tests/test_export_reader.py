@@ -166,6 +166,33 @@ def test_a_misspelled_optional_column_and_a_missing_gauge_are_said(tmp_path):
     assert r.exit_code == 0 and "note:" not in r.stderr
 
 
+def test_a_gap_in_the_track_is_empty_in_the_sheet_and_said(tmp_path):
+    # 40 stations with 10 of them missing (6.25-11.875 m): the sheet and the CSV keep the grid,
+    # but its stations inside the gap are empty, not a straight line; the notes name the gap
+    from openpyxl import load_workbook
+    from typer.testing import CliRunner
+
+    from survey.cli import app
+
+    path = _track(tmp_path / "t" / "track.csv")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    path.write_text("\n".join(lines[:11] + lines[21:]) + "\n", encoding="utf-8")   # stations 6.25 m .. 11.875 m out
+    r = CliRunner().invoke(app, ["export", str(path), "--xlsx", str(tmp_path / "g.xlsx"), "--csv",
+                                 str(tmp_path / "g.csv")])
+    assert r.exit_code == 0, r.stderr
+    note = "track.csv has no stations in 5.625-12.500 m (longer than 2 steps of 0.625 m)"
+    assert any(n.startswith(note) for n in json.loads(r.stdout)["notes"]) and note in r.stderr
+    rows = [line.split(",") for line in (tmp_path / "g.csv").read_text(encoding="utf-8").splitlines()[1:]]
+    head = (tmp_path / "g.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
+    assert len(rows) == 40
+    for row in rows:
+        s, gauge = float(row[0]), row[head.index("gauge_mm")]
+        assert (gauge == "") == (5.625 < s < 12.5), (s, gauge)
+    wb = load_workbook(tmp_path / "g.xlsx")
+    texts = [str(r[1].value) for r in wb["Summary"].iter_rows(min_row=1, max_col=2)]
+    assert any("no stations in 1 gap(s), left empty: 5.625-12.500 m" in t for t in texts)
+
+
 def _summary(wb) -> dict:
     return {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2) if r[0].value}
 

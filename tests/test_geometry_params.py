@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from trolley.trackgeometry import (GeometryConfig, TrackInput, column_names, horizontal_versine,
+from trolley.trackgeometry import (GeometryConfig, TrackInput, chainage_gaps, column_names, horizontal_versine,
                                    lateral_sigma, long_chord_check, long_chord_name, shifted,
                                    track_geometry, versine)
 
@@ -174,6 +174,25 @@ def test_non_uniform_chainage_is_resampled_and_flagged():
     assert g.resampled
     np.testing.assert_allclose(np.diff(g.chainage_m), g.step_m)
     np.testing.assert_allclose(g.columns["cant_m"], 0.01 * g.chainage_m, atol=1e-12)
+
+
+def test_a_gap_in_the_chainage_is_left_empty_and_one_missing_station_is_bridged():
+    # stations every 0.625 m with one station missing at 5.0 m (bridged, exactly on the line) and
+    # 20 m missing from 10.0 to 30.0 m: the grid stations strictly inside the gap are NaN in every
+    # measured column, the stations at its ends keep their values, the gap is reported
+    s = np.arange(0.0, 50.0, STEP)
+    keep = (np.abs(s - 5.0) > 1e-9) & ~((s > 10.0 + 1e-9) & (s < 30.0 - 1e-9))
+    s = s[keep]
+    g = track_geometry(_track(s, np.zeros_like(s), s.copy(), np.zeros_like(s), cant=0.01 * s, gauge=1.435 + 0 * s))
+    assert g.resampled and g.step_m == STEP and g.gaps_m == ((10.0, 30.0),)
+    inside = (g.chainage_m > 10.0 + 1e-9) & (g.chainage_m < 30.0 - 1e-9)
+    assert inside.sum() == 31
+    for name in ("E_m", "N_m", "H_m", "cant_m", "gauge_m", "sigma_E_m", "twist_m"):
+        assert np.isnan(g.columns[name][inside]).all(), name
+    out = ~inside
+    np.testing.assert_allclose(g.columns["cant_m"][out], 0.01 * g.chainage_m[out], atol=1e-12)
+    np.testing.assert_allclose(g.columns["N_m"][out], g.chainage_m[out], atol=1e-12)
+    assert chainage_gaps(s, STEP) == [(10.0, 30.0)] and chainage_gaps(s, STEP, gap_steps=40.0) == []
 
 
 def test_bad_settings_raise():

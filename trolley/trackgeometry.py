@@ -134,6 +134,8 @@ class TrackGeometry:
         survey-sheet order. Names are listed by :func:`column_names`.
     config : the settings used.
     resampled : True when the input chainage was not uniform and was interpolated onto the grid.
+    gaps_m : input intervals longer than :data:`GAP_STEPS` steps, (from, to) in m: the grid
+        stations inside them are empty (NaN), not interpolated.
     """
 
     chainage_m: np.ndarray
@@ -141,6 +143,7 @@ class TrackGeometry:
     columns: dict[str, np.ndarray]
     config: GeometryConfig
     resampled: bool = False
+    gaps_m: tuple = ()
 
 
 def long_chord_name(chord_m: float, spacing_m: float, direction: str) -> str:
@@ -315,10 +318,25 @@ def uniform_grid(chainage_m: np.ndarray, rtol: float = 1e-3) -> tuple[np.ndarray
     return s[0] + step * np.arange(n), step, True
 
 
-def _resample(grid: np.ndarray, s: np.ndarray, x: np.ndarray | None) -> np.ndarray | None:
+#: an input interval longer than this many grid steps is a gap: nothing is interpolated across it
+#: (one missing station is bridged, as a survey sheet conventionally does; two are not)
+GAP_STEPS = 2.0
+
+
+def chainage_gaps(chainage_m: np.ndarray, step_m: float, gap_steps: float = GAP_STEPS) -> list[tuple[float, float]]:
+    """The intervals between consecutive stations longer than ``gap_steps`` grid steps, as
+    (last station before, first station after) pairs, m."""
+    s = np.asarray(chainage_m, dtype=float)
+    i = np.flatnonzero(np.diff(s) > gap_steps * step_m * (1.0 + 1e-9))
+    return [(float(s[k]), float(s[k + 1])) for k in i]
+
+
+def _resample(grid: np.ndarray, s: np.ndarray, x: np.ndarray | None, outside: np.ndarray) -> np.ndarray | None:
     if x is None:
         return None
-    return np.interp(grid, s, np.asarray(x, dtype=float))
+    out = np.interp(grid, s, np.asarray(x, dtype=float))
+    out[outside] = np.nan
+    return out
 
 
 def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig()) -> TrackGeometry:
@@ -340,8 +358,13 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     fields = ("E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m", "lateral_dev_m",
               "vertical_dev_m", "gauge_m", "cant_m", "design_E_m", "design_N_m", "design_H_m",
               "design_cant_m")
+    gaps = chainage_gaps(s, step) if resampled else []
     if resampled:
-        vals = {f: _resample(grid, s, getattr(track, f)) for f in fields}
+        # grid stations strictly inside a gap have no measurement: empty, never a straight line
+        in_gap = np.zeros(grid.size, bool)
+        for a, b in gaps:
+            in_gap |= (grid > a + 1e-9 * step) & (grid < b - 1e-9 * step)
+        vals = {f: _resample(grid, s, getattr(track, f), in_gap) for f in fields}
     else:
         vals = {f: (None if getattr(track, f) is None else np.asarray(getattr(track, f), dtype=float))
                 for f in fields}
@@ -406,7 +429,8 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
 
     names = column_names(config)
     assert list(c) == names, (list(c), names)
-    return TrackGeometry(chainage_m=grid, step_m=step, columns=c, config=config, resampled=resampled)
+    return TrackGeometry(chainage_m=grid, step_m=step, columns=c, config=config, resampled=resampled,
+                         gaps_m=tuple(gaps))
 
 
 @dataclass(frozen=True)
@@ -489,4 +513,4 @@ def column_stats(name: str, x: np.ndarray) -> ColumnStats:
 __all__ = ["GeometryConfig", "TrackInput", "TrackGeometry", "ColumnStats", "RailValues", "rail_values", "track_geometry",
            "column_names", "column_stats", "long_chord_name", "versine", "horizontal_versine",
            "long_chord_check", "backward_difference", "shifted", "lateral_sigma",
-           "heading_from_positions", "uniform_grid"]
+           "heading_from_positions", "uniform_grid", "chainage_gaps"]
