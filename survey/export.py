@@ -182,10 +182,15 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
         notes.append(f"track.csv has no stations in {spans} (longer than {GAP_STEPS:g} steps of "
                      f"{geometry.step_m:g} m): the stations there are empty, not interpolated")
     t2 = time.perf_counter()
-    defects = find_defects(geometry.chainage_m, geometry.columns, tol)
-    stats = {k: column_stats(k, v) for k, v in geometry.columns.items()}
+    columns = sheet_columns(cfg)
+    # checked and summarised as the files keep them (rounded to the digits written), so the
+    # sheet's peak, its red cells and the verdict agree at a limit
+    kept = {c.key: c.kept(geometry.columns[c.key]) for c in columns if c.key in geometry.columns}
+    checked = {k: kept.get(k, v) for k, v in geometry.columns.items()}
+    defects = find_defects(geometry.chainage_m, checked, tol)
+    stats = {k: column_stats(k, v) for k, v in checked.items()}
     t3 = time.perf_counter()
-    rep = SurveyReport(track_csv=path, geometry=geometry, columns=sheet_columns(cfg), tolerances=tol,
+    rep = SurveyReport(track_csv=path, geometry=geometry, columns=columns, tolerances=tol,
                        defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
                        notes=notes, record=record, stationing=stationing)
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}

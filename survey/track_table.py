@@ -26,6 +26,8 @@ UNIT_FORMATS = {
     "mm": (units.m_to_mm, "0.00", 4),
     "mm/m": (units.ratio_to_mm_per_m, "0.000", 5),
 }
+#: display unit -> back to SI (the inverse of UNIT_FORMATS' conversion, the tolerance files' own)
+FROM_DISPLAY = {"m": lambda x: np.asarray(x, dtype=float), "mm": units.mm_to_m, "mm/m": units.mm_per_m_to_ratio}
 #: chainage shown as km+m, e.g. 1+234.500 (the value stays the chainage in metres)
 KM_FORMAT = '0"+"000.000'
 
@@ -53,6 +55,11 @@ class SheetColumn:
         """SI values converted to the display unit and rounded to the digits kept in files."""
         conv, _, digits = UNIT_FORMATS[self.unit]
         return np.round(np.asarray(conv(values), dtype=float), digits)
+
+    def kept(self, values: np.ndarray) -> np.ndarray:
+        """The SI values as the files keep them (:meth:`display` and back): what the tolerances
+        are checked on, so a value the sheet shows as 1.0000 mm is never a defect against 1 mm."""
+        return np.asarray(FROM_DISPLAY[self.unit](self.display(values)), dtype=float)
 
 
 def _g(x: float) -> str:
@@ -163,6 +170,13 @@ def limit_in_display(limit: Limit) -> tuple[float, float, str]:
     if limit.unit == "mm_per_m":
         return (units.ratio_to_mm_per_m(limit.lower), units.ratio_to_mm_per_m(limit.upper), "mm/m")
     return (units.m_to_mm(limit.lower), units.m_to_mm(limit.upper), "mm")
+
+
+def limit_in_column(limit: Limit, column: SheetColumn) -> tuple[float, float]:
+    """(lower, upper) of a limit in the unit of the column's cells (inf stays inf): a limit given
+    in mm on a column shown in m (a tolerance on E_m, say) is compared and shown in m."""
+    conv = UNIT_FORMATS[column.unit][0]
+    return float(conv(limit.lower)), float(conv(limit.upper))
 
 
 @dataclass

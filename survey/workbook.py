@@ -33,7 +33,8 @@ from survey.atomicwrite import atomic_path
 from survey.sheet_text import put_text
 from survey.surveyheader import NOT_GIVEN, header_rows
 from survey.track_reader import EQUIPMENT
-from survey.track_table import KM_FORMAT, SurveyReport, column_values, conventions, limit_in_display
+from survey.track_table import (KM_FORMAT, SurveyReport, column_values, conventions, limit_in_column,
+                                limit_in_display)
 
 _NS_MAIN = "http://schemas.openxmlformats.org/spreadsheetml/2006/main"
 _NS_REL = "http://schemas.openxmlformats.org/officeDocument/2006/relationships"
@@ -190,8 +191,8 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
         n_def[d.column] = n_def.get(d.column, 0) + 1
         n_st[d.column] = n_st.get(d.column, 0) + d.stations
     for col in rep.columns:
-        if col.key in ("chainage_m", "station_km") or col.unit == "m":
-            continue
+        if col.key in ("chainage_m", "station_km") or (col.unit == "m" and col.key not in limits):
+            continue    # (positions are listed only when a limit is set on them)
         st = rep.stats[col.key]
         put_text(ws, r, 1, col.header)
         put_text(ws, r, 2, col.unit)
@@ -200,7 +201,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
             _num(ws, r, j, float(col.display(np.array([v]))[0]), col.number_format)
         lim = limits.get(col.key)
         if lim is not None:
-            lo, hi, _ = limit_in_display(lim)
+            lo, hi = limit_in_column(lim, col)
             _num(ws, r, 9, lo, col.number_format)
             _num(ws, r, 10, hi, col.number_format)
             _num(ws, r, 11, n_st.get(col.key, 0))
@@ -680,7 +681,7 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
         j = index.get(lim.column)
         if j is None:
             continue
-        lo, hi, _ = limit_in_display(lim)
+        lo, hi = limit_in_column(lim, rep.columns[j - 1])
         L = _col_letter(j)
         conds = []
         if math.isfinite(lo):

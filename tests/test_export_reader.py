@@ -193,6 +193,21 @@ def test_a_gap_in_the_track_is_empty_in_the_sheet_and_said(tmp_path):
     assert any("no stations in 1 gap(s), left empty: 5.625-12.500 m" in t for t in texts)
 
 
+def test_a_value_shown_at_the_limit_is_not_a_defect(tmp_path):
+    # gauge 1436.00004 mm is kept in the files as 1.0000 mm of gauge deviation, at the 1 mm limit:
+    # not a defect; 1436.0002 (kept as 1.0002) is, with that peak; the stats agree
+    path = _track(tmp_path / "t" / "track.csv", n=161)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    for k, gauge in ((41, "1436.00004"), (101, "1433.99996"), (121, "1436.0002")):
+        lines[k] = lines[k].replace(",1435.2,", f",{gauge},")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    res = export_outputs(path, tmp_path / "r.xlsx", None, None)
+    gauge = [d for d in res.report.defects if d.parameter == "gauge_dev"]
+    assert [(d.start_chainage_m, d.peak) for d in gauge] == [(75.0, pytest.approx(0.0010002, abs=1e-13))]
+    assert res.report.stats["gauge_dev_m"].maximum == pytest.approx(0.0010002, abs=1e-13)
+    assert res.report.stats["gauge_dev_m"].minimum == pytest.approx(-0.001, abs=1e-15)
+
+
 def _summary(wb) -> dict:
     return {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2) if r[0].value}
 

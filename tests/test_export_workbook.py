@@ -11,7 +11,7 @@ import pytest
 
 from survey.export import export_outputs
 from survey.plots import km_label
-from survey.workbook import HEADER_ROWS
+from survey.workbook import HEADER_ROWS, TABLE_ROW, TRACK_FIRST_ROW
 from track_sheet import track_table
 from trolley.alignment import Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line, VerticalProfile
 
@@ -398,3 +398,26 @@ def test_design_from_session_landxml(exported):
     assert np.nanmax(g.columns["design_cant_m"]) == pytest.approx(1.5 * np.sin(0.08), rel=1e-6)
     off = np.hypot(g.columns["E_m"] - g.columns["design_E_m"], g.columns["N_m"] - g.columns["design_N_m"])
     np.testing.assert_allclose(off, np.abs(g.columns["lateral_dev_m"]), atol=2e-6)
+
+
+def test_a_limit_in_mm_on_a_column_shown_in_metres_compares_metres(tmp_path, exported):
+    # [limits.E] max_mm = 0.5 on the E column (shown in m): the red cells compare the metre cell
+    # values with 0.0005, the Summary row shows the limits in the column's unit
+    from openpyxl import load_workbook
+
+    base, _ = exported
+    tol = tmp_path / "tol.toml"
+    tol.write_text('format = "trolley-tolerances/1"\nname = "e"\ntitle = "E"\ndescription = "d"\n'
+                   '[limits.E]\nmin_mm = -0.5\nmax_mm = 0.5\nsource = "test"\n', encoding="utf-8")
+    res = export_outputs(base / "out", tmp_path / "e.xlsx", None, None, tolerances=str(tol))
+    wb = load_workbook(tmp_path / "e.xlsx")
+    ws = wb["Track"]
+    heads = [c.value for c in ws[TABLE_ROW]]
+    L = ws.cell(TABLE_ROW, heads.index("E [m]") + 1).column_letter
+    (formula,) = [r.rules[0].formula[0] for r in ws.conditional_formatting]
+    first = TRACK_FIRST_ROW
+    assert formula == f"AND(ISNUMBER({L}{first}),OR({L}{first}<-0.0005,{L}{first}>0.0005))"
+    rows = {r[0].value: r for r in wb["Summary"].iter_rows(min_row=1, max_col=13) if r[0].value}
+    e_row = rows["E [m]"]
+    assert (e_row[8].value, e_row[9].value) == (-0.0005, 0.0005)
+    assert all(d.column == "E_m" for d in res.report.defects) and res.report.defects
