@@ -208,6 +208,14 @@ def test_a_value_shown_at_the_limit_is_not_a_defect(tmp_path):
     assert res.report.stats["gauge_dev_m"].minimum == pytest.approx(-0.001, abs=1e-15)
 
 
+def test_a_single_station_is_refused_naming_the_file(tmp_path):
+    from survey.track_reader import read_track_file
+
+    path = _track(tmp_path / "track.csv", n=1)
+    with pytest.raises(ExportInputError, match=r"track.csv: 1 station; the survey sheet needs at least two"):
+        read_track_file(path)
+
+
 def _summary(wb) -> dict:
     return {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2) if r[0].value}
 

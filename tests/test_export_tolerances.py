@@ -87,8 +87,14 @@ def test_defects_are_runs_with_peak_and_violated_limit():
         ("gauge_dev", 1.5, 2.5, 3), ("gauge_dev", 5.0, 5.0, 1)]
     assert d[0].peak == pytest.approx(0.0019) and d[0].limit == pytest.approx(0.001)
     assert d[1].peak == pytest.approx(-0.0015) and d[1].limit == pytest.approx(-0.001)
-    with pytest.raises(ToleranceError, match="no geometry column"):
+    with pytest.raises(ToleranceError, match=r"\[limits.twist_rate\]: no such parameter \(known: gauge_dev\)"):
         find_defects(s, {"gauge_dev_m": gauge_dev}, t)
+    # a key given in the other unit is named with the unit it takes
+    wrong = parse_tolerances('format = "trolley-tolerances/1"\nname = "w"\n[limits.gauge_dev]\n'
+                             'max_abs_mm_per_m = 1.0\nexample = true\n', "w.toml")
+    with pytest.raises(ToleranceError, match=r"w.toml: \[limits.gauge_dev\]: gauge_dev is in mm, not mm/m: use "
+                                             r"min_mm / max_mm / max_abs_mm"):
+        find_defects(s, cols, wrong)
 
 
 def _defects_by_loop(s, v, lo, hi):

@@ -141,6 +141,22 @@ def test_absolute_search_box_is_eq17_in_the_paper_parameterisation():
         search_box(names, p, "wide")
 
 
+def test_the_search_never_returns_worse_than_the_defaults_outside_its_box():
+    # a negative log-likelihood whose minimum is the defaults (log10 g = -4.357), outside a box
+    # [-3, -1]: the box's best (its edge -3) is worse, so the defaults come back with their value;
+    # inside a box that holds them, the search moves to a better point than the defaults
+    from trolley.tgms.tuning import _maximise
+
+    p = TgmsParams()
+    names = ("gyro_noise_rad_sqrt_s",)
+    xd = np.log10(p.gyro_noise_rad_sqrt_s)
+    best, f, n, f_default = _maximise(lambda x: (x[0] - xd) ** 2, names, p, [(-3.0, -1.0)], 30, 0)
+    assert best == p and f == f_default == 0.0 and n <= 30
+    best, f, n, f_default = _maximise(lambda x: (x[0] + 4.0) ** 2, names, p, [(-6.0, -2.0)], 40, 0)
+    assert f_default == pytest.approx((xd + 4.0) ** 2) and f < 1e-3 < f_default
+    assert np.log10(best.gyro_noise_rad_sqrt_s) == pytest.approx(-4.0, abs=0.05)
+
+
 def test_ltv_constraint_is_eq19():
     """u^ac <= u^pos / 10 with u^pos = u^ac / omega_c^4: omega_c = 2 pi V / cutoff <= 10^-1/4."""
     from trolley.tgms.tuning import satisfies_constraint

@@ -101,6 +101,15 @@ def test_cli_process_writes_csv_and_plots(sim_folder, tmp_path):
     assert np.allclose(np.diff(data["s_m"]), 0.25)
     for name in ("gauge_variation", "cross_level", "alignment", "vertical_profile"):
         assert (out / f"{name}.png").stat().st_size > 1000
+    # the empty cells are counted after the band-pass (its record ends), not before
+    data_cells = {n: int(np.isnan(data[f"{n}_mm"]).sum()) for n in ("gauge_variation", "alignment")}
+    assert {n: summary["empty_cells"][n] for n in data_cells} == data_cells
+    assert data_cells["alignment"] > 0
+    # a band whose long wavelengths this 180 m record cannot hold: refused, nothing written
+    r = CliRunner().invoke(app, ["tgms", "process", str(d), "--out", str(tmp_path / "d3"), "--band", "D3",
+                                 "--no-plots"])
+    assert r.exit_code == 2 and "is too short for wavelengths up to 200 m" in r.stderr, r.output
+    assert not (tmp_path / "d3" / "irregularities.csv").exists()
 
 
 def _copy(sim_folder, tmp_path):
@@ -202,8 +211,22 @@ def test_band_option_parsing():
     assert parse_band("none", 0.25) is None
     assert parse_band("3-70", 0.25) == (3.0, 70.0)
     assert parse_band("3", 0.25) == (0.625, 3.0)
-    with pytest.raises(ValueError, match="--band"):
+    with pytest.raises(ValueError, match="need 0 < SHORT < LONG"):
         parse_band("25-3", 0.25)
+    for text in ("inf", "3-inf", "nan"):
+        with pytest.raises(ValueError, match="finite"):
+            parse_band(text, 0.25)
+    with pytest.raises(ValueError, match=r"the cut-off LONG must exceed 2.5 steps \(0.625 m at --step-m 0.25\)"):
+        parse_band("0.1", 0.25)
+
+
+def test_params_out_of_range_are_refused_naming_the_key():
+    # a finite positive value far from the default, inf and 1e300 overflow later, far from the file
+    for key, value in (("cutoff_wavelength_m", float("inf")), ("accel_noise_m_s2_sqrt_hz", 1e300),
+                       ("gyro_noise_rad_sqrt_s", 1e-20)):
+        with pytest.raises(ValueError, match=f"parameter {key} must be a finite number within"):
+            TgmsParams.from_dict({key: value})
+    assert TgmsParams.from_dict({"cutoff_wavelength_m": 1e9}).cutoff_wavelength_m == 1e9
 
 
 def test_cml_constraints():

@@ -219,8 +219,17 @@ def find_defects(chainage_m: np.ndarray, columns: Mapping[str, np.ndarray],
     out: list[Defect] = []
     for lim in tolerances.limits:
         if lim.column not in columns:
-            raise ToleranceError(f"{tolerances.origin}: [limits.{lim.parameter}]: no geometry column "
-                                 f"{lim.column!r} (known: {', '.join(sorted(columns))})")
+            # say it in the file's terms: the keys a limit may have, and the unit that key takes
+            other = {c[:-len(suffix)]: u for c in columns for u, (suffix, _) in _UNITS.items()
+                     if c.endswith(suffix) and not (u == "mm" and c.endswith("_m_per_m"))}
+            unit_name = {"mm": "mm", "mm_per_m": "mm/m"}
+            if lim.parameter in other:
+                raise ToleranceError(f"{tolerances.origin}: [limits.{lim.parameter}]: {lim.parameter} is in "
+                                     f"{unit_name[other[lim.parameter]]}, not {unit_name[lim.unit]}: use "
+                                     f"min_{other[lim.parameter]} / max_{other[lim.parameter]} / "
+                                     f"max_abs_{other[lim.parameter]}")
+            raise ToleranceError(f"{tolerances.origin}: [limits.{lim.parameter}]: no such parameter (known: "
+                                 f"{', '.join(sorted(other))})")
         v = np.asarray(columns[lim.column], dtype=float)
         mask = exceedance(v, lim)
         if not mask.any():

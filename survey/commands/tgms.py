@@ -8,6 +8,7 @@
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -55,15 +56,20 @@ def parse_band(text: str, step_m: float):
         return None
     if t.upper() in BANDS:
         return BANDS[t.upper()]
+    single = "-" not in t
     try:
-        if "-" in t:
-            a, b = (float(x) for x in t.split("-", 1))
-        else:
+        if single:
             a, b = 2.5 * step_m, float(t)
+        else:
+            a, b = (float(x) for x in t.split("-", 1))
     except ValueError:
         raise ValueError(f"--band {text!r}: expected D1, D2, D3, none, SHORT-LONG or LONG in metres") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"--band {text!r}: wavelengths must be finite numbers of metres")
+    if single and not b > a:
+        raise ValueError(f"--band {text!r}: the cut-off LONG must exceed 2.5 steps ({a:g} m at --step-m {step_m:g})")
     if not (0 < a < b):
-        raise ValueError(f"--band {text!r}: need 0 < short < long")
+        raise ValueError(f"--band {text!r}: need 0 < SHORT < LONG")
     return (a, b)
 
 
@@ -97,19 +103,19 @@ def read_params(path: Path):
     try:
         d = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ValueError(f"{path.name}: cannot read parameters ({exc})") from None
+        raise ValueError(f"{path}: cannot read parameters ({exc})") from None
     fmt = d.pop("format", None)
     if fmt is not None and fmt != PARAMS_FORMAT:
-        raise ValueError(f"{path.name}: format must be \"{PARAMS_FORMAT}\", got {fmt!r}")
+        raise ValueError(f"{path}: format must be \"{PARAMS_FORMAT}\", got {fmt!r}")
     d.pop("loglik", None)
     if not d:
         # an empty (or format-only) file would silently mean the defaults
-        raise ValueError(f"{path.name}: no parameters (a file written by `trolley tgms tune`, or keys of "
+        raise ValueError(f"{path}: no parameters (a file written by `trolley tgms tune`, or keys of "
                          "docs/tgms.md)")
     try:
         return TgmsParams.from_dict(d)
     except ValueError as exc:
-        raise ValueError(f"{path.name}: {exc}") from None
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def _params_file(path: Path) -> bool:
@@ -215,8 +221,7 @@ def process_cmd(
     params_file: Annotated[Optional[Path], typer.Option("--params", help="parameter file from 'tgms tune'")] = None,
     orientation: Annotated[Optional[TgmsOrientation], typer.Option(help="attitude estimator (overrides --params; ignored with "
                                                             "--trajectory ekf, which estimates the attitude itself). "
-                                                            "madgwick gives no roll covariance and misses the "
-                                                            "alignment target (1.25 mm against 0.7, docs/tgms.md)")] = None,
+                                                            "madgwick gives no roll covariance (docs/tgms.md)")] = None,
     trajectory: Annotated[Optional[TgmsTrajectory], typer.Option(help="trajectory estimator (overrides --params)")] = None,
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="write PNG plots into --out")] = True,
@@ -275,6 +280,10 @@ def process_cmd(
         if bounds is not None:
             v = bandpass_wavelength(v, step, *bounds)
         cols[f"{name}_mm"] = v * 1e3
+    if bounds is not None and all(np.isnan(cols[f"{n}_mm"]).all() for n in g.NAMES):
+        length = float(g.s_m[-1] - g.s_m[0]) if len(g.s_m) else 0.0
+        _fail(f"--band {band}: the record ({length:.1f} m) is too short for wavelengths up to {bounds[1]:g} m: "
+              "every band-passed value would be empty; choose a shorter band (e.g. D1) or none")
     for name in g.NAMES:
         cols[f"sigma_{name}_mm"] = getattr(g, f"sigma_{name}_m") * 1e3
     if bounds is not None:
@@ -306,7 +315,7 @@ def process_cmd(
     summary = {
         "out": str(out), "files": files, "rows": int(len(g.s_m)),
         "frames": int(len(res.vision.frame)), "frames_flagged": int((~res.vision.ok).sum()),
-        "empty_cells": {n: int(np.isnan(getattr(g, f"{n}_m")).sum()) for n in g.NAMES},
+        "empty_cells": {n: int(np.isnan(cols[f"{n}_mm"]).sum()) for n in g.NAMES},   # (after --band)
         "curve_anchors": [[float(a), float(d)] for a, d in zip(res.odometry.anchors_app_m, res.odometry.anchors_design_m)],
         "params": dataclasses.asdict(params), "timings_s": res.timings_s,
     }
@@ -322,7 +331,7 @@ def tune_cmd(
     folder: Annotated[Path, typer.Argument(help="TGMS recording folder")],
     out: Annotated[Path, typer.Option("--out", help="parameter file to write (TOML)")],
     evaluations: Annotated[int, typer.Option(min=10, max=2000, help="likelihood evaluations")] = 60,
-    seed: Annotated[int, typer.Option(help="seed of the global optimiser")] = 0,
+    seed: Annotated[int, typer.Option(min=0, max=2**32 - 1, help="seed of the global optimiser")] = 0,
     model: Annotated[TgmsModel, typer.Option(help="kf (attitude filter), ltv (attitude filter, then the Eq. 46 "
                                              "trajectory under Eq. 19) or ekf (12-state smoother)")] = "kf",
     box: Annotated[TgmsBox, typer.Option(help="search box: relative (4 decades around the defaults) or absolute "
@@ -350,6 +359,10 @@ def tune_cmd(
             _fail(f"{folder}: {exc}")
     if not np.isfinite(info["loglik"]) or info["loglik"] <= -1e29:
         _fail(f"{folder}: no parameter set in the box satisfied the constraints within {evaluations} evaluations")
+    if info["loglik"] <= info["loglik_default"]:
+        console.print(f"note: nothing in the search box within {evaluations} evaluations beat the defaults (log-"
+                      f"likelihood {info['loglik_default']:.1f}): {out} holds the defaults", highlight=False,
+                      markup=False, soft_wrap=True)
     try:
         write_text_atomic(out, params_toml_text(params, {"loglik": float(info["loglik"])}))
     except OSError as exc:

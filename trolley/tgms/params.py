@@ -5,6 +5,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 
 
+#: how far from its default a numeric parameter may be, either way (a factor)
+RANGE_FACTOR = 1e8
+
+
 @dataclass(frozen=True)
 class TgmsParams:
     """Noise parameters and choices of the TGMS estimators.
@@ -59,7 +63,10 @@ class TgmsParams:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TgmsParams":
-        """Parameters from a mapping; unknown keys are a ValueError naming them."""
+        """Parameters from a mapping; unknown keys are a ValueError naming them.
+
+        Every number must be finite and within :data:`RANGE_FACTOR` times its default either way
+        (an infinite cut-off or a noise of 1e300 only overflows later, far from the file)."""
         names = {f.name: f.type for f in fields(cls)}
         unknown = [k for k in d if k not in names]
         if unknown:
@@ -71,6 +78,11 @@ class TgmsParams:
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
                     raise ValueError(f"parameter {k} must be a positive number, got {v!r}")
+                default = getattr(cls, k)
+                lo, hi = default / RANGE_FACTOR, default * RANGE_FACTOR
+                if not lo <= v <= hi:
+                    raise ValueError(f"parameter {k} must be a finite number within {lo:.3g}-{hi:.3g} "
+                                     f"({RANGE_FACTOR:.0e} times the default {default:g} either way), got {v!r}")
                 kw[k] = float(v)
         p = cls(**kw)
         if p.orientation not in ("kf", "madgwick"):

@@ -120,8 +120,14 @@ class _BudgetSpent(Exception):
 
 def _maximise(negll, names, base, bounds, max_evaluations, seed):
     """Differential evolution then Nelder-Mead in log10, never more than ``max_evaluations`` calls
-    of ``negll``. Returns (best params, best negll, evaluations, negll at the clipped default)."""
-    x0 = np.clip(np.log10([getattr(base, k) for k in names]), [b[0] for b in bounds], [b[1] for b in bounds])
+    of ``negll``. Returns (best params, best negll, evaluations, negll at the defaults).
+
+    The search starts from the defaults clipped into the box; when the box excludes the defaults
+    (the "absolute" box and a MEMS gyro), they are evaluated as well, and kept when nothing in
+    the box is better: a tuning never returns worse parameters than it started from.
+    """
+    xd = np.log10([getattr(base, k) for k in names])
+    x0 = np.clip(xd, [b[0] for b in bounds], [b[1] for b in bounds])
     state = {"n": 0, "x": x0, "f": np.inf}
 
     def counted(x):
@@ -134,6 +140,11 @@ def _maximise(negll, names, base, bounds, max_evaluations, seed):
         return v
 
     f0 = counted(x0)
+    if not np.array_equal(x0, xd):
+        state["n"] += 1
+        f_default = negll(xd)       # outside the box: evaluated, never moved to
+    else:
+        f_default = f0
     popsize = 5
     maxiter = max(1, (max_evaluations // 2) // (popsize * len(names)) - 1)
     try:
@@ -143,8 +154,10 @@ def _maximise(negll, names, base, bounds, max_evaluations, seed):
                  options={"maxfev": max(1, max_evaluations - state["n"]), "xatol": 0.02, "fatol": 0.1})
     except _BudgetSpent:
         pass
+    if f_default <= state["f"]:
+        return base, f_default, state["n"], f_default
     best = dataclasses.replace(base, **{k: float(10 ** v) for k, v in zip(names, state["x"])})
-    return best, state["f"], state["n"], f0
+    return best, state["f"], state["n"], f_default
 
 
 def tune_cml(rec: Recording, base: TgmsParams = TgmsParams(), max_evaluations: int = 60,
