@@ -308,7 +308,8 @@ def made_by(folder: Path, command: str) -> bool:
         return False
 
 
-def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out", *, reuse_own: bool = False) -> None:
+def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out", *, reuse_own: bool = False,
+                    force_option: str = "--force") -> None:
     """Refuse to write the folder ``out`` when something is there that this command did not make.
 
     Parameters
@@ -319,6 +320,7 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out",
     option : option name for the message.
     reuse_own : a folder this command made may be written again without ``force`` (commands
         that have no such option and replace their own files one by one).
+    force_option : the command's name for ``force``, as the message names it.
 
     Raises
     ------
@@ -334,7 +336,7 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out",
     if reuse_own and made_by(out, command):
         return
     if not force and not reuse_own:
-        raise OutputError(f"{option} {out}: already exists and is not empty (use --force to replace it)")
+        raise OutputError(f"{option} {out}: already exists and is not empty (use {force_option} to replace it)")
     if not made_by(out, command):
         raise OutputError(f"{option} {out}: exists and was not made by `trolley {command}` (no {MARKER_NAME} "
                           "marker); an existing session, recording or other folder is never replaced, "

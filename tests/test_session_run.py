@@ -114,6 +114,16 @@ def test_scripted_session_records_everything_and_processes(project):
     text = " ".join(r.stderr.split())
     assert "overlap check at FIX002: new - old station" in text and "within the tolerance of 2.0 mm" in text
     assert "survey.xlsx" in r.stdout and (root / "projects/t1/sessions/ref/survey.xlsx").is_file()
+    # the output folder is the session's: marked, and never written by another session
+    out = root / "projects/t1/sessions/ref"
+    assert (out / ".made-by-trolley").read_text().strip() == "survey session ref"
+    before = {f: f.read_bytes() for f in (out / "session").iterdir() if f.is_file()}
+    other = run_cli(["survey", "start", "t1", "--root", "projects", "--session", "other", "--simulate",
+                     "--speedup", SPEEDUP, "--script", "crew.txt", "--out", str(out)], root)
+    assert other.returncode == 2 and "was not made by `trolley survey session other`" in other.stderr
+    assert {f: f.read_bytes() for f in (out / "session").iterdir() if f.is_file()} == before
+    with store(root) as st:
+        assert "other" not in [x.name for x in st.sessions()]      # refused before it was stored
 
 
 def test_live_summaries_and_the_sheet_use_the_projects_tolerance_set(project):

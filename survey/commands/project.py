@@ -305,7 +305,7 @@ def export_session(
     from survey.store import StoreError
 
     try:
-        guard_overwrite(out, "project export-session", overwrite, "--out")
+        guard_overwrite(out, "project export-session", overwrite, "--out", force_option="--overwrite")
     except OutputError as e:
         fail(str(e))
     with _open(root, project) as store:

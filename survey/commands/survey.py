@@ -183,6 +183,15 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
         if not speedup > 0:
             fail(f"--speedup must be positive, not {speedup}")
         out = out if out is not None else store.path.parent / "sessions" / session
+        owner = f"survey session {session}"
+        if not resume:
+            from survey.atomicwrite import OutputError, guard_overwrite
+
+            try:
+                # another session's results (or any folder with files in it) are never written over
+                guard_overwrite(out, owner, force=False, reuse_own=True)
+            except OutputError as exc:
+                fail(str(exc))
         world = ports = options = None
         if simulate:
             world = simulated_world(store, speedup)
@@ -211,6 +220,10 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                     "simulate": simulate, "speedup": speedup,
                     "script": str(script.resolve()) if script else None,
                     "devices": str(devices.resolve()) if devices else None, "out": _stored_out(out, store)})))
+                from survey.atomicwrite import write_marker
+
+                out.mkdir(parents=True, exist_ok=True)
+                write_marker(out, owner)       # the folder is this session's from now on
             outcome = fs.run()
         except KeyboardInterrupt:
             fail("interrupted; everything recorded so far is in the store",
