@@ -182,6 +182,36 @@ def test_new_from_project_toml(tmp_path):
     run("project", "new", "line10", "--root", str(tmp_path), "--no-toml")
 
 
+@pytest.mark.parametrize("edit, message", [
+    (("height_m = 12.0", "height_m = nan"), "key site.height_m: must be a finite number, got nan"),
+    (("height_m = 12.0", "height_m = -1e9"), "key site.height_m: must be within -1000..10000 m"),
+    (("static_s = 120.0", "static_s = -5.0"), "key simulation.static_s: must be >= 0, got -5.0"),
+    (("static_s = 120.0", "static_s = 120.0\nfix_sigma_m = nan"), "key simulation.fix_sigma_m: must be a finite"),
+    (("static_s = 120.0", "static_s = 120.0\nfixes_per_stop = 0"), "key simulation.fixes_per_stop: must be > 0"),
+    (("rail_spacing_m = 1.507", "rail_spacing_m = 0.0"), "key trolley.rail_spacing_m: must be > 0"),
+    (("[0.1, 0.0, -0.7]", "[0.1, nan, -0.7]"), "key trolley.prism_lever_arm_m: must be 3 finite numbers"),
+])
+def test_settings_a_session_cannot_use_are_refused_when_the_project_is_made(tmp_path, edit, message):
+    # (they were stored, and the crew's recorded session then failed at its end: no track, no sheet)
+    folder = tmp_path / "p"
+    folder.mkdir()
+    (folder / "alignment.xml").write_text(design_xml(), encoding="utf-8")
+    (folder / "project.toml").write_text(
+        ('[site]\nlatitude_deg = 40.0\nheight_m = 12.0\n[trolley]\nprism_lever_arm_m = [0.1, 0.0, -0.7]\n'
+         'rail_spacing_m = 1.507\n[simulation]\nstatic_s = 120.0\n[design]\nalignment = "alignment.xml"\n')
+        .replace(*edit), encoding="utf-8")
+    res = run("project", "new", "p", "--root", str(tmp_path), code=2)
+    assert message in res.stderr and "project.toml" in res.stderr
+    assert not (folder / "project.sqlite").exists()
+
+
+def test_height_option_must_be_a_plausible_number(tmp_path):
+    for value in ("nan", "inf", "-1e9"):
+        res = run("project", "new", "p", "--root", str(tmp_path), "--no-toml", "--height-m", value, code=2)
+        assert "--height-m must be within -1000..10000 m" in res.stderr
+    assert not (tmp_path / "p" / "project.sqlite").exists()
+
+
 def test_resection_table_shows_mm_and_arcsec():
     import io
 

@@ -129,6 +129,10 @@ def new(
             fail(f"--latitude-deg must be within -90..90, not {latitude_deg}")
         settings = dataclasses.replace(settings, latitude_rad=units.deg_to_rad(latitude_deg))
     if height is not None:
+        from survey.commands.simulate import SITE_HEIGHT_RANGE_M
+
+        if not SITE_HEIGHT_RANGE_M[0] <= height <= SITE_HEIGHT_RANGE_M[1]:      # (nan fails too)
+            fail(f"--height-m must be within {SITE_HEIGHT_RANGE_M[0]:g}..{SITE_HEIGHT_RANGE_M[1]:g} m, not {height}")
         settings = dataclasses.replace(settings, height_m=height)
     from survey.session.interval import tolerance_set as load_tolerance_set
     from trolley.tolerances import ToleranceError

@@ -35,12 +35,32 @@ class ProjectFileError(ValueError):
     """A bad project.toml; the message names the file and the key."""
 
 
+#: [simulation] keys that must be > 0, and those that must be >= 0 (the others: any finite number)
+_SIM_POSITIVE = frozenset({"length_m", "fix_spacing_m", "speed_m_s", "accel_time_s", "imu_rate_hz", "fixes_per_stop",
+                           "odometer_rate_hz", "gauge_rate_hz", "gyro_correlation_time_s", "turn_s"})
+_SIM_NON_NEGATIVE = frozenset({"stop_s", "static_s", "fix_sigma_m", "gauge_sigma_m", "irregularity_rms_m",
+                               "imu_residual_misalignment_rad", "lift_tilt_rad", "seed"})
+#: plausible site heights, m (ellipsoidal or orthometric: the Dead Sea shore to above any railway)
+SITE_HEIGHT_RANGE_M = (-1000.0, 10000.0)
+
+
 def _number(data: dict, table: str, key: str, fname: str, integer: bool = False):
+    """A finite number (an integer with ``integer``), >= 0 or > 0 where the key needs it: a value
+    the session cannot use is refused when the project is made, not after the crew's work."""
+    import math
+
     v = data[key]
     ok = isinstance(v, int) if integer else isinstance(v, (int, float))
-    if isinstance(v, bool) or not ok:
-        kind = "an integer" if integer else "a number"
+    if isinstance(v, bool) or not ok or not math.isfinite(v):
+        kind = "an integer" if integer else "a finite number"
         raise ProjectFileError(f"{fname}: key {table}.{key}: must be {kind}, got {v!r}")
+    if (key in _SIM_POSITIVE or (table == "trolley")) and not v > 0:
+        raise ProjectFileError(f"{fname}: key {table}.{key}: must be > 0, got {v!r}")
+    if key in _SIM_NON_NEGATIVE and v < 0:
+        raise ProjectFileError(f"{fname}: key {table}.{key}: must be >= 0, got {v!r}")
+    if (table, key) == ("site", "height_m") and not SITE_HEIGHT_RANGE_M[0] <= v <= SITE_HEIGHT_RANGE_M[1]:
+        raise ProjectFileError(f"{fname}: key site.height_m: must be within {SITE_HEIGHT_RANGE_M[0]:g}.."
+                               f"{SITE_HEIGHT_RANGE_M[1]:g} m, got {v!r}")
     return int(v) if integer else float(v)
 
 
@@ -108,8 +128,8 @@ def project_settings(project: Path):
             if key in tr:
                 v = tr[key]
                 if not (isinstance(v, list) and len(v) == 3 and all(
-                        isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
-                    raise ProjectFileError(f"{fname}: key trolley.{key}: must be 3 numbers")
+                        isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)):
+                    raise ProjectFileError(f"{fname}: key trolley.{key}: must be 3 finite numbers")
                 vec[key] = np.array(v, dtype=float)
         kwargs["trolley"] = TrolleyGeometry(
             prism_lever_arm_m=vec.get("prism_lever_arm_m", d.prism_lever_arm_m),
