@@ -20,6 +20,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from survey.store import ControlPoint, PointConflict, ProjectStore
 
 #: GSI unit digit -> divisor turning the integer data into metres.
@@ -27,6 +29,7 @@ GSI_METRE_DIVISORS: dict[str, int] = {"0": 1000, "6": 10000, "8": 100000}
 _GSI_UNIT_NAMES = {"1": "ft (1/1000 ft)", "7": "ft (1/10000 ft)", "2": "gon", "3": "decimal degrees",
                    "4": "DMS", "5": "mil", ".": "none"}
 _COORD_WORDS = {"81": "E (Easting)", "82": "N (Northing)", "83": "H (Height)"}
+_GSI_COLUMNS = {"81": "E_m", "82": "N_m", "83": "H_m"}
 _CSV_COLUMNS = ("id", "E_m", "N_m", "H_m")
 _GSI_START = re.compile(r"^\*?\d{2}[\d.]{4}[+-]")
 
@@ -102,6 +105,7 @@ def parse_cpiii_csv(text: str, name: str = "<csv>") -> list[ControlPoint]:
                 raise CpiiiError(name, line, f"column {col}: {cell!r} is not a number") from None
             if not math.isfinite(v):
                 raise CpiiiError(name, line, f"column {col}: {cell!r} is not finite")
+            _check_plausible(col, v, f"column {col}", name, line)
             values.append(v)
         points.append(ControlPoint(pid, *values, source=name, line=line))
     if header is None:
@@ -127,6 +131,17 @@ def _gsi_words(body: str, wide: bool, name: str, line: int) -> list[tuple[str, s
     return out
 
 
+def _check_plausible(column: str, value: float, where: str, name: str, line: int) -> None:
+    """The limits every reader of grid coordinates applies (sessionio.PLAUSIBLE_ABS: |E|, |N| <= 1e8 m,
+    |H| <= 1e5 m): a coordinate typed with extra digits is refused here, not when a session or
+    the CRS meets it."""
+    from survey.sessionio import PLAUSIBLE_ABS
+
+    if abs(value) > PLAUSIBLE_ABS[column]:
+        raise CpiiiError(name, line, f"{where}: {value:.10g} is not a plausible value (|{column}| <= "
+                                     f"{PLAUSIBLE_ABS[column]:g})")
+
+
 def _gsi_coordinate(wi: str, unit: str, data: str, name: str, line: int) -> float:
     what = _COORD_WORDS[wi]
     if unit not in GSI_METRE_DIVISORS:
@@ -136,7 +151,9 @@ def _gsi_coordinate(wi: str, unit: str, data: str, name: str, line: int) -> floa
     if not digits.isdigit():
         raise CpiiiError(name, line, f"word {wi} ({what}): data {data!r} is not a number")
     value = int(digits) / GSI_METRE_DIVISORS[unit]
-    return -value if data[0] == "-" else value
+    value = -value if data[0] == "-" else value
+    _check_plausible(_GSI_COLUMNS[wi], value, f"word {wi} ({what})", name, line)
+    return value
 
 
 def parse_cpiii_gsi(text: str, name: str = "<gsi>") -> list[ControlPoint]:
@@ -206,6 +223,17 @@ def import_cpiii_file(store: ProjectStore, path: Path | str) -> CpiiiImport:
     CpiiiError : the file is malformed, or a point conflicts with one already in the project.
     """
     points = read_cpiii_file(path)
+    crs = store.settings().crs
+    if crs:
+        # every point must be in the project CRS's domain (else the site, `show` and every
+        # session fail on it later, and no command takes a point out again)
+        from trolley.projection import crs_info, outside_domain
+
+        bad = outside_domain(crs, [p.e_m for p in points], [p.n_m for p in points])
+        if bad.any():
+            p = points[int(np.argmax(bad))]
+            raise CpiiiError(str(path), p.line, f"point {p.point_id!r}: E {p.e_m:.3f} N {p.n_m:.3f} is outside the "
+                                                f"domain of the project CRS {crs_info(crs).name}")
     try:
         added = store.add_cpiii_points(points)
     except PointConflict as e:

@@ -76,6 +76,11 @@ GOOD16 = "*" + gsi16("110001", "A1") + gsi16("81..06", "5001234567") + gsi16("82
     ("a.gsi", GOOD16.replace("*", ""), 1, "expected 15 and a blank (GSI-8"),
     ("a.gsi", GOOD16 + "\nhello_world_abc", 2, "not a GSI word"),
     ("a.gsi", GOOD16.replace("*110001", "*210001"), 1, "no point id (word 11)"),
+    ("a.csv", "id,E_m,N_m,H_m\nA,1,2,3\nB,5001220810,3100236.9486,50.3\n", 3,
+     "column E_m: 5001220810 is not a plausible value (|E_m| <= 1e+08)"),
+    ("a.csv", "id,E_m,N_m,H_m\nA,1,2,1e7\n", 2, "column H_m: 10000000 is not a plausible value (|H_m| <= 100000)"),
+    ("a.gsi", GOOD16.replace("+0000000000451234", "+9999999999999999"), 1,
+     "word 83 (H (Height)): 1e+12 is not a plausible value (|H_m| <= 100000)"),
 ])
 def test_errors_name_the_line_and_import_nothing(store, tmp_path, name, text, line, message):
     f = tmp_path / name
@@ -113,3 +118,20 @@ def test_conflict_with_project_imports_nothing_from_the_file(store, tmp_path):
         import_cpiii_file(store, b)
     assert exc.value.line == 3 and "already in the project" in str(exc.value) and f"{a}:2" in str(exc.value)
     assert [p.point_id for p in store.cpiii_points()] == ["A", "B"]  # C was not imported either
+
+
+def test_a_point_outside_the_project_crs_is_refused_naming_it(store, tmp_path):
+    # UTM 50N takes E 500000 but not E 3e7 (plausible by the 1e8 limit, yet outside the
+    # projection): refused with the point and its line, nothing imported, and `show` would live on
+    import dataclasses
+
+    store.set_settings(dataclasses.replace(store.settings(), crs="EPSG:32650"))
+    f = tmp_path / "typo.csv"
+    f.write_text("id,E_m,N_m,H_m\nA,500000.0,3100000.0,50.0\nCP9999X,30000000.0,3100236.9,50.3\n", encoding="utf-8")
+    with pytest.raises(CpiiiError) as exc:
+        import_cpiii_file(store, f)
+    assert exc.value.line == 3 and "point 'CP9999X': E 30000000.000 N 3100236.900 is outside the domain of the " \
+                                     "project CRS WGS 84 / UTM zone 50N" in str(exc.value)
+    assert store.cpiii_points() == []
+    f.write_text("id,E_m,N_m,H_m\nA,500000.0,3100000.0,50.0\n", encoding="utf-8")
+    assert import_cpiii_file(store, f).added == 1

@@ -229,6 +229,17 @@ def grid_factors(crs_text: str, e_m: float, n_m: float, height_m: float = 0.0) -
                        height_m=float(height_m), radius_m=radius)
 
 
+def outside_domain(crs_text: str, e_m, n_m) -> np.ndarray:
+    """True for each grid point (E, N) that the CRS cannot take to latitude and longitude (the
+    domain check of :func:`grid_factors`, for many points in one call)."""
+    from pyproj import Transformer
+
+    crs, _ = _crs(crs_text)
+    to_geo = Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True)
+    lon, lat = to_geo.transform(np.asarray(e_m, dtype=float), np.asarray(n_m, dtype=float), errcheck=False)
+    return ~(np.isfinite(lon) & np.isfinite(lat))
+
+
 def site_factors(crs_text: str, points_enh_m) -> GridFactors:
     """:func:`grid_factors` at the centroid of a site's points (CPIII or fixes), (n, 3) E, N, H."""
     p = np.atleast_2d(np.asarray(points_enh_m, dtype=float))

@@ -74,7 +74,10 @@ def vehicle_cmd(
     out: Annotated[Path, typer.Option("--out", help="vehicle file to write (TOML)")],
     json_output: JsonAlways = False,
 ) -> None:
-    """Write the default vehicle (the Manchester benchmark vehicle) as a vehicle file to edit for yours."""
+    """Write a vehicle file to edit for your vehicle.
+
+    It holds the default vehicle (the Manchester benchmark vehicle) and every key; `simulate` and
+    `calibrate` read it with --vehicle (docs/inservice.md, "Your vehicle")."""
     from survey.atomicwrite import check_outputs
     from survey.inservice_vehicle import write_vehicle
     from trolley.inservice.vehicle import DEFAULT_VEHICLE_NAME, SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S, VehicleParameters

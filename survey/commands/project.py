@@ -483,7 +483,14 @@ def show(
         pts = store.cpiii_points()
         al = store.alignment()
         header = store.header()
-        grid = store.site_grid() if s.crs else None
+        grid, grid_problem = None, None
+        if s.crs:
+            from trolley.projection import CrsError
+
+            try:
+                grid = store.site_grid()
+            except CrsError as e:      # show what is there, and what is wrong with it
+                grid_problem = f"no grid factors at the CPIII: {e}"
         sessions = []
         for rec in store.sessions():
             counts = {c.table: c.rows for c in store.record_counts(rec.session_id)}
@@ -499,6 +506,7 @@ def show(
             "schema_version": info.schema_version,
             "settings": json.loads(settings_to_json(s)),
             "header": header,
+            "grid_problem": grid_problem,
             "grid": None if grid is None else {
                 "latitude_deg": units.rad_to_deg(grid.latitude_rad), "longitude_deg": units.rad_to_deg(grid.longitude_rad),
                 "convergence_deg": units.rad_to_deg(grid.convergence_rad), "point_scale": grid.point_scale,
@@ -525,7 +533,8 @@ def show(
         g = grid
         t.add_row("CRS", f"{escape(str(s.crs))}, vertical datum {escape(str(s.vertical_datum or 'not given'))}" + (
             f"; at the CPIII: convergence {units.rad_to_deg(g.convergence_rad):+.6f} deg, "
-            f"combined scale {g.combined_scale:.9f}" if g is not None else ""))
+            f"combined scale {g.combined_scale:.9f}" if g is not None else "")
+            + (f"; {escape(grid_problem)}" if grid_problem else ""))
     t.add_row("IMU", f"{escape(s.imu.name)}: bias instability {units.rad_s_to_deg_h(s.imu.gyro_bias_instability_rad_s):.3g} deg/h, "
                      f"ARW {units.rad_sqrt_s_to_deg_sqrt_h(s.imu.gyro_arw_rad_sqrt_s):.3g} deg/sqrt(h), "
                      f"accel bias {units.m_s2_to_ug(s.imu.accel_bias_m_s2):.0f} ug")
