@@ -86,7 +86,10 @@ def check_header_value(key: str, value: str) -> str:
             raise ValueError(f"{key}: {text!r} is not a date as YYYY-MM-DD")
     elif kind == "celsius":
         try:
-            t = float(text.replace("°C", "").replace("C", "").strip())
+            number = text.replace("°C", "").replace("C", "").strip()
+            if "_" in number:       # Python's float() takes digit grouping ("1_0" = 10): not a reading
+                raise ValueError(number)
+            t = float(number)
         except ValueError:
             raise ValueError(f"{key}: {text!r} is not a temperature in °C (a number)") from None
         if not (math.isfinite(t) and -60.0 <= t <= 90.0):

@@ -118,11 +118,16 @@ def test_project_set_validates_and_show_lists(tmp_path):
                             ("imu_calibrated", "14.03.2026", "not a date as YYYY-MM-DD"),
                             ("rail_temperature_c", "hot", "not a temperature"),
                             ("rail_temperature_c", "150", "outside -60..90"),
+                            ("rail_temperature_c", "1_0", "not a temperature"),
                             ("crew", "a\nb", "control characters")):
         r = runner.invoke(app, ["project", "set", key, value, "--project", "p", "--root", root])
         assert r.exit_code == 2 and msg in r.output, (key, r.output)
+    # a winter reading: "-5" is the value, not an option
+    r = runner.invoke(app, ["project", "set", "rail_temperature_c", "-5", "--project", "p", "--root", root])
+    assert r.exit_code == 0 and "Rail temperature [°C]: -5" in r.output, r.output
     r = runner.invoke(app, ["project", "show", "p", "--root", root, "--json"])
-    assert json.loads(r.stdout)["header"] == {"imu_serial": "RQH-2231"}
+    assert json.loads(r.stdout)["header"] == {"imu_serial": "RQH-2231", "rail_temperature_c": "-5"}
+    assert runner.invoke(app, ["project", "set", "rail_temperature_c", "", "--project", "p", "--root", root]).exit_code == 0
     assert runner.invoke(app, ["project", "set", "imu_serial", "", "--project", "p", "--root", root]).exit_code == 0
     r = runner.invoke(app, ["project", "show", "p", "--root", root, "--json"])
     assert json.loads(r.stdout)["header"] == {}

@@ -321,6 +321,8 @@ def _copy_without_final_run(root: Path, dst: Path) -> Path:
     (out / "survey.xlsx").unlink()
     (out / ".survey.xlsx.abcd1234.xlsx").write_bytes(b"half a workbook")
     (out / "plots" / ".twist.png.k2j3h4g5.png").write_bytes(b"half a plot")
+    (out / ".session.q1w2e3r4.partial").mkdir()                  # a raw session export cut short
+    (out / ".session.q1w2e3r4.partial" / "imu.csv").write_bytes(b"t_s,wx")
     return out
 
 

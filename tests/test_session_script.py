@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from survey.session.script import Action, ScriptError, parse_script, read_script, survey_script
+from survey.session.script import (Action, ScriptError, check_dropped_points, parse_script, read_script,
+                                   survey_script)
 
 
 def test_every_action_and_comments():
@@ -26,6 +27,8 @@ def test_every_action_and_comments():
     ("\n\nfix now\n", 3, "takes no argument"),
     ("note\n", 1, "needs a text"),
     ("setup keep CP1\n", 1, "setup takes 'drop POINT'"),
+    ("setup drop\n", 1, "setup takes 'drop POINT'"),
+    ("setup drop A\nfix\nsetup drop B\n", 3, "setup drop lines must come first"),
 ])
 def test_errors_name_file_and_line(text, line, words):
     with pytest.raises(ScriptError) as e:
@@ -46,3 +49,20 @@ def test_generated_survey_script(tmp_path):
 def test_unreadable_script_names_the_file(tmp_path):
     with pytest.raises(ScriptError, match="cannot read"):
         read_script(tmp_path / "missing.txt")
+
+
+def test_a_bom_and_tabs_read_like_plain_text(tmp_path):
+    p = tmp_path / "notepad.txt"
+    p.write_bytes("\ufeffsetup drop\tCP0003L\nwait\t5\nfix\r\nend\r\n".encode("utf-8"))
+    acts = read_script(p)
+    assert [a.name for a in acts] == ["setup", "wait", "fix", "end"]
+    assert acts[0].text == "drop CP0003L" and acts[1].seconds == 5.0
+
+
+def test_a_dropped_point_must_be_a_cpiii_point_of_the_project():
+    acts = parse_script("setup drop CP0001L\nsetup drop cp0002r\nfix\n")
+    with pytest.raises(ScriptError) as e:
+        check_dropped_points(acts, ["CP0001L", "CP0002R", "CP0003L"], "crew.txt")
+    assert str(e.value) == ("crew.txt:2: setup drop cp0002r: no CPIII point of that id in the project "
+                            "(did you mean CP0002R?)")
+    check_dropped_points(acts[:1], ["CP0001L"], "crew.txt")

@@ -438,7 +438,7 @@ def design_crs(store, file, text: str) -> list[str]:
     return [f"the project's CRS is now {info.text} from the file's <CoordinateSystem>"]
 
 
-@project_app.command("set")
+@project_app.command("set", context_settings={"ignore_unknown_options": True})  # a value "-5" (°C)
 def set_field(
     key: Annotated[str, typer.Argument(metavar="KEY", help=(
         "header field: line, track, client, crew, totalstation, totalstation_serial, totalstation_calibrated, "
@@ -528,7 +528,11 @@ def show(
     t.add_column("what")
     t.add_column("value")
     t.add_row("store", f"{escape(str(info.path))} (schema v{info.schema_version}, created {info.created_utc})")
-    t.add_row("site", f"latitude {units.rad_to_deg(s.latitude_rad):.4f} deg, height {s.height_m:.1f} m")
+    # with a CRS and CPIII the sessions take the latitude from the grid (store.session_meta)
+    lat = grid.latitude_rad if grid is not None else s.latitude_rad
+    t.add_row("site", f"latitude {units.rad_to_deg(lat):.4f} deg"
+                      + (" (the CRS's at the CPIII centroid)" if grid is not None else "")
+                      + f", height {s.height_m:.1f} m")
     if s.crs:
         g = grid
         t.add_row("CRS", f"{escape(str(s.crs))}, vertical datum {escape(str(s.vertical_datum or 'not given'))}" + (

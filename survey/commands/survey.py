@@ -175,8 +175,11 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             fail("give exactly one of --simulate and --devices PORTS.json")
         actions = None
         if script is not None:
+            from survey.session.script import check_dropped_points
+
             try:
                 actions = read_script(script)
+                check_dropped_points(actions, [p.point_id for p in store.cpiii_points()], str(script))
             except ScriptError as exc:
                 fail(str(exc))
         speedup = float(speedup) if speedup is not None else 1.0

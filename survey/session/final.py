@@ -43,8 +43,13 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     remove_stale_temporaries(out_dir, ("survey.xlsx",))
     remove_stale_temporaries(out_dir / "plots", None)
     remove_stale_temporaries(out_dir / "processed", None)
-    raw, xml = store.raw_session(name)
     session_dir = out_dir / "session"
+    # and a raw session folder it was writing (sessionio.write_session builds it beside, then renames)
+    import shutil
+
+    for partial in out_dir.glob(f".{session_dir.name}.*.partial"):
+        shutil.rmtree(partial, ignore_errors=True)
+    raw, xml = store.raw_session(name)
     raw = replace(raw, meta=replace(raw.meta, design_alignment="alignment.xml" if xml else None))
     console.print("end of session: exporting the raw session, re-processing it (filter + RTS smoother) ...")
     write_session(session_dir, raw, xml, overwrite=True)

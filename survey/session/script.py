@@ -67,11 +67,11 @@ def parse_script(text: str, source: str = "<script>") -> list[Action]:
     ScriptError : unknown action, missing or bad argument (names ``source:line``).
     """
     out: list[Action] = []
-    for i, raw in enumerate(text.splitlines(), start=1):
+    for i, raw in enumerate(text.lstrip("\ufeff").splitlines(), start=1):     # (a BOM, as Notepad writes)
         line = raw.split("#", 1)[0].strip() if not raw.lstrip().startswith("note") else raw.strip()
         if not line:
             continue
-        name, _, arg = line.partition(" ")
+        name, arg = (line.split(None, 1) + [""])[:2]         # a tab separates like a blank
         name, arg = name.lower(), arg.strip()
         if name not in ACTIONS:
             raise ScriptError(f"{source}:{i}: unknown action {name!r} (one of {', '.join(ACTIONS)})")
@@ -89,8 +89,15 @@ def parse_script(text: str, source: str = "<script>") -> list[Action]:
         elif kind == "text":
             if not arg:
                 raise ScriptError(f"{source}:{i}: {name} needs a text")
-            if name == "setup" and not arg.lower().startswith("drop "):
-                raise ScriptError(f"{source}:{i}: setup takes 'drop POINT', got {arg!r}")
+            if name == "setup":
+                sub = arg.split(None, 1)
+                if len(sub) != 2 or sub[0].lower() != "drop":
+                    raise ScriptError(f"{source}:{i}: setup takes 'drop POINT', got {arg!r}")
+                if any(a.name != "setup" for a in out):
+                    # the first station setup runs before every other action: a later line would be
+                    # applied to it all the same, out of the order the crew wrote
+                    raise ScriptError(f"{source}:{i}: setup drop lines must come first, before any other action")
+                arg = f"drop {sub[1].strip()}"
             out.append(Action(name, text=arg, line=i))
         else:
             out.append(Action(name, line=i))
@@ -100,10 +107,28 @@ def parse_script(text: str, source: str = "<script>") -> list[Action]:
 def read_script(path: Path) -> list[Action]:
     """Actions of a script file (``ScriptError`` naming the file and line)."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise ScriptError(f"{path}: cannot read the script: {exc}") from None
     return parse_script(text, str(path))
+
+
+def check_dropped_points(actions: list[Action], point_ids, source: str = "<script>") -> None:
+    """Every ``setup drop POINT`` must name a CPIII point of the project (ids are case-sensitive):
+    a typo would leave the point the crew meant to drop in the resection while the record says it
+    was dropped. Raises ScriptError naming the line and the nearest id."""
+    import difflib
+
+    known = set(point_ids)
+    for a in actions:
+        if a.name != "setup":
+            continue
+        pid = a.text.split(None, 1)[1]
+        if pid not in known:
+            near = difflib.get_close_matches(pid, sorted(known), n=1) or [
+                k for k in sorted(known) if k.lower() == pid.lower()][:1]
+            hint = f" (did you mean {near[0]}?)" if near else ""
+            raise ScriptError(f"{source}:{a.line}: setup drop {pid}: no CPIII point of that id in the project{hint}")
 
 
 def survey_script(n_stops: int, note_every: int = 0, station_every: int = 0) -> str:

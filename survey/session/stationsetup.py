@@ -68,6 +68,10 @@ class StationSetupSteps:
                 raise SessionAbort(f"station setup: {exc}", "measure more CPIII points") from None
             self.console.print(resection_table(res, title))
             if self.config.script is not None:
+                while drops and drops[0] not in ids:
+                    # a CPIII point of the project (checked at the start) that this setup did not measure
+                    self.console.print(f"setup drop {drops.pop(0)}: not among the points measured for this setup "
+                                       "(nothing to drop)", highlight=False, markup=False)
                 if drops:
                     exclude.append(drops.pop(0))
                     continue
