@@ -6,6 +6,8 @@ is written.
 """
 from __future__ import annotations
 
+import json
+
 import io
 import os
 import sys
@@ -205,12 +207,16 @@ def test_an_ended_session_is_reopened_to_add_intervals(tmp_path):
         fixes = st.fixes(sid)
         sim = simulated_world(st, 1.0).sim
         kinds = [e.kind for e in st.events(sid)]
+        # the reopen's script is kept: a kill during it resumes with it, without --script again
+        kept = [json.loads(e.detail) for e in st.events(sid) if e.kind == "script_file"]
         finals = [p for p in st.processing_runs(sid) if p.kind == "final"]
         track = st.track(finals[-1].run_id)
         assert st.session("kb").state == "ended"
     assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True), ("FIX003", True)]
     assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1, 2]
     assert kinds.count("end") == 2 and kinds.index("reopened") < kinds.index("resumed")
+    assert kept == [{"script": str((tmp_path / "add.txt").resolve())}]
+    assert kinds.index("reopened") < kinds.index("script_file")
     assert kinds.count("interval") == 2  # the live summaries of the two intervals added
     assert len(finals) == 1 and track.chainage_m[0] < 1.0 and track.chainage_m[-1] > 119.0
     assert "survey.xlsx" in r.stdout

@@ -162,10 +162,14 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                 rec = store.session(session)
             except StoreError as exc:
                 fail(str(exc), "`trolley project show` lists the sessions")
-            start = next((json.loads(e.detail) for e in store.events(rec.session_id) if e.kind == "start"), {})
+            events = store.events(rec.session_id)
+            start = next((json.loads(e.detail) for e in events if e.kind == "start"), {})
             simulate = simulate or start.get("simulate", False)
             speedup = speedup if speedup is not None else start.get("speedup")
-            script = script if script is not None else (Path(start["script"]) if start.get("script") else None)
+            # the script of the last start or reopen that had one
+            kept = [json.loads(e.detail).get("script") for e in events if e.kind == "script_file"]
+            kept = kept[-1] if kept else start.get("script")
+            script = script if script is not None else (Path(kept) if kept else None)
             devices = devices if devices is not None else (Path(start["devices"]) if start.get("devices") else None)
             if out is None and start.get("out"):
                 # relative to the project folder (sessions/NAME): a project copied or moved to
@@ -213,7 +217,8 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             tolerance_set(tolerances)  # a bad set stops the start, not the end of the survey
         except ToleranceError as exc:
             fail(f"project tolerance set: {exc}", "the file must exist where the project names it")
-        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances, reopen=reopen)
+        config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances, reopen=reopen,
+                               script_path=str(script.resolve()) if script is not None else None)
         fs = FieldSession(store, session, config, world=world, ports=ports, console=err, keys=keys,
                           resume=resume, device_options=options)
         try:

@@ -59,6 +59,8 @@ class SessionConfig:
     tolerances : tolerance set of the live interval summaries and of the survey sheet (None: the
         project's setting); resolved once by :func:`survey.session.interval.tolerance_set_name`.
     reopen : on resume, reopen an ended session to add intervals (the script, if any, starts again).
+    script_path : the script's file, kept with a reopen (a "script_file" event) so that a resume of
+        the reopened session runs the same script without being told again.
     """
 
     script: list[Action] | None = None
@@ -68,6 +70,7 @@ class SessionConfig:
     live: bool = True
     tolerances: str | None = None
     reopen: bool = False
+    script_path: str | None = None
 
 
 @dataclass
@@ -227,6 +230,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                                        "start a new session to survey more")
                 self.store.set_session_state(self.rec.session_id, "open")
                 self._event("reopened", f"data up to t = {last:.3f} s", t_s=last)
+                if self.config.script_path:
+                    self._event("script_file", json.dumps({"script": self.config.script_path}), t_s=last)
                 self.rec = self.store.session(self.name)
             elif self.rec.state == "ended":
                 if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
