@@ -613,6 +613,10 @@ def _check_ours(path: Path) -> None:
     Read through a read-only connection: no WAL switch, no migration, not a byte changed in a
     foreign SQLite file or a corrupt one.
     """
+    if path.is_file() and not (os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)):
+        # (SQLite then says only "unable to open database file": its journal cannot be made)
+        raise StoreError(f"{path}: the project store is read-only (a write-protected disk, card or folder); "
+                         "copy the project folder to a writable place and use the copy")
     try:
         ro = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
     except sqlite3.Error as exc:

@@ -388,3 +388,26 @@ def test_reopening_a_simulated_session_recorded_to_its_end_is_refused_and_leaves
     with store(tmp_path / "copy") as st:
         assert st.session("ref").state == "ended"
         assert "reopened" not in [e.kind for e in st.events(st.session("ref").session_id)]
+
+
+def test_a_full_disk_at_the_end_names_the_folder_and_the_way_on(tmp_path, monkeypatch):
+    # (the OSError of a full disk names no file: "error: No space left on device" said nothing)
+    import errno
+    from types import SimpleNamespace
+
+    import survey.session.final
+    from survey.session.errors import SessionAbort
+    from survey.session.fieldsession import FieldSession
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(survey.session.final, "process_stored_session", full)
+    fs = SimpleNamespace(accepted_fixes=[1, 2], static_start_s=0.0, rec=SimpleNamespace(session_id=1),
+                         config=SimpleNamespace(out_dir=tmp_path / "out"), name="ref", store=None, console=None,
+                         tolerance_name="default", say=print)
+    with pytest.raises(SessionAbort) as exc:
+        FieldSession._final_processing(fs)
+    assert str(exc.value) == (f"end of session: cannot write the results into {tmp_path / 'out'} (No space left on "
+                              "device); the session is stored")
+    assert "trolley survey resume PROJECT --session ref" in exc.value.hint

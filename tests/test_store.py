@@ -77,6 +77,15 @@ def test_refuses_foreign_and_newer_files(tmp_path):
         ProjectStore.open(tmp_path / "p")
 
 
+def test_a_store_on_a_read_only_medium_is_said_to_be_read_only(tmp_path, monkeypatch):
+    # (as root a chmod does not stop writes; a write-protected card does: os.access says so)
+    ProjectStore.create(tmp_path, "p").close()
+    real = st.os.access
+    monkeypatch.setattr(st.os, "access", lambda path, mode: False if mode == st.os.W_OK else real(path, mode))
+    with pytest.raises(StoreError, match="the project store is read-only .* copy the project folder"):
+        ProjectStore.open(tmp_path / "p")
+
+
 def test_v1_database_is_migrated_on_open(tmp_path):
     path = tmp_path / "old" / st.STORE_FILE
     path.parent.mkdir()

@@ -971,10 +971,18 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             if len(self.accepted_fixes) < 2:
                 self.say("fewer than two accepted fixes: nothing to process")
             return out
+        from survey.errors import os_error_text
         from survey.session.final import process_stored_session
 
-        return process_stored_session(self.store, self.name, self.config.out_dir, out, self.console,
-                                      self.tolerance_name)
+        try:
+            return process_stored_session(self.store, self.name, self.config.out_dir, out, self.console,
+                                          self.tolerance_name)
+        except OSError as exc:
+            # a full disk names no file: say which folder the end was writing, and that nothing is lost
+            raise SessionAbort(f"end of session: cannot write the results into {self.config.out_dir} "
+                               f"({os_error_text(exc)}); the session is stored",
+                               f"free space (or fix the folder), then `trolley survey resume PROJECT --session "
+                               f"{self.name}` does the end again") from None
 
     def _shutdown(self) -> None:
         if self._live_thread is not None:
