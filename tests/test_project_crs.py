@@ -119,6 +119,11 @@ def test_set_crs_cli(tmp_path):
     assert "not a projected CRS" in r.stderr
     r = run("project", "set-crs", "p", "nonsense", "--root", root, code=2)
     assert "not a coordinate reference system" in r.stderr
+    r = run("project", "set-crs", "p", "EPSG:32650", "--vertical-datum", "a\nb", "--root", root, code=2)
+    assert "--vertical-datum: control characters" in r.stderr
+    # show gives the latitude the sessions use: the CRS's at the CPIII centroid
+    r = run("project", "show", "p", "--root", root)
+    assert f"latitude {doc['grid']['latitude_deg']:.4f} deg" in r.stdout and "(the CRS's at the" in r.stdout
 
 
 def test_survey_sheet_shows_the_crs(tmp_path):

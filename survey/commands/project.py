@@ -348,6 +348,8 @@ def set_crs(
     vd = vertical_datum if vertical_datum is not None else (info.vertical_datum or None)
     if vd is not None and not vd.strip():
         fail("--vertical-datum: empty name")
+    if vd is not None and any(ord(ch) < 32 or ord(ch) == 127 for ch in vd):
+        fail("--vertical-datum: control characters (tab, newline, ...) are not allowed")
     with _open(root, name) as store:
         try:
             grid = apply_crs(store, info, vd)
