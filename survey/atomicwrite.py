@@ -281,11 +281,25 @@ def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[P
         if raw:
             raise OutputError(f"{option} {folder}: holds {raw[0]} (a recording or raw session, never written "
                               "into); choose another folder")
+        inside = enclosing_raw_folder(folder)
+        if inside is not None:
+            raise OutputError(f"{option} {folder}: is inside {inside} (a recording or raw session, never written "
+                              "into); choose a folder outside it")
         parent = folder if folder.is_dir() else folder.parent
         if not parent.is_dir():
             raise OutputError(f"{option} {folder}: folder {parent} does not exist")
         if not os.access(parent, os.W_OK | os.X_OK):
             raise OutputError(f"{option} {folder}: not writable (permission denied)")
+
+
+def enclosing_raw_folder(folder: Path) -> Path | None:
+    """The raw session or recording folder that ``folder`` lies inside (an ancestor holding one of
+    :data:`RAW_FOLDER_MARKS`), or None. Outputs written there would be mixed with raw data, and a
+    later ``simulate --force`` on the session would delete them with it."""
+    for up in Path(folder).absolute().parents:
+        if any((up / m).is_file() for m in RAW_FOLDER_MARKS):
+            return up
+    return None
 
 
 # ------------------------------------------------------------------------------------------
@@ -331,6 +345,10 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out",
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{option} {out}: exists and is not a folder")
+    inside = enclosing_raw_folder(out)
+    if inside is not None:
+        raise OutputError(f"{option} {out}: is inside {inside} (a recording or raw session); choose a folder "
+                          "outside it")
     if not out.is_dir() or not any(out.iterdir()):
         return
     if reuse_own and made_by(out, command):

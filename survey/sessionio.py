@@ -789,6 +789,7 @@ def read_session(folder: Path) -> RawSession:
     if (folder / "gauge.csv").exists():
         g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
         gauge_t, gauge = g[:, 0], g[:, 1]
+    _check_coverage(folder, imu[:, 0], odo[:, 0], odo[:, 1], fixes.t_s)
     if meta.crs and not math.isfinite(meta.latitude_rad):
         from trolley.projection import CrsError, session_site
         try:
@@ -800,6 +801,50 @@ def read_session(folder: Path) -> RawSession:
         odo_t_s=odo[:, 0], odo_distance_m=odo[:, 1], fixes=fixes,
         gauge_t_s=gauge_t, gauge_m=gauge,
     )
+
+
+#: Fastest a trolley moves, m/s: an odometer step faster than this is a wrong value or a wrong unit
+#: (distances in mm read as m are 1000 times a walking pace)
+MAX_TROLLEY_SPEED_M_S = 30.0
+#: Longest gap in the IMU log the dead reckoning is asked to bridge, s
+MAX_IMU_GAP_S = 2.0
+#: How far the odometer or the fixes may run past the IMU log's end (or start before it), s
+TIME_SPAN_SLACK_S = 2.0
+
+
+def _check_coverage(folder: Path, imu_t: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray, fix_t: np.ndarray) -> None:
+    """The files must describe one survey: no impossible odometer speed, no long hole in the IMU
+    log, and the odometer and the fixes within the IMU's time span. Each file is valid on its own
+    when this runs; without these checks one wrong distance made a 2 GB track of nonsense and a
+    truncated imu.csv a short track whose later fixes were "rejected" for a reason that hid the cause.
+    """
+    dt, dd = np.diff(odo_t), np.diff(odo_d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fast = (np.abs(dd) > MAX_TROLLEY_SPEED_M_S * dt) & ((dt > 0) | (dd != 0))
+    if fast.any():
+        i = int(np.argmax(fast)) + 1
+        raise SessionFormatError(
+            f"odometer.csv: row {_row(i)}, column distance_m: moves {dd[i - 1]:+.6g} m in {dt[i - 1]:.6g} s (faster "
+            f"than {MAX_TROLLEY_SPEED_M_S:g} m/s, the fastest a trolley moves): a wrong value, or distances in mm?")
+    gaps = np.diff(imu_t)
+    if gaps.size and gaps.max() > MAX_IMU_GAP_S:
+        i = int(np.argmax(gaps)) + 1
+        raise SessionFormatError(
+            f"imu.csv: row {_row(i)}, column t_s: no IMU samples for {gaps[i - 1]:.6g} s (from t = {imu_t[i - 1]:.6g} "
+            f"s): the dead reckoning cannot bridge a gap of more than {MAX_IMU_GAP_S:g} s in the IMU log")
+    lo, hi = imu_t[0] - TIME_SPAN_SLACK_S, imu_t[-1] + TIME_SPAN_SLACK_S
+    outside = (fix_t < lo) | (fix_t > hi)
+    if outside.any():
+        i = int(np.argmax(outside))
+        raise SessionFormatError(
+            f"fixes.csv: row {_row(i)}, column t_s: {fix_t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
+            f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
+    if odo_t[-1] > hi or odo_t[0] < lo:
+        end = odo_t[-1] > hi
+        raise SessionFormatError(
+            f"odometer.csv: column t_s: the odometer runs {'to' if end else 'from'} {odo_t[-1 if end else 0]:.6g} s, "
+            f"the IMU log {'ends' if end else 'starts'} at {imu_t[-1 if end else 0]:.6g} s: imu.csv cut short, or the "
+            "files of two sessions?")
 
 
 def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None):

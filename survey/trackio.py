@@ -159,7 +159,13 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
     """
     import secrets
 
+    from survey.atomicwrite import enclosing_raw_folder
+
     out_dir = Path(out_dir)
+    inside = enclosing_raw_folder(out_dir)
+    if inside is not None:
+        raise OutputFolderError(f"{out_dir}: is inside the raw session {inside} (never written into); choose a "
+                                "folder outside it")
     if out_dir.exists():
         if not out_dir.is_dir():
             raise OutputFolderError(f"{out_dir}: exists and is not a folder")

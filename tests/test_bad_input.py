@@ -90,6 +90,12 @@ def duplicate_line(path: Path, line: int) -> None:
     insert_line(path, line, lines[line - 1])
 
 
+def drop_rows(path: Path, first: int, last: int) -> None:
+    """Delete the spreadsheet rows ``first``..``last`` (header = row 1)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    path.write_text("\n".join(lines[:first - 1] + lines[last:]) + "\n", encoding="utf-8")
+
+
 def edit_text(path: Path, old: str, new: str) -> None:
     text = path.read_text(encoding="utf-8")
     assert old in text, (path, old)
@@ -251,6 +257,17 @@ PROBES: list[Probe] = [
           ("sess",)),
     Probe("process/out-is-a-file", lambda t, i: (t / "o").write_text("x") and
           ["process", str(_sess(t, i)), "--out", str(t / "o")], ("o",)),
+    # the files each valid, but not one survey (a bug hunt: a 2 GB track of nonsense, a short one)
+    Probe("process/odometer-jump", process_probe(lambda s: set_cell(s / "odometer.csv", 100, "distance_m", "9000000.0")),
+          ("odometer.csv: row 100, column distance_m", "faster than 30 m/s", "in mm?")),
+    Probe("process/imu-cut-short", process_probe(lambda s: keep_rows(s / "imu.csv", 3000)),
+          ("fixes.csv: row", "column t_s", "is outside the IMU log", "imu.csv cut short")),
+    Probe("process/imu-gap", process_probe(lambda s: drop_rows(s / "imu.csv", 3000, 3500)),
+          ("imu.csv: row 3000, column t_s: no IMU samples for 10.04 s (from t = 59.96 s)",)),
+    Probe("process/out-inside-the-session", lambda t, i: ["process", str(_sess(t, i)), "--out", str(t / "sess" / "o")],
+          ("is inside the raw session",)),
+    Probe("simulate/out-inside-a-session", lambda t, i: ["simulate", "--out", str(_sess(t, i) / "sub"), "--project",
+                                                          str(DEMO)], ("--out", "is inside", "raw session")),
     Probe("process/step-1e-7", process_probe(lambda s: None, "--step-m", "1e-7"), ("--step-m",)),
     Probe("process/step-nan", process_probe(lambda s: None, "--step-m", "nan"), ("--step-m",)),
     # ---- export -------------------------------------------------------------------------
