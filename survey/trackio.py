@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from survey import jsonout
 from trolley import units
 from trolley.engine import ProcessResult
 from trolley.session import RawSession
@@ -182,7 +183,8 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
     try:
         write_track_csv(tmp / "track.csv", result, stationing)
         fixes_frame(result).to_csv(tmp / "fixes.csv", index=False, float_format="%.6f", na_rep="")
-        (tmp / "summary.json").write_text(json.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
+        # jsonout: a value that does not exist (the RMS innovation of one fix) is null, never NaN
+        (tmp / "summary.json").write_text(jsonout.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
                                           encoding="utf-8")
         move_into_place(tmp, out_dir)
     finally:

@@ -110,3 +110,22 @@ def test_output_folder_with_other_files_is_refused_and_left_alone(session, tmp_p
     r = runner.invoke(app, ["process", str(session), "--out", str(session)])
     assert r.exit_code == 2 and "not only the outputs" in r.stderr
     assert sorted(p.name for p in session.iterdir()) == files
+
+
+def test_a_session_with_one_fix_has_valid_json_and_says_there_is_no_innovation(session, tmp_path):
+    # (summary.json held NaN, which no JSON reader takes; the terminal said "nan mm")
+    import shutil
+
+    one = tmp_path / "one"
+    shutil.copytree(session, one)
+    lines = (one / "fixes.csv").read_text().splitlines()
+    (one / "fixes.csv").write_text("\n".join(lines[:2]) + "\n")
+    r = runner.invoke(app, ["process", str(one), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "o" / "summary.json").read_text()
+    def strict(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    summary = json.loads(text, parse_constant=strict)
+    assert summary["rms_innovation_mm"] is None
+    assert "none (no fix after the first was used)" in " ".join(r.output.split())

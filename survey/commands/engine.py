@@ -141,7 +141,9 @@ def print_summary(result, written, con: Console | None = None) -> None:
     t.add_column("what")
     t.add_column("value", justify="right")
     t.add_row("fixes used / rejected", f"{s['fixes_used']} / {s['fixes_rejected']}")
-    t.add_row("RMS of innovations", f"{units.m_to_mm(s['rms_innovation_m']):.2f} mm")
+    rms = s["rms_innovation_m"]
+    t.add_row("RMS of innovations", f"{units.m_to_mm(rms):.2f} mm" if math.isfinite(rms) else
+              "none (no fix after the first was used)")
     t.add_row("max 1-sigma of the track", f"{units.m_to_mm(s['max_sigma_m']):.2f} mm")
     t.add_row("stations", f"{len(st.chainage_m)} ({result.config.step_m} m step)")
     if len(st.chainage_m):
