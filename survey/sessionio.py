@@ -174,8 +174,11 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
     vertical_datum = t.string("site.vertical_datum", None)
     # with a CRS the latitude comes from it and the fixes (trolley.projection.session_site)
     latitude_deg = t.float("site.latitude_deg", float("nan") if crs else _MISSING)
-    if abs(latitude_deg) > 90.0:
-        raise t.error("site.latitude_deg", f"must be within -90..90, got {latitude_deg!r}")
+    from trolley.earth import MAX_LATITUDE_DEG
+
+    if abs(latitude_deg) > MAX_LATITUDE_DEG:
+        raise t.error("site.latitude_deg", f"must be within -{MAX_LATITUDE_DEG:g}..{MAX_LATITUDE_DEG:g} (the "
+                                           f"alignment has no north near the poles), got {latitude_deg!r}")
     dflt = TrolleyGeometry()
     trolley = TrolleyGeometry(
         prism_lever_arm_m=t.vector("trolley.prism_lever_arm_m", dflt.prism_lever_arm_m),

@@ -268,6 +268,9 @@ PROBES: list[Probe] = [
           ("is inside the raw session",)),
     Probe("simulate/out-inside-a-session", lambda t, i: ["simulate", "--out", str(_sess(t, i) / "sub"), "--project",
                                                           str(DEMO)], ("--out", "is inside", "raw session")),
+    Probe("process/latitude-90", process_probe(lambda s: edit_text(s / "session.toml", "latitude_deg = 28.0",
+                                                                   "latitude_deg = 90.0")),
+          ("session.toml", "site.latitude_deg", "within -85..85")),
     Probe("process/step-1e-7", process_probe(lambda s: None, "--step-m", "1e-7"), ("--step-m",)),
     Probe("process/step-nan", process_probe(lambda s: None, "--step-m", "nan"), ("--step-m",)),
     # ---- export -------------------------------------------------------------------------

@@ -229,3 +229,43 @@ def test_out_of_memory_is_a_clear_exit_2(monkeypatch):
     assert res.exit_code == 2 and res.stdout == ""
     assert "not enough memory" in res.stderr and "--monte-carlo" in res.stderr
     assert "Traceback" not in res.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--gyro-bias-deg-h", "1e300", "--gyro-arw-deg-sqrt-h", "0.005"], "--gyro-bias-deg-h must lie within 0..1000"),
+    (["--level-error-deg", "1e5"], "--level-error-deg must lie within 0..10"),
+    (["--fix-spacing-m", "1e-9", "--monte-carlo", "2"], "--fix-spacing-m must lie within 1..10000"),
+    (["--fix-spacing-m", "1e300", "--monte-carlo", "10"], "--fix-spacing-m must lie within 1..10000"),
+    (["--speed-m-s", "1e11"], "--speed-m-s must lie within 0.01..30"),
+    (["--monte-carlo", "99999999999"], "--monte-carlo must be at most 1000000"),
+    (["--latitude-deg", "89.999999"], "--latitude-deg must lie within -85..85"),
+    (["--imu", "custom", "--gyro-bias-instability-deg-h", "3", "--gyro-arw-deg-sqrt-h", "0.15"],
+     "gyrocompasses to a heading error of 13.2 deg"),
+])
+def test_inputs_beyond_the_error_models_range_are_refused(args, message):
+    # (a bug hunt: they gave ZeroDivisionError, "Python int too large", NaN sigmas, or sigmas that
+    # shrank as the error grew, some reported as PASS)
+    res = _run(*args, "--json")
+    assert res.exit_code == 2 and res.stdout == "" and message in res.stderr, res.output
+
+
+def test_the_worst_point_grows_with_every_error_across_the_accepted_ranges():
+    # within the ranges the CLI accepts the sigmas are monotone in each error source (the bug hunt
+    # found 1e6 -> 1.39 mm, 1e7 -> 0.67 mm, 1e15 -> 0.59 mm of vertical sigma far outside them)
+    import numpy as np
+
+    from trolley import budget as B
+    from trolley import units
+
+    def worst(**kw):
+        figs = B.SensorFigures(gyro_arw_rad_sqrt_s=units.deg_sqrt_h_to_rad_sqrt_s(0.005),
+                               heading_error_rad=units.deg_to_rad(0.5), **kw)
+        res = B.budget(B.resolve_case(figs).case)
+        return np.array([res[d].max_sigma_m for d in B.DIRECTIONS])
+
+    for name, values in (("equivalent_gyro_bias_rad_s", units.deg_h_to_rad_s(np.logspace(-3, 3, 13))),
+                         ("level_error_rad", units.deg_to_rad(np.linspace(0.0, 10.0, 11)))):
+        extra = {} if name == "equivalent_gyro_bias_rad_s" else {"equivalent_gyro_bias_rad_s": 1e-7}
+        w = np.array([worst(**{name: v}, **extra) for v in values])
+        assert np.all(np.isfinite(w))
+        assert np.all(np.diff(w, axis=0) >= -1e-12 * w[1:]), (name, w)

@@ -129,3 +129,24 @@ def test_a_session_with_one_fix_has_valid_json_and_says_there_is_no_innovation(s
     summary = json.loads(text, parse_constant=strict)
     assert summary["rms_innovation_mm"] is None
     assert "none (no fix after the first was used)" in " ".join(r.output.split())
+
+
+def test_an_odometer_scale_error_of_zero_is_processed(session, tmp_path):
+    # 0 is a legal value (an odometer calibrated exactly); its initial variance 0 made the
+    # smoother's state scaling divide by zero ("zero norm quaternions")
+    import shutil
+
+    import numpy as np
+
+    zero = tmp_path / "zero"
+    shutil.copytree(session, zero)
+    text = (zero / "session.toml").read_text()
+    assert "scale_error = " in text
+    (zero / "session.toml").write_text("\n".join("scale_error = 0.0" if line.startswith("scale_error = ") else line
+                                                 for line in text.splitlines()) + "\n")
+    for folder, out in ((session, "a"), (zero, "b")):
+        r = runner.invoke(app, ["process", str(folder), "--out", str(tmp_path / out)])
+        assert r.exit_code == 0, r.output
+    a, b = (pd.read_csv(tmp_path / o / "track.csv") for o in ("a", "b"))
+    assert len(a) == len(b) and np.all(np.isfinite(b[["E_m", "N_m", "H_m"]].to_numpy()))
+    assert np.max(np.abs(a[["E_m", "N_m", "H_m"]].to_numpy() - b[["E_m", "N_m", "H_m"]].to_numpy())) < 2e-3

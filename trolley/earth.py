@@ -20,6 +20,9 @@ from trolley.units import EARTH_RATE_RAD_S
 
 #: WGS-84 semi-major axis, m.
 EARTH_RADIUS_M = 6378137.0
+#: Highest |latitude| the survey models take, deg: north-seeking alignment (gyrocompassing) and the
+#: local-level frame's heading break down at the poles (no railway runs north of 71 deg)
+MAX_LATITUDE_DEG = 85.0
 _FLATTENING = 1.0 / 298.257223563
 _GAMMA_EQUATOR = 9.7803253359
 _SOMIGLIANA_K = 0.00193185265241

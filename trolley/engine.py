@@ -29,7 +29,7 @@ from trolley.projection import GridFactors, session_site
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
                                    quat_multiply, static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
-from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
+from trolley.smoothers import Measurements, forward_filter, rts_smooth, state_scale, two_filter_smooth
 from trolley.trackgeometry import TrackInput
 
 #: Grid stations this far beyond the first or last projected chainage are still output.
@@ -579,7 +579,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     fix_nodes = np.searchsorted(nodes, fix_blocks)
     noise = filter_noise(session.meta, config)
     P0, heading_sigma = initial_covariance(session.meta, align, align.t_end_s - session.imu_t_s[0], config)
-    scale = np.sqrt(np.diag(P0))
+    scale = state_scale(P0)
     R = fix_covariances(fix_sig)
     forced = np.array([p in set(config.force_accept) for p in fix_pt], dtype=bool)
     if config.smoother not in ("rts", "tfs", "none"):

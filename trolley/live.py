@@ -27,7 +27,7 @@ from trolley.engine import (ProcessConfig, Stations, Trajectory, _interp_nodes, 
                             make_stations, ned_to_grid, sigmas_to_grid, turn_sigmas)
 from trolley.projection import GridFactors, site_factors
 from trolley.session import Fixes, RawSession, SessionMeta
-from trolley.smoothers import ForwardResult, Measurements, forward_filter, gate_threshold, rts_smooth
+from trolley.smoothers import ForwardResult, Measurements, forward_filter, gate_threshold, rts_smooth, state_scale
 
 
 @dataclass
@@ -285,7 +285,7 @@ class LiveProcessor:
         if len(self._fixes) < 2:
             raise RuntimeError("an interval needs two accepted fixes")
         last, prev = self._fixes[-1], self._fixes[-2]
-        sm = rts_smooth(last.F, last.Q, last.forward, scale=np.sqrt(np.diag(self._P0)))
+        sm = rts_smooth(last.F, last.Q, last.forward, scale=state_scale(self._P0))
         sub = _slice(self._dr, last.block_start, last.block + 1)
         xb = _interp_nodes(sub, last.nodes, sm.x)
         var = _interp_nodes(sub, last.nodes, np.diagonal(sm.P, axis1=1, axis2=2)[:, _POS])

@@ -92,6 +92,15 @@ class SmoothedResult:
 PROGRESS_EVERY = 500
 
 
+def state_scale(P0: np.ndarray) -> np.ndarray:
+    """The state scaling of :func:`rts_smooth` and :func:`two_filter_smooth`: the initial 1-sigmas,
+    sqrt(diag P0), with 1 (no scaling) for a state known exactly at the start (a 0 or denormal
+    variance, e.g. an odometer scale error of 0 in session.toml), which would otherwise divide by 0.
+    """
+    d = np.sqrt(np.abs(np.diag(np.asarray(P0, dtype=float))))
+    return np.where(d > 1e-12, d, 1.0)
+
+
 def gate_threshold(probability: float, dof: int) -> float:
     """Chi-square gate: NIS above this is rejected with false-alarm rate 1 - probability."""
     return float(scipy.stats.chi2.ppf(probability, dof))

@@ -49,6 +49,30 @@ def _check_positive(**values) -> None:
             raise BudgetInputError(f"--{name.replace('_', '-')} must be a finite number > 0, got {x!r}")
 
 
+#: What the budget's error model holds for, per option (datasheet units): the model is linear in
+#: small angles (Jiang 2017 Eq. 6), and far outside these a value overflows or the sigmas turn NaN
+#: or even shrink as an error grows. The gyro and odometer ceilings are at or above the sizing
+#: searches' caps (docs/budget.md), the angles at 10 deg, the interval at 10 km.
+RANGES = {
+    "gyro_bias_deg_h": (0.0, 1000.0), "gyro_bias_instability_deg_h": (0.0, 1000.0),
+    "gyro_arw_deg_sqrt_h": (0.0, 34.0), "heading_error_deg": (0.0, 10.0), "level_error_deg": (0.0, 10.0),
+    "odo_scale_noise": (0.0, 1e-2), "odo_scale_error": (0.0, 1e-2), "fix_spacing_m": (1.0, 10000.0),
+    "speed_m_s": (0.01, 30.0), "fix_sigma_mm": (1e-3, 1000.0),
+}
+#: largest heading error the small-angle model takes, deg (given or from gyrocompassing)
+MAX_HEADING_ERROR_DEG = RANGES["heading_error_deg"][1]
+#: most Monte Carlo runs (their RMS then has a 0.07 % sampling error)
+MAX_MONTE_CARLO_RUNS = 1_000_000
+
+
+def _check_ranges(**values) -> None:
+    for name, x in values.items():
+        lo, hi = RANGES[name]
+        if x is not None and not lo <= x <= hi:
+            raise BudgetInputError(f"--{name.replace('_', '-')} must lie within {lo:g}..{hi:g} (the range of the "
+                                   f"error model), got {x!r}")
+
+
 def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,
                    heading_error_deg, level_error_deg, odo_scale_noise, odo_scale_error,
                    fix_spacing_m, speed_m_s, fix_sigma_mm, latitude_deg):
@@ -68,8 +92,15 @@ def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_d
                        level_error_deg=level_error_deg, odo_scale_noise=odo_scale_noise,
                        odo_scale_error=odo_scale_error)
     _check_positive(fix_spacing_m=fix_spacing_m, speed_m_s=speed_m_s, fix_sigma_mm=fix_sigma_mm)
-    if not math.isfinite(latitude_deg) or abs(latitude_deg) >= 90:
-        raise BudgetInputError(f"--latitude-deg must lie strictly between -90 and 90, got {latitude_deg!r}")
+    _check_ranges(gyro_bias_deg_h=gyro_bias_deg_h, gyro_bias_instability_deg_h=gyro_bias_instability_deg_h,
+                  gyro_arw_deg_sqrt_h=gyro_arw_deg_sqrt_h, heading_error_deg=heading_error_deg,
+                  level_error_deg=level_error_deg, odo_scale_noise=odo_scale_noise, odo_scale_error=odo_scale_error,
+                  fix_spacing_m=fix_spacing_m, speed_m_s=speed_m_s, fix_sigma_mm=fix_sigma_mm)
+    from trolley.earth import MAX_LATITUDE_DEG
+
+    if not math.isfinite(latitude_deg) or abs(latitude_deg) > MAX_LATITUDE_DEG:
+        raise BudgetInputError(f"--latitude-deg must lie within -{MAX_LATITUDE_DEG:g}..{MAX_LATITUDE_DEG:g} (no "
+                               f"gyrocompassing near the poles), got {latitude_deg!r}")
     if gyro_bias_deg_h is not None and gyro_bias_instability_deg_h is not None:
         raise BudgetInputError("give either --gyro-bias-deg-h (equivalent bias) or "
                                "--gyro-bias-instability-deg-h (datasheet), not both")
@@ -118,6 +149,11 @@ def compute_report(imu: str, figs, target_mm: float, monte_carlo_runs: int, seed
     from trolley import units
 
     resolved = B.resolve_case(figs)
+    if resolved.heading_route == "gyrocompassing" and resolved.heading_error_rad > units.deg_to_rad(MAX_HEADING_ERROR_DEG):
+        raise BudgetInputError(
+            f"this IMU gyrocompasses to a heading error of {units.rad_to_deg(resolved.heading_error_rad):.3g} deg at "
+            f"--latitude-deg {units.rad_to_deg(figs.latitude_rad):g}, beyond the {MAX_HEADING_ERROR_DEG:g} deg the "
+            "small-angle error model takes: it cannot find north by itself; give --heading-error-deg")
     case = resolved.case
     target = units.mm_to_m(target_mm)
     floor = B.perfect_imu_floor(resolved)
@@ -341,6 +377,11 @@ def write_plots(folder: Path, imu: str, figs, rep: dict) -> list[Path]:
 
     folder.mkdir(parents=True, exist_ok=True)
     resolved = B.resolve_case(figs)
+    if resolved.heading_route == "gyrocompassing" and resolved.heading_error_rad > units.deg_to_rad(MAX_HEADING_ERROR_DEG):
+        raise BudgetInputError(
+            f"this IMU gyrocompasses to a heading error of {units.rad_to_deg(resolved.heading_error_rad):.3g} deg at "
+            f"--latitude-deg {units.rad_to_deg(figs.latitude_rad):g}, beyond the {MAX_HEADING_ERROR_DEG:g} deg the "
+            "small-angle error model takes: it cannot find north by itself; give --heading-error-deg")
     case = resolved.case
     T = float(case.interval_s)
     t = np.linspace(0.0, T, 241)
@@ -468,6 +509,9 @@ def budget_command(
             raise BudgetInputError(f"--monte-carlo must be >= 0, got {monte_carlo}")
         if monte_carlo == 1:
             raise BudgetInputError("--monte-carlo needs at least 2 runs")
+        if monte_carlo > MAX_MONTE_CARLO_RUNS:
+            raise BudgetInputError(f"--monte-carlo must be at most {MAX_MONTE_CARLO_RUNS} (their RMS then has a "
+                                   f"{100 / math.sqrt(2 * MAX_MONTE_CARLO_RUNS):.2f} % sampling error), got {monte_carlo}")
         if seed < 0:
             raise BudgetInputError(f"--seed must be an integer >= 0, got {seed}")
         _check_positive(target_mm=target_mm)

@@ -125,8 +125,11 @@ def new(
     if imu is not None:
         settings = dataclasses.replace(settings, imu=IMU_PRESETS[imu])
     if latitude_deg is not None:
-        if not -90.0 <= latitude_deg <= 90.0:
-            fail(f"--latitude-deg must be within -90..90, not {latitude_deg}")
+        from trolley.earth import MAX_LATITUDE_DEG
+
+        if not -MAX_LATITUDE_DEG <= latitude_deg <= MAX_LATITUDE_DEG:
+            fail(f"--latitude-deg must be within -{MAX_LATITUDE_DEG:g}..{MAX_LATITUDE_DEG:g} (no north-seeking "
+                 f"alignment near the poles), not {latitude_deg}")
         settings = dataclasses.replace(settings, latitude_rad=units.deg_to_rad(latitude_deg))
     if height is not None:
         from survey.commands.simulate import SITE_HEIGHT_RANGE_M

@@ -58,6 +58,12 @@ def _number(data: dict, table: str, key: str, fname: str, integer: bool = False)
         raise ProjectFileError(f"{fname}: key {table}.{key}: must be > 0, got {v!r}")
     if key in _SIM_NON_NEGATIVE and v < 0:
         raise ProjectFileError(f"{fname}: key {table}.{key}: must be >= 0, got {v!r}")
+    if (table, key) == ("site", "latitude_deg"):
+        from trolley.earth import MAX_LATITUDE_DEG
+
+        if abs(v) > MAX_LATITUDE_DEG:
+            raise ProjectFileError(f"{fname}: key site.latitude_deg: must be within -{MAX_LATITUDE_DEG:g}.."
+                                   f"{MAX_LATITUDE_DEG:g} (no north-seeking alignment near the poles), got {v!r}")
     if (table, key) == ("site", "height_m") and not SITE_HEIGHT_RANGE_M[0] <= v <= SITE_HEIGHT_RANGE_M[1]:
         raise ProjectFileError(f"{fname}: key site.height_m: must be within {SITE_HEIGHT_RANGE_M[0]:g}.."
                                f"{SITE_HEIGHT_RANGE_M[1]:g} m, got {v!r}")
