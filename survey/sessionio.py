@@ -101,7 +101,7 @@ class _Toml:
         return True
 
     def float(self, key: str, default=_MISSING, *, finite: bool = True, min_value=None,
-              positive: bool = False) -> float:
+              positive: bool = False, max_value=None) -> float:
         v = self.raw(key)
         if v is _MISSING:
             if default is _MISSING:
@@ -116,6 +116,8 @@ class _Toml:
             raise self.error(key, f"must be >= {min_value}, got {v!r}")
         if positive and not v > 0:
             raise self.error(key, f"must be > 0, got {v!r}")
+        if max_value is not None and v > max_value:
+            raise self.error(key, f"must be <= {max_value:g} (beyond any instrument of this kind), got {v!r}")
         return v
 
     def vector(self, key: str, default) -> np.ndarray:
@@ -151,6 +153,15 @@ class _Toml:
 
 def _f(x) -> float:
     return float(x)
+
+
+def _fix_sigma(t) -> float:
+    """[totalstation] sigma_m within :data:`SIGMA_RANGE_M`, as a fixes.csv sigma must be."""
+    v = t.float("totalstation.sigma_m", 0.0006, positive=True)
+    if not SIGMA_RANGE_M[0] <= v <= SIGMA_RANGE_M[1]:
+        raise t.error("totalstation.sigma_m", f"must be within {SIGMA_RANGE_M[0]:g}..{SIGMA_RANGE_M[1]:g} m (a fix's "
+                                              f"1-sigma), got {v!r}")
+    return v
 
 
 def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
@@ -189,23 +200,24 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
     imu = None
     if t.table("imu"):
         imu = ImuFigures(
+            # (ceilings far above any IMU: 1e300 deg/h overflowed later, naming no key)
             gyro_bias_instability_rad_s=_f(units.deg_h_to_rad_s(
-                t.float("imu.gyro_bias_instability_deg_h", min_value=0.0))),
+                t.float("imu.gyro_bias_instability_deg_h", min_value=0.0, max_value=1e4))),
             gyro_arw_rad_sqrt_s=_f(units.deg_sqrt_h_to_rad_sqrt_s(
-                t.float("imu.gyro_arw_deg_sqrt_h", min_value=0.0))),
-            accel_bias_m_s2=_f(units.ug_to_m_s2(t.float("imu.accel_bias_ug", min_value=0.0))),
+                t.float("imu.gyro_arw_deg_sqrt_h", min_value=0.0, max_value=1e3))),
+            accel_bias_m_s2=_f(units.ug_to_m_s2(t.float("imu.accel_bias_ug", min_value=0.0, max_value=1e6))),
             accel_vrw_m_s_sqrt_s=_f(units.ug_to_m_s2(
-                t.float("imu.accel_vrw_ug_sqrt_hz", 0.0, min_value=0.0))),
-            gyro_scale_factor=t.float("imu.gyro_scale_factor_ppm", 0.0, min_value=0.0) * 1e-6,
+                t.float("imu.accel_vrw_ug_sqrt_hz", 0.0, min_value=0.0, max_value=1e6))),
+            gyro_scale_factor=t.float("imu.gyro_scale_factor_ppm", 0.0, min_value=0.0, max_value=1e5) * 1e-6,
             name=t.string("imu.name", "custom"),
             gyrocompassing=t.boolean("imu.gyrocompassing", True),
         )
     od = OdometerFigures()
     odometer = OdometerFigures(
         scale_noise_per_sqrt_s=t.float("odometer.scale_noise_per_sqrt_s",
-                                       od.scale_noise_per_sqrt_s, min_value=0.0),
-        scale_error=t.float("odometer.scale_error", od.scale_error, min_value=0.0),
-        resolution_m=t.float("odometer.resolution_m", od.resolution_m, min_value=0.0),
+                                       od.scale_noise_per_sqrt_s, min_value=0.0, max_value=0.1),
+        scale_error=t.float("odometer.scale_error", od.scale_error, min_value=0.0, max_value=0.1),
+        resolution_m=t.float("odometer.resolution_m", od.resolution_m, min_value=0.0, max_value=1.0),
     )
     heading_deg = t.float("alignment.initial_heading_deg", float("nan"), finite=False)
     if math.isinf(heading_deg):
@@ -222,7 +234,7 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
         trolley=trolley,
         imu=imu,
         odometer=odometer,
-        fix_sigma_m=t.float("totalstation.sigma_m", 0.0006, positive=True),
+        fix_sigma_m=_fix_sigma(t),
         static_s=t.float("alignment.static_s", 900.0, min_value=0.0),
         initial_heading_rad=float(units.deg_to_rad(heading_deg)),
         design_alignment=design,
@@ -789,7 +801,9 @@ def read_session(folder: Path) -> RawSession:
     odo = _read_numeric(folder / "odometer.csv", ODOMETER_COLUMNS, min_rows=2)
     fixes = _read_fixes(folder / "fixes.csv", meta.fix_sigma_m)
     gauge_t = gauge = None
-    if (folder / "gauge.csv").exists():
+    # (an empty gauge.csv, 0 bytes, is a session without gauge readings, as a header-only one is)
+    if (folder / "gauge.csv").exists() and not ((folder / "gauge.csv").is_file()
+                                               and (folder / "gauge.csv").stat().st_size == 0):
         g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
         gauge_t, gauge = g[:, 0], g[:, 1]
     _check_coverage(folder, imu[:, 0], odo[:, 0], odo[:, 1], fixes.t_s)

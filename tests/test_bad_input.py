@@ -268,6 +268,12 @@ PROBES: list[Probe] = [
           ("is inside the raw session",)),
     Probe("simulate/out-inside-a-session", lambda t, i: ["simulate", "--out", str(_sess(t, i) / "sub"), "--project",
                                                           str(DEMO)], ("--out", "is inside", "raw session")),
+    Probe("process/totalstation-sigma-1e6", process_probe(lambda s: edit_text(s / "session.toml", "sigma_m = ",
+                                                                              "sigma_m = 1e6 #")),
+          ("session.toml", "totalstation.sigma_m", "must be within 1e-06..100 m")),
+    Probe("process/gyro-bias-1e300", process_probe(lambda s: edit_text(
+        s / "session.toml", "gyro_bias_instability_deg_h = ", "gyro_bias_instability_deg_h = 1e300 #")),
+          ("session.toml", "imu.gyro_bias_instability_deg_h", "must be <= 10000")),
     Probe("process/latitude-90", process_probe(lambda s: edit_text(s / "session.toml", "latitude_deg = 28.0",
                                                                    "latitude_deg = 90.0")),
           ("session.toml", "site.latitude_deg", "within -85..85")),

@@ -150,3 +150,15 @@ def test_an_odometer_scale_error_of_zero_is_processed(session, tmp_path):
     a, b = (pd.read_csv(tmp_path / o / "track.csv") for o in ("a", "b"))
     assert len(a) == len(b) and np.all(np.isfinite(b[["E_m", "N_m", "H_m"]].to_numpy()))
     assert np.max(np.abs(a[["E_m", "N_m", "H_m"]].to_numpy() - b[["E_m", "N_m", "H_m"]].to_numpy())) < 2e-3
+
+
+def test_an_empty_gauge_file_is_a_session_without_gauge_readings(session, tmp_path):
+    # FORMATS.md / docs/simulator.md: gauge.csv may be empty; a 0-byte file was "empty file, no header row"
+    import shutil
+
+    empty = tmp_path / "empty"
+    shutil.copytree(session, empty)
+    (empty / "gauge.csv").write_bytes(b"")
+    r = runner.invoke(app, ["process", str(empty), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert pd.read_csv(tmp_path / "o" / "track.csv")["gauge_mm"].isna().all()
