@@ -274,6 +274,13 @@ PROBES: list[Probe] = [
     Probe("process/gyro-bias-1e300", process_probe(lambda s: edit_text(
         s / "session.toml", "gyro_bias_instability_deg_h = ", "gyro_bias_instability_deg_h = 1e300 #")),
           ("session.toml", "imu.gyro_bias_instability_deg_h", "must be <= 10000")),
+    Probe("process/static-0", process_probe(lambda s: edit_text(s / "session.toml", "static_s = 30.0",
+                                                                "static_s = 0.0")),
+          ("session.toml", "alignment.static_s", "holds 1 IMU sample(s)", "at least 10")),
+    Probe("simulate/rate-1e-300", lambda t, i: simulate_args(t, "--rate-hz", "1e-300"),
+          ("--static-s", "--rate-hz 1e-300", "at least 10")),
+    Probe("simulate/length-1e-300", lambda t, i: simulate_args(t, "--length-m", "1e-300"),
+          ("--length-m", "at least 1 m")),
     Probe("process/latitude-90", process_probe(lambda s: edit_text(s / "session.toml", "latitude_deg = 28.0",
                                                                    "latitude_deg = 90.0")),
           ("session.toml", "site.latitude_deg", "within -85..85")),

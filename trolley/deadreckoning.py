@@ -104,6 +104,9 @@ TURN_DETECTION_RAD = 0.5 * np.pi
 #: gyro drift only (micro-radians).
 HANDLING_DETECTION_RAD = 0.05
 
+#: fewest IMU samples a static alignment averages (the levelling and the gyrocompassing)
+MIN_STATIC_SAMPLES = 10
+
 
 def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Starts and ends (exclusive) of the runs of True in a boolean array."""
@@ -204,7 +207,7 @@ def static_alignment(t_s: np.ndarray, w_rad_s: np.ndarray, f_m_s2: np.ndarray, s
     ValueError if the static period holds fewer than 10 samples.
     """
     mask = t_s <= t_s[0] + static_s
-    if np.count_nonzero(mask) < 10:
+    if np.count_nonzero(mask) < MIN_STATIC_SAMPLES:
         raise ValueError(f"the static period of {static_s} s holds only {np.count_nonzero(mask)} IMU samples")
     f = f_m_s2[mask].mean(axis=0)
     w = w_rad_s[mask].mean(axis=0)

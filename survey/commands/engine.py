@@ -96,6 +96,12 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
             fail(f"{session_dir}: {exc}")
         report("processing", _READ_SHARE)
         duration_s = float(session.imu_t_s[-1] - session.imu_t_s[0])
+        from trolley.deadreckoning import MIN_STATIC_SAMPLES
+
+        n_static = int(np.count_nonzero(session.imu_t_s <= session.imu_t_s[0] + session.meta.static_s))
+        if n_static < MIN_STATIC_SAMPLES:
+            fail(f"{session_dir / 'session.toml'}: key alignment.static_s: {session.meta.static_s:g} s holds "
+                 f"{n_static} IMU sample(s) of imu.csv; the static alignment needs at least {MIN_STATIC_SAMPLES}")
         if session.meta.static_s >= duration_s:
             fail(f"{session_dir / 'session.toml'}: key alignment.static_s: {session.meta.static_s:g} s is not "
                  f"shorter than the IMU data ({duration_s:g} s in imu.csv); nothing would be left to survey")

@@ -40,6 +40,8 @@ _SIM_POSITIVE = frozenset({"length_m", "fix_spacing_m", "speed_m_s", "accel_time
                            "odometer_rate_hz", "gauge_rate_hz", "gyro_correlation_time_s", "turn_s"})
 _SIM_NON_NEGATIVE = frozenset({"stop_s", "static_s", "fix_sigma_m", "gauge_sigma_m", "irregularity_rms_m",
                                "imu_residual_misalignment_rad", "lift_tilt_rad", "seed"})
+#: shortest simulated survey, m
+MIN_SIMULATED_LENGTH_M = 1.0
 #: plausible site heights, m (ellipsoidal or orthometric: the Dead Sea shore to above any railway)
 SITE_HEIGHT_RANGE_M = (-1000.0, 10000.0)
 
@@ -269,7 +271,18 @@ def register(app: typer.Typer) -> None:
                 raise ValueError(f"--site-east-m must be within +-{SITE_EAST_LIMIT_M:g} m, got {site_east_m:g}")
             for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
                 check_finite(kwargs.get(key), f"{_file_or_option(key)}", positive=True)
-            check_simulation_size(SimulationConfig(**kwargs), step_m)
+            config = SimulationConfig(**kwargs)
+            # a session `trolley process` can take: a static alignment of enough samples, a track
+            from trolley.deadreckoning import MIN_STATIC_SAMPLES
+
+            if config.static_s * config.imu_rate_hz < MIN_STATIC_SAMPLES:
+                raise ValueError(f"--static-s {config.static_s:g} at --rate-hz {config.imu_rate_hz:g} gives "
+                                 f"{config.static_s * config.imu_rate_hz:.3g} IMU samples standing still; the static "
+                                 f"alignment needs at least {MIN_STATIC_SAMPLES}")
+            if config.length_m < MIN_SIMULATED_LENGTH_M:
+                raise ValueError(f"{_file_or_option('length_m')} must be at least {MIN_SIMULATED_LENGTH_M:g} m (a "
+                                 f"track between two fixes), got {config.length_m:g}")
+            check_simulation_size(config, step_m)
         except (ValueError, TypeError) as exc:
             fail(str(exc))
         try:
