@@ -1040,7 +1040,8 @@ def move_into_place(tmp: Path, folder: Path) -> None:
     """Put the complete folder ``tmp`` in the place of ``folder`` (absent, empty or not): the old
     one is renamed aside just before and deleted just after; if the second rename fails the first
     is undone (POSIX has no portable exchange of two folders), so ``folder`` is always either the
-    old one or the new one, never a mix."""
+    old one or the new one, never a mix. A ``folder`` that is a symbolic link is replaced as a
+    link: the new folder takes its name, the folder it pointed to is left untouched."""
     if not folder.exists():
         os.rename(tmp, folder)
         return
@@ -1055,10 +1056,11 @@ def move_into_place(tmp: Path, folder: Path) -> None:
     except BaseException:
         os.rename(old, folder)
         raise
-    if old.is_dir():
-        shutil.rmtree(old, ignore_errors=True)
-    else:
+    if old.is_symlink() or not old.is_dir():
+        # a link is removed, never followed: the folder it pointed to stays as it was
         old.unlink()
+    else:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 # ------------------------------------------------------------------------------------------

@@ -162,3 +162,16 @@ def test_an_empty_gauge_file_is_a_session_without_gauge_readings(session, tmp_pa
     r = runner.invoke(app, ["process", str(empty), "--out", str(tmp_path / "o")])
     assert r.exit_code == 0, r.output
     assert pd.read_csv(tmp_path / "o" / "track.csv")["gauge_mm"].isna().all()
+
+
+def test_an_out_that_is_a_link_to_an_earlier_output_is_replaced_as_a_link(session, tmp_path):
+    # (the link was renamed aside and never deleted: a hidden ".l.old-PID" stayed behind)
+    target = tmp_path / "earlier"
+    assert runner.invoke(app, ["process", str(session), "--out", str(target)]).exit_code == 0
+    before = {p.name: p.read_bytes() for p in target.iterdir()}
+    (tmp_path / "l").symlink_to(target)
+    r = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "l"), "--step-m", "1.0"])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["earlier", "l"]
+    assert not (tmp_path / "l").is_symlink() and (tmp_path / "l" / "track.csv").is_file()
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == before
