@@ -197,6 +197,12 @@ def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
         rail_spacing_m=t.float("trolley.rail_spacing_m", dflt.rail_spacing_m, positive=True),
         nominal_gauge_m=t.float("trolley.nominal_gauge_m", dflt.nominal_gauge_m, positive=True),
     )
+    for key, value, limit, unit in (("trolley.prism_lever_arm_m", trolley.prism_lever_arm_m, MAX_LEVER_ARM_M, "m"),
+                                    ("trolley.imu_misalignment_rad", trolley.imu_misalignment_rad,
+                                     MAX_MISALIGNMENT_RAD, "rad")):
+        if np.max(np.abs(value)) > limit:
+            raise t.error(key, f"each component must be within +-{limit:g} {unit} (a trolley's size; metres, not "
+                               f"millimetres?), got {list(map(float, value))}")
     imu = None
     if t.table("imu"):
         imu = ImuFigures(
@@ -442,6 +448,11 @@ def _parser_error(path: Path, exc: Exception) -> SessionFormatError:
     msg = str(exc)
     m = re.search(r"line (\d+)", msg)
     where = f"row {m.group(1)}: " if m else ""
+    q = re.search(r"EOF inside string starting at row (\d+)", msg)
+    if q:
+        # pandas counts that row from 0 with the header: a spreadsheet's row is one more
+        return SessionFormatError(f"{path.name}: row {int(q.group(1)) + 1}: a quote (\") opens a text that no "
+                                  "quote closes before the end of the file (a stray quote in a cell?)")
     return SessionFormatError(f"{path.name}: {where}malformed CSV ({msg.strip()})")
 
 
@@ -454,6 +465,9 @@ PLAUSIBLE_ABS = {
     "fx_m_s2": 2000.0, "fy_m_s2": 2000.0, "fz_m_s2": 2000.0, "distance_m": 1e7, "gauge_m": 10.0,
     "chainage_m": 1e8, "E_m": 1e8, "N_m": 1e8, "H_m": 1e5,
 }
+#: Largest prism lever arm component, m, and IMU mounting misalignment, rad, of a trolley
+MAX_LEVER_ARM_M = 10.0
+MAX_MISALIGNMENT_RAD = 0.1
 #: A fix's 1-sigma, m: below 1 micrometre no instrument measures, above 100 m it is no fix.
 SIGMA_RANGE_M = (1e-6, 100.0)
 #: Rows re-read as text at a time when a bad cell must be found (bounded memory).

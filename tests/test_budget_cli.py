@@ -78,7 +78,7 @@ def test_table_output_has_verdicts_and_limits():
     (["--fix-spacing-m", "-5"], "--fix-spacing-m must be"),
     (["--target-mm", "0.3"], "cannot be met by any IMU"),
     (["--gyro-bias-deg-h", "0.1", "--gyro-bias-instability-deg-h", "0.1"], "not both"),
-    (["--imu", "mems"], "heading error"),
+    (["--imu", "mems"], "--imu mems cannot find north by gyrocompassing: give --heading-error-deg"),
     (["--imu", "custom", "--gyro-arw-deg-sqrt-h", "0.005"], "--imu custom needs"),
     (["--latitude-deg", "90"], "--latitude-deg"),
     (["--monte-carlo", "-3"], "--monte-carlo"),

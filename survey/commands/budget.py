@@ -124,6 +124,9 @@ def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_d
         bi = (units.deg_h_to_rad_s(gyro_bias_instability_deg_h) if gyro_bias_instability_deg_h is not None
               else preset.gyro_bias_instability_rad_s)
         gyrocompassing = preset.gyrocompassing
+        if not gyrocompassing and heading_error_deg is None:
+            raise BudgetInputError(f"--imu {imu} cannot find north by gyrocompassing: give --heading-error-deg "
+                                   "(the heading error of its alignment, e.g. from the first fixes)")
     eq = None if gyro_bias_deg_h is None else units.deg_h_to_rad_s(gyro_bias_deg_h)
     if eq is not None:
         bi = None

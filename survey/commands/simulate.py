@@ -7,6 +7,8 @@ progress and errors to stderr.
 """
 from __future__ import annotations
 
+import math
+
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -138,6 +140,12 @@ def project_settings(project: Path):
                 if not (isinstance(v, list) and len(v) == 3 and all(
                         isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)):
                     raise ProjectFileError(f"{fname}: key trolley.{key}: must be 3 finite numbers")
+                from survey.sessionio import MAX_LEVER_ARM_M, MAX_MISALIGNMENT_RAD
+
+                limit = MAX_LEVER_ARM_M if key == "prism_lever_arm_m" else MAX_MISALIGNMENT_RAD
+                if max(abs(float(x)) for x in v) > limit:
+                    raise ProjectFileError(f"{fname}: key trolley.{key}: each component must be within +-{limit:g} "
+                                           f"({'m' if key == 'prism_lever_arm_m' else 'rad'}), got {v!r}")
                 vec[key] = np.array(v, dtype=float)
         kwargs["trolley"] = TrolleyGeometry(
             prism_lever_arm_m=vec.get("prism_lever_arm_m", d.prism_lever_arm_m),
@@ -155,8 +163,11 @@ def project_settings(project: Path):
     except FileNotFoundError:
         raise ProjectFileError(f"{fname}: key design.alignment: {project / design} not found") \
             from None
-    except (UnicodeDecodeError, IsADirectoryError) as exc:
-        raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: {exc}") from None
+    except IsADirectoryError:
+        raise ProjectFileError(f"{fname}: key design.alignment: {design!r} is a folder, not the LandXML file") from None
+    except UnicodeDecodeError as exc:
+        raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: not UTF-8 text ({exc.reason})") \
+            from None
     except ValueError as exc:
         raise ProjectFileError(str(exc)) from None
     return kwargs, preset, xml
@@ -294,6 +305,13 @@ def register(app: typer.Typer) -> None:
         except ValueError as exc:
             fail(f"{proj}: design: {exc}")
         if turn_at_stop:
+            # stops 1..n-1 (stop 0 is the static alignment), n from the interval and the length
+            n_stops = int(math.floor(config.length_m / config.fix_spacing_m + 1e-9)) + 1 + (
+                config.length_m % config.fix_spacing_m > 1e-6)
+            bad = [k for k in turn_at_stop if not 1 <= k <= n_stops - 1]
+            if bad:
+                fail(f"--turn-at-stop {bad[0]}: the survey has stops 1..{n_stops - 1} (stop 0 is the static "
+                     f"alignment; {config.length_m:g} m with a fix every {config.fix_spacing_m:g} m)")
             kwargs["turn_at_stops"] = tuple(turn_at_stop)
         if crs is not None:
             kwargs["crs"] = crs
