@@ -181,6 +181,13 @@ def test_truthsim_session_through_twins_records_a_session_the_reader_accepts(tmp
     write_session(tmp_path / "ref", s)
     for name in ("session.toml", "fixes.csv"):
         shutil.copy(tmp_path / "ref" / name, rec / name)
+    # the fixes in the recording's time base (the reader refuses fixes outside the IMU log)
+    import pandas as pd
+
+    t0 = float(pd.read_csv(rec / "imu.csv", usecols=["t_s"], nrows=1)["t_s"].iloc[0])
+    fixes = pd.read_csv(rec / "fixes.csv")
+    fixes["t_s"] = t0 + 0.1 * np.arange(1, len(fixes) + 1)
+    fixes.to_csv(rec / "fixes.csv", index=False)
     got = read_session(rec)
     sc = novatel.imu_scale(26, 200.0)
     assert got.imu_t_s.size == s.imu_t_s.size

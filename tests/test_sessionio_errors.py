@@ -116,7 +116,7 @@ def test_header_only_is_an_error(folder):
 TOML_CASES = [
     ("latitude_deg = 28.0", 'latitude_deg = "28"', "site.latitude_deg", "must be a number"),
     ("latitude_deg = 28.0", "", "site.latitude_deg", "missing"),
-    ("latitude_deg = 28.0", "latitude_deg = 128.0", "site.latitude_deg", "-90..90"),
+    ("latitude_deg = 28.0", "latitude_deg = 128.0", "site.latitude_deg", "-85..85"),
     ("rail_spacing_m = 1.5", "rail_spacing_m = true", "trolley.rail_spacing_m", "must be a number"),
     ("prism_lever_arm_m = [0.01, -0.02, -0.6]", "prism_lever_arm_m = [0.0, -0.6]",
      "trolley.prism_lever_arm_m", "3 numbers"),

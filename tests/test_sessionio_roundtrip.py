@@ -227,7 +227,9 @@ def test_exact_mode_is_bit_exact_for_any_double(tmp_path):
     w = rng.choice([-1.0, 1.0], (n, 3)) * mag * rng.uniform(1, 10, (n, 3))
     f = rng.normal(0, 1, (n, 3)) * 10.0 ** rng.integers(-17, 2, (n, 3))
     t = np.cumsum(rng.uniform(0, 1e-3, n)) + 1e6 * rng.uniform()
-    s = replace(s, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f)
+    # the other files in the IMU's time span (the reader refuses files that are not one survey)
+    s = replace(s, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=np.linspace(t[0], t[-1], s.odo_t_s.size),
+                fixes=replace(s.fixes, t_s=t[[10, 100, 1000]]), gauge_t_s=t[[50, 60]])
     write_session(tmp_path / "s", s, exact=True)
     r = read_session(tmp_path / "s")
     np.testing.assert_array_equal(r.imu_t_s, t)
