@@ -27,3 +27,24 @@ def test_demo_runs_the_field_session_under_two_minutes(tmp_path):
     for name in ("survey.xlsx", "processed/track.csv", "crew_script.txt", "project/demo/project.sqlite"):
         assert (tmp_path / "out" / name).exists(), name
     assert wall < 120.0
+
+
+
+def test_the_demos_field_session_writes_into_the_demos_own_folder_and_again(tmp_path):
+    # `trolley demo`'s field session (demo_session) on a short copy of the demo project: its out
+    # folder holds the demo's project and crew script, so the field session must write there (a
+    # guard for survey start's own output folders broke exactly this once, and only the slow test
+    # above ran the demo)
+    import io
+
+    from rich.console import Console
+    from session_project import make_project
+
+    from survey.commands.demo import demo_session
+
+    project = make_project(tmp_path / "src", "small")
+    (project / "project.sqlite").unlink()      # a project folder as shipped: toml, design, CPIII
+    for run in (1, 2):     # the second run replaces the first's outputs, as the demo does
+        doc = demo_session(project, tmp_path / "out", None, None, 40.0, con=Console(file=io.StringIO()))
+        assert doc["mode"] == "field session" and doc["fixes_accepted"] >= 3, (run, doc)
+        assert (tmp_path / "out" / "survey.xlsx").is_file() and (tmp_path / "out" / "processed" / "track.csv").is_file()

@@ -148,7 +148,8 @@ def demo_session(project: Path, out: Path, imu: Optional[str], seed: Optional[in
     script.write_text(survey_script(n_stops, note_every=5, station_every=5), encoding="utf-8")
     err.print(f"2/3 field session with simulated devices on ptys, {speedup:g}x real time, crew script {script}",
               highlight=False, markup=False)
-    outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False, con=con)
+    outcome = run_session(str(folder), "demo", root, None, True, script, speedup, out, resume=False, con=con,
+                          out_checked=True)       # (--out was checked by the command: the demo's own folder)
     err.print("3/3 comparing with the simulator's truth ...")
     if outcome.result is None:
         fail("the session produced no processed track")

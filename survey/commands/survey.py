@@ -140,9 +140,12 @@ def read_devices(path: Path) -> tuple[dict, dict]:
 
 def run_session(project: str, session: str, root: Path, devices: Optional[Path], simulate: bool,
                 script: Optional[Path], speedup: Optional[float], out: Optional[Path], resume: bool,
-                live: bool = True, con: Console | None = None, reopen: bool = False):
+                live: bool = True, con: Console | None = None, reopen: bool = False, out_checked: bool = False):
     """Start or resume a session; prints where the results are (on ``con``, default stdout).
-    Returns the outcome."""
+
+    A new session writes only into an empty output folder or one marked as its own ("survey
+    session NAME"), and marks it; ``out_checked``: the caller has checked the folder itself and
+    owns it (``trolley demo``, whose folder also holds the demo's project). Returns the outcome."""
     from survey.session.fieldsession import FieldSession, SessionAbort, SessionConfig
     from survey.session.screen import KeyReader
     from survey.session.script import ScriptError, read_script
@@ -191,7 +194,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             fail(f"--speedup must be positive, not {speedup}")
         out = out if out is not None else store.path.parent / "sessions" / session
         owner = f"survey session {session}"
-        if not resume:
+        if not resume and not out_checked:
             from survey.atomicwrite import OutputError, guard_overwrite
 
             try:
@@ -230,8 +233,9 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                     "devices": str(devices.resolve()) if devices else None, "out": _stored_out(out, store)})))
                 from survey.atomicwrite import write_marker
 
-                out.mkdir(parents=True, exist_ok=True)
-                write_marker(out, owner)       # the folder is this session's from now on
+                if not out_checked:
+                    out.mkdir(parents=True, exist_ok=True)
+                    write_marker(out, owner)       # the folder is this session's from now on
             outcome = fs.run()
         except KeyboardInterrupt:
             fail("interrupted; everything recorded so far is in the store",
