@@ -61,6 +61,27 @@ MAY_BE_ZERO = frozenset({"kx_primary_n_m", "ky_primary_n_m", "cx_primary_n_s_m",
                          "cx_secondary_per_side_n_s_m", "cy_secondary_per_side_n_s_m",
                          "cz_secondary_per_side_n_s_m", "k_antiroll_n_m_rad"})
 SENSOR_KEYS = ("sigma_acc_m_s2", "sigma_gyro_rad_s")
+#: the range of each key, from light rail to heavy freight (SI): a value outside is a typo or a
+#: wrong unit (mm typed for m made a run need 24 GB; a 1e200 noise an estimate of 1e203 mm)
+RANGES = {
+    "m_body_kg": (1e3, 2e5), "ixx_body_kg_m2": (1e3, 1e7), "iyy_body_kg_m2": (1e4, 1e8),
+    "izz_body_kg_m2": (1e4, 1e8), "h_body_m": (0.5, 5.0),
+    "m_frame_kg": (100.0, 2e4), "ixx_frame_kg_m2": (50.0, 5e4), "iyy_frame_kg_m2": (50.0, 5e4),
+    "izz_frame_kg_m2": (50.0, 5e4), "h_frame_m": (0.2, 2.0),
+    "m_wheelset_kg": (200.0, 5e3), "ixx_wheelset_kg_m2": (50.0, 5e3), "izz_wheelset_kg_m2": (50.0, 5e3),
+    "r0_m": (0.2, 0.8), "half_contact_spacing_m": (0.45, 0.9), "half_wheelbase_m": (0.5, 3.0),
+    "half_bogie_spacing_m": (2.0, 15.0),
+    "kx_primary_n_m": (0.0, 1e9), "ky_primary_n_m": (0.0, 1e9), "kz_primary_n_m": (1e4, 1e8),
+    "cx_primary_n_s_m": (0.0, 1e7), "cy_primary_n_s_m": (0.0, 1e7), "cz_primary_n_s_m": (0.0, 1e7),
+    "half_primary_spacing_m": (0.3, 1.5),
+    "kx_secondary_per_side_n_m": (0.0, 1e8), "ky_secondary_per_side_n_m": (0.0, 1e8),
+    "kz_secondary_per_side_n_m": (1e4, 1e8), "cx_secondary_per_side_n_s_m": (0.0, 1e7),
+    "cy_secondary_per_side_n_s_m": (0.0, 1e7), "cz_secondary_per_side_n_s_m": (0.0, 1e7),
+    "half_secondary_spacing_m": (0.3, 1.5), "h_secondary_m": (0.2, 3.0), "k_antiroll_n_m_rad": (0.0, 1e8),
+    "conicity": (0.01, 1.0), "conicity_growth_m": (1e-3, 0.05), "f11_n": (1e5, 1e9), "f22_n": (1e5, 1e9),
+    "friction_coefficient": (0.01, 1.0), "flange_clearance_m": (1e-3, 0.03), "flange_stiffness_n_m": (1e5, 1e9),
+    "sigma_acc_m_s2": (0.0, 10.0), "sigma_gyro_rad_s": (0.0, 1.0),
+}
 
 
 class VehicleFileError(ValueError):
@@ -101,6 +122,13 @@ def _unknown(table: dict, known, where: str, fname: str) -> None:
             raise VehicleFileError(f"{fname}: unknown key {where}.{key}{hint}")
 
 
+def _check_range(key: str, value: float, where: str, fname: str) -> None:
+    lo, hi = RANGES[key]
+    if not lo <= value <= hi:
+        raise VehicleFileError(f"{fname}: {where}.{key} = {value:g} is outside {lo:g}..{hi:g}, the range of rail "
+                               "vehicles (SI units: metres, not millimetres?)")
+
+
 def read_vehicle(path: str | os.PathLike) -> VehicleFile:
     """Read a vehicle file (raises :class:`VehicleFileError` naming the file and the key).
 
@@ -112,6 +140,9 @@ def read_vehicle(path: str | os.PathLike) -> VehicleFile:
 
     path = Path(path)
     fname = path.name
+    if path.is_dir():
+        raise VehicleFileError(f"{path}: is a folder, not a vehicle file (`trolley inservice vehicle --out FILE` "
+                               "writes one)")
     data = parse_toml(path, FORMAT, ("vehicle",), VehicleFileError)
     for key in data:
         if key not in ("format", "name", "vehicle", "sensors"):
@@ -127,6 +158,7 @@ def read_vehicle(path: str | os.PathLike) -> VehicleFile:
         if val < 0 or (val == 0 and key not in MAY_BE_ZERO):
             raise VehicleFileError(f"{fname}: vehicle.{key} must be {'>= 0' if key in MAY_BE_ZERO else '> 0'}, "
                                    f"got {val:g}")
+        _check_range(key, val, "vehicle", fname)
         values[KEYS[key]] = val
     sen = data.get("sensors", {})
     if not isinstance(sen, dict):
@@ -137,6 +169,7 @@ def read_vehicle(path: str | os.PathLike) -> VehicleFile:
     for k, v in sigmas.items():
         if v < 0:
             raise VehicleFileError(f"{fname}: sensors.{k} must be >= 0, got {v:g}")
+        _check_range(k, v, "sensors", fname)
     try:
         params = VehicleParameters(**values)
     except ValueError as exc:

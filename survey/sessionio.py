@@ -870,12 +870,12 @@ def _check_coverage(folder: Path, imu_t: np.ndarray, odo_t: np.ndarray, odo_d: n
         raise SessionFormatError(
             f"fixes.csv: row {_row(i)}, column t_s: {fix_t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
             f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
-    if odo_t[-1] > hi or odo_t[0] < lo:
-        end = odo_t[-1] > hi
+    outside = (odo_t < lo) | (odo_t > hi)
+    if outside.any():
+        i = int(np.argmax(outside))
         raise SessionFormatError(
-            f"odometer.csv: column t_s: the odometer runs {'to' if end else 'from'} {odo_t[-1 if end else 0]:.6g} s, "
-            f"the IMU log {'ends' if end else 'starts'} at {imu_t[-1 if end else 0]:.6g} s: imu.csv cut short, or the "
-            "files of two sessions?")
+            f"odometer.csv: row {_row(i)}, column t_s: {odo_t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
+            f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
 
 
 def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None):

@@ -264,6 +264,9 @@ PROBES: list[Probe] = [
           ("fixes.csv: row", "column t_s", "is outside the IMU log", "imu.csv cut short")),
     Probe("process/imu-gap", process_probe(lambda s: drop_rows(s / "imu.csv", 3000, 3500)),
           ("imu.csv: row 3000, column t_s: no IMU samples for 10.04 s (from t = 59.96 s)",)),
+    Probe("process/odometer-after-the-imu", process_probe(lambda s: (s / "odometer.csv").write_text(
+        (s / "odometer.csv").read_text() + "9999.0,120.0\n")),
+          ("odometer.csv: row", "column t_s: 9999 s is outside the IMU log")),
     Probe("process/out-inside-the-session", lambda t, i: ["process", str(_sess(t, i)), "--out", str(t / "sess" / "o")],
           ("is inside the raw session",)),
     Probe("simulate/out-inside-a-session", lambda t, i: ["simulate", "--out", str(_sess(t, i) / "sub"), "--project",

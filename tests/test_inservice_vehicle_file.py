@@ -13,7 +13,7 @@ from test_inservice_io import _app
 from typer.testing import CliRunner
 
 from survey import inservice_io as io
-from survey.inservice_vehicle import KEYS, VehicleFileError, read_vehicle, vehicle_toml_text, write_vehicle
+from survey.inservice_vehicle import KEYS, RANGES, VehicleFileError, read_vehicle, vehicle_toml_text, write_vehicle
 from trolley.inservice.vehicle import (DEFAULT_VEHICLE_NAME, SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S, VehicleParameters,
                                        largest_growth_rate)
 
@@ -37,25 +37,22 @@ def test_every_vehicle_parameter_has_a_key_and_the_file_round_trips(tmp_path):
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.dictionaries(st.sampled_from(sorted(KEYS)), st.floats(0.05, 5.0), max_size=6))
-def test_a_partial_file_keeps_the_default_vehicle_for_the_keys_it_leaves_out(tmp_path_factory, factors):
-    # every value scaled by a factor (the geometry checks aside): the keys written are the file's,
-    # every other one the Manchester vehicle's, and `defaults` names exactly those left out
-    base = VehicleParameters()
-    body = "[vehicle]\n" + "".join(f"{k} = {getattr(base, KEYS[k]) * f + (1.0 if getattr(base, KEYS[k]) == 0 else 0)!r}\n"
-                                   for k, f in factors.items())
+@given(st.dictionaries(st.sampled_from(sorted(KEYS)), st.floats(0.0, 1.0), max_size=6))
+def test_a_partial_file_keeps_the_default_vehicle_for_the_keys_it_leaves_out(tmp_path_factory, fractions):
+    # values anywhere in each key's range: the keys written are the file's, every other one the
+    # Manchester vehicle's, and `defaults` names exactly those left out
+    values = {k: RANGES[k][0] + f * (RANGES[k][1] - RANGES[k][0]) for k, f in fractions.items()}
+    body = "[vehicle]\n" + "".join(f"{k} = {v!r}\n" for k, v in values.items())
     path = _file(tmp_path_factory.mktemp("v"), body)
     try:
         vf = read_vehicle(path)
-    except VehicleFileError as exc:     # scaled into overlapping bogies or a body below its frame
+    except VehicleFileError as exc:     # overlapping bogies or a body below its frame
         assert "must exceed" in str(exc)
         return
+    base = VehicleParameters()
     for key, field in KEYS.items():
-        expected = getattr(base, field)
-        if key in factors:
-            expected = expected * factors[key] + (1.0 if expected == 0 else 0)
-        assert getattr(vf.params, field) == pytest.approx(expected, rel=1e-15)
-    assert set(vf.defaults) == set(KEYS) - set(factors)
+        assert getattr(vf.params, field) == (values[key] if key in values else getattr(base, field))
+    assert set(vf.defaults) == set(KEYS) - set(values)
     assert vf.name == "v" and (vf.sigma_acc_m_s2, vf.sigma_gyro_rad_s) == (SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S)
 
 
@@ -66,14 +63,17 @@ def test_a_partial_file_keeps_the_default_vehicle_for_the_keys_it_leaves_out(tmp
     ("[vehicle]\ncy_secondary_per_side_n_s_m = -1\n", "vehicle.cy_secondary_per_side_n_s_m must be >= 0"),
     ("[vehicle]\nconicity = \"0.15\"\n", "vehicle.conicity must be a finite number, got '0.15'"),
     ("[vehicle]\nconicity = nan\n", "vehicle.conicity must be a finite number"),
-    ("[vehicle]\nhalf_bogie_spacing_m = 1.0\n", "vehicle.half_bogie_spacing_m (1 m) must exceed "
-                                                "vehicle.half_wheelbase_m (1.28 m): the bogies would overlap"),
+    ("[vehicle]\nhalf_bogie_spacing_m = 2.0\nhalf_wheelbase_m = 2.5\n",
+     "vehicle.half_bogie_spacing_m (2 m) must exceed vehicle.half_wheelbase_m (2.5 m): the bogies would overlap"),
     ("[vehicle]\nh_body_m = 0.5\n", "vehicle.h_body_m (0.5 m) must exceed vehicle.h_frame_m (0.6 m)"),
     ("[vehicle]\n[sensors]\nsigma_acc_m_s2 = -0.01\n", "sensors.sigma_acc_m_s2 must be >= 0"),
     ("[vehicle]\n[sensors]\nsigma_gyro = 0.001\n", "unknown key sensors.sigma_gyro (did you mean sigma_gyro_rad_s?)"),
     ("[vehicle]\n[run]\nspeed_m_s = 20.0\n", "unknown key or table 'run'"),
     ("name = 3\n[vehicle]\n", "name must be a text, got 3"),
     ("", "missing table [vehicle]"),
+    ("[vehicle]\nhalf_primary_spacing_m = 1000.0\n", "vehicle.half_primary_spacing_m = 1000 is outside 0.3..1.5"),
+    ("[vehicle]\nflange_clearance_m = 9.1\n", "vehicle.flange_clearance_m = 9.1 is outside 0.001..0.03"),
+    ("[vehicle]\n[sensors]\nsigma_acc_m_s2 = 1e200\n", "sensors.sigma_acc_m_s2 = 1e+200 is outside 0..10"),
 ])
 def test_bad_values_are_refused_naming_the_file_and_key(tmp_path, body, message):
     with pytest.raises(VehicleFileError) as err:
@@ -149,8 +149,10 @@ def test_simulate_and_calibrate_refuse_a_hunting_vehicle_and_a_bad_file_before_s
     bad = _file(tmp_path, "[vehicle]\nconicty = 0.2\n", "bad.toml")
     res = _run("calibrate", "--out", tmp_path / "m.toml", "--vehicle", bad)
     assert res.exit_code == 2 and "bad.toml: unknown key vehicle.conicty (did you mean conicity?)" in res.stderr
-    res = _run("calibrate", "--out", bad, "--vehicle", bad)
-    assert res.exit_code == 2 and "one of this command's inputs" in res.stderr
+    for out in (bad, tmp_path / "sub" / ".." / "bad.toml"):      # (sub does not exist)
+        res = _run("calibrate", "--out", out, "--vehicle", bad)
+        assert res.exit_code == 2 and "is the --vehicle file" in res.stderr, res.output
+    assert not (tmp_path / "sub").exists()
 
 
 def test_the_model_file_names_what_it_was_calibrated_for(tmp_path):
@@ -166,3 +168,17 @@ def test_the_model_file_names_what_it_was_calibrated_for(tmp_path):
     (tmp_path / "m.toml").write_text(text)
     assert read_model(tmp_path / "m.toml").params == p
     assert vehicle_toml_text(VehicleParameters(), "x", 0.01, 5e-4).count("\n[") == 2
+
+
+def test_a_vehicle_without_some_dampers_is_not_taken_for_hunting(tmp_path):
+    # cz_primary = 0 leaves undamped vertical modes whose eigenvalues sit at +-1e-14 1/s: rounding,
+    # not hunting (it was refused at 10 m/s and accepted at 20)
+    from survey.commands.inservice_simulate import vehicle_for_run
+    from trolley.inservice.vehicle import HUNTING_TOLERANCE_1_S, integration_step_s
+
+    path = _file(tmp_path, "[vehicle]\ncz_primary_n_s_m = 0.0\n")
+    for v in (5.0, 10.0, 20.0, 50.0):
+        params, _, _ = vehicle_for_run(path, v)
+        assert abs(largest_growth_rate(params, v)) < HUNTING_TOLERANCE_1_S
+    # the default vehicle integrates at the 1 ms step the docs give
+    assert integration_step_s(VehicleParameters(), 20.0, 200.0) == pytest.approx(1e-3)

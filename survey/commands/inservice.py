@@ -117,7 +117,7 @@ def _vehicle_text(check: dict) -> str:
         return f"not checked: {check['reason']}"
     if check["matches"]:
         return "the recording's vehicle is the model's"
-    diffs = ", ".join(f"{k} {d['recording']:g} (model {d['model']:g})" for k, d in check["differences"].items())
+    diffs = ", ".join(f"{k} {d['recording']:.10g} (model {d['model']:.10g})" for k, d in check["differences"].items())
     return f"DIFFERS from the model's vehicle: {diffs}; calibrate for this vehicle (--vehicle)"
 
 
@@ -357,8 +357,14 @@ def calibrate_cmd(
     try:
         # before minutes of simulation: a folder, a recording's file, the vehicle file or an
         # unwritable place is refused now (a missing folder is made at the end)
-        if out.parent.is_dir():
-            check_outputs([("--out", out)], inputs=[vehicle])
+        import os
+
+        out_n = Path(os.path.normpath(out))       # ("sub/../v.toml" is v.toml, whether sub exists or not)
+        if vehicle is not None and os.path.normpath(os.path.abspath(out_n)) == os.path.normpath(
+                os.path.abspath(vehicle)):
+            raise OutputError(f"--out {out}: is the --vehicle file; choose another file name")
+        if out_n.parent.is_dir():
+            check_outputs([("--out", out_n)], inputs=[vehicle])
     except OutputError as exc:
         _fail(str(exc))
     vp, vehicle_name, (sigma_acc, sigma_gyro) = vehicle_for_run(vehicle, speed_m_s, sensor_gravity=sensor_gravity)

@@ -497,6 +497,20 @@ def largest_growth_rate(p: VehicleParameters, speed_m_s: float) -> float:
     return float(np.max(np.linalg.eigvals(_System(p, speed_m_s, 0.0).jacobian()).real))
 
 
+#: a growth rate below this is rounding, not hunting (undamped modes sit at +-1e-14 1/s), 1/s
+HUNTING_TOLERANCE_1_S = 1e-6
+#: the shortest integration step :func:`simulate_run` takes, s
+MIN_STEP_S = 1e-5
+
+
+def integration_step_s(p: VehicleParameters, speed_m_s: float, rate_hz: float) -> float:
+    """The Runge-Kutta step :func:`simulate_run` takes: the largest divisor of the sample period
+    at or below min(1 ms, 2 / |largest eigenvalue of the linearised system|), s."""
+    lam = np.max(np.abs(np.linalg.eigvals(_System(p, speed_m_s, 0.0).jacobian())))
+    period = 1.0 / rate_hz
+    return period / int(np.ceil(period / min(1e-3, 2.0 / lam)))
+
+
 def first_lateral_mode(p: VehicleParameters, speed_m_s: float) -> Mode:
     """The first lateral mode of the bogie (resonance case of Munoz 2021 Sec. V-E).
 
@@ -704,6 +718,10 @@ def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s:
     period = 1.0 / rate_hz
     sub = int(np.ceil(period / min(1e-3, 2.0 / lam)))
     dt = period / sub
+    if dt < MIN_STEP_S:
+        # (a vehicle typed in the wrong units needed 24 GB for the inputs at every half step)
+        raise ValueError(f"simulate_run: the vehicle's fastest mode (|eigenvalue| {lam:.3g} 1/s) needs a step of "
+                         f"{dt:.3g} s, below {MIN_STEP_S:g} s: stiffer or lighter than any rail vehicle")
     # start with the rear wheelset 1 m after the grid start, on a whole number of output periods
     pre_time = (track.lead_in_m - offsets[-1] - 1.0) / speed_m_s
     n_pre = int(np.floor(pre_time / period))
