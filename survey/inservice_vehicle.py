@@ -118,7 +118,7 @@ def _unknown(table: dict, known, where: str, fname: str) -> None:
     for key in table:
         if key not in known:
             near = difflib.get_close_matches(key, list(known), n=1)
-            hint = f" (did you mean {near[0]}?)" if near else f" (known keys: docs/inservice.md, \"Your vehicle\")"
+            hint = f" (did you mean {near[0]}?)" if near else " (known keys: docs/inservice.md, \"Your vehicle\")"
             raise VehicleFileError(f"{fname}: unknown key {where}.{key}{hint}")
 
 

@@ -6,7 +6,6 @@ complete, so a failure never leaves a partial output.
 """
 from __future__ import annotations
 
-import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
