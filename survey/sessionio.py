@@ -820,7 +820,7 @@ def read_session(folder: Path) -> RawSession:
                                                and (folder / "gauge.csv").stat().st_size == 0):
         g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
         gauge_t, gauge = g[:, 0], g[:, 1]
-    _check_coverage(folder, imu[:, 0], odo[:, 0], odo[:, 1], fixes.t_s)
+    _check_coverage(imu[:, 0], odo[:, 0], odo[:, 1], fixes.t_s)
     if meta.crs and not math.isfinite(meta.latitude_rad):
         from trolley.projection import CrsError, session_site
         try:
@@ -843,7 +843,7 @@ MAX_IMU_GAP_S = 2.0
 TIME_SPAN_SLACK_S = 2.0
 
 
-def _check_coverage(folder: Path, imu_t: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray, fix_t: np.ndarray) -> None:
+def _check_coverage(imu_t: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray, fix_t: np.ndarray) -> None:
     """The files must describe one survey: no impossible odometer speed, no long hole in the IMU
     log, and the odometer and the fixes within the IMU's time span. Each file is valid on its own
     when this runs; without these checks one wrong distance made a 2 GB track of nonsense and a
@@ -864,18 +864,13 @@ def _check_coverage(folder: Path, imu_t: np.ndarray, odo_t: np.ndarray, odo_d: n
             f"imu.csv: row {_row(i)}, column t_s: no IMU samples for {gaps[i - 1]:.6g} s (from t = {imu_t[i - 1]:.6g} "
             f"s): the dead reckoning cannot bridge a gap of more than {MAX_IMU_GAP_S:g} s in the IMU log")
     lo, hi = imu_t[0] - TIME_SPAN_SLACK_S, imu_t[-1] + TIME_SPAN_SLACK_S
-    outside = (fix_t < lo) | (fix_t > hi)
-    if outside.any():
-        i = int(np.argmax(outside))
-        raise SessionFormatError(
-            f"fixes.csv: row {_row(i)}, column t_s: {fix_t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
-            f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
-    outside = (odo_t < lo) | (odo_t > hi)
-    if outside.any():
-        i = int(np.argmax(outside))
-        raise SessionFormatError(
-            f"odometer.csv: row {_row(i)}, column t_s: {odo_t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
-            f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
+    for name, t in (("fixes.csv", fix_t), ("odometer.csv", odo_t)):
+        outside = (t < lo) | (t > hi)
+        if outside.any():
+            i = int(np.argmax(outside))
+            raise SessionFormatError(
+                f"{name}: row {_row(i)}, column t_s: {t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
+                f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
 
 
 def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None):
