@@ -26,10 +26,10 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from survey.atomicwrite import write_text_atomic
 from survey.inservice_io import parse_toml
+from survey.tgms_io import TgmsFormatError, _num
 
 FORMAT = "trolley-inservice-vehicle/1"
 
@@ -108,10 +108,11 @@ class VehicleFile:
 
 
 def _finite(table: dict, key: str, where: str, fname: str) -> float:
-    v = table[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-        raise VehicleFileError(f"{fname}: {where}.{key} must be a finite number, got {v!r}")
-    return float(v)
+    """The recording reader's number check (survey.tgms_io._num), as this file's error."""
+    try:
+        return _num(table, key, where, fname)
+    except TgmsFormatError as exc:
+        raise VehicleFileError(str(exc)) from None
 
 
 def _unknown(table: dict, known, where: str, fname: str) -> None:
