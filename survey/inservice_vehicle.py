@@ -26,7 +26,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from survey.atomicwrite import write_text_atomic
 from survey.inservice_io import parse_toml
 from survey.tgms_io import TgmsFormatError, _num
