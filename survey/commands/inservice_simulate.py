@@ -50,7 +50,7 @@ def vehicle_for_run(vehicle: Optional[Path], speed_m_s: float, **conditions):
     from survey.inservice_vehicle import VehicleFileError, read_vehicle
     from trolley.inservice.vehicle import (DEFAULT_VEHICLE_NAME, HUNTING_TOLERANCE_1_S, MIN_STEP_S, SIGMA_ACC_M_S2,
                                            SIGMA_GYRO_RAD_S, VehicleParameters, integration_step_s,
-                                           largest_growth_rate)
+                                           largest_growth_rate, linearised_eigenvalues)
 
     if vehicle is None:
         params, name, sigmas = VehicleParameters(), DEFAULT_VEHICLE_NAME, (SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S)
@@ -64,11 +64,12 @@ def vehicle_for_run(vehicle: Optional[Path], speed_m_s: float, **conditions):
             console.print(f"note: {vehicle} leaves {len(vf.defaults)} values at the {DEFAULT_VEHICLE_NAME}'s: "
                           + ", ".join(vf.defaults), highlight=False, markup=False, soft_wrap=True)
     params = replace(params, **conditions)
-    rate = largest_growth_rate(params, speed_m_s)
+    ev = linearised_eigenvalues(params, speed_m_s)
+    rate = largest_growth_rate(params, speed_m_s, ev)
     if rate > HUNTING_TOLERANCE_1_S:
         _fail(f"{vehicle or name}: the vehicle hunts at {speed_m_s:g} m/s (its linearised lateral motion grows at "
               f"{rate:.3g} 1/s): a lower speed, or more yaw stiffness or conicity damping in the vehicle")
-    step = integration_step_s(params, speed_m_s, 200.0)
+    step = integration_step_s(params, speed_m_s, 200.0, ev)
     if step < MIN_STEP_S:
         _fail(f"{vehicle or name}: the vehicle's fastest mode needs an integration step of {step:.3g} s, below "
               f"{MIN_STEP_S:g} s: stiffer or lighter than any rail vehicle (check the units)")
@@ -93,9 +94,9 @@ def vehicle_cmd(
         check_outputs([("--out", out)])
         if out.exists() or out.is_symlink():
             raise OutputError(f"--out {out}: exists; a vehicle file is not replaced, choose another name")
-        if enclosing_raw_folder(out) is not None:
-            raise OutputError(f"--out {out}: is inside the recording {enclosing_raw_folder(out)}; choose a place "
-                              "outside it")
+        inside = enclosing_raw_folder(out)
+        if inside is not None:
+            raise OutputError(f"--out {out}: is inside the recording {inside}; choose a place outside it")
         write_vehicle(out, VehicleParameters(), DEFAULT_VEHICLE_NAME, SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S)
     except OutputError as exc:
         _fail(str(exc))

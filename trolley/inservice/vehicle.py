@@ -486,15 +486,22 @@ def modes(p: VehicleParameters, speed_m_s: float) -> list[Mode]:
     return sorted(out, key=lambda m: m.frequency_hz)
 
 
-def largest_growth_rate(p: VehicleParameters, speed_m_s: float) -> float:
+def linearised_eigenvalues(p: VehicleParameters, speed_m_s: float) -> np.ndarray:
+    """Eigenvalues of the vehicle linearised about the centred running on a perfect straight track."""
+    return np.linalg.eigvals(_System(p, speed_m_s, 0.0).jacobian())
+
+
+def largest_growth_rate(p: VehicleParameters, speed_m_s: float, eigenvalues: np.ndarray | None = None) -> float:
     """The largest real part of the linearised vehicle's eigenvalues at ``speed_m_s``, 1/s.
 
     Positive when the centred running on a perfect straight track is unstable: above its critical
     speed a vehicle hunts (Wickens 2003, ch. 3), and its lateral motion is then a limit cycle set by
     the flanges, not the response to the irregularities that the estimator assumes. (The
-    Manchester vehicle: -0.60 1/s at 60 m/s, +0.99 1/s at 80 m/s.)
+    Manchester vehicle: -0.60 1/s at 60 m/s, +0.99 1/s at 80 m/s.) ``eigenvalues``: those of
+    :func:`linearised_eigenvalues`, when already computed.
     """
-    return float(np.max(np.linalg.eigvals(_System(p, speed_m_s, 0.0).jacobian()).real))
+    ev = linearised_eigenvalues(p, speed_m_s) if eigenvalues is None else eigenvalues
+    return float(np.max(ev.real))
 
 
 #: a growth rate below this is rounding, not hunting (undamped modes sit at +-1e-14 1/s), 1/s
@@ -503,12 +510,19 @@ HUNTING_TOLERANCE_1_S = 1e-6
 MIN_STEP_S = 1e-5
 
 
-def integration_step_s(p: VehicleParameters, speed_m_s: float, rate_hz: float) -> float:
-    """The Runge-Kutta step :func:`simulate_run` takes: the largest divisor of the sample period
-    at or below min(1 ms, 2 / |largest eigenvalue of the linearised system|), s."""
-    lam = np.max(np.abs(np.linalg.eigvals(_System(p, speed_m_s, 0.0).jacobian())))
+def _substeps(largest_abs_eigenvalue: float, rate_hz: float) -> int:
+    """Runge-Kutta steps per sample: the step is the largest divisor of the sample period at or
+    below min(1 ms, 2 / |largest eigenvalue|)."""
     period = 1.0 / rate_hz
-    return period / int(np.ceil(period / min(1e-3, 2.0 / lam)))
+    return int(np.ceil(period / min(1e-3, 2.0 / largest_abs_eigenvalue)))
+
+
+def integration_step_s(p: VehicleParameters, speed_m_s: float, rate_hz: float,
+                       eigenvalues: np.ndarray | None = None) -> float:
+    """The Runge-Kutta step :func:`simulate_run` takes on straight track, s (``eigenvalues`` as
+    for :func:`largest_growth_rate`)."""
+    ev = linearised_eigenvalues(p, speed_m_s) if eigenvalues is None else eigenvalues
+    return 1.0 / rate_hz / _substeps(float(np.max(np.abs(ev))), rate_hz)
 
 
 def first_lateral_mode(p: VehicleParameters, speed_m_s: float) -> Mode:
@@ -716,7 +730,7 @@ def simulate_run(params: VehicleParameters, track: TrackIrregularity, speed_m_s:
     sysm = _System(params, speed_m_s, curvature_1_m)
     lam = np.max(np.abs(np.linalg.eigvals(sysm.jacobian())))
     period = 1.0 / rate_hz
-    sub = int(np.ceil(period / min(1e-3, 2.0 / lam)))
+    sub = _substeps(lam, rate_hz)
     dt = period / sub
     if dt < MIN_STEP_S:
         # (a vehicle typed in the wrong units needed 24 GB for the inputs at every half step)
