@@ -327,8 +327,13 @@ def chainage_gaps(chainage_m: np.ndarray, step_m: float, gap_steps: float = GAP_
     """The intervals between consecutive stations longer than ``gap_steps`` grid steps, as
     (last station before, first station after) pairs, m."""
     s = np.asarray(chainage_m, dtype=float)
-    i = np.flatnonzero(np.diff(s) > gap_steps * step_m * (1.0 + 1e-9))
+    i = np.flatnonzero(_gap_intervals(s, step_m, gap_steps))
     return [(float(s[k]), float(s[k + 1])) for k in i]
+
+
+def _gap_intervals(s: np.ndarray, step_m: float, gap_steps: float = GAP_STEPS) -> np.ndarray:
+    """True for each interval between consecutive stations longer than ``gap_steps`` steps."""
+    return np.diff(s) > gap_steps * step_m * (1.0 + 1e-9)
 
 
 def _resample(grid: np.ndarray, s: np.ndarray, x: np.ndarray | None, outside: np.ndarray) -> np.ndarray | None:
@@ -361,9 +366,9 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     gaps = chainage_gaps(s, step) if resampled else []
     if resampled:
         # grid stations strictly inside a gap have no measurement: empty, never a straight line
-        in_gap = np.zeros(grid.size, bool)
-        for a, b in gaps:
-            in_gap |= (grid > a + 1e-9 * step) & (grid < b - 1e-9 * step)
+        # (each grid station's input interval by one searchsorted, not a pass per gap)
+        k = np.clip(np.searchsorted(s, grid, side="right") - 1, 0, s.size - 2)
+        in_gap = _gap_intervals(s, step)[k] & (grid > s[k] + 1e-9 * step) & (grid < s[k + 1] - 1e-9 * step)
         vals = {f: _resample(grid, s, getattr(track, f), in_gap) for f in fields}
     else:
         vals = {f: (None if getattr(track, f) is None else np.asarray(getattr(track, f), dtype=float))
