@@ -67,6 +67,8 @@ class InserviceRecording:
         :data:`BOGIE_KEYS` when the file has all of them.
     speed_m_s, rate_hz, start_chainage_m, curvature_1_m : run settings ([run]).
     sigma_acc_m_s2, sigma_gyro_rad_s : sensor noise standard deviations ([sensors]).
+    sense_gravity : the accelerometers sense g times their roll, as real ones do ([sensors]
+        ``accelerometers_sense_gravity``; False, the paper's virtual sensors, when the key is absent).
     wheelset_sensor_m, frame_sensor_m : sensor positions (x, y, z) from the car body centre, m.
     t_s, s_m, speed_arr_m_s, wheelset_ay_m_s2, wheelset_wz_rad_s, frame_ay_m_s2 : sensors.csv.
     """
@@ -87,6 +89,7 @@ class InserviceRecording:
     wheelset_ay_m_s2: np.ndarray
     wheelset_wz_rad_s: np.ndarray
     frame_ay_m_s2: np.ndarray
+    sense_gravity: bool = False
 
 
 def recording_from_run(run, params, start_chainage_m: float = 0.0) -> InserviceRecording:
@@ -106,7 +109,7 @@ def recording_from_run(run, params, start_chainage_m: float = 0.0) -> InserviceR
         wheelset_sensor_m=tuple(pos["wheelset_accelerometer"]), frame_sensor_m=tuple(pos["frame_accelerometer"]),
         t_s=run.t_s, s_m=run.s_m + start_chainage_m, speed_arr_m_s=run.speed_m_s,
         wheelset_ay_m_s2=run.wheelset_ay_m_s2, wheelset_wz_rad_s=run.wheelset_wz_rad_s,
-        frame_ay_m_s2=run.frame_ay_m_s2)
+        frame_ay_m_s2=run.frame_ay_m_s2, sense_gravity=bool(params.sensor_gravity))
 
 
 def _f(x) -> str:
@@ -127,6 +130,8 @@ def inservice_toml_text(rec: InserviceRecording) -> str:
               "# design curvature, constant; positive for a RIGHT turn", f"curvature_1_m = {_f(-rec.curvature_1_m)}",
               "", "[sensors]", f"sigma_acc_m_s2 = {_f(rec.sigma_acc_m_s2)}",
               f"sigma_gyro_rad_s = {_f(rec.sigma_gyro_rad_s)}",
+              "# true for real accelerometers (they sense g x their roll); false: the paper's virtual ones",
+              f"accelerometers_sense_gravity = {'true' if rec.sense_gravity else 'false'}",
               "# positions from the car body centre: x forward, y LEFT, z above the rail top, m",
               "wheelset_sensor_m = [" + ", ".join(_f(v) for v in rec.wheelset_sensor_m) + "]",
               "frame_sensor_m = [" + ", ".join(_f(v) for v in rec.frame_sensor_m) + "]"]
@@ -203,6 +208,10 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
         curv = _num(run, "curvature_1_m", "run", fname, default=0.0, required=False)
         sa = _num(sen, "sigma_acc_m_s2", "sensors", fname)
         sg = _num(sen, "sigma_gyro_rad_s", "sensors", fname)
+        gravity = sen.get("accelerometers_sense_gravity", False)
+        if not isinstance(gravity, bool):
+            raise InserviceFormatError(f"{fname}: sensors.accelerometers_sense_gravity must be true or false, "
+                                       f"got {gravity!r}")
         cols = _read_csv(folder / "sensors.csv", SENSOR_COLUMNS, monotonic="t_s", strict=True)
     except TgmsFormatError as exc:
         raise InserviceFormatError(str(exc)) from None
@@ -231,7 +240,7 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
         frame_sensor_m=_position(sen, "frame_sensor_m", fname),
         t_s=cols["t_s"], s_m=cols["s_m"], speed_arr_m_s=cols["speed_m_s"],
         wheelset_ay_m_s2=-cols["wheelset_ay_m_s2"], wheelset_wz_rad_s=-cols["wheelset_wz_rad_s"],
-        frame_ay_m_s2=-cols["frame_ay_m_s2"])
+        frame_ay_m_s2=-cols["frame_ay_m_s2"], sense_gravity=gravity)
 
 
 def bogie_nominal(rec: InserviceRecording) -> dict | None:

@@ -24,6 +24,12 @@ FORMAT = "trolley-inservice-model/1"
 MIN_DT_S, MAX_DT_S = 1e-5, 0.2
 
 
+#: the model ``trolley inservice calibrate`` writes with its defaults (the built-in vehicle, 20 m/s,
+#: 200 Hz, 400 m, seeds 1000-1003), shipped so that ``process`` without ``--model`` is calibrated for a
+#: recording of that vehicle; tests/test_inservice_builtin_model.py checks that it still is that
+BUILTIN_MODEL_PATH = Path(__file__).with_name("inservice_builtin_model.toml")
+
+
 class ModelFileError(ValueError):
     """A model.toml that does not follow docs/inservice.md."""
 
@@ -88,6 +94,15 @@ def _vector(table: dict, key: str, n: int, fname: str, signed: bool = False) -> 
     if a is None or a.shape != (n,) or not np.all(np.isfinite(a)) or (not signed and np.any(a < 0)):
         raise ModelFileError(f"{fname}: noise.{key} must be {n} finite numbers{'' if signed else ' >= 0'}, got {v!r}")
     return a
+
+
+def model_provenance(path: str | os.PathLike) -> str | None:
+    """The provenance comment of a model file written by :func:`write_model` ("calibrated for ..."),
+    or None when the file has none."""
+    for line in Path(path).read_text(encoding="utf-8").splitlines()[:4]:
+        if line.startswith("# calibrated for "):
+            return line[2:]
+    return None
 
 
 def read_model(path: str | os.PathLike):

@@ -172,7 +172,8 @@ def test_process_writes_the_band_passed_alignment_with_its_sigma(tmp_path):
     assert (df["sigma_alignment_3_200m_mm"][inner] > 0).all()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["design_model"] == "bogie" and summary["calibrated"] is False
-    assert "uncalibrated" in res.stderr
+    assert "the built-in model does not fit the recording: its [vehicle] differs" in res.stderr
+    assert "uncalibrated" in res.stderr and summary["model"] == "nominal (recording [vehicle])"
     assert np.isfinite(summary["honesty_rms_error_over_sigma"])
     from openpyxl import load_workbook
     ws = load_workbook(out / "inservice.xlsx").active

@@ -158,14 +158,42 @@ def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     write_with(path, lambda tmp: wb.save(tmp))
 
 
+def _builtin_model_for(rec):
+    """The built-in calibration (survey.inservice_model.BUILTIN_MODEL_PATH) when it is the recording's
+    vehicle and accelerometers, else None; with the label summary.json gives the model and the note
+    that says on stderr which model is used and why."""
+    from survey.inservice_io import vehicle_differences
+    from survey.inservice_model import BUILTIN_MODEL_PATH, model_provenance, read_model
+
+    builtin = read_model(BUILTIN_MODEL_PATH)
+    prov = model_provenance(BUILTIN_MODEL_PATH)
+    diffs = vehicle_differences(rec, builtin.params)
+    if rec.sense_gravity != bool(builtin.params.sensor_gravity):
+        why = ("its accelerometers sense gravity (sensors.accelerometers_sense_gravity); calibrate with "
+               "`trolley inservice calibrate --sensor-gravity`")
+    elif diffs:
+        keys = list(diffs)
+        why = (f"its [vehicle] differs from the built-in vehicle's in {len(keys)} key{'s' * (len(keys) > 1)} ("
+               + ", ".join(keys[:4]) + (", ..." if len(keys) > 4 else "")
+               + "); calibrate for it with `trolley inservice calibrate --vehicle FILE`")
+    else:
+        return builtin, f"built-in ({prov})", (f"note: no --model given: the built-in model, {prov}, which is this "
+                                               "recording's vehicle")
+    return None, "nominal (recording [vehicle])", (
+        f"note: no --model given, and the built-in model does not fit the recording: {why}. Until then the "
+        "recording's uncalibrated nominal parameters with default noise are used; they give neither the accuracy "
+        "nor the honest sigmas of docs/inservice.md")
+
+
 @inservice_app.command("process")
 def process_cmd(
     recording: Annotated[Path, typer.Argument(help="recording folder (inservice.toml + sensors.csv)")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
     truth: Annotated[Optional[Path], typer.Option("--truth", help="truth.csv: adds J/Jrel per band to summary.json")] = None,
     model: Annotated[Optional[Path], typer.Option(
-        "--model", help="model.toml from `trolley inservice calibrate` (default: the recording's nominal "
-                        "parameters with default noise; the bogie model when the recording has its keys)")] = None,
+        "--model", help="model.toml from `trolley inservice calibrate` (default: the built-in calibration when the "
+                        "recording is of the built-in vehicle, else the recording's nominal parameters with default "
+                        "noise, uncalibrated)")] = None,
     smoother: Annotated[InserviceSmoother, typer.Option(
         "--smoother", help="rts (forward filter + RTS smoother) or none (the paper's forward filter)")] = "rts",
     filter_rate_hz: Annotated[float, typer.Option(
@@ -209,6 +237,10 @@ def process_cmd(
     if tru is not None and (tru["s_m"][0] > rec.s_m[0] + 1e-6 or tru["s_m"][-1] < rec.s_m[-1] - 1e-6):
         _fail(f"{truth}: column s_m covers {tru['s_m'][0]:.2f}-{tru['s_m'][-1]:.2f} m, "
               f"the recording {rec.s_m[0]:.2f}-{rec.s_m[-1]:.2f} m")
+    model_label = str(model) if model else None
+    if mdl is None:
+        mdl, model_label, default_note = _builtin_model_for(rec)
+        console.print(default_note, highlight=False, markup=False, soft_wrap=True)
     z = np.column_stack([rec.wheelset_ay_m_s2, rec.wheelset_wz_rad_s, rec.frame_ay_m_s2])
     import filterpy.kalman  # noqa: F401  (imported before the clock: the speed is the filter's)
     import scipy.linalg  # noqa: F401
@@ -242,9 +274,6 @@ def process_cmd(
         est = estimate(params, t_f, s_f, v_f, z, noise=noise, curvature_1_m=rec.curvature_1_m or None,
                        smoother=smoother)
         scale, kind = 1.0, params.KIND
-        console.print("note: no --model given: uncalibrated nominal parameters with default noise; "
-                      "`trolley inservice calibrate` gives the accuracy and honest sigmas of docs/inservice.md",
-                      highlight=False, markup=False, soft_wrap=True)
     length = float(rec.s_m[-1] - rec.s_m[0])
     xi_true = np.interp(s_f, tru["s_m"], tru["alignment_m"]) if tru is not None else None
     band = None
@@ -256,8 +285,9 @@ def process_cmd(
     duration = float(rec.t_s[-1] - rec.t_s[0])
     summary = {"recording": str(recording), "samples": int(len(rec.t_s)), "length_m": length,
                "speed_m_s": float(np.mean(rec.speed_arr_m_s)), "curvature_1_m_right_positive": -rec.curvature_1_m,
-               "smoother": smoother, "model": str(model) if model else "nominal (recording [vehicle])",
+               "smoother": smoother, "model": model_label,
                "design_model": kind, "sensor_gravity": bool(mdl.params.sensor_gravity) if mdl is not None else False,
+               "recording_accelerometers_sense_gravity": rec.sense_gravity,
                "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
                "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
@@ -272,6 +302,11 @@ def process_cmd(
                           + _vehicle_text(summary["vehicle_check"]).replace("DIFFERS", "differs", 1)
                           + "; the estimate and its sigmas are for the model's vehicle",
                           highlight=False, markup=False, soft_wrap=True)
+        if rec.sense_gravity != bool(mdl.params.sensor_gravity):
+            console.print(f"warning: {recording / 'inservice.toml'}: sensors.accelerometers_sense_gravity is "
+                          f"{str(rec.sense_gravity).lower()}, the model was calibrated "
+                          f"{'with' if mdl.params.sensor_gravity else 'without'} --sensor-gravity; the estimate and "
+                          "its sigmas are for the model's accelerometers", highlight=False, markup=False, soft_wrap=True)
     summary["consistency"] = {"checked": False, "reason": not_checked} if fit is None else {
         "checked": True, "innovation_rms_ratio": dict(zip(CONSISTENCY_KEYS, map(float, fit.ratio))),
         "limit": fit.limit, "consistent": fit.consistent}
