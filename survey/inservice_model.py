@@ -50,6 +50,9 @@ def model_toml_text(model, provenance: str | None = None) -> str:
               "r_diagonal = [" + ", ".join(repr(float(v)) for v in np.diag(model.R)) + "]",
               f"sigma_scale = {model.sigma_scale!r}", f"q_dynamics_factor = {model.q_dynamics_factor!r}",
               f"q_xi_factor = {model.q_xi_factor!r}", f"sigma_xi_virtual_m = {model.sigma_xi_virtual_m!r}"]
+    if model.speed_m_s is not None:
+        lines += ["# speed of the calibration runs, m/s (process compares the recording's with it)",
+                  f"speed_m_s = {float(model.speed_m_s)!r}"]
     if model.innovation_rms is not None:
         lines += ["# rms normalized innovations [wheelset acc, gyro, frame acc] on the calibration runs",
                   "# (identification.model_consistency compares recordings with them)",
@@ -148,8 +151,13 @@ def read_model(path: str | os.PathLike):
     for k, v in scalars.items():
         if v <= 0:
             raise ModelFileError(f"{fname}: noise.{k} must be > 0, got {v}")
+    speed = None
+    if "speed_m_s" in noi:     # (optional: files written before the speed check lack it)
+        speed = _number(noi, "speed_m_s", "noise", fname)
+        if speed <= 0:
+            raise ModelFileError(f"{fname}: noise.speed_m_s must be > 0, got {speed}")
     return EstimatorModel(params, Q, R, dt, scalars["sigma_scale"], scalars["q_dynamics_factor"],
-                          scalars["q_xi_factor"], scalars["sigma_xi_virtual_m"], S, nu)
+                          scalars["q_xi_factor"], scalars["sigma_xi_virtual_m"], S, nu, speed)
 
 
 def _check_covariances(Q: np.ndarray, R: np.ndarray, fname: str) -> None:

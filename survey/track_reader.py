@@ -535,11 +535,26 @@ def design_alignment_name(info: SurveyInfo) -> str | None:
     return str(name) if name else None
 
 
+#: largest distance between a station's chainage and its point's foot on the design that counts as
+#: the same stationing, m (the engine's chainages are within 14 um of the feet; another design's
+#: stationing is metres away)
+STATIONING_TOLERANCE_M = 0.01
+#: deviations recomputed against the design that differ from track.csv's by more are noted, m
+DEVIATION_AGREEMENT_M = 0.0005
+
+
 def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
                alignment_name: str | None = None,
                notes: list[str] | None = None) -> tuple[TrackInput, Stationing | None]:
     """Fill the design columns of ``track`` from a LandXML alignment evaluated at its chainages
-    (internal stations: track.csv's ``distance_m`` when it has one).
+    (internal stations: track.csv's ``distance_m`` when it has one), and its lateral and vertical
+    deviations from the measured points' projections onto that alignment.
+
+    The design columns are taken at each point's foot on the alignment, which is its chainage when
+    the track was processed against this design (within :data:`STATIONING_TOLERANCE_M`); a track
+    processed against another design or none is noted, and keeps its own chainages. Stations beyond
+    the alignment's ends get empty design columns and deviations, with a note; a track wholly beyond
+    them is refused.
 
     The design cant (an angle) becomes a rail height difference ``rail_spacing * sin(cant)``,
     positive when the left rail is higher, like the measured cant. The LandXML reader's notes,
@@ -551,6 +566,7 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
     stationing : the design's drawing stationing (trolley.stationing.Stationing) when it has
         station equations, else None (the drawing stationing is the internal station).
     """
+    from trolley.engine import STATION_END_TOLERANCE_M     # (a station a few mm beyond a run's end is kept)
     from trolley.landxml import AlignmentChoiceError, LandXmlError, read_landxml
 
     try:
@@ -569,9 +585,58 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
             notes.append(f"{Path(landxml_path).name} has station equations: every chainage shown is the "
                          f"drawing's stationing (track.csv chainage_m); chords, twist bases, wavelength "
                          f"filters and sections run along the distance (track.csv distance_m)")
-    d = alignment.evaluate(track.chainage_m)
-    track.design_E_m, track.design_N_m = d.E_m, d.N_m
-    track.design_H_m = d.H_m if alignment.profile is not None else np.full(d.H_m.shape, np.nan)
-    track.design_cant_m = rail_spacing_m * np.sin(d.cant_rad)
+    name = Path(landxml_path).name
+    ch = np.asarray(track.chainage_m, dtype=float)
+    lo, hi = alignment.start_chainage_m, alignment.end_chainage_m
+    # the deviations are the measured points' offsets from THIS design at their foot points (the
+    # engine's, when it is the design the track was processed with); the design columns are taken
+    # there too, so another design, or one on other stations, is never compared at the wrong place
+    p = alignment.project(track.E_m, track.N_m, track.H_m)
+    foot = np.asarray(p.chainage_m, dtype=float)
+    within = (foot >= lo - STATION_END_TOLERANCE_M) & (foot <= hi + STATION_END_TOLERANCE_M)
+    if not within.any():
+        raise ExportInputError(f"{landxml_path}: the track ({ch[0]:.3f}-{ch[-1]:.3f} m) lies wholly beyond the "
+                               f"ends of this design ({lo:.3f}-{hi:.3f} m): another design?")
+    apart = np.where(within, np.abs(foot - ch), 0.0)
+    same_stations = bool(apart.max() <= STATIONING_TOLERANCE_M)
+    lateral = np.where(within, np.asarray(p.lateral_m, dtype=float), np.nan)
+    vertical = np.where(within, np.asarray(p.vertical_m, dtype=float), np.nan) if alignment.profile is not None \
+        else np.full(ch.shape, np.nan)
+    if notes is not None:
+        if not same_stations:
+            i = int(np.argmax(apart))
+            notes.append(f"{name}: the track's chainages are not this design's stationing (the station at "
+                         f"{ch[i]:.3f} m lies at the design's {foot[i]:.3f} m, {apart[i]:.3f} m apart; the track was "
+                         "processed against another design or none): design columns and deviations are taken at "
+                         "each point's foot on this design; the chainages shown are the track's")
+        if not within.all():
+            out = ch[~within]
+            notes.append(f"{name}: {out.size} station(s) at chainage {out.min():.3f}-{out.max():.3f} m lie beyond the "
+                         f"ends of the design ({lo:.3f}-{hi:.3f} m): their design columns and deviations are empty")
+    devs = {}
+    for what, new, old in (("lateral", lateral, track.lateral_dev_m), ("vertical", vertical, track.vertical_dev_m)):
+        old = np.asarray(old, dtype=float)
+        both = np.isfinite(new) & np.isfinite(old)
+        worst = float(np.max(np.abs(new[both] - old[both]))) if both.any() else 0.0
+        if same_stations and both.any() and worst <= DEVIATION_AGREEMENT_M and np.array_equal(both, np.isfinite(new)):
+            devs[what] = np.where(within, old, np.nan)    # the engine's, from the unrounded coordinates
+            continue
+        devs[what] = new
+        if notes is None:
+            continue
+        if worst > DEVIATION_AGREEMENT_M:
+            notes.append(f"{name}: {what} deviations from this design differ from track.csv's by up to "
+                         f"{1e3 * worst:.1f} mm (the track was processed against another design): the sheet shows "
+                         "this design's")
+        elif np.isfinite(new).any() and not np.isfinite(old).any():
+            notes.append(f"{name}: track.csv has no {what} deviations: they are computed against this design")
+    d = alignment.evaluate(ch if same_stations else np.where(within, foot, lo))
+    nan = np.where(within, 1.0, np.nan)
+    track.design_E_m, track.design_N_m = d.E_m * nan, d.N_m * nan
+    track.design_H_m = d.H_m * nan if alignment.profile is not None else np.full(d.H_m.shape, np.nan)
+    track.design_cant_m = rail_spacing_m * np.sin(d.cant_rad) * nan
+    track.lateral_dev_m, track.vertical_dev_m = devs["lateral"], devs["vertical"]
+    if not same_stations:
+        return track, None
     st = alignment.stationing
     return track, (st if st is not None and st.equations else None)

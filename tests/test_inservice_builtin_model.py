@@ -131,3 +131,67 @@ def test_calibrate_with_its_defaults_gives_the_builtin_model(tmp_path):
                                                                               shipped.innovation_rms)):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-30)
     assert new.sigma_scale == pytest.approx(shipped.sigma_scale, rel=1e-6)
+
+
+def test_speed_fits_by_hand():
+    from dataclasses import replace
+
+    from trolley.inservice.identification import SPEED_TOLERANCE, speed_fits
+
+    m = replace(read_model(BUILTIN_MODEL_PATH), speed_m_s=20.0)
+    assert SPEED_TOLERANCE == 0.10
+    assert speed_fits(m, 20.0).fits and speed_fits(m, [18.0, 22.0]).fits
+    assert not speed_fits(m, [17.99, 20.0]).fits and not speed_fits(m, [20.0, 22.01]).fits
+    c = speed_fits(m, np.array([19.0, 23.5, 21.0]))
+    assert (c.calibration_m_s, c.low_m_s, c.high_m_s, c.fits) == (20.0, 19.0, 23.5, False)
+    assert speed_fits(replace(m, speed_m_s=None), 20.0) is None
+
+
+def test_the_calibration_speed_round_trips_and_is_optional(tmp_path):
+    from dataclasses import replace
+
+    from survey.inservice_model import ModelFileError, model_toml_text, write_model
+
+    m = read_model(BUILTIN_MODEL_PATH)
+    assert m.speed_m_s == 20.0
+    write_model(tmp_path / "m.toml", replace(m, speed_m_s=17.25))
+    assert read_model(tmp_path / "m.toml").speed_m_s == 17.25
+    old = model_toml_text(replace(m, speed_m_s=None))
+    assert "speed_m_s" not in old
+    (tmp_path / "old.toml").write_text(old)
+    assert read_model(tmp_path / "old.toml").speed_m_s is None
+    (tmp_path / "bad.toml").write_text(model_toml_text(m).replace("speed_m_s = 20.0", "speed_m_s = -20.0"))
+    with pytest.raises(ModelFileError, match="bad.toml: noise.speed_m_s must be > 0"):
+        read_model(tmp_path / "bad.toml")
+
+
+def test_process_says_when_the_recording_is_at_another_speed_than_the_calibration(default_run, tmp_path):
+    from openpyxl import load_workbook
+
+    _, summary = _process(default_run / "recording", tmp_path / "same")
+    assert summary["speed_check"] == {"checked": True, "calibration_m_s": 20.0, "recording_low_m_s": 20.0,
+                                      "recording_high_m_s": 20.0, "tolerance": 0.1, "fits": True}
+    # the same recording said to be made at 22.5-25 m/s (the chainages kept): the model's Q, R, S
+    # are the 20 m/s runs'
+    rec = tmp_path / "fast"
+    rec.mkdir()
+    (rec / "inservice.toml").write_text((default_run / "recording" / "inservice.toml").read_text())
+    df = pd.read_csv(default_run / "recording" / "sensors.csv")
+    df["speed_m_s"] = np.linspace(22.5, 25.0, len(df))
+    df.to_csv(rec / "sensors.csv", index=False)
+    res, summary = _process(rec, tmp_path / "out")
+    assert summary["speed_check"]["fits"] is False
+    assert (summary["speed_check"]["recording_low_m_s"], summary["speed_check"]["recording_high_m_s"]) == (22.5, 25.0)
+    assert ("sensors.csv: recorded at 22.5-25 m/s, differs by more than 10% from the calibration's 20 m/s; "
+            "calibrate at the recording's speed (--speed-m-s)") in " ".join(res.stderr.split())
+    ws = load_workbook(tmp_path / "out" / "inservice.xlsx").active
+    head = [ws.cell(1, j).value for j in range(1, ws.max_column + 1)]
+    assert head[-1] == "speed_check" and ws.cell(2, len(head)).value.startswith("recorded at 22.5-25 m/s, DIFFERS")
+    # an older model file without the calibration speed: not checked, and said why
+    from dataclasses import replace
+
+    from survey.inservice_model import write_model
+
+    write_model(tmp_path / "old.toml", replace(read_model(BUILTIN_MODEL_PATH), speed_m_s=None))
+    _, summary = _process(rec, tmp_path / "out_old", "--model", str(tmp_path / "old.toml"))
+    assert summary["speed_check"]["checked"] is False and "no calibration speed" in summary["speed_check"]["reason"]

@@ -6,6 +6,8 @@ geometry (a 250 m straight on bearing 60 deg, a 200 m arc of radius 800 m to the
 300 m straight; start station 1000; coordinates in the files rounded to 0.1 mm)."""
 from __future__ import annotations
 
+import json
+
 import math
 from pathlib import Path
 
@@ -108,10 +110,18 @@ def test_export_names_the_alignment_of_a_file_holding_several(tmp_path):
 
     b = pd.read_csv(tmp_path / "b.csv")
     assert np.allclose(b["design_E_m"], b["E_m"], atol=1e-5) and np.allclose(b["design_N_m"], b["N_m"], atol=1e-5)
-    r = run(app, base + ["--csv", str(tmp_path / "c.csv"), "--design-name", "Gleis 1"])
+    r = run(app, base + ["--csv", str(tmp_path / "c.csv"), "--design-name", "Gleis 1", "--json"])
     assert r.exit_code == 0
-    c = pd.read_csv(tmp_path / "c.csv")                       # Gleis 1 lies 4.5 m east of Gleis 2
-    assert np.allclose(np.hypot(c["design_E_m"] - c["E_m"], c["design_N_m"] - c["N_m"]), 4.5, atol=1e-5)
+    c = pd.read_csv(tmp_path / "c.csv")
+    # Gleis 1 is Gleis 2 moved 4.5 m east; the stations lie on its R 800 m arc, whose centre is
+    # (E 400616.5064, N 5599432.1797): the offset from Gleis 1 is R - |P - C| (right positive, the
+    # curve turns right), the design point is the foot, and the chainages are Gleis 2's, not Gleis 1's
+    by_hand_mm = 1e3 * (800.0 - np.hypot(c["E_m"] - 400616.5064, c["N_m"] - 5599432.1797))
+    assert np.allclose(c["lateral_dev_mm"], by_hand_mm, atol=0.05) and (by_hand_mm < -1900).all()
+    assert np.allclose(np.hypot(c["design_E_m"] - c["E_m"], c["design_N_m"] - c["N_m"]),
+                       np.abs(by_hand_mm) / 1e3, atol=1e-4)
+    assert any("not this design's stationing" in n for n in json.loads(r.stdout)["notes"])
+    assert json.loads(r.stdout)["passed"] is False and json.loads(r.stdout)["defects"] > 0
 
 
 def test_cli_lists_the_names_then_imports_by_name(tmp_path):

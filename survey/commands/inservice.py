@@ -121,6 +121,18 @@ def _vehicle_text(check: dict) -> str:
     return f"DIFFERS from the model's vehicle: {diffs}; calibrate for this vehicle (--vehicle)"
 
 
+def _speed_text(check: dict) -> str:
+    """The summary's speed check in words, for the workbook and the warning."""
+    if not check["checked"]:
+        return f"not checked: {check['reason']}"
+    lo, hi, vc = check["recording_low_m_s"], check["recording_high_m_s"], check["calibration_m_s"]
+    speeds = f"{lo:.3g} m/s" if f"{lo:.3g}" == f"{hi:.3g}" else f"{lo:.3g}-{hi:.3g} m/s"
+    if check["fits"]:
+        return f"recorded at {speeds}, within {check['tolerance']:.0%} of the calibration's {vc:g} m/s"
+    return (f"recorded at {speeds}, DIFFERS by more than {check['tolerance']:.0%} from the calibration's {vc:g} "
+            f"m/s; calibrate at the recording's speed (--speed-m-s)")
+
+
 def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     """One sheet in the survey workbook's style: a header row, the summary row, then the profile."""
     from openpyxl import Workbook
@@ -133,11 +145,13 @@ def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     ws.title = "Alignment"
     head = ["recording", "length_m", "speed_m_s", "smoother", "cpu_s", "real_time_ratio"]
     bands = list(summary.get("accuracy", {}))
-    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands] + ["model_check", "vehicle_check"]
+    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands] + ["model_check", "vehicle_check",
+                                                                                  "speed_check"]
     _header(ws, 1, head)
     put_text(ws, 2, 1, recording)
-    put_text(ws, 2, len(head) - 1, _consistency_text(summary["consistency"]))
-    put_text(ws, 2, len(head), _vehicle_text(summary["vehicle_check"]))
+    put_text(ws, 2, len(head) - 2, _consistency_text(summary["consistency"]))
+    put_text(ws, 2, len(head) - 1, _vehicle_text(summary["vehicle_check"]))
+    put_text(ws, 2, len(head), _speed_text(summary["speed_check"]))
     vals = [summary["length_m"], summary["speed_m_s"], None, summary["cpu_s"], summary["real_time_ratio"]]
     vals += [summary["accuracy"][b]["J_mm"] for b in bands] + [summary["accuracy"][b]["Jrel"] for b in bands]
     for j, v in enumerate(vals, start=2):
@@ -213,7 +227,7 @@ def process_cmd(
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.bogie import BogieParameters
     from trolley.inservice.estimator import SETTLE_M, NoiseDensities, band_alignment, estimate
-    from trolley.inservice.identification import HONESTY_BAND_M, model_consistency
+    from trolley.inservice.identification import HONESTY_BAND_M, model_consistency, speed_fits
     from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimated, decimation_factor
 
@@ -293,7 +307,17 @@ def process_cmd(
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
     if mdl is None:
         summary["vehicle_check"] = {"checked": False, "reason": "no calibrated model (--model)"}
+        summary["speed_check"] = {"checked": False, "reason": "no calibrated model (--model)"}
     else:
+        sc = speed_fits(mdl, rec.speed_arr_m_s)
+        summary["speed_check"] = {"checked": False, "reason": "the model file has no calibration speed (calibrated "
+                                  "before the check existed)"} if sc is None else {
+            "checked": True, "calibration_m_s": sc.calibration_m_s, "recording_low_m_s": sc.low_m_s,
+            "recording_high_m_s": sc.high_m_s, "tolerance": sc.tolerance, "fits": sc.fits}
+        if sc is not None and not sc.fits:
+            console.print(f"warning: {recording / 'sensors.csv'}: " + _speed_text(summary["speed_check"]).replace(
+                "DIFFERS", "differs", 1) + "; J and the sigmas are those of another speed (docs/inservice.md, "
+                "\"Speed of the calibration\")", highlight=False, markup=False, soft_wrap=True)
         diffs = vehicle_differences(rec, mdl.params)
         summary["vehicle_check"] = {"checked": True, "matches": not diffs, "differences": {
             k: {"recording": a, "model": b} for k, (a, b) in diffs.items()}}
