@@ -170,7 +170,7 @@ def parse_toml(path: Path, fmt: str = FORMAT, tables=("vehicle", "run", "sensors
     if not path.is_file():
         raise error(f"{fname}: file not found in {path.parent}")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise error(f"{fname}: not valid TOML ({exc})") from None
     if data.get("format") != fmt:

@@ -166,7 +166,7 @@ def _fix_sigma(t) -> float:
 
 def _parse_meta(text: str, fname: str = "session.toml") -> SessionMeta:
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text.removeprefix("\ufeff"))   # (a BOM, as Notepad writes)
     except tomllib.TOMLDecodeError as exc:
         raise SessionFormatError(f"{fname}: not valid TOML: {exc}") from None
     t = _Toml(data, fname)
@@ -889,16 +889,16 @@ def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None)
     """
     if meta.design_alignment is None:
         return None
-    from trolley.landxml import read_landxml
+    from trolley.landxml import LandXmlError, decoded_landxml, read_landxml
 
     path = Path(folder) / meta.design_alignment
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = decoded_landxml(path.read_bytes())
     except FileNotFoundError:
         raise SessionFormatError(f"session.toml: key design.alignment: file "
                                  f"{meta.design_alignment!r} not found in {folder}") from None
-    except UnicodeDecodeError as exc:
-        raise SessionFormatError(f"{meta.design_alignment}: not UTF-8 ({exc.reason})") from None
+    except LandXmlError as exc:
+        raise SessionFormatError(f"{path}: {exc}") from None
     try:
         design = read_landxml(text, meta.design_alignment_name)
     except ValueError as exc:

@@ -103,7 +103,7 @@ def _array(table, key, where, fname, shape, default=None, required=True) -> np.n
 def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
     """Configuration from the text of ``tgms.toml``; TgmsFormatError naming the key if invalid."""
     try:
-        doc = tomllib.loads(text)
+        doc = tomllib.loads(text.removeprefix("\ufeff"))   # (a BOM, as Notepad writes)
     except tomllib.TOMLDecodeError as exc:
         raise TgmsFormatError(f"{fname}: not valid TOML ({exc})") from None
     fmt = doc.get("format")

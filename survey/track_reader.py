@@ -511,7 +511,7 @@ def _design_table(info: SurveyInfo) -> dict:
     if not toml_path.is_file():
         return {}
     try:
-        doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+        doc = tomllib.loads(toml_path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ExportInputError(f"{toml_path}: not valid TOML ({e})") from None
     return doc["design"] if isinstance(doc.get("design"), dict) else {}
@@ -567,12 +567,12 @@ def add_design(track: TrackInput, landxml_path: Path, rail_spacing_m: float,
         station equations, else None (the drawing stationing is the internal station).
     """
     from trolley.engine import STATION_END_TOLERANCE_M     # (a station a few mm beyond a run's end is kept)
-    from trolley.landxml import AlignmentChoiceError, LandXmlError, read_landxml
+    from trolley.landxml import AlignmentChoiceError, LandXmlError, decoded_landxml, read_landxml
 
     try:
-        design = read_landxml(Path(landxml_path).read_text(encoding="utf-8"), alignment_name,
+        design = read_landxml(decoded_landxml(Path(landxml_path).read_bytes()), alignment_name,
                               rail_spacing_m=rail_spacing_m)
-    except (OSError, UnicodeDecodeError) as e:
+    except OSError as e:
         raise ExportInputError(f"{landxml_path}: cannot read ({e})") from None
     except AlignmentChoiceError as e:
         raise ExportInputError(f"{landxml_path}: {e} (trolley export --design-name NAME)") from None

@@ -105,3 +105,26 @@ def test_stations_beyond_the_designs_ends_are_empty_and_a_track_wholly_beyond_is
     res, _ = _export(tmp_path, track, design, "--design-name", "Track 1", out="none.csv")
     assert res.exit_code == 2 and "lies wholly beyond the ends of this design (0.000-500.000 m)" in res.stderr
     assert not (tmp_path / "none.csv").exists()
+
+
+@pytest.mark.parametrize("encoding", ["iso-8859-1", "utf-16", "utf-8-sig"])
+def test_a_design_in_the_encoding_its_xml_declaration_names_is_read(tmp_path, encoding):
+    # (bug hunt 2026-11-26) valid XML declared ISO-8859-1, or UTF-16 with its mark, was refused as
+    # "not UTF-8"; the project store keeps it as UTF-8 text that says so
+    from survey.store import alignment_record_from_text
+    from trolley.landxml import LandXmlError, decoded_landxml
+
+    xml = TWO_TRACKS.replace("START", "0").replace("END", "500").replace("Track 2", "Gleis Süd")
+    if encoding == "iso-8859-1":
+        xml = xml.replace('encoding="UTF-8"', 'encoding="ISO-8859-1"')
+    (tmp_path / "d.xml").write_bytes(xml.encode(encoding))
+    res, summary = _export(tmp_path, _track(tmp_path), tmp_path / "d.xml", "--design-name", "Gleis Süd")
+    assert res.exit_code == 0, res.output
+    assert pd.read_csv(tmp_path / "out.csv")["lateral_dev_mm"].to_numpy() == pytest.approx(4503.0, abs=0.01)
+    text = decoded_landxml((tmp_path / "d.xml").read_bytes())
+    assert text.startswith('<?xml version="1.0" encoding="UTF-8"?>') and "Gleis Süd" in text
+    assert alignment_record_from_text("d.xml", text, 1.5, "Gleis Süd").name == "Gleis Süd"
+    with pytest.raises(LandXmlError, match="not valid UTF-8 text"):
+        decoded_landxml(xml.replace('encoding="ISO-8859-1"', 'encoding="UTF-8"').encode("iso-8859-1"))
+    with pytest.raises(LandXmlError, match="unknown encoding 'klingon'"):
+        decoded_landxml(b'<?xml version="1.0" encoding="klingon"?><LandXML/>')

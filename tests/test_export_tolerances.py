@@ -70,6 +70,11 @@ def test_user_file_and_unknown_name(tmp_path):
     p = tmp_path / "mine.toml"
     p.write_text(GOOD, encoding="utf-8")
     assert load_tolerances(str(p)).name == "t"
+    # saved by Notepad with a byte-order mark (bug hunt 2026-11-26: "Invalid statement at line 1")
+    bom = tmp_path / "bom.toml"
+    bom.write_text(GOOD, encoding="utf-8-sig")
+    assert bom.read_bytes()[:3] == b"\xef\xbb\xbf"
+    assert load_tolerances(str(bom)).limits == load_tolerances(str(p)).limits
     with pytest.raises(ToleranceError, match="neither a built-in"):
         load_tolerances("no_such_set")
 

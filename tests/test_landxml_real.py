@@ -437,3 +437,24 @@ def test_export_reads_track_csv_along_distance_and_says_so(tmp_path):
     np.testing.assert_allclose(track.design_E_m, track.E_m, atol=POS_TOL_M)
     assert any("station equations" in n and "distance_m" in n for n in notes), notes
     assert any("read as drawing stations" in n for n in notes), notes
+
+
+def test_a_drawing_stationed_profile_running_past_the_end_is_read_as_drawing_stations():
+    # (bug hunt 2026-11-26) the profile in drawing stations, 150 m longer than the track, without
+    # cant: read as internal stations its last PVIs lie 750 and 1150 m beyond the end, and the
+    # heights were 1.27 m off. By hand at drawing 2500 (internal 1500), the PVI of a 200 m parabola:
+    # its height plus A L / 8, A the change of grade there (-0.02/3 to +0.004 with the last PVI at
+    # the end; the same height with the profile run on along its grade), 101.2667
+    import re
+
+    base = re.sub(r"<Cant .*?</Cant>", "", text("station_equation.xml"), flags=re.S)
+    prof = ('<PVI>1000.000 100.0000</PVI>\n<ParaCurve length="100.0000">1200.000 103.0000</ParaCurve>\n'
+            '<ParaCurve length="200.0000">2500.000 101.0000</ParaCurve>\n<PVI>LAST</PVI>')
+    base, n = re.subn(r"<PVI>1000.000.*?<PVI>2750.000 102.0000</PVI>", prof, base, flags=re.S)
+    assert n == 1
+    for last in ("2750.000 102.0000", "2900.000 102.6000"):
+        d = read_landxml(base.replace("LAST", last))
+        assert "read as drawing stations" in d.notes[-1]
+        assert d.alignment.station(1500.0) == pytest.approx(2500.0)
+        assert d.alignment.evaluate(np.array([1500.0])).H_m[0] == pytest.approx(101.0 + (0.004 + 0.02 / 3) * 25,
+                                                                             abs=1e-4)

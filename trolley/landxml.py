@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from xml.sax.saxutils import quoteattr
@@ -419,37 +420,43 @@ def _station_basis(aname: str, hz: HorizontalAlignment, stationing: Stationing |
     """True when the cant and PVI stations of the file are drawing stations (after the station
     equations) rather than internal ones (the schema's ``station`` type).
 
-    Only a file with station equations can differ. The reading in which more cant stations fall
-    on element joins (cant ramps run along the transitions), and the last PVI on the alignment
-    end, wins; a reading that puts a cant station off the alignment loses; a tie is internal.
+    Only a file with station equations can differ. A reading that puts a cant station off the
+    alignment loses; then the one whose PVIs reach less far beyond the alignment's ends (whole
+    metres: a profile may run on a little); then the one in which more cant stations fall on
+    element joins (cant ramps run along the transitions), and the last PVI on the alignment end;
+    a tie is internal.
     """
     if stationing is None or not stationing.equations or not (cant_raw or pvi_raw):
         return False
     lo, hi = hz.start_chainage_m - JOIN_TOLERANCE_M, hz.end_chainage_m + JOIN_TOLERANCE_M
 
-    def score(cant_internal, last_pvi_internal) -> tuple[int, int]:
-        """(- cant stations off the alignment, stations on joins or the end)."""
+    def score(cant_internal, pvi_internal) -> tuple[int, int, int]:
+        """(- cant stations off the alignment, - metres of PVIs beyond its ends, stations on joins
+        or the end)."""
         c = np.asarray(cant_internal, dtype=float)
+        v = np.asarray(pvi_internal, dtype=float)
         off = int(np.sum((c < lo) | (c > hi)))
+        beyond = int(round(float(np.sum(np.maximum(0.0, np.maximum(lo - v, v - hi)))))) if v.size else 0
         hit = _near_joins(c, hz)
-        if last_pvi_internal is not None and abs(last_pvi_internal - hz.end_chainage_m) <= _BASIS_MATCH_M:
+        if v.size and abs(v[-1] - hz.end_chainage_m) <= _BASIS_MATCH_M:
             hit += 1
-        return -off, hit
+        return -off, -beyond, hit
 
-    s_int = score(cant_raw, pvi_raw[-1] if pvi_raw else None)
+    s_int = score(cant_raw, pvi_raw)
     try:
         cant_dr = stationing.internal_of(cant_raw) if cant_raw else np.empty(0)
-        pvi_dr = stationing.internal_of(pvi_raw[-1:]) if pvi_raw else None
-        s_dr = score(cant_dr, None if pvi_dr is None else float(pvi_dr[0]))
+        pvi_dr = stationing.internal_of(pvi_raw) if pvi_raw else np.empty(0)
+        s_dr = score(cant_dr, pvi_dr)
     except StationNotFound:
-        s_dr = (-len(cant_raw) - 1, 0)
+        s_dr = (-len(cant_raw) - 1, 0, 0)
     drawing = s_dr > s_int
     kind = ("drawing stations (after the station equations)" if drawing
             else "internal stations (the schema's 'station' type)")
     notes.append(f"{aname}: the alignment has {len(stationing.equations)} station equation(s); cant "
-                 f"and PVI stations read as {kind}: as drawing stations {s_dr[1]} fall on element "
-                 f"joins or the end and {-s_dr[0]} cant stations off the alignment, as internal "
-                 f"stations {s_int[1]} and {-s_int[0]}")
+                 f"and PVI stations read as {kind}: as drawing stations {s_dr[2]} fall on element "
+                 f"joins or the end, {-s_dr[0]} cant stations off the alignment and the PVIs reach "
+                 f"{-s_dr[1]} m beyond its ends, as internal stations {s_int[2]}, {-s_int[0]} and "
+                 f"{-s_int[1]} m")
     return drawing
 
 
@@ -731,6 +738,40 @@ def _coordinate_system(root: ET.Element) -> CoordinateSystemInfo | None:
                                 vertical_datum=attr("verticalDatum"),
                                 horizontal_crs_name=attr("horizontalCoordinateSystemName"),
                                 vertical_crs_name=attr("verticalCoordinateSystemName"))
+
+
+_XML_DECLARATION = re.compile(rb"""^<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z0-9._:-]+)["']""")
+
+
+def decoded_landxml(data: bytes) -> str:
+    """The text of a LandXML file's bytes, in the encoding the file declares (XML 1.0, 4.3.3).
+
+    A byte-order mark (UTF-8, UTF-16, UTF-32) decides first, then the XML declaration's
+    ``encoding``; without either the text is UTF-8. The declaration of the returned text says
+    UTF-8, so that writing it out as UTF-8 keeps it true.
+
+    Raises
+    ------
+    LandXmlError : an unknown encoding, or bytes that are not valid in the declared one (naming
+        the byte).
+    """
+    import codecs
+
+    boms = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
+            (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16"))
+    encoding = next((enc for bom, enc in boms if data.startswith(bom)), None)
+    declared = _XML_DECLARATION.match(data.lstrip()[:200]) if encoding is None else None
+    if encoding is None:
+        encoding = declared.group(1).decode("ascii") if declared else "utf-8"
+    try:
+        codecs.lookup(encoding)
+    except LookupError:
+        raise LandXmlError(f"the XML declaration names an unknown encoding {encoding!r}") from None
+    try:
+        text = data.decode(encoding)
+    except UnicodeDecodeError as e:
+        raise LandXmlError(f"not valid {encoding} text ({e.reason} at byte {e.start})") from None
+    return re.sub(r"""^(\s*<\?xml[^>]*?encoding\s*=\s*)["'][^"']*["']""", r'\1"UTF-8"', text, count=1)
 
 
 class AlignmentChoiceError(LandXmlError):

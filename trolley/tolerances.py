@@ -132,7 +132,7 @@ def parse_tolerances(text: str, origin: str = "<string>") -> ToleranceSet:
         or a limit with neither ``source`` nor ``example = true``.
     """
     try:
-        doc = tomllib.loads(text)
+        doc = tomllib.loads(text.removeprefix("\ufeff"))   # (a BOM, as Notepad writes)
     except tomllib.TOMLDecodeError as e:
         raise ToleranceError(f"{origin}: not valid TOML: {e}") from None
     if doc.get("format") != FORMAT:

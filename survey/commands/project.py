@@ -103,7 +103,7 @@ def new(
 
         try:
             kwargs, preset, xml = project_settings(folder)
-            data = tomllib.loads((folder / "project.toml").read_text(encoding="utf-8"))
+            data = tomllib.loads((folder / "project.toml").read_text(encoding="utf-8-sig"))
         except (ProjectFileError, tomllib.TOMLDecodeError) as e:
             fail(str(e))
         if preset not in IMU_PRESETS:
@@ -224,14 +224,14 @@ def import_alignment(
     the reader skipped or tolerated (Feature elements, small gaps at joins, ...) is printed as notes.
     """
     from survey.store import alignment_record_from_text
-    from trolley.landxml import AlignmentChoiceError
+    from trolley.landxml import AlignmentChoiceError, LandXmlError, decoded_landxml
 
     try:
-        text = file.read_bytes().decode("utf-8")
+        text = decoded_landxml(file.read_bytes())
     except OSError as e:
         fail(f"{file}: {e.strerror or e}")
-    except UnicodeDecodeError as e:
-        fail(f"{file}: not UTF-8 ({e.reason} at byte {e.start})")
+    except LandXmlError as e:
+        fail(f"{file}: {e}")
     with _open(root, project) as store:
         try:
             rec = alignment_record_from_text(file.name, text, store.settings().trolley.rail_spacing_m, name)

@@ -101,7 +101,7 @@ def project_settings(project: Path):
     path = project / "project.toml"
     fname = str(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except FileNotFoundError:
         raise ProjectFileError(f"{fname}: file missing") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -154,20 +154,21 @@ def project_settings(project: Path):
             if "rail_spacing_m" in tr else d.rail_spacing_m,
             nominal_gauge_m=_number(tr, "trolley", "nominal_gauge_m", fname)
             if "nominal_gauge_m" in tr else d.nominal_gauge_m)
+    from trolley.landxml import LandXmlError, decoded_landxml
+
     preset = data.get("imu", {}).get("preset", "rlg")
     design = data.get("design", {}).get("alignment")
     if not isinstance(design, str):
         raise ProjectFileError(f"{fname}: key design.alignment: missing (the LandXML design)")
     try:
-        xml = inside(project, design, f"{fname}: key design.alignment").read_text(encoding="utf-8")
+        xml = decoded_landxml(inside(project, design, f"{fname}: key design.alignment").read_bytes())
     except FileNotFoundError:
         raise ProjectFileError(f"{fname}: key design.alignment: {project / design} not found") \
             from None
     except IsADirectoryError:
         raise ProjectFileError(f"{fname}: key design.alignment: {design!r} is a folder, not the LandXML file") from None
-    except UnicodeDecodeError as exc:
-        raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: not UTF-8 text ({exc.reason})") \
-            from None
+    except LandXmlError as exc:
+        raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: {exc}") from None
     except ValueError as exc:
         raise ProjectFileError(str(exc)) from None
     return kwargs, preset, xml

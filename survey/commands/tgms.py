@@ -101,7 +101,7 @@ def read_params(path: Path):
 
     from trolley.tgms.params import TgmsParams
     try:
-        d = tomllib.loads(path.read_text(encoding="utf-8"))
+        d = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ValueError(f"{path}: cannot read parameters ({exc})") from None
     fmt = d.pop("format", None)
