@@ -998,6 +998,19 @@ class ProjectStore:
                             (session_id, stop.t_start_s, stop.t_end_s, stop.label, _nullable(stop.chainage_m)))
             return int(cur.lastrowid)
 
+    def end_session(self, session_id: int, event: SessionEvent, final_stop: StopRecord | None = None) -> None:
+        """Store the stop a session ends at (when the trolley stands there), its end event and the
+        state "ended" in one transaction: a kill between them cannot store that stop twice (a
+        resumed session would be standing there again)."""
+        with self._transaction() as c:
+            if final_stop is not None:
+                c.execute("INSERT INTO stop (session_id, t_start_s, t_end_s, label, chainage_m) VALUES (?, ?, ?, ?, ?)",
+                          (session_id, final_stop.t_start_s, final_stop.t_end_s, final_stop.label,
+                           _nullable(final_stop.chainage_m)))
+            c.execute("INSERT INTO session_event (session_id, t_s, kind, detail, created_utc) VALUES (?, ?, ?, ?, ?)",
+                      (session_id, event.t_s, event.kind, event.detail, utc_now()))
+            c.execute("UPDATE session SET state = ? WHERE id = ?", ("ended", session_id))
+
     def stops(self, session_id: int) -> list[StopRecord]:
         """A session's stops in time order."""
         rows = self._conn.execute("SELECT t_start_s, t_end_s, label, chainage_m, id FROM stop WHERE session_id = ? "

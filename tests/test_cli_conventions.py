@@ -282,6 +282,11 @@ def test_old_and_new_name_with_different_values_is_refused(session, tmp_path):
     r = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "o"), "--step", "1", "--step-m", "2"])
     assert r.exit_code == 2 and "--step-m" in r.stderr
     assert not (tmp_path / "o").exists()
+    # the new name typed with its default value counts too (bug hunt 2026-11-26: 1.25 was used)
+    r = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "o"), "--step", "1.25", "--step-m",
+                            "0.625"])
+    assert r.exit_code == 2 and "give --step-m only" in r.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_renamed_hand_cases():

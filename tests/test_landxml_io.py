@@ -295,6 +295,20 @@ def test_cant_side_from_curve_and_adverse():
     adverse = EXAMPLE.replace('appliedCant="120" curvature="cw"',
                               'appliedCant="120" curvature="cw" adverse="true"')
     assert abs(parse_landxml(adverse).evaluate(185.0).cant_rad + math.asin(0.08)) < 1e-15
+    # (bug hunt 2026-11-26) a side that contradicts the curve is used as written, but said; the
+    # adverse form says the same on purpose and is not noted; the writer uses that form
+    from trolley.landxml import landxml_text, read_landxml
+
+    said = [n for n in read_landxml(ccw).notes if 'curvature="ccw" but the alignment turns clockwise' in n]
+    assert len(said) == 2 and "raises the inner rail" in said[0]
+    assert not any("curvature=" in n for n in read_landxml(adverse).notes)
+    written = landxml_text(parse_landxml(adverse))
+    assert 'curvature="cw" adverse="true"' in written
+    back = read_landxml(written)
+    assert not any("curvature=" in n for n in back.notes)
+    assert abs(back.alignment.evaluate(185.0).cant_rad + math.asin(0.08)) < 1e-12
+    two = EXAMPLE.replace("</Cant>", "</Cant><Cant name=\"other\" gauge=\"1.5\"></Cant>", 1)
+    assert any("2 <Cant> elements; the first" in n for n in read_landxml(two).notes)
 
 
 def test_millimetre_units_scale_lengths():

@@ -105,6 +105,14 @@ def test_scripted_session_records_everything_and_processes(project):
         for fx in fixes:
             d = np.array([fx.e_m, fx.n_m, fx.h_m]) - prism_position_enh(sim, fx.t_s)
             assert np.max(np.abs(d)) < 0.003
+        # every stop, the static alignment's at the start and the one the session ends at included
+        # (bug hunt 2026-11-26: both were missing), in time order with consecutive labels
+        stops = st.stops(sid)
+        assert [s.label for s in stops] == ["S000", "S001", "S002"]
+        assert np.allclose([s.chainage_m for s in stops], [0.0, 60.0, 120.0], atol=0.05)
+        assert stops[0].t_start_s == pytest.approx(t[0], abs=1.0)
+        assert all(a.t_end_s <= b.t_start_s for a, b in zip(stops, stops[1:]))
+        assert all(any(s.t_start_s <= fx.t_s <= s.t_end_s for s in stops) for fx in fixes)
         notes = st.notes(sid)
         assert [n.text for n in notes] == ["hello from the crew"]
         assert abs(notes[0].chainage_m - 60.0) < 0.05  # taken at the second stop

@@ -45,3 +45,38 @@ def test_a_blocked_prism_is_skipped_and_the_station_uses_the_others(tmp_path):
     assert np.max(np.abs(setup.station_enh_m - world.station_enh_m)) < 0.002 and setup.accepted
     assert [f.accepted for f in fixes] == [True]
     assert f"{blocked.point_id} not measured" in " ".join(console.export_text().split())
+
+
+def test_a_script_does_not_accept_a_station_far_off_its_instrument_sigmas(tmp_path):
+    # (bug hunt 2026-11-26) every pointing found the same prism (the devices twin's synthetic
+    # scene): sigma0 1e5, and the script said "station accepted". Now the session stops at the
+    # setup with the reason and stores no setup and no fix (the test above: an honest setup of the
+    # same project is accepted)
+    import pytest
+
+    from survey.commands.survey import simulated_world
+    from survey.session.errors import SessionAbort
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.session.stationsetup import SCRIPT_SIGMA0_LIMIT
+    from survey.store import ProjectStore
+
+    make_project(tmp_path)
+    console = Console(stderr=True, record=True, width=200)
+    with ProjectStore.open(tmp_path / "t1") as st:
+        world = simulated_world(st, 50.0)
+        aim, first = world.aim_at_point, []
+
+        def always_the_first_prism(enh):
+            first.append(tuple(enh))
+            aim(first[0])
+
+        world.aim_at_point = always_the_first_prism
+        fs = FieldSession(st, "one_prism", SessionConfig(script=parse_script("fix\nend\n"), out_dir=None),
+                          world=world, console=console)
+        with pytest.raises(SessionAbort) as exc:
+            fs.run()
+        sid = fs.rec.session_id
+        assert st.station_setups(sid) == [] and st.fixes(sid) == []
+    assert f"exceeds {SCRIPT_SIGMA0_LIMIT:g}" in str(exc.value) and "a script does not accept it" in str(exc.value)
+    assert len(set(first)) == 8

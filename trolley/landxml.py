@@ -550,6 +550,8 @@ def _cant(al: ET.Element, aname: str, hz: HorizontalAlignment, u: "_Units",
         return None
     cant_el = cants[0]
     cwhere = f"{aname}, {_describe(cant_el)}"
+    if len(cants) > 1:
+        notes.append(f"{aname}: {len(cants)} <Cant> elements; the first ({_describe(cant_el)}) is used")
     if rail_spacing_m is None:
         # the schema gives gauge in metres (feet in an imperial file)
         rail_spacing_m = _finite(cant_el.get("gauge"), cwhere, "gauge") * u.gauge
@@ -576,6 +578,14 @@ def _cant(al: ET.Element, aname: str, hz: HorizontalAlignment, u: "_Units",
             if sign == 0.0 and height_m != 0.0:
                 raise LandXmlError(f"{where}: missing attribute 'curvature' and no horizontal curve "
                                    f"at this station to take the side from")
+        elif height_m != 0.0 and _side_of_curve(hz, s) == -curv:
+            # the stated side contradicts the geometry: used as written, but said (a mixed-up
+            # attribute makes the cant change sides inside a curve)
+            turns = "clockwise (cw)" if curv < 0 else "counter-clockwise (ccw)"
+            rail = "outer" if flip < 0 else "inner"
+            notes.append(f"{where}: curvature=\"{'cw' if curv > 0 else 'ccw'}\" but the alignment turns {turns} "
+                         f"here: used as written, this cant raises the {rail} rail (a cant on the inner rail is "
+                         "written with the curve's side and adverse=\"true\")")
         sign *= flip
         if abs(height_m) >= rail_spacing_m:
             raise LandXmlError(f"{where}: appliedCant {units.m_to_mm(height_m):.1f} mm exceeds the "
@@ -1115,9 +1125,12 @@ def landxml_text(alignment: Alignment, *, rail_spacing_m: float = DEFAULT_RAIL_S
           'rotationPoint="center">')
         for s, c in zip(ct.chainage_m, ct.cant_rad):
             mm = units.m_to_mm(rail_spacing_m * math.sin(abs(c)))
-            side = math.copysign(1.0, c) if c != 0.0 else (_side_of_curve(hz, s) or 1.0)
-            curv = "cw" if side > 0 else "ccw"
-            w(f'        <CantStation station="{_f(s)}" appliedCant="{_f(mm)}" curvature="{curv}"/>')
+            bend = _side_of_curve(hz, s)
+            side = math.copysign(1.0, c) if c != 0.0 else (bend or 1.0)
+            adverse = c != 0.0 and bend == -side     # the inner rail raised: said as such
+            curv = "cw" if (bend if adverse else side) > 0 else "ccw"
+            w(f'        <CantStation station="{_f(s)}" appliedCant="{_f(mm)}" curvature="{curv}"'
+              + (' adverse="true"/>' if adverse else '/>'))
         w('      </Cant>')
     w('    </Alignment>')
     w('  </Alignments>')

@@ -96,7 +96,7 @@ def record_cmd(
     out: Path = typer.Option(..., "--out", help="Output folder."),
     imu_axes: str = typer.Option("x,y,z", "--imu-axes", help="IMU axes to trolley FRD, e.g. 'x,-y,-z'."),
     imu_type: int | None = typer.Option(None, "--imu-type", help="IMU type for the scale table (default: from the frames)."),
-    imu_rate_hz: float | None = typer.Option(None, "--imu-rate-hz", help="IMU data rate (default: the IMU type's)."),
+    imu_rate_hz: float | None = typer.Option(None, "--imu-rate-hz", help="IMU data rate (default: inferred from the first 21 frames; the IMU type's with fewer)."),
     odometer_ppr: int = typer.Option(1024, "--odometer-ppr", help="Encoder pulses per revolution."),
     odometer_decode: int = typer.Option(4, "--odometer-decode", help="Quadrature decode 1, 2 or 4."),
     wheel_diameter_m: float = typer.Option(0.1, "--wheel-diameter-m", help="Measuring wheel diameter."),
@@ -216,7 +216,7 @@ def _session_feed(folder: Path, station: str | None):
     try:
         s = read_session(folder)
     except SessionFormatError as e:
-        _err(f"--session {folder}: {e}")
+        _err(f"--session-dir {folder}: {e}")
         raise typer.Exit(code=2)
     enh = np.asarray(s.fixes.enh_m, float)
     st = _floats(station, 4, "--station") if station else station_beside(enh)

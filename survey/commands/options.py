@@ -67,9 +67,28 @@ def renamed(value: Any, old_value: Any, name: str, old_name: str, default: Any =
     """
     if old_value is None:
         return value
-    if value != default and value != old_value:
+    if (value != default or _given(name)) and value != old_value:
         raise typer.BadParameter(f"give {name} only ({old_name} is its old name)", param_hint=old_name)
     return old_value
+
+
+def _given(option: str) -> bool:
+    """Whether ``option`` was typed on the command line (its default value included: ``--step 1.25
+    --step-m 0.625`` gives both names different values even though 0.625 is the default)."""
+    try:      # typer 0.29 carries its own copy of click
+        from typer._click.core import ParameterSource
+        from typer._click.globals import get_current_context
+    except ImportError:
+        from click.core import ParameterSource
+        from click.globals import get_current_context
+
+    ctx = get_current_context(silent=True)
+    if ctx is None:
+        return False
+    for p in ctx.command.params:
+        if option in p.opts:
+            return ctx.get_parameter_source(p.name) == ParameterSource.COMMANDLINE
+    return False
 
 
 def old_name(new: str) -> str:

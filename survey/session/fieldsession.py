@@ -441,6 +441,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self.screen.phase = f"static alignment: {max(static_s - done, 0.0):5.0f} s to go"
         if done >= static_s:
             self.aligned = True
+            # the static alignment is the first stop: the trolley stood still all along it
+            self.stop_started_s = self.static_start_s
             self.screen.progress = None
             self._event("aligned", json.dumps({"static_start_s": self.static_start_s, "static_s": static_s}))
             self.say("static alignment done: push the trolley to the next stop")
@@ -617,8 +619,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             if self.accepted_fixes and abs(dist - self.last_fix_distance_m) > 1.0:
                 self.say(f"standing at {self.shown_station(self.chainage_now(dist)):.1f} m: f = take a fix")
         elif not standing and self.stop_started_s is not None:
-            self.store.add_stop(self.rec.session_id, StopRecord(self.stop_started_s, t, f"S{self.stop_count:03d}",
-                                                                self.chainage_now(dist)))
+            self.store.add_stop(self.rec.session_id, self._stop_record(t))
             self.stop_started_s = None
             self.stop_count += 1
         self._hold_at_stop(standing, dist)
@@ -660,6 +661,20 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if self.paused:
             return "PAUSED: p resume | n note | e end"
         return KEYS_HELP
+
+    def _stop_record(self, noticed_s: float) -> StopRecord:
+        """The stop begun at ``stop_started_s``, whose end was noticed at ``noticed_s``: at the
+        chainage where the trolley stood, ending at the last odometer sample still there (the motion
+        test notices a departure late, and the static alignment's end later still)."""
+        od = self._odometer()
+        if not od.shape[0]:
+            return StopRecord(self.stop_started_s, noticed_s, f"S{self.stop_count:03d}", float("nan"))
+        d0 = float(np.interp(self.stop_started_s, od[:, 0], od[:, 1]))
+        span = od[(od[:, 0] >= self.stop_started_s) & (od[:, 0] <= noticed_s)]
+        still = span[np.abs(span[:, 1] - d0) <= STAND_TOLERANCE_M]
+        t_end = float(still[-1, 0]) if still.shape[0] else noticed_s
+        return StopRecord(self.stop_started_s, max(t_end, self.stop_started_s), f"S{self.stop_count:03d}",
+                          self.chainage_now(d0))
 
     def _hold_at_stop(self, standing: bool, dist: float) -> None:
         """An interactive simulated session: the simulated world waits at a stop until the crew has
@@ -953,10 +968,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     # ================================================================== end
     def finish(self) -> SessionOutcome:
         """Stop the devices, re-process the whole session, write the sheet and the plots."""
+        # the stop the session ends at: it has no departure to store it (tick)
+        final_stop = self._stop_record(self.now()) if self.stop_started_s is not None else None
         self._shutdown()
         self._store_intervals()
-        self._event("end")
-        self.store.set_session_state(self.rec.session_id, "ended")
+        self.store.end_session(self.rec.session_id, SessionEvent(self.now(), "end", ""), final_stop)
         return self._final_processing()
 
     def _final_processing(self) -> SessionOutcome:

@@ -16,6 +16,12 @@ from survey.store import FixRecord, setup_rows
 from rich.markup import escape
 
 
+#: largest sigma0 a scripted station setup is accepted with: sigma0^2 dof follows chi-square with
+#: dof degrees of freedom when the instrument sigmas are right, and P(sigma0 > 3) is below 2e-4
+#: for any dof >= 2 (a setup of 8 points, dof 20: about 1e-30), so only a gross error stops a script
+SCRIPT_SIGMA0_LIMIT = 3.0
+
+
 class StationSetupSteps:
     """Free station, station change and overlap check (mixin of ``FieldSession``)."""
 
@@ -75,6 +81,19 @@ class StationSetupSteps:
                 if drops:
                     exclude.append(drops.pop(0))
                     continue
+                if not res.sigma0 <= SCRIPT_SIGMA0_LIMIT:
+                    # nobody looks at a script's table: a setup this far off its instrument's sigmas
+                    # (a point's coordinates, the wrong prism, all pointings at one target) is not
+                    # accepted; the session stops here and is stored (resume)
+                    flagged = ", ".join(res.flagged_points) or "none"
+                    raise SessionAbort(
+                        f"station setup: sigma0 {res.sigma0:.3g} exceeds {SCRIPT_SIGMA0_LIMIT:g} (flagged points: "
+                        f"{flagged}); a script does not accept it",
+                        "drop the bad points with `setup drop ID` lines, or set the station up interactively "
+                        "(`trolley survey resume` without --script)")
+                if res.flagged_points:
+                    self.say(f"station setup: flagged points {', '.join(res.flagged_points)} kept (sigma0 "
+                             f"{res.sigma0:.2f}); a `setup drop ID` line leaves one out")
                 choice = "a"
             else:
                 # data snooping's suggestion, else the point with the largest standardized residual
