@@ -714,11 +714,13 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
     return m
 
 
-def _check_time(path: Path, t: np.ndarray) -> None:
+def _check_time(path: Path, t: np.ndarray, rows: np.ndarray | None = None) -> None:
+    """Refuse time going backwards; ``rows``: the file's data row of each value (blank lines left out)."""
     back = np.diff(t) < 0
     if np.any(back):
         i = int(np.argmax(back)) + 1
-        raise SessionFormatError(f"{path.name}: row {_row(i)}, column t_s: time goes backwards "
+        row = _row(i if rows is None else int(rows[i]))
+        raise SessionFormatError(f"{path.name}: row {row}, column t_s: time goes backwards "
                                  f"({float(t[i])!r} after {float(t[i - 1])!r})")
 
 
@@ -739,6 +741,10 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
     except pd.errors.ParserError as exc:
         raise _parser_error(path, exc) from None
     _check_no_implicit_index(path, raw)
+    # blank lines (a spreadsheet's trailing empty rows) are no fixes; rows keep their file numbers
+    blank = (raw.apply(lambda col: col.str.strip()) == "").all(axis=1).to_numpy()
+    file_rows = np.flatnonzero(~blank)
+    raw = raw[~blank].reset_index(drop=True)
     n = len(raw)
     if n < 1:
         raise SessionFormatError(f"{path.name}: row 2: no data rows")
@@ -776,9 +782,9 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
                 f"{value!r} is not a finite number"
                 if value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity")
                 else f"{value!r} is not a number")
-        raise SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {what}")
+        raise SessionFormatError(f"{path.name}: row {_row(int(file_rows[i]))}, column {c}: {what}")
     t = vals["t_s"]
-    _check_time(path, t)
+    _check_time(path, t, rows=file_rows)
     sigma = np.full((n, 3), float(default_sigma))
     for j, c in enumerate(FIXES_SIGMA_COLUMNS):
         if c in vals:

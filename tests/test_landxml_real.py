@@ -458,3 +458,58 @@ def test_a_drawing_stationed_profile_running_past_the_end_is_read_as_drawing_sta
         assert d.alignment.station(1500.0) == pytest.approx(2500.0)
         assert d.alignment.evaluate(np.array([1500.0])).H_m[0] == pytest.approx(101.0 + (0.004 + 0.02 / 3) * 25,
                                                                              abs=1e-4)
+
+
+def test_a_station_out_of_order_is_named_as_the_file_gives_it():
+    # (bug hunt 2026-11-26) "PVI 3: chainage np.float64(1500.0) does not increase": counted from 0,
+    # numpy's repr, and the internal station where the file says 2500
+    import re
+
+    t = text("station_equation.xml")
+    twice = t.replace("<PVI>2750.000 102.0000</PVI>", "<PVI>2500.000 101.0000</PVI><PVI>2750.000 102.0000</PVI>")
+    with pytest.raises(LandXmlError, match=r"<PVI> no\. 4: station 2500\.0000 m does not come after the one before it "
+                                           r"\(2500\.0000 m\)"):
+        read_landxml(twice)
+    cs = re.findall(r"<CantStation[^>]*/>", t)
+    with pytest.raises(LandXmlError, match=r'<CantStation> no\. 4 \(station="2450\.000"\): station 2450\.0000 m does not'):
+        read_landxml(t.replace(cs[2], cs[2] + cs[2]))
+
+
+def test_an_arc_the_wrong_way_round_is_refused_by_the_alignments_own_length():
+    # (bug hunt 2026-11-26) one Curve with rot reversed and no length attribute became a 4826 m arc
+    # with only a note against Alignment length="200"; a rounded total is still only noted
+    xml = """<?xml version="1.0" encoding="UTF-8"?>
+<LandXML xmlns="http://www.landxml.org/schema/LandXML-1.2" version="1.2">
+  <Units><Metric linearUnit="meter"/></Units>
+  <Alignments><Alignment name="A" length="LENGTH" staStart="1250.0">
+    <CoordGeom>
+      <Curve rot="ROT" crvType="arc" staStart="1250.000">
+        <Start>5600125.0000 400216.5064</Start><Center>5599432.1797 400616.5064</Center>
+        <End>5600202.4235 400400.3479</End>
+      </Curve>
+    </CoordGeom>
+  </Alignment></Alignments>
+</LandXML>
+"""
+    with pytest.raises(LandXmlError, match=r"length=200\.0000 but its elements add up to 4826\.5"):
+        read_landxml(xml.replace("LENGTH", "200.0000").replace("ROT", "ccw"))
+    d = read_landxml(xml.replace("LENGTH", "200.05").replace("ROT", "cw"))
+    assert abs(d.alignment.horizontal.length_m - 200.0) < 1e-3
+    assert any("length=200.05 but its elements add up to" in n for n in d.notes)
+
+
+def test_one_element_off_its_stationing_is_noted_once():
+    # (bug hunt 2026-11-26) the element after it, which agrees, was noted as "-0.0 mm" off
+    t = text("station_equation.xml").replace('<Curve staStart="1250.000"', '<Curve staStart="1251.000"')
+    notes = [n for n in read_landxml(t).notes if "staStart is" in n]
+    assert len(notes) == 1 and 'staStart="1251.000"): staStart is +1000.0 mm' in notes[0]
+
+
+def test_a_profile_shorter_than_the_alignment_is_noted():
+    # (bug hunt 2026-11-26) its heights were extended along the end grade without a word
+    t = text("several_alignments.xml")
+    short = t.replace("<PVI>1750.000 102.0000</PVI>", "<PVI>1700.000 101.8000</PVI>")
+    d = read_landxml(short, "Gleis 1")
+    assert any("the profile covers 1000.0000 .. 1700.0000, the alignment 1000.0000 .. 1750.0000" in n
+               for n in d.notes)
+    assert not any("the profile covers" in n for n in read_landxml(t, "Gleis 1").notes)

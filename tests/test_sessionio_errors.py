@@ -150,3 +150,18 @@ def test_initial_heading_accepted(folder):
     p = folder / "session.toml"
     p.write_text(p.read_text().replace("initial_heading_deg = nan", "initial_heading_deg = 90"))
     assert read_session(folder).meta.initial_heading_rad == pytest.approx(1.5707963267948966)
+
+
+def test_blank_lines_in_fixes_csv_are_no_fixes_and_rows_keep_their_numbers(folder):
+    # (bug hunt 2026-11-26) a spreadsheet's trailing empty rows made the session unreadable
+    # ("row 11, column t_s: empty value"); blank lines elsewhere are skipped too, and a bad cell
+    # after one is named by its row in the file
+    ref = read_session(folder).fixes
+    path = folder / "fixes.csv"
+    lines = path.read_text(encoding="utf-8").rstrip("\n").split("\n")
+    path.write_text("\n".join(lines[:2] + [",,,,", "   "] + lines[2:]) + "\n\n\r\n,,,,\n", encoding="utf-8")
+    got = read_session(folder).fixes
+    assert list(got.point) == list(ref.point) and (got.enh_m == ref.enh_m).all() and (got.t_s == ref.t_s).all()
+    set_cell(path, 5, "E_m", "x")          # the second fix, after the two blank lines
+    with pytest.raises(SessionFormatError, match=r"fixes.csv: row 5, column E_m: 'x' is not a number"):
+        read_session(folder)

@@ -541,7 +541,7 @@ class VerticalProfile:
             raise ValueError("PVI chainages, heights, curve lengths and radii must be finite")
         if np.any(np.diff(s) <= 0):
             i = int(np.argmax(np.diff(s) <= 0)) + 1
-            raise ValueError(f"PVI {i}: chainage {s[i]!r} does not increase")
+            raise ValueError(f"PVI no. {i + 1}: chainage {float(s[i])!r} does not increase")
         if np.any(L < 0):
             raise ValueError(f"PVI {int(np.argmax(L < 0))}: negative vertical curve length")
         if L[0] != 0 or L[-1] != 0 or R[0] != 0 or R[-1] != 0:
@@ -667,7 +667,7 @@ class CantProfile:
             raise ValueError("cant stations must be finite")
         if np.any(np.diff(s) <= 0):
             i = int(np.argmax(np.diff(s) <= 0)) + 1
-            raise ValueError(f"cant station {i}: chainage {s[i]!r} does not increase")
+            raise ValueError(f"cant station no. {i + 1}: chainage {float(s[i])!r} does not increase")
         if np.any(np.abs(c) >= np.pi / 2):
             raise ValueError("cant angles must be below pi/2 in magnitude")
         self.chainage_m, self.cant_rad = s, c

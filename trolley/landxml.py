@@ -80,6 +80,9 @@ DIRECTION_TOLERANCE_RAD = 1e-4
 #: alignment: refused.
 GAP_REFUSE_M = 0.1
 DIRECTION_REFUSE_RAD = 1e-2
+#: An alignment whose elements add up to a length this far (relative, and GAP_REFUSE_M) from its
+#: own length attribute is refused: a stale or rounded total is noted, not a curve the wrong way
+LENGTH_REFUSE_FRACTION = 0.01
 #: Elements shorter than this are skipped with a note (the neighbours join across them).
 ZERO_LENGTH_M = 1e-3
 #: Vertical curves overlapping by less than this are accepted with a note.
@@ -372,7 +375,8 @@ def _check_sta_starts(parsed: list[_ParsedElement], hz: HorizontalAlignment,
         if p.sta_start is None:
             continue
         miss = p.sta_start - (s_dr if abs(p.sta_start - s_dr) < abs(p.sta_start - s_int) else s_int)
-        if abs(miss - before) > JOIN_TOLERANCE_M:
+        # (an element that agrees again after one that did not is not a disagreement)
+        if abs(miss) > JOIN_TOLERANCE_M and abs(miss - before) > JOIN_TOLERANCE_M:
             notes.append(f"{p.where}: staStart is {units.m_to_mm(miss):+.1f} mm from the lengths of "
                          f"the elements before it ({s_int:.4f}); the lengths are used")
         before = miss
@@ -510,12 +514,24 @@ def _pvis(pa: ET.Element, pwhere: str, scale: float, elev_scale: float):
     return sta, elev, length, radius, wheres
 
 
+def _in_order(sta_internal, raw_m, wheres: list[str]) -> None:
+    """Refuse a station that does not come after the one before it, naming the element and the
+    stations as the file gives them (in metres; drawing stations where the file has them)."""
+    s = np.asarray(sta_internal, dtype=float)
+    bad = np.flatnonzero(np.diff(s) <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise LandXmlError(f"{wheres[i]}: station {raw_m[i]:.4f} m does not come after the one before it "
+                           f"({raw_m[i - 1]:.4f} m)")
+
+
 def _profile(pa: ET.Element, pwhere: str, pvis, sta_internal: np.ndarray,
              notes: list[str]) -> VerticalProfile:
-    _, elev, length, radius, wheres = pvis
+    raw, elev, length, radius, wheres = pvis
     sta = sta_internal
     if len(sta) < 2:
         raise LandXmlError(f"{pwhere}: needs at least two PVIs")
+    _in_order(sta, raw, wheres)
     for k in (0, len(sta) - 1):
         if length[k] != 0.0 or radius[k] != 0.0:
             raise LandXmlError(f"{wheres[k]}: the first and last PVI cannot carry a curve")
@@ -561,6 +577,7 @@ def _cant(al: ET.Element, aname: str, hz: HorizontalAlignment, u: "_Units",
     if not raw:
         raise LandXmlError(f"{cwhere}: no <CantStation>")
     sta = _to_internal(raw, wheres, drawing, stationing)
+    _in_order(sta, raw, wheres)
     lo, hi = hz.start_chainage_m, hz.end_chainage_m
     for s, r, where in zip(sta, raw, wheres):
         if s > hi + JOIN_TOLERANCE_M or s < lo - JOIN_TOLERANCE_M:
@@ -894,6 +911,12 @@ def read_landxml(text: str, alignment_name: str | None = None, *,
     sta_start = _finite(al.get("staStart"), aname, "staStart") * u.linear
     length = _finite(al.get("length"), aname, "length") * u.linear
     hz, parsed = _horizontal(al, aname, u.linear, sta_start, notes)
+    if abs(hz.length_m - length) > max(GAP_REFUSE_M, LENGTH_REFUSE_FRACTION * length):
+        # an element the wrong way round (rot) or of another length: the file's own total says so
+        raise LandXmlError(f"{aname}: length={al.get('length')} but its elements add up to "
+                           f"{hz.length_m / u.linear:.4f}: an element's rot, length or coordinates are wrong "
+                           f"(refused above {100 * LENGTH_REFUSE_FRACTION:g} % and "
+                           f"{units.m_to_mm(GAP_REFUSE_M):.0f} mm)")
     if abs(hz.length_m - length) > JOIN_TOLERANCE_M:
         notes.append(f"{aname}: length={al.get('length')} but its elements add up to "
                      f"{hz.length_m / u.linear:.4f} ({units.m_to_mm(length - hz.length_m):+.1f} mm); "
@@ -910,6 +933,11 @@ def read_landxml(text: str, alignment_name: str | None = None, *,
     if prof is not None:
         profile = _profile(prof[0], prof[1], pvis, _to_internal(pvis[0], pvis[4], drawing, stationing),
                            notes)
+        p0, p1 = float(profile.chainage_m[0]), float(profile.chainage_m[-1])
+        if p0 > hz.start_chainage_m + JOIN_TOLERANCE_M or p1 < hz.end_chainage_m - JOIN_TOLERANCE_M:
+            notes.append(f"{prof[1]}: the profile covers {p0:.4f} .. {p1:.4f}, the alignment "
+                         f"{hz.start_chainage_m:.4f} .. {hz.end_chainage_m:.4f} (internal stations): the heights "
+                         "beyond the profile are extended along its end grades")
     cant = _cant(al, aname, hz, u, rail_spacing_m, stationing, drawing, notes)
     _skipped_notes(al, aname, notes)
     alignment = Alignment(hz, profile, cant, name=al.get("name") or "", stationing=stationing)
