@@ -17,6 +17,7 @@ key); writers write each file atomically (temporary file + os.replace, the helpe
 """
 from __future__ import annotations
 
+import json
 import os
 import tomllib
 from dataclasses import dataclass
@@ -90,10 +91,15 @@ class InserviceRecording:
     wheelset_wz_rad_s: np.ndarray
     frame_ay_m_s2: np.ndarray
     sense_gravity: bool = False
+    #: the vehicle's name ([vehicle] ``name``; ``simulate`` writes it), or None
+    vehicle_name: str | None = None
+    #: the row of sensors.csv each sample was read from (None: not read from a file)
+    rows: np.ndarray | None = None
 
 
-def recording_from_run(run, params, start_chainage_m: float = 0.0) -> InserviceRecording:
-    """The recording of a simulated run (``trolley.inservice.vehicle.RunResult``) and its parameters."""
+def recording_from_run(run, params, start_chainage_m: float = 0.0, vehicle_name: str | None = None) -> InserviceRecording:
+    """The recording of a simulated run (``trolley.inservice.vehicle.RunResult``) and its parameters
+    (``vehicle_name``: the name of its vehicle file, or the built-in vehicle's)."""
     from trolley.inservice.bogie import nominal_from_vehicle
 
     nom = params.nominal()
@@ -109,7 +115,7 @@ def recording_from_run(run, params, start_chainage_m: float = 0.0) -> InserviceR
         wheelset_sensor_m=tuple(pos["wheelset_accelerometer"]), frame_sensor_m=tuple(pos["frame_accelerometer"]),
         t_s=run.t_s, s_m=run.s_m + start_chainage_m, speed_arr_m_s=run.speed_m_s,
         wheelset_ay_m_s2=run.wheelset_ay_m_s2, wheelset_wz_rad_s=run.wheelset_wz_rad_s,
-        frame_ay_m_s2=run.frame_ay_m_s2, sense_gravity=bool(params.sensor_gravity))
+        frame_ay_m_s2=run.frame_ay_m_s2, sense_gravity=bool(params.sensor_gravity), vehicle_name=vehicle_name)
 
 
 def _f(x) -> str:
@@ -120,6 +126,8 @@ def inservice_toml_text(rec: InserviceRecording) -> str:
     """The ``inservice.toml`` text of a recording (FRD signs for the curvature)."""
     inv = {v: k for k, v in VEHICLE_KEYS.items()}
     lines = [f'format = "{FORMAT}"', "", "# nominal parameters of the vehicle (SI); see docs/inservice.md", "[vehicle]"]
+    if rec.vehicle_name is not None:
+        lines += ["name = " + json.dumps(rec.vehicle_name, ensure_ascii=False)]
     lines += [f"{inv[k]} = {_f(rec.nominal[k])}" for k in VEHICLE_KEYS.values()]
     lines += [f"{k} = {_f(rec.vehicle_extra[k])}" for k in VEHICLE_EXTRA_KEYS]
     if all(k in rec.vehicle_extra for k in BOGIE_KEYS):
@@ -181,6 +189,57 @@ def parse_toml(path: Path, fmt: str = FORMAT, tables=("vehicle", "run", "sensors
     return data
 
 
+RUN_KEYS = frozenset({"speed_m_s", "rate_hz", "start_chainage_m", "curvature_1_m"})
+SENSORS_KEYS = frozenset({"sigma_acc_m_s2", "sigma_gyro_rad_s", "accelerometers_sense_gravity", "wheelset_sensor_m",
+                          "frame_sensor_m"})
+#: slowest speed a sample may have, m/s: the design model's creep damping goes with 1/V, and at a
+#: walking pace (starting, stopping) it is not the in-service model any more
+MIN_SPEED_M_S = 1.0
+#: how far the samples' rate may lie from [run] rate_hz, and the chainage's rate from the speed
+#: column, relative (a time in ms, a speed in km/h or mm/s are far off)
+SAMPLING_TOLERANCE = 0.02
+
+
+def _refuse_unknown(table: dict, known, prefix: str, fname: str) -> None:
+    """A mistyped key would be read as absent (an optional one silently so): refused, with the nearest."""
+    import difflib
+
+    for key in table:
+        if key not in known:
+            near = difflib.get_close_matches(key, sorted(known), n=1)
+            hint = f" (did you mean {prefix}{near[0]}?)" if near else ""
+            raise InserviceFormatError(f"{fname}: unknown key {prefix}{key}{hint}")
+
+
+def _check_sampling(cols: dict, rate_hz: float, fname: str) -> None:
+    """Uniform sample times at [run] rate_hz, speeds the model holds for, a chainage that advances
+    at the speed column's rate; each refusal names the row (sensors.csv) or the key."""
+    t, s, v, line = cols["t_s"], cols["s_m"], cols["speed_m_s"], cols["_line"]
+    slow = v < MIN_SPEED_M_S
+    if np.any(slow):
+        i = int(np.argmax(slow))
+        raise InserviceFormatError(f"sensors.csv: row {line[i]}, column speed_m_s: {v[i]:g} m/s is below "
+                                   f"{MIN_SPEED_M_S:g} m/s, where the in-service model does not hold (starting or "
+                                   "stopping): leave those rows out")
+    if t.size < 3:
+        return
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    off = ~np.isclose(dt, step, rtol=1e-3, atol=0.0)
+    if np.any(off):
+        i = int(np.argmax(off))
+        raise InserviceFormatError(f"sensors.csv: row {line[i + 1]}, column t_s: a step of {dt[i]:.6g} s after "
+                                   f"{t[i]:.6g} s where the samples are {step:.6g} s apart: sample times must be "
+                                   "uniform (a gap or a dropped sample?)")
+    if abs(step * rate_hz - 1.0) > SAMPLING_TOLERANCE:
+        raise InserviceFormatError(f"{fname}: run.rate_hz = {rate_hz:g}, but the samples of sensors.csv are "
+                                   f"{step:.6g} s apart ({1.0 / step:.6g} Hz): column t_s in seconds?")
+    ratio = float(np.median(np.diff(s) / dt) / np.median(v))
+    if abs(ratio - 1.0) > SAMPLING_TOLERANCE:
+        raise InserviceFormatError(f"sensors.csv: column speed_m_s: the chainage s_m advances at {ratio:.6g} times "
+                                   "the speed column's value: speed in m/s, chainage in m?")
+
+
 def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     """Read a recording folder; returns internal signs (module docstring).
 
@@ -197,6 +256,13 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     data = parse_toml(toml_path)
     fname = toml_path.name
     veh, run, sen = data["vehicle"], data["run"], data["sensors"]
+    _refuse_unknown(data, {"format": None, "vehicle": None, "run": None, "sensors": None}, "", fname)
+    _refuse_unknown(veh, {*VEHICLE_KEYS, *VEHICLE_EXTRA_KEYS, *BOGIE_KEYS, "name"}, "vehicle.", fname)
+    _refuse_unknown(run, RUN_KEYS, "run.", fname)
+    _refuse_unknown(sen, SENSORS_KEYS, "sensors.", fname)
+    name = veh.get("name")
+    if name is not None and (not isinstance(name, str) or not name.strip()):
+        raise InserviceFormatError(f"{fname}: vehicle.name must be a text, got {name!r}")
     try:
         nominal = {v: _num(veh, k, "vehicle", fname) for k, v in VEHICLE_KEYS.items()}
         extra = {k: _num(veh, k, "vehicle", fname) for k in VEHICLE_EXTRA_KEYS}
@@ -233,6 +299,7 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     if np.any(cols["speed_m_s"] <= 0):
         i = int(np.argmax(cols["speed_m_s"] <= 0))
         raise InserviceFormatError(f"sensors.csv: row {cols['_line'][i]}, column speed_m_s: must be > 0")
+    _check_sampling(cols, rate, fname)
     return InserviceRecording(
         nominal=nominal, vehicle_extra=extra, speed_m_s=speed, rate_hz=rate, start_chainage_m=start,
         curvature_1_m=-curv, sigma_acc_m_s2=sa, sigma_gyro_rad_s=sg,
@@ -240,7 +307,8 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
         frame_sensor_m=_position(sen, "frame_sensor_m", fname),
         t_s=cols["t_s"], s_m=cols["s_m"], speed_arr_m_s=cols["speed_m_s"],
         wheelset_ay_m_s2=-cols["wheelset_ay_m_s2"], wheelset_wz_rad_s=-cols["wheelset_wz_rad_s"],
-        frame_ay_m_s2=-cols["frame_ay_m_s2"], sense_gravity=gravity)
+        frame_ay_m_s2=-cols["frame_ay_m_s2"], sense_gravity=gravity,
+        vehicle_name=name.strip() if isinstance(name, str) else None, rows=np.asarray(cols["_line"]))
 
 
 def bogie_nominal(rec: InserviceRecording) -> dict | None:

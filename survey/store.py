@@ -974,11 +974,18 @@ class ProjectStore:
             fix_id = _insert_fix(c, session_id, fix)
         return fix_id
 
-    def decide_fix(self, fix_id: int, accepted: bool, reason: str) -> None:
-        """Append a decision on a fix (accept, reject, undo); the newest decision counts."""
+    def decide_fix(self, fix_id: int, accepted: bool, reason: str,
+                   event: tuple[int, SessionEvent] | None = None) -> None:
+        """Append a decision on a fix (accept, reject, undo); the newest decision counts. ``event``
+        (session id, event) is stored in the same transaction: a resumed script then knows the
+        step was done (a crew's undo done twice would undo the fix before it)."""
         with self._transaction() as c:
             c.execute("INSERT INTO fix_decision (fix_id, accepted, reason, created_utc) VALUES (?, ?, ?, ?)",
                       (fix_id, int(accepted), reason, utc_now()))
+            if event is not None:
+                sid, ev = event
+                c.execute("INSERT INTO session_event (session_id, t_s, kind, detail, created_utc) "
+                          "VALUES (?, ?, ?, ?, ?)", (sid, ev.t_s, ev.kind, ev.detail, utc_now()))
 
     def fixes(self, session_id: int, accepted_only: bool = False) -> list[FixRecord]:
         """A session's fixes in time order, each with its newest decision."""

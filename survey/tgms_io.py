@@ -158,6 +158,12 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
     name = path.name
     if not path.exists():
         raise TgmsFormatError(f"{name}: file not found in {path.parent}")
+    with open(path, "rb") as fh:
+        head = fh.readline().decode("utf-8-sig", errors="replace")
+    if ";" in head and "," not in head:
+        # a spreadsheet saved with its locale's list separator (and, likely, decimal commas)
+        raise TgmsFormatError(f"{name}: row 1: the columns are separated by ';': save the file as comma-separated "
+                              "CSV with decimal points (0.5)")
     try:
         # low_memory=False: a text cell in a long numeric column is reported below, not as a DtypeWarning
         df = pd.read_csv(path, skipinitialspace=True, low_memory=False)

@@ -182,3 +182,34 @@ def test_band_error_covariance_is_the_band_sigma_and_sets_the_spread_of_honesty(
     # an identity covariance (independent samples): the rms of n = 400 unit normals is 1 +- 0.035
     neff, p_h, _ = est_mod.honesty_spread(np.eye(400))
     assert neff == pytest.approx(400) and p_h > 0.999
+
+
+@pytest.mark.parametrize("smoother", ["rts", "none"])
+def test_coarse_covariance_with_a_shorter_last_step_is_the_sample_recursion(smoother):
+    # (bug hunt 2026-11-26) a record whose length is no whole number of grid steps: the last
+    # step of idx is shorter, and the batched products ran past the record's end (IndexError on
+    # a 391 m run at 17 m/s). Against the recursion sample by sample (Rauch et al. 1965)
+    from trolley.inservice.estimator import _coarse_alignment_covariance
+    from trolley.inservice.model import XI_INDEX
+
+    P = ModelParameters()
+    t, s, X, Z, noise = _own_model_run(P, 403, 1, xi_density=4e-8)
+    e = estimate(P, t, s, 20.0, Z, noise=noise, smoother=smoother, initial_covariance=np.eye(7) * 1e-10)
+    idx = np.unique(np.r_[np.arange(0, len(s), 5), len(s) - 1])
+    assert idx[-1] - idx[-2] == 2
+    got = _coarse_alignment_covariance(e, idx)
+    n, T, Pxi = len(s), e.transitions, e.cov_xi
+    full = np.zeros((n, n))
+    for j in range(n):
+        W = Pxi[j].copy()
+        full[j, j] = W[XI_INDEX]
+        if smoother == "rts":      # Cov(e_k, e_j) = C_k ... C_(j-1) P_j, k < j
+            for k in range(j - 1, -1, -1):
+                W = T[k] @ W
+                full[k, j] = full[j, k] = W[XI_INDEX]
+        else:                      # Cov(e_i, e_j) = A_i ... A_(j+1) P_j, i > j
+            for i in range(j + 1, n):
+                W = T[i] @ W
+                full[i, j] = full[j, i] = W[XI_INDEX]
+    want = full[np.ix_(idx, idx)]
+    assert np.allclose(got, want, rtol=1e-9, atol=1e-12 * np.max(np.abs(want)))

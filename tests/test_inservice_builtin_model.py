@@ -171,13 +171,15 @@ def test_process_says_when_the_recording_is_at_another_speed_than_the_calibratio
     _, summary = _process(default_run / "recording", tmp_path / "same")
     assert summary["speed_check"] == {"checked": True, "calibration_m_s": 20.0, "recording_low_m_s": 20.0,
                                       "recording_high_m_s": 20.0, "tolerance": 0.03, "fits": True}
-    # the same recording said to be made at 22.5-25 m/s (the chainages kept): the model's Q, R, S
-    # are the 20 m/s runs'
+    # the same sensor data said to be recorded at 22.5-25 m/s (the chainage following that speed):
+    # the model's Q, R, S are the 20 m/s runs'
     rec = tmp_path / "fast"
     rec.mkdir()
     (rec / "inservice.toml").write_text((default_run / "recording" / "inservice.toml").read_text())
     df = pd.read_csv(default_run / "recording" / "sensors.csv")
-    df["speed_m_s"] = np.linspace(22.5, 25.0, len(df))
+    v = np.linspace(22.5, 25.0, len(df))
+    df["speed_m_s"] = v
+    df["s_m"] = df["s_m"].iloc[0] + np.r_[0.0, np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(df["t_s"]))]
     df.to_csv(rec / "sensors.csv", index=False)
     res, summary = _process(rec, tmp_path / "out")
     assert summary["speed_check"]["fits"] is False
@@ -195,3 +197,88 @@ def test_process_says_when_the_recording_is_at_another_speed_than_the_calibratio
     write_model(tmp_path / "old.toml", replace(read_model(BUILTIN_MODEL_PATH), speed_m_s=None))
     _, summary = _process(rec, tmp_path / "out_old", "--model", str(tmp_path / "old.toml"))
     assert summary["speed_check"]["checked"] is False and "no calibration speed" in summary["speed_check"]["reason"]
+
+
+def _edited(default_run, tmp_path, toml=None, csv=None, name="rec"):
+    """A copy of the default run's recording with inservice.toml / sensors.csv edited."""
+    rec = tmp_path / name
+    rec.mkdir()
+    text = (default_run / "recording" / "inservice.toml").read_text()
+    (rec / "inservice.toml").write_text(toml(text) if toml else text)
+    df = pd.read_csv(default_run / "recording" / "sensors.csv")
+    if csv:
+        df = csv(df)
+    df.to_csv(rec / "sensors.csv", index=False)
+    return rec
+
+
+def _slow_start(df):
+    v = df["speed_m_s"].to_numpy(dtype=float, copy=True)
+    v[4] = 0.04
+    return df.assign(speed_m_s=v)
+
+
+def _dropped_row(df):
+    return df.drop(index=57).reset_index(drop=True)
+
+
+@pytest.mark.parametrize("toml, csv, said", [
+    # (bug hunt 2026-11-26) each of these gave exit 0 and an all-empty estimate, or used the wrong model
+    (lambda t: t.replace("accelerometers_sense_gravity", "accelerometer_senses_gravity"), None,
+     "inservice.toml: unknown key sensors.accelerometer_senses_gravity (did you mean "
+     "sensors.accelerometers_sense_gravity?)"),
+    (None, lambda df: df.assign(t_s=df["t_s"] * 1000.0),
+     "run.rate_hz = 200, but the samples of sensors.csv are 5 s apart (0.2 Hz): column t_s in seconds?"),
+    (None, lambda df: df.assign(speed_m_s=df["speed_m_s"] * 1000.0),
+     "column speed_m_s: the chainage s_m advances at 0.001 times the speed column's value"),
+    (None, _slow_start, "sensors.csv: row 6, column speed_m_s: 0.04 m/s is below 1 m/s"),
+    (None, _dropped_row, "sensors.csv: row 59, column t_s: a step of 0.01 s after 0.28 s where the samples are "
+                         "0.005 s apart"),
+])
+def test_a_recording_that_contradicts_itself_is_refused_naming_where(default_run, tmp_path, toml, csv, said):
+    rec = _edited(default_run, tmp_path, toml, csv)
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and said in " ".join(res.output.split()), res.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_recording_of_another_named_vehicle_does_not_get_the_builtin_model(default_run, tmp_path):
+    # (bug hunt 2026-11-26) a vehicle file differing only in values a recording's [vehicle] does not
+    # hold wrote the same inservice.toml, and process said "which is this recording's vehicle"
+    assert 'name = "' + DEFAULT_VEHICLE_NAME + '"' in (default_run / "recording" / "inservice.toml").read_text()
+    rec = _edited(default_run, tmp_path, lambda t: t.replace(f'name = "{DEFAULT_VEHICLE_NAME}"', 'name = "EMU 3"'))
+    assert io.read_recording(rec).vehicle_name == "EMU 3"
+    res, summary = _process(rec, tmp_path / "out")
+    assert "its vehicle is 'EMU 3', the built-in model's" in " ".join(res.stderr.split())
+    assert summary["calibrated"] is False
+
+
+def test_a_silent_logger_does_not_fit_and_other_rates_and_the_forward_filter_are_warned(default_run, tmp_path):
+    # (bug hunt 2026-11-26) every sensor column 0 "fitted the calibration" (ratios 0.00); a model
+    # used at another filter rate, and the forward filter with a model tuned for the smoother, were
+    # 2-4 times worse with only a note, or no word
+    rec = _edited(default_run, tmp_path, csv=lambda df: df.assign(
+        wheelset_ay_m_s2=0.0, wheelset_wz_rad_s=0.0, frame_ay_m_s2=0.0))
+    res, summary = _process(rec, tmp_path / "out")
+    cons = summary["consistency"]
+    assert cons["checked"] and cons["consistent"] is False and cons["low"] == 0.3
+    assert max(cons["innovation_rms_ratio"].values()) < 0.3
+    assert "innovations 0.00 x the calibration's (< 0.3): a sensor silent or read at a wrong scale?" in \
+        " ".join(res.stderr.split())
+    res, summary = _process(default_run / "recording", tmp_path / "o2", "--filter-rate-hz", "100")
+    assert "the filter runs at 100 Hz and the model was calibrated at 200 Hz" in " ".join(res.stderr.split())
+    res, summary = _process(default_run / "recording", tmp_path / "o3", "--smoother", "none")
+    assert "--smoother none is the paper's forward filter alone" in " ".join(res.stderr.split())
+    # a recording under 200 m has no 3-200 m band: its honesty is null, not missing
+    res, summary = _process(default_run / "recording", tmp_path / "o4", "--truth", str(default_run / "truth.csv"))
+    assert summary["honesty_rms_error_over_sigma"] is None
+
+
+def test_a_semicolon_separated_sensors_csv_says_so(default_run, tmp_path):
+    # (bug hunt 2026-11-26) "missing column t_s" though t_s was in the header
+    rec = _edited(default_run, tmp_path)
+    df = pd.read_csv(rec / "sensors.csv")
+    df.to_csv(rec / "sensors.csv", sep=";", decimal=",", index=False)
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2
+    assert "sensors.csv: row 1: the columns are separated by ';'" in " ".join(res.output.split())

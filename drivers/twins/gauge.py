@@ -24,10 +24,10 @@ class GaugeTwin(PtyTwin):
     def __init__(self, t_s, gauge_m, status=None, realtime: bool = True,
                  faults: Faults | None = None, link_path=None, repeat: bool = False) -> None:
         t = np.asarray(t_s, float)
-        self.t_rel = t - t[0]
+        self.t_rel = t - (t[0] if t.size else 0.0)     # (no samples left: a session resumed after its last one)
         self.gauge_m = np.asarray(gauge_m, float)
         self.status = np.zeros(t.size, int) if status is None else np.asarray(status, int)
-        self.span_s = float(self.t_rel[-1] + (np.median(np.diff(self.t_rel)) if t.size > 1 else 1.0))
+        self.span_s = float(self.t_rel[-1] + np.median(np.diff(self.t_rel))) if t.size > 1 else 1.0
         self.lines = self._lines_for(0)
         self.realtime = realtime
         self.repeat = repeat

@@ -35,14 +35,15 @@ class ImuTwin(PtyTwin):
         self.scale = novatel.imu_scale(imu_type, rate_hz)
         g, a = novatel.counts_from_si(w_rad_s, f_m_s2, self.scale, novatel.axis_matrix(axes))
         self.gyro_counts, self.accel_counts = g, a
-        self.sow = sow0 + (t - t[0])
-        self.t_rel = t - t[0]
+        t0 = float(t[0]) if t.size else 0.0     # (no samples left: a session resumed after its last one)
+        self.sow = sow0 + (t - t0)
+        self.t_rel = t - t0
         info = np.zeros(t.size, np.uint8) if imu_info is None else np.asarray(imu_info, np.uint8)
         self.week, self.imu_type, self.imu_info = week, imu_type, info
         self.stream = novatel.encode_rawimusxb(week, self.sow, g, a, imu_type, info)
         self.n_frames = t.size
         # one repeat cycle lasts the block plus one sample period, so time steps stay uniform
-        self.span_s = float(self.t_rel[-1] + (np.median(np.diff(self.t_rel)) if t.size > 1 else 1.0))
+        self.span_s = float(self.t_rel[-1] + np.median(np.diff(self.t_rel))) if t.size > 1 else 1.0
         self.repeat = repeat
         self.realtime = realtime
         self.chunk_frames = chunk_frames

@@ -105,10 +105,20 @@ def _consistency_text(cons: dict) -> str:
     if not cons["checked"]:
         return f"not checked: {cons['reason']}"
     label, worst = _worst_sensor(cons)
+    quiet, least = _quietest_sensor(cons)
     if cons["consistent"]:
         return f"fits the calibration (largest innovation ratio {worst:.2f} <= {cons['limit']:g}, {label})"
+    if worst <= cons["limit"]:
+        return (f"DOES NOT FIT the calibration: {quiet} innovations {least:.2f} x the calibration's (< "
+                f"{cons['low']:g}): a sensor silent or read at a wrong scale?")
     return (f"DOES NOT FIT the calibration: {label} innovations {worst:.2f} x the calibration's "
             f"(> {cons['limit']:g}); the sigmas cannot be trusted")
+
+
+def _quietest_sensor(cons: dict) -> tuple[str, float]:
+    """The sensor with the smallest innovation ratio in a checked summary consistency: (label, ratio)."""
+    key, least = min(cons["innovation_rms_ratio"].items(), key=lambda kv: kv[1])
+    return SENSOR_LABELS[CONSISTENCY_KEYS.index(key)], least
 
 
 def _vehicle_text(check: dict) -> str:
@@ -178,11 +188,16 @@ def _builtin_model_for(rec):
     that says on stderr which model is used and why."""
     from survey.inservice_io import vehicle_differences
     from survey.inservice_model import BUILTIN_MODEL_PATH, model_provenance, read_model
+    from trolley.inservice.vehicle import DEFAULT_VEHICLE_NAME
 
     builtin = read_model(BUILTIN_MODEL_PATH)
     prov = model_provenance(BUILTIN_MODEL_PATH)
     diffs = vehicle_differences(rec, builtin.params)
-    if rec.sense_gravity != bool(builtin.params.sensor_gravity):
+    if rec.vehicle_name is not None and rec.vehicle_name != DEFAULT_VEHICLE_NAME:
+        # a vehicle file may differ in values the recording's [vehicle] does not hold
+        why = (f"its vehicle is {rec.vehicle_name!r}, the built-in model's {DEFAULT_VEHICLE_NAME!r}; calibrate for "
+               "it with `trolley inservice calibrate --vehicle FILE`")
+    elif rec.sense_gravity != bool(builtin.params.sensor_gravity):
         why = ("its accelerometers sense gravity (sensors.accelerometers_sense_gravity); calibrate with "
                "`trolley inservice calibrate --sensor-gravity`")
     elif diffs:
@@ -245,9 +260,7 @@ def process_cmd(
     if not np.all(np.diff(rec.s_m) > 0):
         i = int(np.argmax(np.diff(rec.s_m) <= 0))
         _fail(f"sensors.csv: row {i + 3}, column s_m: chainage must increase (the vehicle must move)")
-    dt = float(np.median(np.diff(rec.t_s)))
-    if not np.allclose(np.diff(rec.t_s), dt, rtol=1e-3):
-        _fail("sensors.csv: column t_s: sample times must be uniform")
+    dt = float(np.median(np.diff(rec.t_s)))       # (uniform: read_recording checks it)
     if tru is not None and (tru["s_m"][0] > rec.s_m[0] + 1e-6 or tru["s_m"][-1] < rec.s_m[-1] - 1e-6):
         _fail(f"{truth}: column s_m covers {tru['s_m'][0]:.2f}-{tru['s_m'][-1]:.2f} m, "
               f"the recording {rec.s_m[0]:.2f}-{rec.s_m[-1]:.2f} m")
@@ -255,6 +268,12 @@ def process_cmd(
     if mdl is None:
         mdl, model_label, default_note = _builtin_model_for(rec)
         console.print(default_note, highlight=False, markup=False, soft_wrap=True)
+    if smoother == "none":
+        # measured (docs/inservice.md, "The paper's estimator"; bug hunt 2026-11-26): Jrel about 1
+        console.print("warning: --smoother none is the paper's forward filter alone: calibrate tunes the model for "
+                      "the smoother, and with such a model the forward filter's estimate is no better than zero "
+                      "(Jrel 1.0 on the benchmark; 1.5 mm rms even with a model tuned for it)",
+                      highlight=False, markup=False, soft_wrap=True)
     z = np.column_stack([rec.wheelset_ay_m_s2, rec.wheelset_wz_rad_s, rec.frame_ay_m_s2])
     import filterpy.kalman  # noqa: F401  (imported before the clock: the speed is the filter's)
     import scipy.linalg  # noqa: F401
@@ -266,6 +285,14 @@ def process_cmd(
         _fail(f"{recording / 'sensors.csv'}: {exc}")
     if mdl is not None:
         m = mdl.at_dt(dt * q)
+        if m is not mdl:
+            # the rescaling of Q, R and S with dt is first order: measured on the benchmark (bug hunt
+            # 2026-11-26) J grows 2-4 times (0.31 -> 0.71 mm at 1000 Hz, 1.10 mm at 200 Hz with a
+            # 100 Hz model)
+            console.print(f"warning: the filter runs at {1.0 / (dt * q):g} Hz and the model was calibrated at "
+                          f"{1.0 / mdl.dt_s:g} Hz: J can be several times the calibrated one; use --filter-rate-hz "
+                          f"{1.0 / mdl.dt_s:g} or calibrate at this rate (--rate-hz / --filter-rate-hz)",
+                          highlight=False, markup=False, soft_wrap=True)
         est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
@@ -333,8 +360,12 @@ def process_cmd(
                           "its sigmas are for the model's accelerometers", highlight=False, markup=False, soft_wrap=True)
     summary["consistency"] = {"checked": False, "reason": not_checked} if fit is None else {
         "checked": True, "innovation_rms_ratio": dict(zip(CONSISTENCY_KEYS, map(float, fit.ratio))),
-        "limit": fit.limit, "consistent": fit.consistent}
-    if fit is not None and not fit.consistent:
+        "limit": fit.limit, "low": fit.low, "consistent": fit.consistent}
+    if fit is not None and not fit.consistent and _worst_sensor(summary["consistency"])[1] <= fit.limit:
+        console.print("warning: the recording does not fit the calibrated model: "
+                      + _consistency_text(summary["consistency"]).split(": ", 1)[1]
+                      + "; the estimate is not to be trusted", highlight=False, markup=False, soft_wrap=True)
+    elif fit is not None and not fit.consistent:
         label, worst = _worst_sensor(summary["consistency"])
         console.print(f"warning: the recording does not fit the calibrated model: the {label}'s "
                       f"normalized innovations are {worst:.2f} times the calibration runs' (limit "
@@ -351,6 +382,7 @@ def process_cmd(
         summary["accuracy"] = {b: {"J_mm": units.m_to_mm(a.J_m), "Jrel": a.Jrel, "rms_true_mm": units.m_to_mm(a.rms_true_m)}
                                for b, a in acc.items()}
         settle = s_f >= s_f[0] + SETTLE_M
+        summary["honesty_rms_error_over_sigma"] = None     # (no 3-200 m band below 200 m: null, said)
         if band is not None:
             bs = band[0] >= band[0][0] + SETTLE_M
             summary["honesty_rms_error_over_sigma"] = honesty(band[1][bs], band[2][bs], band[3][bs])

@@ -169,7 +169,8 @@ def simulate_cmd(
     try:
         out.mkdir(parents=True, exist_ok=True)
         with all_or_nothing():
-            inservice_io.write_recording(out / "recording", inservice_io.recording_from_run(run, params))
+            inservice_io.write_recording(out / "recording", inservice_io.recording_from_run(
+                run, params, vehicle_name=vehicle_name))
             inservice_io.write_truth(out / "truth.csv", run.s_m, run.alignment_m, run.vertical_m,
                                      run.curvature_1_m)
         write_marker(out, "inservice simulate")

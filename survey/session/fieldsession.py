@@ -154,6 +154,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._fix_distance_pending = False
         self._resume_moved = False  # resume: the trolley moved in the interrupted ``move`` step
         self._resume_seen_t = -math.inf  # resume: session time of the crew's last script step
+        # resume: the end of the last stop stored; the data streamed again up to it are that stop,
+        # not a new one (its row can be committed before the odometer rows that show it)
+        self._last_stop_end_s = -math.inf
         self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._confirm_end = False
         self._stop_held = False
@@ -554,7 +557,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self.screen.message = "no fix to undo"
             return
         fix = self.accepted_fixes.pop()
-        self.store.decide_fix(fix.fix_id, False, "undone by the crew")
+        self.store.decide_fix(fix.fix_id, False, "undone by the crew",
+                              event=(self.rec.session_id, SessionEvent(self.now(), "undo", fix.point)))
         replay = self._live_replay
         if replay and replay[-1].fix_id == fix.fix_id:
             replay.pop()  # resumed, and not replayed yet: it never will be
@@ -614,7 +618,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._replay_due()
         standing, speed, dist = self.motion()
         t = self.now()
-        if standing and self.stop_started_s is None and self.aligned:
+        if standing and self.stop_started_s is None and self.aligned and t > self._last_stop_end_s:
             self.stop_started_s = t
             if self.accepted_fixes and abs(dist - self.last_fix_distance_m) > 1.0:
                 self.say(f"standing at {self.shown_station(self.chainage_now(dist)):.1f} m: f = take a fix")
@@ -911,7 +915,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             elif ev.kind == "reopened":  # the script of a reopened session starts again
                 self.script_index = 0
         fixes = self.store.fixes(sid, accepted_only=True)
-        self.stop_count = len(self.store.stops(sid))
+        stops = self.store.stops(sid)
+        self.stop_count = len(stops)
+        self._last_stop_end_s = stops[-1].t_end_s if stops else -math.inf
+        self._restore_open_stop()
         self.accepted_fixes.extend(fixes)
         self._set_last_fix(fixes[-1] if fixes else None)
         all_fixes = self.store.fixes(sid)
@@ -929,6 +936,21 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._event("resumed", f"data up to t = {self.data_time():.3f} s")
         self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
                  f"data up to t = {self.data_time():.1f} s")
+
+    def _restore_open_stop(self) -> None:
+        """A stop the trolley stood at when the session died (stored only when it is left): it began
+        when the stored odometer came to rest, not at the resume."""
+        if not self.aligned:
+            return
+        t, d = self.store.odometer_arrays(self.rec.session_id)
+        if t.size < 2:
+            return
+        moved = np.flatnonzero(np.abs(d - d[-1]) > STAND_TOLERANCE_M)
+        rest = float(t[moved[-1] + 1]) if moved.size else float(t[0])
+        if moved.size == 0 and self.static_start_s is not None:
+            rest = max(rest, float(self.static_start_s))
+        if rest > self._last_stop_end_s and t[-1] - rest >= STAND_WINDOW_S:
+            self.stop_started_s = rest
 
     def _resume_script_step(self, all_fixes: list[FixRecord]) -> None:
         """The script step the crash interrupted: a fix or a note stored after the last ``script``
@@ -949,6 +971,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t
         elif a.name == "note":
             done = any(n.t_s >= last_step_t and n.text == a.text for n in self.store.notes(self.rec.session_id))
+        elif a.name in ("undo", "turn", "pause", "resume"):
+            # each stores its event with its effect (undo: in one transaction with the decision):
+            # done again it would undo the fix before, or turn the trolley back
+            done = any(e.kind == a.name for e in events[last + 1:])
         elif a.name == "station":
             changes = [e for e in events[last + 1:] if e.kind == "station_change"]
             if changes:

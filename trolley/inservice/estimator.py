@@ -406,7 +406,8 @@ def innovation_rms(est: AlignmentEstimate, skip_m: float = SETTLE_M) -> np.ndarr
 
 
 def _coarse_alignment_covariance(est: AlignmentEstimate, idx: np.ndarray) -> np.ndarray:
-    """Covariance of the alignment errors at the equally spaced samples ``idx`` (m x m).
+    """Covariance of the alignment errors at the samples ``idx`` (m x m), equally spaced but the
+    last step, which may be shorter.
 
     The smoother's errors obey e_k = C_k e_(k+1) + u_k with u_k independent of every later error,
     so Cov(e_k, e_j) = C_k ... C_(j-1) P_j for k < j (Rauch et al. 1965); the forward filter's obey
@@ -415,15 +416,17 @@ def _coarse_alignment_covariance(est: AlignmentEstimate, idx: np.ndarray) -> np.
     columns of P through them for all samples at once.
     """
     m = len(idx)
-    d = int(idx[1] - idx[0]) if m > 1 else 1
+    steps = np.diff(idx)       # equal but the last, which ends at the record's last sample
     T = est.transitions
     ns = T.shape[1]
     G = np.broadcast_to(np.eye(ns), (max(m - 1, 0), ns, ns)).copy()
-    for r in range(d):
+    for r in range(int(steps.max()) if m > 1 else 0):
+        on = r < steps
+        k = idx[:-1][on]
         if est.smoother == "rts":          # C_k C_(k+1) ... C_(k+d-1), k = idx[c]
-            G = G @ T[idx[:-1] + r]
+            G[on] = G[on] @ T[k + r]
         else:                              # A_(k+d) ... A_(k+1)
-            G = T[idx[:-1] + 1 + r] @ G
+            G[on] = T[k + 1 + r] @ G[on]
     W = np.zeros((ns, m))
     C = np.zeros((m, m))
     P = est.cov_xi[idx]
