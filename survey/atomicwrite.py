@@ -356,9 +356,13 @@ def guard_overwrite(out: Path, command: str, force: bool, option: str = "--out",
     if not force and not reuse_own:
         raise OutputError(f"{option} {out}: already exists and is not empty (use {force_option} to replace it)")
     if not made_by(out, command):
-        raise OutputError(f"{option} {out}: exists and was not made by `trolley {command}` (no {MARKER_NAME} "
-                          "marker); an existing session, recording or other folder is never replaced, "
-                          "choose another folder")
+        try:
+            other = (out / MARKER_NAME).read_text(encoding="utf-8").strip()
+        except (OSError, UnicodeDecodeError):
+            other = ""
+        made = f"its {MARKER_NAME} marker says `trolley {other}`" if other else f"no {MARKER_NAME} marker"
+        raise OutputError(f"{option} {out}: exists and was not made by `trolley {command}` ({made}); an existing "
+                          "session, recording or other folder is never replaced, choose another folder")
 
 
 def remove_own_folder(out: Path, command: str) -> None:

@@ -140,10 +140,12 @@ class OutputFolderError(ValueError):
 
 
 def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, session_dir: Path,
-                  stationing: Stationing | None = None) -> WrittenOutputs:
+                  stationing: Stationing | None = None, project_name: str | None = None,
+                  session_name: str | None = None) -> WrittenOutputs:
     """Write track.csv, fixes.csv and summary.json as the folder ``out_dir``, all or nothing.
 
-    ``stationing`` (the design's station equations) gives track.csv its drawing chainage.
+    ``stationing`` (the design's station equations) gives track.csv its drawing chainage;
+    ``project_name``, ``session_name``: see :func:`summary_dict`.
 
     The files are written into a new hidden folder beside ``out_dir`` and that folder is renamed
     to ``out_dir`` when all three are complete. An existing ``out_dir`` (from an earlier run)
@@ -183,7 +185,8 @@ def write_outputs(out_dir: Path, result: ProcessResult, session: RawSession, ses
         write_track_csv(tmp / "track.csv", result, stationing)
         fixes_frame(result).to_csv(tmp / "fixes.csv", index=False, float_format="%.6f", na_rep="")
         # jsonout: a value that does not exist (the RMS innovation of one fix) is null, never NaN
-        (tmp / "summary.json").write_text(jsonout.dumps(summary_dict(result, session, session_dir), indent=2) + "\n",
+        (tmp / "summary.json").write_text(jsonout.dumps(summary_dict(
+            result, session, session_dir, project_name=project_name, session_name=session_name), indent=2) + "\n",
                                           encoding="utf-8")
         move_into_place(tmp, out_dir)
     finally:

@@ -458,6 +458,12 @@ PROBES: list[Probe] = [
           ["survey", "start", "p", "--session", "../../x", "--root", str(t / "r")], ("../../x",)),
     Probe("survey-start/session-markup-slash", lambda t, i: new_project(t / "r") or
           ["survey", "start", "p", "--session", "CP[/x]1", "--root", str(t / "r")], ("CP[/x]1", "path separator")),
+    Probe("survey-start/out-not-a-folder", lambda t, i: new_project(t / "r") or (t / "f.txt").write_text("x") and
+          (t / "s.txt").write_text("fix\nend\n") and
+          ["survey", "start", "p", "--session", "s1", "--root", str(t / "r"), "--simulate", "--script",
+           str(t / "s.txt"), "--out", str(t / "f.txt" / "out")], ("f.txt/out", "cannot write there",
+                                                                  "nothing was stored"),
+          may_write=(".session-s1.lock",)),
     Probe("survey-start/no-project", lambda t, i: ["survey", "start", "nope", "--session", "s", "--root",
                                                    str(t / "r")], ("nope",)),
     Probe("survey-start/markup-session", lambda t, i: ["survey", "start", "[blink red]", "--session", "[bold]s1",

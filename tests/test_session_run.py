@@ -115,6 +115,11 @@ def test_scripted_session_records_everything_and_processes(project):
         assert all(any(s.t_start_s <= fx.t_s <= s.t_end_s for s in stops) for fx in fixes)
         notes = st.notes(sid)
         assert [n.text for n in notes] == ["hello from the crew"]
+        # the processed summary names the project and the session, as the sheet does
+        import json
+
+        doc = json.loads((root / "projects" / "t1" / "sessions" / "ref" / "processed" / "summary.json").read_text())
+        assert (doc["project"], doc["session"]) == ("t1", "ref")
         assert abs(notes[0].chainage_m - 60.0) < 0.05  # taken at the second stop
         assert all(s.accepted and s.dof > 0 for s in setups)
         track = final_track(st, "ref")

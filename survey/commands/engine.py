@@ -66,7 +66,8 @@ _READ_SHARE, _WRITE_SHARE = 0.15, 0.05
 
 
 def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float = 0.625,
-                force_accept: tuple[str, ...] = (), observability: bool = False):
+                force_accept: tuple[str, ...] = (), observability: bool = False,
+                project_name: str | None = None, session_name: str | None = None):
     """Read, process and write one session; exits with a clear message on bad input.
 
     The progress bar follows the engine's own sub-steps (dead reckoning, each filter and
@@ -123,7 +124,7 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         report("writing the outputs", 1.0 - _WRITE_SHARE)
         try:
             written = write_outputs(out, result, session, session_dir,
-                                    None if design is None else design.stationing)
+                                    None if design is None else design.stationing, project_name, session_name)
         except OutputFolderError as exc:
             fail(str(exc))
         except OSError as exc:

@@ -138,6 +138,26 @@ def read_devices(path: Path) -> tuple[dict, dict]:
     return ports, options
 
 
+def _check_writable(out: Path, resume: bool) -> None:
+    """Refuse an output folder the end of the session could not write, before anything is stored
+    or surveyed (bug hunt 2026-11-26: the session was stored, then the start failed, and a retry
+    was refused as existing)."""
+    import tempfile
+
+    from survey.errors import os_error_text
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        if resume:
+            fail(f"--out {out}: cannot write there ({os_error_text(exc)}); the session is kept as it was",
+                 "resume with --out ANOTHER_FOLDER")
+        fail(f"--out {out}: cannot write there ({os_error_text(exc)}); nothing was stored",
+             "choose another --out folder")
+
+
 def run_session(project: str, session: str, root: Path, devices: Optional[Path], simulate: bool,
                 script: Optional[Path], speedup: Optional[float], out: Optional[Path], resume: bool,
                 live: bool = True, con: Console | None = None, reopen: bool = False, out_checked: bool = False):
@@ -172,6 +192,9 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             # the script of the last start or reopen that had one
             kept = [json.loads(e.detail).get("script") for e in events if e.kind == "script_file"]
             kept = kept[-1] if kept else start.get("script")
+            if script is not None and kept and not reopen and script.resolve() != Path(kept).resolve():
+                (con or err).print(f"note: --script {script} is not the script this session ran ({kept}); it goes on at "
+                          "the step the interrupted one had reached (said below)", highlight=False, markup=False)
             script = script if script is not None else (Path(kept) if kept else None)
             devices = devices if devices is not None else (Path(start["devices"]) if start.get("devices") else None)
             if out is None and start.get("out"):
@@ -202,6 +225,7 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                 guard_overwrite(out, owner, force=False, reuse_own=True)
             except OutputError as exc:
                 fail(str(exc))
+        _check_writable(out, resume)
         world = ports = options = None
         if simulate:
             world = simulated_world(store, speedup)

@@ -378,11 +378,17 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             table.add_row("totalstation", escape(str(self.ports["totalstation"])), f"[red]{escape(str(exc))}[/]")
             problems.append(("totalstation", str(exc), "switch the instrument on, check GeoCOM on the serial port "
                                                        "and its baud rate"))
-        deadline = time.monotonic() + self.config.device_wait_s
+        # a simulated session resumed after its last sample: its twins have nothing left to send,
+        # and the resume goes on to the end (bug hunt 2026-11-26: it stopped here for good)
+        over = self.world is not None and self.resume and self.world.finished(self.data_time())
+        deadline = time.monotonic() + (0.0 if over else self.config.device_wait_s)
         while time.monotonic() < deadline and any(n == 0 for n in self._new_samples().values()):
             time.sleep(0.05)
         for name, n in self._new_samples().items():
             port = self.ports[name]
+            if n == 0 and over:
+                table.add_row(name, port, "[green]ok[/] the simulated survey is over: nothing left to send")
+                continue
             mismatch = (encoder.width_mismatch_error(self.acq.links[name].stats, self.acq.odo_cfg, port)
                         if name == "odometer" else None)
             if n == 0 and mismatch is not None:  # replies arrive, but of another counter width
@@ -554,7 +560,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def undo_last_fix(self) -> None:
         if not self.accepted_fixes:
-            self.screen.message = "no fix to undo"
+            self.say("no fix to undo")
             return
         fix = self.accepted_fixes.pop()
         self.store.decide_fix(fix.fix_id, False, "undone by the crew",
@@ -621,7 +627,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if standing and self.stop_started_s is None and self.aligned and t > self._last_stop_end_s:
             self.stop_started_s = t
             if self.accepted_fixes and abs(dist - self.last_fix_distance_m) > 1.0:
-                self.say(f"standing at {self.shown_station(self.chainage_now(dist)):.1f} m: f = take a fix")
+                here = self.shown_station(self.chainage_now(dist))
+                # (unknown right after a resume, until the odometer data up to the last fix are in)
+                self.say(f"standing at {here:.1f} m: f = take a fix" if np.isfinite(here)
+                         else "standing (chainage -): f = take a fix")
         elif not standing and self.stop_started_s is not None:
             self.store.add_stop(self.rec.session_id, self._stop_record(t))
             self.stop_started_s = None
@@ -933,6 +942,16 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             f = all_fixes[-1]
             self.pending = (f.fix_id, f, None)
             self.say(f"suspicious fix {f.point} still to decide ({f.reason}): r = measure again, a = accept anyway")
+        script = self.config.script
+        if script is not None and 0 < self.script_index and not self.config.reopen:
+            # where a script given again (or another one) goes on: never silently past lines
+            if self.script_index < len(script):
+                a = script[self.script_index]
+                self.say(f"the script goes on at its step {self.script_index + 1} of {len(script)} (line {a.line}: "
+                         f"{a.name}{' ' + a.text if a.text else ''}): the steps before it were done before the "
+                         "interruption")
+            else:
+                self.say(f"the script's {len(script)} steps were all done before the interruption")
         self._event("resumed", f"data up to t = {self.data_time():.3f} s")
         self.say(f"resumed session {self.name}: {len(self.accepted_fixes)} fixes kept, "
                  f"data up to t = {self.data_time():.1f} s")

@@ -53,7 +53,8 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     raw = replace(raw, meta=replace(raw.meta, design_alignment="alignment.xml" if xml else None))
     console.print("end of session: exporting the raw session, re-processing it (filter + RTS smoother) ...")
     write_session(session_dir, raw, xml, overwrite=True)
-    result, _, written = run_process(session_dir, out_dir / "processed")
+    result, _, written = run_process(session_dir, out_dir / "processed", project_name=store.info().name,
+                                     session_name=name)
     rec = store.session(name)
     st = result.stations
     from survey.fieldrecord import field_record, write_field_record

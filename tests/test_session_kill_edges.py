@@ -1,0 +1,105 @@
+"""SIGKILL at the edges a field-crew bug hunt found (2026-11-26), then ``trolley survey resume``:
+right after a scripted ``undo`` (it was done again on resume, undoing the fix before), and after
+the session's last sample but before its end (the resume died with an internal error, for good).
+The kill is timed by polling the store; a kill that comes later than the edge makes the test
+pass without testing it, never fail."""
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from session_project import make_project
+
+TROLLEY = [sys.executable, "-m", "survey.cli"]
+
+
+def _query(db, sql: str, *args):
+    try:
+        c = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.2)
+        try:
+            return c.execute(sql, args).fetchone()
+        finally:
+            c.close()
+    except sqlite3.Error:
+        return None
+
+
+def _kill_when(root, session: str, script: str, condition, timeout_s: float = 90.0) -> None:
+    (root / f"{session}.txt").write_text(script)
+    p = subprocess.Popen(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", session,
+                                    "--simulate", "--speedup", "40", "--script", f"{session}.txt"],
+                         cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert p.poll() is None, f"the session ended before the kill (exit {p.returncode})"
+        assert time.monotonic() < deadline
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+
+
+def _resume(root, session: str, *extra: str):
+    r = subprocess.run(TROLLEY + ["survey", "resume", "t1", "--root", "projects", "--session", session,
+                                  "--speedup", "40", *extra], cwd=root, capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "COLUMNS": "160"})
+    assert r.returncode == 0, r.stderr[-3000:]
+    return r
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("kill_edges")
+    make_project(root / "projects")
+    return root
+
+
+def test_a_scripted_undo_killed_before_its_step_was_counted_is_not_done_again(root):
+    db = root / "projects" / "t1" / "project.sqlite"
+    _kill_when(root, "undo", "fix\nmove\nfix\nmove\nfix\nundo\nend\n",
+               lambda: (_query(db, "SELECT COUNT(*) FROM fix_decision WHERE reason LIKE 'undone%'") or (0,))[0] > 0)
+    # the crew gives the script again, as a copy elsewhere: it is said where it goes on
+    (root / "copy.txt").write_text((root / "undo.txt").read_text())
+    r = _resume(root, "undo", "--script", "copy.txt")
+    said = " ".join(r.stderr.split())
+    assert "--script copy.txt is not the script this session ran" in said
+    assert "the script goes on at its step" in said or "steps were all done before the interruption" in said
+    from survey.store import ProjectStore
+
+    with ProjectStore.open(root / "projects" / "t1") as st:
+        fixes = st.fixes(st.session("undo").session_id)
+        undone = st.connection.execute("SELECT COUNT(*) FROM fix_decision WHERE reason LIKE 'undone%'").fetchone()[0]
+    assert [f.accepted for f in fixes] == [True, True, False] and undone == 1
+    assert fixes[2].reason == "undone by the crew"
+
+
+def test_a_session_killed_after_its_last_sample_is_ended_by_the_resume(root):
+    from survey.commands.survey import simulated_world
+    from survey.store import ProjectStore
+
+    db = root / "projects" / "t1" / "project.sqlite"
+    with ProjectStore.open(root / "projects" / "t1") as st:
+        last_t = float(simulated_world(st, 1.0).sim.session.imu_t_s[-1])
+
+    def after_the_last_sample():
+        row = _query(db, "SELECT (SELECT MAX(t_s) FROM imu_sample s JOIN session n ON n.id = s.session_id "
+                         "WHERE n.name = 'last') >= ?, (SELECT COUNT(*) FROM session_event e JOIN session n ON "
+                         "n.id = e.session_id WHERE n.name = 'last' AND e.kind = 'end')", last_t - 1e-6)
+        return bool(row and row[0] and not row[1])
+
+    _kill_when(root, "last", "fix\nmove\nfix\nmove\nfix\nend\n", after_the_last_sample)
+    _resume(root, "last")
+    with ProjectStore.open(root / "projects" / "t1") as st:
+        sid = st.session("last").session_id
+        assert st.session("last").state == "ended"
+        stops = st.stops(sid)
+        assert [f.accepted for f in st.fixes(sid)] == [True, True, True]
+    # the stops at 0, 60 and 120 m, each once
+    assert [s.label for s in stops] == ["S000", "S001", "S002"]
+    assert np.allclose([s.chainage_m for s in stops], [0.0, 60.0, 120.0], atol=0.05)
+    assert (root / "projects" / "t1" / "sessions" / "last" / "survey.xlsx").is_file()
