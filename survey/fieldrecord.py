@@ -107,6 +107,15 @@ class RecordStop:
     chainage_m: float
 
 
+@dataclass(frozen=True)
+class RecordNote:
+    """A note the crew took (time, internal chainage where the trolley was, text as typed)."""
+
+    t_s: float
+    chainage_m: float
+    text: str
+
+
 @dataclass
 class FieldRecord:
     """Everything of :data:`FIELD_RECORD`."""
@@ -120,6 +129,7 @@ class FieldRecord:
     setups: list[RecordSetup] = field(default_factory=list)
     overlaps: list[RecordOverlap] = field(default_factory=list)
     stops: list[RecordStop] = field(default_factory=list)
+    notes: list[RecordNote] = field(default_factory=list)
 
     @property
     def rejected(self) -> list[RecordFix]:
@@ -170,7 +180,8 @@ def field_record(store, session_name: str) -> FieldRecord:
         start_utc=span[0] if span else "", end_utc=span[1] if span else "",
         fixes=fixes, setups=out_setups, overlaps=overlap_checks(fixes, store.settings().overlap_tolerance_m),
         stops=[RecordStop(float(p.t_start_s), float(p.t_end_s), p.label, float(p.chainage_m))
-               for p in store.stops(sid)])
+               for p in store.stops(sid)],
+        notes=[RecordNote(float(n.t_s), float(n.chainage_m), n.text) for n in store.notes(sid)])
 
 
 def crs_header(store, rec) -> dict[str, str]:
@@ -270,6 +281,9 @@ def read_field_record(path: Path) -> FieldRecord:
     def stop(d) -> RecordStop:
         return RecordStop(num(d["t_start_s"]), num(d["t_end_s"]), str(d["label"]), num(d["chainage_m"]))
 
+    def note(d) -> RecordNote:
+        return RecordNote(num(d["t_s"]), num(d["chainage_m"]), str(d["text"]))
+
     header = doc.get("header", {})
     if not isinstance(header, dict):
         raise ExportInputError(f"{path}: key header: expected an object")
@@ -277,8 +291,8 @@ def read_field_record(path: Path) -> FieldRecord:
                        header={str(k): str(v) for k, v in header.items()},
                        start_utc=str(doc.get("start_utc", "")), end_utc=str(doc.get("end_utc", "")),
                        fixes=rows("fixes", fix), setups=rows("setups", setup), overlaps=rows("overlaps", overlap),
-                       stops=rows("stops", stop))
+                       stops=rows("stops", stop), notes=rows("notes", note))   # (older records: no notes)
 
 
 __all__ = ["FIELD_RECORD", "FORMAT", "FieldRecord", "RecordFix", "RecordSetup", "RecordPointing", "RecordOverlap",
-           "RecordStop", "field_record", "overlap_checks", "read_field_record", "record_json", "write_field_record"]
+           "RecordStop", "RecordNote", "field_record", "overlap_checks", "read_field_record", "record_json", "write_field_record"]

@@ -413,6 +413,29 @@ def _fixes_sheet(ws, rep: SurveyReport) -> None:
         ws.column_dimensions[_col_letter(j)].width = w
 
 
+def _notes_sheet(ws, rep: SurveyReport) -> None:
+    """The crew's notes (from the field record): time, chainage as the sheet shows it, text."""
+    from openpyxl.styles import Alignment
+
+    r0 = _sheet_header(ws, rep, "Notes: what the crew noted in the field", 3)
+    for j, w in enumerate((10, 14, 90), start=1):
+        ws.column_dimensions[_col_letter(j)].width = w
+    if rep.record is None:
+        put_text(ws, r0, 1, "no field record beside track.csv (a track processed outside a field session): "
+                            "no crew notes")
+        return
+    _header(ws, r0, ["t [s]", "Chainage [m]", "Note"])
+    ws.freeze_panes = f"A{r0 + 1}"
+    if not rep.record.notes:
+        put_text(ws, r0 + 1, 3, "the crew took no notes")
+    for i, n in enumerate(rep.record.notes, start=r0 + 1):
+        _num(ws, i, 1, n.t_s, "0.000")
+        shown = n.chainage_m if rep.stationing is None or not math.isfinite(n.chainage_m) else \
+            float(rep.stationing.station(n.chainage_m))
+        _num(ws, i, 2, shown, "0.000")
+        put_text(ws, i, 3, n.text).alignment = Alignment(wrap_text=True, vertical="top")
+
+
 def _stations_sheet(ws, rep: SurveyReport) -> None:
     """Every free-station setup with its residual table, the points used and dropped, and the
     overlap checks with their verdict (from the field record)."""
@@ -854,6 +877,7 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     defects = wb.create_sheet("Defects")
     fixes = wb.create_sheet("Fixes")
     stations = wb.create_sheet("Free stations")
+    notes = wb.create_sheet("Notes")
     charts = wb.create_sheet("Charts")
     chart_data = wb.create_sheet("ChartData")
     chart_data.sheet_state = "hidden"
@@ -863,11 +887,12 @@ def write_workbook(path: Path, rep: SurveyReport, timings: dict[str, float] | No
     _defects_sheet(defects, rep)
     _fixes_sheet(fixes, rep)
     _stations_sheet(stations, rep)
+    _notes_sheet(notes, rep)
     _charts_sheet(charts, TRACK_SHEET, rep, n)
     _print_setup(summary, rep, None)
     _track_print_setup(track, rep)
     titles = f"1:{TABLE_ROW}"
-    for ws in (printable, defects, fixes):
+    for ws in (printable, defects, fixes, notes):
         _print_setup(ws, rep, titles)
     _print_setup(stations, rep, f"1:{HEADER_ROWS}")
     _print_setup(charts, rep, f"1:{HEADER_ROWS}", fit_width=False)

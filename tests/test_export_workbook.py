@@ -79,7 +79,7 @@ def test_workbook_structure(exported):
 
     base, res = exported
     wb = load_workbook(base / "survey.xlsx")
-    assert wb.sheetnames == ["Summary", "Track", "Track print", "Defects", "Fixes", "Free stations", "Charts",
+    assert wb.sheetnames == ["Summary", "Track", "Track print", "Defects", "Fixes", "Free stations", "Notes", "Charts",
                              "ChartData"]
     assert wb["ChartData"].sheet_state == "hidden"
     ws = wb["Track"]

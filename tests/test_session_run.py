@@ -120,6 +120,14 @@ def test_scripted_session_records_everything_and_processes(project):
 
         doc = json.loads((root / "projects" / "t1" / "sessions" / "ref" / "processed" / "summary.json").read_text())
         assert (doc["project"], doc["session"]) == ("t1", "ref")
+        # the crew's note reaches the client: in the field record and on the sheet's Notes
+        from openpyxl import load_workbook
+
+        record = json.loads((root / "projects/t1/sessions/ref/processed/field_record.json").read_text())
+        assert [(n["text"], round(n["chainage_m"])) for n in record["notes"]] == [("hello from the crew", 60)]
+        ws = load_workbook(root / "projects/t1/sessions/ref/survey.xlsx")["Notes"]
+        cells = [c.value for row in ws.iter_rows() for c in row]
+        assert "hello from the crew" in cells
         assert abs(notes[0].chainage_m - 60.0) < 0.05  # taken at the second stop
         assert all(s.accepted and s.dof > 0 for s in setups)
         track = final_track(st, "ref")
