@@ -143,7 +143,7 @@ def read_model(path: str | os.PathLike):
     _check_covariances(Q, R, fname)
     nu = None
     if "innovation_rms" in noi:      # (optional: files written before the consistency check lack it)
-        nu = _vector(noi, "innovation_rms", 3, fname)
+        nu = _vector(noi, "innovation_rms", 3, fname, signed=True)
         if not np.all(nu > 0):
             raise ModelFileError(f"{fname}: noise.innovation_rms must be 3 numbers > 0, got {noi['innovation_rms']!r}")
     scalars = {k: _number(noi, k, "noise", fname)

@@ -125,8 +125,10 @@ def _unknown(table: dict, known, where: str, fname: str) -> None:
 def _check_range(key: str, value: float, where: str, fname: str) -> None:
     lo, hi = RANGES[key]
     if not lo <= value <= hi:
+        unit = ("metres, not millimetres?" if key.endswith("_m") else "kilograms, not tonnes?" if key.endswith("_kg")
+                else "SI units")
         raise VehicleFileError(f"{fname}: {where}.{key} = {value:g} is outside {lo:g}..{hi:g}, the range of rail "
-                               "vehicles (SI units: metres, not millimetres?)")
+                               f"vehicles ({unit})")
 
 
 def read_vehicle(path: str | os.PathLike) -> VehicleFile:

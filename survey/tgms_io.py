@@ -153,6 +153,17 @@ def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
 _TGMS_PLAUSIBLE_ABS = {"count": 1e12, "frame": 1e12, "u_px": 1e5, "v_px": 1e5, "s_m": 1e8}
 
 
+def _cells_in_row(path: Path, row: int) -> int:
+    """How many comma-separated cells row ``row`` (1-based, as an editor shows it) of a file has;
+    read only on the way to an error message."""
+    import csv
+    import itertools
+
+    with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
+        rec = next(itertools.islice(csv.reader(fh), row - 1, None), [])
+    return len(rec)
+
+
 def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
               monotonic: str | None = "t_s", strict: bool = False, min_rows: int = 1) -> dict[str, np.ndarray]:
     name = path.name
@@ -195,6 +206,9 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         bad = ~np.isfinite(vals)
         if bad.any():
             i = int(np.argmax(bad))
+            if pd.isna(col.iloc[i]) and _cells_in_row(path, int(line[i])) < len(df.columns):
+                raise TgmsFormatError(f"{name}: row {line[i]}: {_cells_in_row(path, int(line[i]))} cells, the "
+                                      f"header has {len(df.columns)} columns (a row cut short?)")
             raise TgmsFormatError(f"{name}: row {line[i]}, column {c}: not a finite number ({str(col.iloc[i])!r})")
         limit = PLAUSIBLE_ABS.get(c, _TGMS_PLAUSIBLE_ABS.get(c, np.inf))
         far = np.abs(vals) > limit

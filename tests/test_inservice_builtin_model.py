@@ -282,3 +282,13 @@ def test_a_semicolon_separated_sensors_csv_says_so(default_run, tmp_path):
     res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
     assert res.exit_code == 2
     assert "sensors.csv: row 1: the columns are separated by ';'" in " ".join(res.output.split())
+
+
+def test_a_row_cut_short_is_named_as_such(default_run, tmp_path):
+    # (bug hunt 2026-11-26) it was "not a finite number ('nan')", as for a cell holding nan
+    rec = _edited(default_run, tmp_path)
+    lines = (rec / "sensors.csv").read_text().split("\n")
+    lines[10] = ",".join(lines[10].split(",")[:4])
+    (rec / "sensors.csv").write_text("\n".join(lines))
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and "sensors.csv: row 11: 4 cells, the header has 6 columns" in res.output

@@ -122,8 +122,16 @@ def test_model_file_round_trip_and_errors(tmp_path):
     write_model(tmp_path / "model_nu.toml", replace(m, innovation_rms=np.array([0.14, 0.41, 0.19])))
     assert np.array_equal(read_model(tmp_path / "model_nu.toml").innovation_rms, [0.14, 0.41, 0.19])
     (tmp_path / "bad3.toml").write_text((tmp_path / "model_nu.toml").read_text().replace("[0.14,", "[-0.14,"))
-    with pytest.raises(ModelFileError, match="bad3.toml: noise.innovation_rms must be 3 finite numbers"):
+    with pytest.raises(ModelFileError, match=r"bad3.toml: noise.innovation_rms must be 3 numbers > 0"):
         read_model(tmp_path / "bad3.toml")
+    # (bug hunt 2026-11-26) 0 and a negative value get the same message; a negative conicity is
+    # refused like a zero mass
+    (tmp_path / "bad4.toml").write_text((tmp_path / "model_nu.toml").read_text().replace("[0.14,", "[0.0,"))
+    with pytest.raises(ModelFileError, match=r"bad4.toml: noise.innovation_rms must be 3 numbers > 0"):
+        read_model(tmp_path / "bad4.toml")
+    (tmp_path / "bad5.toml").write_text(model_toml_text(m).replace("conicity = 0.15", "conicity = -0.15"))
+    with pytest.raises(ModelFileError, match=r"bad5.toml: .*conicity must be > 0"):
+        read_model(tmp_path / "bad5.toml")
     bad = model_toml_text(m).replace("kx = 1000000.0", 'kx = "stiff"')
     (tmp_path / "bad.toml").write_text(bad)
     with pytest.raises(ModelFileError, match="bad.toml: parameters.kx must be a finite number"):

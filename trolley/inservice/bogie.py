@@ -142,7 +142,7 @@ class BogieParameters(DesignParameters):
 
     #: model kind written to model.toml
     KIND = "bogie"
-    POSITIVE = ("m", "I", "l", "a", "r0", "mf", "If", "mb")
+    POSITIVE = ("m", "I", "l", "ls", "a", "conicity", "r0", "mf", "If", "mb", "f11", "f22")
 
     def __post_init__(self):
         self._check("bogie model parameter")

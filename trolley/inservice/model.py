@@ -219,7 +219,7 @@ class ModelParameters(DesignParameters):
 
     #: model kind written to model.toml (the bogie model of trolley.inservice.bogie is "bogie")
     KIND = "paper"
-    POSITIVE = ("m", "I", "l", "r0", "mf")
+    POSITIVE = ("m", "I", "l", "ls", "conicity", "r0", "mf", "f11", "f22")
 
     def __post_init__(self):
         self._check("model parameter")
