@@ -130,7 +130,7 @@ def test_model_file_round_trip_and_errors(tmp_path):
     with pytest.raises(ModelFileError, match=r"bad4.toml: noise.innovation_rms must be 3 numbers > 0"):
         read_model(tmp_path / "bad4.toml")
     (tmp_path / "bad5.toml").write_text(model_toml_text(m).replace("conicity = 0.15", "conicity = -0.15"))
-    with pytest.raises(ModelFileError, match=r"bad5.toml: .*conicity must be > 0"):
+    with pytest.raises(ModelFileError, match=r"bad5.toml: .*conicity must be >= 0"):
         read_model(tmp_path / "bad5.toml")
     bad = model_toml_text(m).replace("kx = 1000000.0", 'kx = "stiff"')
     (tmp_path / "bad.toml").write_text(bad)

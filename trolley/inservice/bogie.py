@@ -142,7 +142,8 @@ class BogieParameters(DesignParameters):
 
     #: model kind written to model.toml
     KIND = "bogie"
-    POSITIVE = ("m", "I", "l", "ls", "a", "conicity", "r0", "mf", "If", "mb", "f11", "f22")
+    POSITIVE = ("m", "I", "l", "ls", "a", "r0", "mf", "If", "mb")
+    NONNEGATIVE = ("conicity", "f11", "f22")
 
     def __post_init__(self):
         self._check("bogie model parameter")

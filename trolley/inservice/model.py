@@ -82,6 +82,8 @@ class DesignParameters:
     #: names of the parameters identified by optimisation (Eq. 5)
     OPT = ("kx", "cx", "ky", "cy")
     POSITIVE: tuple[str, ...] = ()
+    #: fields that must be >= 0 (0: the hand-calculated cases without contact or creep)
+    NONNEGATIVE: tuple[str, ...] = ()
 
     @property
     def n_state(self) -> int:
@@ -122,6 +124,9 @@ class DesignParameters:
         for k in self.POSITIVE:
             if getattr(self, k) <= 0:
                 raise ValueError(f"{what} {k} must be > 0, got {getattr(self, k)}")
+        for k in self.NONNEGATIVE:
+            if getattr(self, k) < 0:
+                raise ValueError(f"{what} {k} must be >= 0, got {getattr(self, k)}")
         if not isinstance(self.sensor_gravity, bool):
             raise ValueError(f"{what} sensor_gravity must be true or false, got {self.sensor_gravity!r}")
 
@@ -219,7 +224,8 @@ class ModelParameters(DesignParameters):
 
     #: model kind written to model.toml (the bogie model of trolley.inservice.bogie is "bogie")
     KIND = "paper"
-    POSITIVE = ("m", "I", "l", "ls", "conicity", "r0", "mf", "f11", "f22")
+    POSITIVE = ("m", "I", "l", "ls", "r0", "mf")
+    NONNEGATIVE = ("conicity", "f11", "f22")
 
     def __post_init__(self):
         self._check("model parameter")
