@@ -29,7 +29,7 @@ def test_a_blocked_prism_is_skipped_and_the_station_uses_the_others(tmp_path):
                 aim(enh)
 
         world.aim_at_point = aim_but_one_blocked
-        fs = FieldSession(st, "blocked", SessionConfig(script=parse_script("fix\nend\n"), out_dir=None),
+        fs = FieldSession(st, "blocked", SessionConfig(script=parse_script("fix\nend\n"), out_dir=tmp_path / "out"),
                           world=world, console=console)
         fs.run()
         sid = fs.rec.session_id
@@ -45,6 +45,12 @@ def test_a_blocked_prism_is_skipped_and_the_station_uses_the_others(tmp_path):
     assert np.max(np.abs(setup.station_enh_m - world.station_enh_m)) < 0.002 and setup.accepted
     assert [f.accepted for f in fixes] == [True]
     assert f"{blocked.point_id} not measured" in " ".join(console.export_text().split())
+    # one fix is nothing to process, but the setup and the fix still reach an output (bug hunt 2026-11-26)
+    import json
+
+    record = json.loads((tmp_path / "out" / "processed" / "field_record.json").read_text())
+    assert len(record["setups"]) == 1 and [f["point"] for f in record["fixes"]] == [fixes[0].point]
+    assert not (tmp_path / "out" / "survey.xlsx").exists()
 
 
 def test_a_script_does_not_accept_a_station_far_off_its_instrument_sigmas(tmp_path):

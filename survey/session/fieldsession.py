@@ -1031,6 +1031,18 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if self.config.out_dir is None or len(self.accepted_fixes) < 2:
             if len(self.accepted_fixes) < 2:
                 self.say("fewer than two accepted fixes: nothing to process")
+                if self.config.out_dir is not None:
+                    # the setups, stops and notes still reach an output (bug hunt 2026-11-26)
+                    from survey.fieldrecord import field_record, write_field_record
+
+                    try:
+                        folder = Path(self.config.out_dir) / "processed"
+                        folder.mkdir(parents=True, exist_ok=True)
+                        path = write_field_record(folder, field_record(self.store, self.name))
+                        self.say(f"field record (setups, fixes, stops, notes): {path}")
+                    except OSError as exc:
+                        self.say(f"the field record could not be written into {self.config.out_dir} ({exc}); "
+                                 "the session is stored")
             return out
         from survey.errors import os_error_text
         from survey.session.final import process_stored_session
