@@ -314,6 +314,29 @@ def write_marker(folder: Path, command: str) -> None:
     write_text_atomic(Path(folder) / MARKER_NAME, command + "\n")
 
 
+def claim_folder(folder: Path, command: str, option: str = "--out") -> None:
+    """Mark ``folder`` as ``command``'s at once and exclusively (O_EXCL): of two commands started
+    together into one new folder, both passing :func:`guard_overwrite`, only one gets it (bug hunt
+    2026-11-26: two sessions wrote over each other's results). A folder already marked by
+    ``command`` stays its own.
+
+    Raises
+    ------
+    OutputError : another command's marker is there.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(folder / MARKER_NAME, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        if made_by(folder, command):
+            return
+        raise OutputError(f"{option} {folder}: was just taken by another command ({MARKER_NAME}); choose another "
+                          "folder") from None
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(command + "\n")
+
+
 def made_by(folder: Path, command: str) -> bool:
     """True if ``folder`` carries the marker of ``command``."""
     try:

@@ -112,3 +112,33 @@ def test_all_or_nothing_writes_every_output_or_none(tmp_path):
         write_text_atomic(a, "new a")
         write_text_atomic(b, "new b")
     assert a.read_text() == "new a" and b.read_text() == "new b"
+
+
+def test_claim_folder_gives_a_new_folder_to_one_of_two_at_once(tmp_path):
+    # (bug hunt 2026-11-26) two sessions started together into one new --out both passed the guard
+    # and wrote over each other's results: the claim is exclusive
+    import threading
+
+    from survey.atomicwrite import OutputError, claim_folder, made_by
+
+    claim_folder(tmp_path / "a", "survey session s1")
+    claim_folder(tmp_path / "a", "survey session s1")          # its own again: fine
+    with pytest.raises(OutputError, match="was just taken by another command"):
+        claim_folder(tmp_path / "a", "survey session s2")
+    for trial in range(20):
+        folder, won, barrier = tmp_path / f"race{trial}", [], threading.Barrier(2)
+
+        def claim(name):
+            barrier.wait()
+            try:
+                claim_folder(folder, name)
+                won.append(name)
+            except OutputError:
+                pass
+
+        threads = [threading.Thread(target=claim, args=(f"survey session s{k}",)) for k in (1, 2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert len(won) == 1 and made_by(folder, won[0])

@@ -226,6 +226,13 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             except OutputError as exc:
                 fail(str(exc))
         _check_writable(out, resume)
+        if not resume and not out_checked:
+            from survey.atomicwrite import OutputError, claim_folder
+
+            try:
+                claim_folder(out, owner)      # the folder is this session's from now on
+            except OutputError as exc:
+                fail(str(exc))
         world = ports = options = None
         if simulate:
             world = simulated_world(store, speedup)
@@ -255,11 +262,6 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                     "simulate": simulate, "speedup": speedup,
                     "script": str(script.resolve()) if script else None,
                     "devices": str(devices.resolve()) if devices else None, "out": _stored_out(out, store)})))
-                from survey.atomicwrite import write_marker
-
-                if not out_checked:
-                    out.mkdir(parents=True, exist_ok=True)
-                    write_marker(out, owner)       # the folder is this session's from now on
             outcome = fs.run()
         except KeyboardInterrupt:
             fail("interrupted; everything recorded so far is in the store",
