@@ -195,3 +195,16 @@ def test_bias_instability_sizing_follows_the_gyrocompassing_heading():
     with pytest.raises(ValueError, match="derived route"):
         B.max_gyro_bias_instability(replace(figs, gyro_bias_instability_rad_s=None, equivalent_gyro_bias_rad_s=1e-7),
                                     "lateral", TARGET)
+
+
+def test_monte_carlo_of_a_very_long_slow_interval_gets_a_coarser_grid():
+    # (bug hunt 2026-11-26) 10 km at 0.01 m/s (1e6 s) took 2.7 GB: the grid is capped at
+    # MONTE_CARLO_MAX_NODES nodes, and the RMS still follows the analytic sigma at its nodes
+    r = _preset("fog", heading_error_rad=units.deg_to_rad(0.6), fix_spacing_m=10000.0, speed_m_s=0.01)
+    mc = B.monte_carlo(r.case, 60, seed=3)
+    assert mc.times_s.size == B.MONTE_CARLO_MAX_NODES
+    assert mc.times_s[-1] == pytest.approx(1e6) and np.allclose(np.diff(mc.times_s), 1e6 / (mc.times_s.size - 1))
+    tol = 4.5 * mc.relative_sampling_error()
+    for d in B.DIRECTIONS:
+        k = mc.mid_index
+        assert abs(mc.rms_m[d][k] / mc.sigma_m[d][k] - 1) < tol, d

@@ -342,3 +342,31 @@ def test_cli_warns_that_orientation_is_ignored_with_the_ekf(sim_folder, tmp_path
                                  "--orientation", "madgwick", "--no-plots"])
     assert r.exit_code == 0, r.output
     assert "--orientation madgwick is ignored" in r.stderr
+
+
+@pytest.mark.parametrize("edit, said", [
+    # (bug hunt 2026-11-26) each gave exit 0 with wrong measurements, an endless run, or an
+    # "fmin" message naming nothing
+    (lambda df: df[(df["t_s"] < 12.0) | (df["t_s"] > 12.1)], "imu.csv: row 6002, column t_s: a gap of 0.104 s after 11.998 s"),
+    (lambda df: df.assign(t_s=df["t_s"] * 1000.0), "tgms.toml: imu.rate_hz = 500, but the samples of imu.csv are 2 s"),
+])
+def test_an_imu_with_a_gap_or_in_ms_is_refused(sim_folder, tmp_path, edit, said):
+    import pandas as pd
+
+    dst = _copy(sim_folder, tmp_path)
+    df = pd.read_csv(dst / "imu.csv")
+    edit(df).to_csv(dst / "imu.csv", index=False, float_format="%.9g")
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and said in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_encoder_counting_backwards_is_refused_naming_the_row(sim_folder, tmp_path):
+    import pandas as pd
+
+    dst = _copy(sim_folder, tmp_path)
+    df = pd.read_csv(dst / "encoder.csv")
+    df.assign(count=-df["count"]).to_csv(dst / "encoder.csv", index=False)
+    for cmd in (["process", str(dst), "--out", str(tmp_path / "o")], ["tune", str(dst), "--out", str(tmp_path / "p.toml")]):
+        r = CliRunner().invoke(app, ["tgms", *cmd])
+        assert r.exit_code == 2 and "encoder.csv: row 649, column count: the count goes backwards (-1 after 0)" in r.stderr, r.stderr

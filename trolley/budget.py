@@ -619,6 +619,8 @@ def _gains(F, Q, P0, H, R, fix_nodes, scale):
 
 #: memory for the simulated runs of one Monte Carlo block (the arrays of nodes x states x runs)
 MONTE_CARLO_MEMORY_BYTES = 256 * 2**20
+#: nodes of a simulated interval at most (its grid step grows beyond dt_s for longer intervals)
+MONTE_CARLO_MAX_NODES = 20_000
 #: float64 arrays of nodes x runs alive at once per simulated run: in :meth:`_Channel.errors` the
 #: truth, its process noise (and the draw it is made from), the predicted, filtered and smoothed
 #: states and their difference (7 x 5 level states, the 3 vertical errors kept meanwhile), plus
@@ -668,7 +670,10 @@ def monte_carlo(case: BudgetCase, runs: int, dt_s: float = 1.0, heading_rad: flo
         raise ValueError("a Monte Carlo needs at least 2 runs")
     rng = np.random.default_rng(seed)
     T = float(case.interval_s)
-    K = int(np.ceil(T / dt_s - 1e-9)) + 1
+    # a very long, slow interval gets a coarser grid, not gigabytes: the discretisation is exact
+    # (van_loan) at any step, only the profile is sampled more sparsely (bug hunt 2026-11-26:
+    # 10 km at 0.01 m/s, 1e6 nodes, took 2.7 GB past the block cap with its per-node gains)
+    K = min(int(np.ceil(T / dt_s - 1e-9)) + 1, MONTE_CARLO_MAX_NODES)
     dt = T / (K - 1)
     v = float(case.speed_m_s)
     ini, nz = case.initial, case.noise
