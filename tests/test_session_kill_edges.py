@@ -59,47 +59,49 @@ def root(tmp_path_factory):
     return root
 
 
-def test_a_scripted_undo_killed_before_its_step_was_counted_is_not_done_again(root):
-    db = root / "projects" / "t1" / "project.sqlite"
-    _kill_when(root, "undo", "fix\nmove\nfix\nmove\nfix\nundo\nend\n",
-               lambda: (_query(db, "SELECT COUNT(*) FROM fix_decision WHERE reason LIKE 'undone%'") or (0,))[0] > 0)
-    # the crew gives the script again, as a copy elsewhere: it is said where it goes on
-    (root / "copy.txt").write_text((root / "undo.txt").read_text())
-    r = _resume(root, "undo", "--script", "copy.txt")
-    said = " ".join(r.stderr.split())
-    assert "--script copy.txt is not the script this session ran" in said
-    assert "the script goes on at its step" in said or "steps were all done before the interruption" in said
-    from survey.store import ProjectStore
-
-    with ProjectStore.open(root / "projects" / "t1") as st:
-        fixes = st.fixes(st.session("undo").session_id)
-        undone = st.connection.execute("SELECT COUNT(*) FROM fix_decision WHERE reason LIKE 'undone%'").fetchone()[0]
-    assert [f.accepted for f in fixes] == [True, True, False] and undone == 1
-    assert fixes[2].reason == "undone by the crew"
-
-
-def test_a_session_killed_after_its_last_sample_is_ended_by_the_resume(root):
+def test_killed_after_a_scripted_undo_and_after_the_last_sample_the_resumes_end_it_right(root):
+    # one session, two kills: right after the scripted undo, then (its resume) after the last
+    # simulated sample but before the end
     from survey.commands.survey import simulated_world
     from survey.store import ProjectStore
 
     db = root / "projects" / "t1" / "project.sqlite"
     with ProjectStore.open(root / "projects" / "t1") as st:
         last_t = float(simulated_world(st, 1.0).sim.session.imu_t_s[-1])
+    _kill_when(root, "undo", "fix\nmove\nfix\nmove\nfix\nundo\nend\n",
+               lambda: (_query(db, "SELECT COUNT(*) FROM fix_decision WHERE reason LIKE 'undone%'") or (0,))[0] > 0)
 
     def after_the_last_sample():
-        row = _query(db, "SELECT (SELECT MAX(t_s) FROM imu_sample s JOIN session n ON n.id = s.session_id "
-                         "WHERE n.name = 'last') >= ?, (SELECT COUNT(*) FROM session_event e JOIN session n ON "
-                         "n.id = e.session_id WHERE n.name = 'last' AND e.kind = 'end')", last_t - 1e-6)
+        row = _query(db, "SELECT (SELECT MAX(t_s) FROM imu_sample) >= ?, (SELECT COUNT(*) FROM session_event "
+                         "WHERE kind = 'end')", last_t - 1e-6)
         return bool(row and row[0] and not row[1])
 
-    _kill_when(root, "last", "fix\nmove\nfix\nmove\nfix\nend\n", after_the_last_sample)
-    _resume(root, "last")
+    # the crew gives the script again, as a copy elsewhere: it is said where it goes on
+    (root / "copy.txt").write_text((root / "undo.txt").read_text())
+    p = subprocess.Popen(TROLLEY + ["survey", "resume", "t1", "--root", "projects", "--session", "undo",
+                                    "--speedup", "40", "--script", "copy.txt"], cwd=root,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 90
+    while p.poll() is None and not after_the_last_sample():
+        assert time.monotonic() < deadline
+    killed = p.poll() is None
+    if killed:
+        os.kill(p.pid, signal.SIGKILL)
+    said = " ".join(p.communicate()[1].split())
+    assert "--script copy.txt is not the script this session ran" in said
+    assert "the script goes on at its step" in said or "steps were all done before the interruption" in said
+    if killed:      # (the resume may have ended the session before the poll saw the edge)
+        _resume(root, "undo")
     with ProjectStore.open(root / "projects" / "t1") as st:
-        sid = st.session("last").session_id
-        assert st.session("last").state == "ended"
+        sid = st.session("undo").session_id
+        assert st.session("undo").state == "ended"
+        fixes = st.fixes(sid)
+        undone = st.connection.execute("SELECT COUNT(*) FROM fix_decision WHERE reason LIKE 'undone%'").fetchone()[0]
         stops = st.stops(sid)
-        assert [f.accepted for f in st.fixes(sid)] == [True, True, True]
+    # the undo undid FIX003 only, once
+    assert [f.accepted for f in fixes] == [True, True, False] and undone == 1
+    assert fixes[2].reason == "undone by the crew"
     # the stops at 0, 60 and 120 m, each once
     assert [s.label for s in stops] == ["S000", "S001", "S002"]
     assert np.allclose([s.chainage_m for s in stops], [0.0, 60.0, 120.0], atol=0.05)
-    assert (root / "projects" / "t1" / "sessions" / "last" / "survey.xlsx").is_file()
+    assert (root / "projects" / "t1" / "sessions" / "undo" / "survey.xlsx").is_file()
