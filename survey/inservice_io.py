@@ -200,15 +200,19 @@ MIN_SPEED_M_S = 1.0
 SAMPLING_TOLERANCE = 0.02
 
 
-def _refuse_unknown(table: dict, known, prefix: str, fname: str) -> None:
-    """A mistyped key would be read as absent (an optional one silently so): refused, with the nearest."""
+def refuse_unknown(table: dict, known, where: str, fname: str, error: type[ValueError] = InserviceFormatError,
+                   qualify: bool = True, otherwise: str = "") -> None:
+    """A mistyped key would be read as absent (an optional one silently so): refused, with the
+    nearest known key (``where.key`` when ``qualify``), else ``otherwise`` as the hint. ``where``
+    is the table ("" at the top level); ``error`` names the file's own error type."""
     import difflib
 
     for key in table:
         if key not in known:
             near = difflib.get_close_matches(key, sorted(known), n=1)
-            hint = f" (did you mean {prefix}{near[0]}?)" if near else ""
-            raise InserviceFormatError(f"{fname}: unknown key {prefix}{key}{hint}")
+            dotted = f"{where}." if where else ""
+            hint = f" (did you mean {dotted if qualify else ''}{near[0]}?)" if near else otherwise
+            raise error(f"{fname}: unknown key {dotted}{key}{hint}")
 
 
 def _check_sampling(cols: dict, rate_hz: float, fname: str) -> None:
@@ -256,10 +260,10 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     data = parse_toml(toml_path)
     fname = toml_path.name
     veh, run, sen = data["vehicle"], data["run"], data["sensors"]
-    _refuse_unknown(data, {"format": None, "vehicle": None, "run": None, "sensors": None}, "", fname)
-    _refuse_unknown(veh, {*VEHICLE_KEYS, *VEHICLE_EXTRA_KEYS, *BOGIE_KEYS, "name"}, "vehicle.", fname)
-    _refuse_unknown(run, RUN_KEYS, "run.", fname)
-    _refuse_unknown(sen, SENSORS_KEYS, "sensors.", fname)
+    refuse_unknown(data, {"format", "vehicle", "run", "sensors"}, "", fname)
+    refuse_unknown(veh, {*VEHICLE_KEYS, *VEHICLE_EXTRA_KEYS, *BOGIE_KEYS, "name"}, "vehicle", fname)
+    refuse_unknown(run, RUN_KEYS, "run", fname)
+    refuse_unknown(sen, SENSORS_KEYS, "sensors", fname)
     name = veh.get("name")
     if name is not None and (not isinstance(name, str) or not name.strip()):
         raise InserviceFormatError(f"{fname}: vehicle.name must be a text, got {name!r}")

@@ -20,14 +20,13 @@ top, primary values per axle box, secondary values per side.
 """
 from __future__ import annotations
 
-import difflib
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from survey.atomicwrite import write_text_atomic
-from survey.inservice_io import parse_toml
+from survey.inservice_io import parse_toml, refuse_unknown
 from survey.tgms_io import TgmsFormatError, _num
 
 FORMAT = "trolley-inservice-vehicle/1"
@@ -114,12 +113,8 @@ def _finite(table: dict, key: str, where: str, fname: str) -> float:
         raise VehicleFileError(str(exc)) from None
 
 
-def _unknown(table: dict, known, where: str, fname: str) -> None:
-    for key in table:
-        if key not in known:
-            near = difflib.get_close_matches(key, list(known), n=1)
-            hint = f" (did you mean {near[0]}?)" if near else " (known keys: docs/inservice.md, \"Your vehicle\")"
-            raise VehicleFileError(f"{fname}: unknown key {where}.{key}{hint}")
+#: the hint of an unknown key without a near one
+_KNOWN_KEYS = " (known keys: docs/inservice.md, \"Your vehicle\")"
 
 
 def _check_range(key: str, value: float, where: str, fname: str) -> None:
@@ -154,7 +149,7 @@ def read_vehicle(path: str | os.PathLike) -> VehicleFile:
     if not isinstance(name, str) or not name.strip():
         raise VehicleFileError(f"{fname}: name must be a text, got {name!r}")
     veh = data["vehicle"]
-    _unknown(veh, KEYS, "vehicle", fname)
+    refuse_unknown(veh, KEYS, "vehicle", fname, VehicleFileError, qualify=False, otherwise=_KNOWN_KEYS)
     values = {}
     for key, val in ((k, _finite(veh, k, "vehicle", fname)) for k in veh):
         if val < 0 or (val == 0 and key not in MAY_BE_ZERO):
@@ -165,7 +160,7 @@ def read_vehicle(path: str | os.PathLike) -> VehicleFile:
     sen = data.get("sensors", {})
     if not isinstance(sen, dict):
         raise VehicleFileError(f"{fname}: sensors must be a table [sensors]")
-    _unknown(sen, SENSOR_KEYS, "sensors", fname)
+    refuse_unknown(sen, SENSOR_KEYS, "sensors", fname, VehicleFileError, qualify=False, otherwise=_KNOWN_KEYS)
     sigmas = {k: (_finite(sen, k, "sensors", fname) if k in sen else d)
               for k, d in zip(SENSOR_KEYS, (SIGMA_ACC_M_S2, SIGMA_GYRO_RAD_S))}
     for k, v in sigmas.items():
