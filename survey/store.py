@@ -983,9 +983,7 @@ class ProjectStore:
             c.execute("INSERT INTO fix_decision (fix_id, accepted, reason, created_utc) VALUES (?, ?, ?, ?)",
                       (fix_id, int(accepted), reason, utc_now()))
             if event is not None:
-                sid, ev = event
-                c.execute("INSERT INTO session_event (session_id, t_s, kind, detail, created_utc) "
-                          "VALUES (?, ?, ?, ?, ?)", (sid, ev.t_s, ev.kind, ev.detail, utc_now()))
+                self._insert_event(c, *event)
 
     def fixes(self, session_id: int, accepted_only: bool = False) -> list[FixRecord]:
         """A session's fixes in time order, each with its newest decision."""
@@ -998,12 +996,22 @@ class ProjectStore:
         return [f for f in out if f.accepted] if accepted_only else out
 
     # -- stops, notes, events --------------------------------------------------------------------
+    @staticmethod
+    def _insert_stop(c, session_id: int, stop: StopRecord) -> int:
+        cur = c.execute("INSERT INTO stop (session_id, t_start_s, t_end_s, label, chainage_m) VALUES (?, ?, ?, ?, ?)",
+                        (session_id, stop.t_start_s, stop.t_end_s, stop.label, _nullable(stop.chainage_m)))
+        return int(cur.lastrowid)
+
+    @staticmethod
+    def _insert_event(c, session_id: int, event: SessionEvent) -> int:
+        cur = c.execute("INSERT INTO session_event (session_id, t_s, kind, detail, created_utc) VALUES (?, ?, ?, ?, ?)",
+                        (session_id, event.t_s, event.kind, event.detail, utc_now()))
+        return int(cur.lastrowid)
+
     def add_stop(self, session_id: int, stop: StopRecord) -> int:
         """Store a stop. Returns its id."""
         with self._transaction() as c:
-            cur = c.execute("INSERT INTO stop (session_id, t_start_s, t_end_s, label, chainage_m) VALUES (?, ?, ?, ?, ?)",
-                            (session_id, stop.t_start_s, stop.t_end_s, stop.label, _nullable(stop.chainage_m)))
-            return int(cur.lastrowid)
+            return self._insert_stop(c, session_id, stop)
 
     def end_session(self, session_id: int, event: SessionEvent, final_stop: StopRecord | None = None) -> None:
         """Store the stop a session ends at (when the trolley stands there), its end event and the
@@ -1011,11 +1019,8 @@ class ProjectStore:
         resumed session would be standing there again)."""
         with self._transaction() as c:
             if final_stop is not None:
-                c.execute("INSERT INTO stop (session_id, t_start_s, t_end_s, label, chainage_m) VALUES (?, ?, ?, ?, ?)",
-                          (session_id, final_stop.t_start_s, final_stop.t_end_s, final_stop.label,
-                           _nullable(final_stop.chainage_m)))
-            c.execute("INSERT INTO session_event (session_id, t_s, kind, detail, created_utc) VALUES (?, ?, ?, ?, ?)",
-                      (session_id, event.t_s, event.kind, event.detail, utc_now()))
+                self._insert_stop(c, session_id, final_stop)
+            self._insert_event(c, session_id, event)
             c.execute("UPDATE session SET state = ? WHERE id = ?", ("ended", session_id))
 
     def stops(self, session_id: int) -> list[StopRecord]:
@@ -1040,9 +1045,7 @@ class ProjectStore:
     def add_event(self, session_id: int, event: SessionEvent) -> int:
         """Append a session event. Returns its id."""
         with self._transaction() as c:
-            cur = c.execute("INSERT INTO session_event (session_id, t_s, kind, detail, created_utc) VALUES (?, ?, ?, ?, ?)",
-                            (session_id, event.t_s, event.kind, event.detail, utc_now()))
-            return int(cur.lastrowid)
+            return self._insert_event(c, session_id, event)
 
     def events(self, session_id: int) -> list[SessionEvent]:
         """A session's events in order."""
