@@ -6,9 +6,9 @@ convention (the Track sheet's column header); each quantity with a limit has its
 the allowed band shaded green and beyond it red; defects are red vertical bands; the
 deviations carry their 1-sigma band (sigma lateral / vertical of the Track sheet); CPIII fixes
 are marked on the chainage axis (accepted: black triangles, rejected: red crosses) and the
-trolley's stops as thin grey lines; the band-pass edge zones, where a filtered value still
-carries the filter's start-up transient (within half the longest wavelength of the band from the
-end of the record, trolley/bands.py "NaN gaps"), are hatched grey; the long-chord checks are drawn
+trolley's stops as thin grey lines; the band-pass edge zones, where the deviation has values but
+the band has none because the filter's start-up transient would remain (within one longest
+wavelength of the band from the end of the record, trolley/bands.py "NaN gaps"), are hatched grey; the long-chord checks are drawn
 as their magnitude (the value is the largest difference along the chord with its sign, which
 flips from one station to the next: drawn signed it reads as a comb).
 
@@ -30,6 +30,7 @@ import numpy as np
 
 from survey.atomicwrite import write_with
 from trolley.bands import BANDS
+from trolley.trackgeometry import band_source
 
 from survey.track_table import SurveyReport, limit_in_display
 
@@ -103,20 +104,17 @@ def chord_envelope(magnitude: np.ndarray, spacing_m: float, step_m: float) -> np
     return out
 
 
-def edge_zones(chainage_m: np.ndarray, values: np.ndarray, key: str) -> list[tuple[float, float]]:
-    """Chainage intervals of a band-passed column where the filter's edge transient remains:
-    within half the band's longest wavelength of each end of a run of values ([] for other columns)."""
+def edge_zones(chainage_m: np.ndarray, values: np.ndarray, source: np.ndarray | None,
+               key: str) -> list[tuple[float, float]]:
+    """Chainage intervals of a band-passed column left empty for the filter's edge transient:
+    where its ``source`` (the deviation it is filtered from) has values and it has none
+    ([] for other columns or without a source)."""
     band = key.split("_")[1] if key.startswith(("align_D", "level_D")) else None
-    if band not in BANDS:
+    if band not in BANDS or source is None:
         return []
-    half = 0.5 * BANDS[band][1]
-    ok = np.isfinite(values).astype(np.int8)
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok, [0]))))
-    zones = []
-    for a, b in zip(edges[::2], edges[1::2] - 1):
-        s0, s1 = float(chainage_m[a]), float(chainage_m[b])
-        zones += [(s0, min(s0 + half, s1)), (max(s1 - half, s0), s1)]
-    return zones
+    empty = (np.isfinite(source) & ~np.isfinite(values)).astype(np.int8)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], empty, [0]))))
+    return [(float(chainage_m[a]), float(chainage_m[b])) for a, b in zip(edges[::2], edges[1::2] - 1)]
 
 
 def fix_chainages(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray]:
@@ -178,9 +176,10 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
             sig = by_key[SIGMA_OF[k]].display(rep.geometry.columns[SIGMA_OF[k]])
             ax.fill_between(s[sel], (v - sig)[sel], (v + sig)[sel], color=colours[n % 3], alpha=0.25, lw=0,
                             label="±1σ")
-        for a, b in edge_zones(s, rep.geometry.columns[k], k):
+        zones = edge_zones(s, rep.geometry.columns[k], rep.geometry.columns.get(band_source(k)), k)
+        for j, (a, b) in enumerate(zones):
             ax.axvspan(a, b, facecolor="none", edgecolor="0.5", hatch="///", lw=0, zorder=0,
-                       label="band-pass edge zone" if (a, b) == edge_zones(s, rep.geometry.columns[k], k)[0] else None)
+                       label="band-pass edge zone (no value)" if j == 0 else None)
     if not vals:
         return False
     allv = np.concatenate(vals)

@@ -225,3 +225,16 @@ def test_twist_less_design_removes_the_design_ramp():
     assert np.nanmax(tw) == pytest.approx(0.0015 + 0.003, rel=1e-9)
     far = (s > 30.0) & ((s < 99.0) | (s > 105.0)) & (s < 165.0)
     np.testing.assert_allclose(twd[far], 0.0, atol=1e-15)
+
+
+def test_a_regular_wave_near_the_end_is_no_false_defect_in_the_bands():
+    # the audit's case: a 16 mm, 100 m vertical wave; D3 passes 0.975 of it. Unsettled, the
+    # filter's start-up showed 18.7 mm 40 m from the end (a defect against 18 mm)
+    s = np.arange(0.0, 1020.0 + STEP / 2, STEP)
+    vert = 0.016 * np.sin(2 * np.pi * s / 100.0)
+    g = track_geometry(_track(s, np.zeros_like(s), s.copy(), np.zeros_like(s), lat=np.zeros_like(s), vert=vert,
+                              design=(np.zeros_like(s), s.copy(), np.zeros_like(s), np.zeros_like(s))))
+    d3 = g.columns["level_D3_m"]
+    ok = np.isfinite(d3)
+    assert np.array_equal(ok, (s >= 200.0 - 1e-9) & (s <= s[-1] - 200.0 + 1e-9))
+    assert np.nanmax(np.abs(d3)) < 0.016 * (0.975 + 0.09) < 0.018

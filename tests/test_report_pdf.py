@@ -90,13 +90,15 @@ def test_panel_labels_marks_and_edge_zones(report):
     # the fixes of fixes.csv stand at E 1000, N 5000: the start of the alignment (chainage 0)
     acc, rej = fix_chainages(rep)
     assert acc.size == 3 and np.all(acc == 0.0) and rej.size == 1   # the filter's reject; the field ones lie off this track
-    # D3 (70-200 m) edge zones: 100 m from each end of the values
+    # D3 (70-200 m) edge zones: the 200 m at each end of the deviations the band leaves empty
     s = rep.geometry.chainage_m
     v = rep.geometry.columns["align_D3_m"]
-    z = edge_zones(s, v, "align_D3_m")
-    ok = np.flatnonzero(np.isfinite(v))
-    assert z == [(s[ok[0]], s[ok[0]] + 100.0), (s[ok[-1]] - 100.0, s[ok[-1]])]
-    assert edge_zones(s, v, "lateral_dev_m") == []
+    dev = rep.geometry.columns["lateral_dev_m"]
+    z = edge_zones(s, v, dev, "align_D3_m")
+    ok, has = np.flatnonzero(np.isfinite(v)), np.flatnonzero(np.isfinite(dev))
+    assert ok.size and s[ok[0]] - s[has[0]] == pytest.approx(200.0) and s[has[-1]] - s[ok[-1]] == pytest.approx(200.0)
+    assert z == [(s[has[0]], s[ok[0] - 1]), (s[ok[-1] + 1], s[has[-1]])]
+    assert edge_zones(s, v, dev, "lateral_dev_m") == [] and edge_zones(s, v, None, "align_D3_m") == []
 
 
 def test_cli_pdf(tmp_path):

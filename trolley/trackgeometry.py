@@ -151,6 +151,16 @@ def long_chord_name(chord_m: float, spacing_m: float, direction: str) -> str:
     return f"chord{chord_m:g}_{spacing_m:g}_{direction}_m".replace(".", "p")
 
 
+def band_source(key: str) -> str | None:
+    """The deviation column a band column is filtered from ("align_D1_m" -> "lateral_dev_m",
+    "level_D3_m" -> "vertical_dev_m"); None for other columns."""
+    if key.startswith("align_D"):
+        return "lateral_dev_m"
+    if key.startswith("level_D"):
+        return "vertical_dev_m"
+    return None
+
+
 def column_names(config: GeometryConfig) -> list[str]:
     """Names of the :attr:`TrackGeometry.columns` for a configuration, in sheet order."""
     names = ["E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m",
@@ -427,10 +437,12 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     for chord, spacing in config.long_chords_m:
         c[long_chord_name(chord, spacing, "lat")] = long_chord_check(c["lateral_dev_m"], chord, spacing, step)
         c[long_chord_name(chord, spacing, "vert")] = long_chord_check(vert, chord, spacing, step)
+    # settled: these values are checked against limits, and near the record's ends the filter's
+    # start-up transient alone can exceed them (trolley.bands, SETTLED_WAVELENGTHS)
     for b in config.bands:
-        c[f"align_{b}_m"] = band(c["lateral_dev_m"], step, b)
+        c[f"align_{b}_m"] = band(c["lateral_dev_m"], step, b, settled=True)
     for b in config.bands:
-        c[f"level_{b}_m"] = band(vert, step, b)
+        c[f"level_{b}_m"] = band(vert, step, b, settled=True)
 
     names = column_names(config)
     assert list(c) == names, (list(c), names)
