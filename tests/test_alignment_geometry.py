@@ -139,11 +139,22 @@ def test_circular_vertical_curve_hand_values():
     assert abs(sag.evaluate(500.0)[0] + H[0]) < 1e-12
 
 
-def test_cant_linear_and_constant_outside():
-    cant = CantProfile.from_stations([200.0, 350.0, 850.0, 1000.0], [0.0, 0.08, 0.08, 0.0])
-    c, tw = cant.evaluate(np.array([0.0, 200.0, 275.0, 600.0, 925.0, 2000.0]))
-    np.testing.assert_allclose(c, [0.0, 0.0, 0.04, 0.08, 0.04, 0.0], rtol=0, atol=1e-15)
-    np.testing.assert_allclose(tw, [0.0, 0.08 / 150, 0.08 / 150, 0.0, -0.08 / 150, 0.0], rtol=0, atol=1e-18)
+def test_cant_linear_in_height_and_constant_outside():
+    # 0 -> 180 mm over b = 1.5 m on a 60 m ramp, as a design tool ramps it: the height is linear
+    b, h = 1.5, 0.180
+    top = np.arcsin(h / b)
+    cant = CantProfile.from_stations([200.0, 260.0, 850.0, 910.0], [0.0, top, top, 0.0])
+    s = np.array([0.0, 200.0, 215.0, 230.0, 600.0, 880.0, 2000.0])
+    c, tw = cant.evaluate(s)
+    np.testing.assert_allclose(b * np.sin(c), [0.0, 0.0, 0.045, 0.090, 0.180, 0.090, 0.0], rtol=0, atol=1e-15)
+    # an angle linear instead was 0.163 mm high at mid-ramp
+    assert abs(b * np.sin(top / 2) - 0.090) > 1.6e-4
+    # rho_tw is d(cant)/ds: against a central difference of the angle
+    ds = 1e-4
+    num = (cant.evaluate(s + ds)[0] - cant.evaluate(s - ds)[0]) / (2 * ds)
+    inner = np.array([False, False, True, True, True, True, False])
+    np.testing.assert_allclose(tw[inner], num[inner], rtol=1e-7, atol=1e-12)
+    assert tw[0] == 0.0 and tw[-1] == 0.0 and tw[1] == pytest.approx(h / 60.0 / b)
 
 
 def test_shapes_and_scalar():

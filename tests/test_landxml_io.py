@@ -109,7 +109,7 @@ def test_worked_example_parses_and_joins():
         assert abs(H[0] - (51.11 + g * (sc - 185.0))) < 1e-9
     # cant: 120 mm over the default 1.5 m rail spacing, half way up the first ramp at 130
     assert abs(r.cant_rad[4] - math.asin(0.12 / 1.5)) < 1e-15
-    assert abs(r.cant_rad[3] - 0.5 * math.asin(0.12 / 1.5)) < 1e-15
+    assert abs(r.cant_rad[3] - math.asin(0.06 / 1.5)) < 1e-15         # 60 mm: linear in height
     # the file's own gauge when asked
     al2 = parse_landxml(EXAMPLE, rail_spacing_m=None)
     assert abs(al2.evaluate(185.0).cant_rad - math.asin(0.12 / 1.435)) < 1e-15

@@ -234,9 +234,9 @@ def test_station_equation_drawing_stationing_and_cant_after_it():
     np.testing.assert_allclose(al.station([1000.0, 1299.0, 1300.0, 1600.0, 1750.0]),
                                [1000.0, 1299.0, 2300.0, 2600.0, 2750.0], atol=1e-9)
     # cant stations 2450 / 2470 (drawing) are internal 1450 (arc end) / 1470
-    full = math.asin(0.080 / 1.5)
+    full, half = math.asin(0.080 / 1.5), math.asin(0.040 / 1.5)     # linear in height
     c = al.evaluate(np.array([1240.0, 1300.0, 1449.0, 1460.0, 1480.0])).cant_rad
-    np.testing.assert_allclose(c, [full / 2, full, full, full / 2, 0.0], atol=1e-12)
+    np.testing.assert_allclose(c, [half, full, full, half, 0.0], atol=1e-12)
     # PVIs 2500 / 2750 (drawing) are internal 1500 / 1750: H(1600) = 101 + 100 / 250
     h = al.evaluate(np.array([1300.0, 1600.0, 1750.0])).H_m
     np.testing.assert_allclose(h, [103.0 - 100.0 * 2.0 / 300.0, 101.4, 102.0], atol=1e-9)
