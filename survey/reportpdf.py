@@ -196,9 +196,10 @@ def _defects(fig, rep: SurveyReport, chunk) -> None:
     for i, d in chunk:
         col = by_key.get(d.column)
         conv = (lambda v: float(col.display(np.array([v]))[0])) if col else (lambda v: v)
+        digits = col.kept_digits if col else 3          # the digits the limits are checked on
         rows.append([str(i), col.header if col else d.parameter, km_label(rep.station(d.start_chainage_m), 3),
-                     km_label(rep.station(d.end_chainage_m), 3), _fmt(d.end_chainage_m - d.start_chainage_m + rep.geometry.step_m, 3),
-                     _fmt(conv(d.peak)), _fmt(conv(d.limit)), col.unit if col else "", str(d.stations)])
+                     km_label(rep.station(d.end_chainage_m), 3), _fmt(rep.defect_length_m(d), 3),
+                     _fmt(conv(d.peak), digits), _fmt(conv(d.limit), digits), col.unit if col else "", str(d.stations)])
     if not rows:
         fig.text(0.05, 0.9, "No value beyond tolerance.", fontsize=11)
         return

@@ -56,6 +56,17 @@ class SheetColumn:
         conv, _, digits = UNIT_FORMATS[self.unit]
         return np.round(np.asarray(conv(values), dtype=float), digits)
 
+    @property
+    def kept_digits(self) -> int:
+        """Decimals the files keep in the display unit, and the limits are checked on."""
+        return UNIT_FORMATS[self.unit][2]
+
+    @property
+    def kept_format(self) -> str:
+        """Excel number format with :attr:`kept_digits`: a peak of 1.0001 mm against 1 mm must
+        not read "1.00 / 1.00" on the Defects sheet."""
+        return "0." + "0" * self.kept_digits
+
     def kept(self, values: np.ndarray) -> np.ndarray:
         """The SI values as the files keep them (:meth:`display` and back): what the tolerances
         are checked on, so a value the sheet shows as 1.0000 mm is never a defect against 1 mm."""
@@ -221,6 +232,13 @@ class SurveyReport:
             return np.asarray(internal_m, dtype=float) if np.ndim(internal_m) else float(internal_m)
         v = self.stationing.station(internal_m)
         return v if np.ndim(internal_m) else float(v)
+
+    def defect_length_m(self, defect: Defect) -> float:
+        """Length of track a defect covers, m: each of its stations stands for half a step on
+        either side, but not beyond the first and last station of the survey (a defect at the
+        end must not be longer than the track surveyed)."""
+        s, h = self.geometry.chainage_m, 0.5 * self.geometry.step_m
+        return float(min(defect.end_chainage_m + h, s[-1]) - max(defect.start_chainage_m - h, s[0]))
 
     @property
     def station_m(self) -> np.ndarray:

@@ -200,6 +200,21 @@ def test_print_settings_and_header_block(exported):
         assert r + CHART_ROWS - 1 <= page_end
 
 
+def test_a_defect_is_as_long_as_the_track_its_stations_cover_and_no_longer_than_the_survey(exported):
+    from trolley.tolerances import Defect
+
+    rep = exported[1].report
+    s = rep.geometry.chainage_m
+
+    def length(a, b):
+        return rep.defect_length_m(Defect("gauge_dev", "gauge_dev_m", a, b, 0.002, 0.001, 1))
+
+    assert length(s[10], s[41]) == pytest.approx(32 * STEP)           # 32 stations, mid-track
+    assert length(s[10], s[10]) == pytest.approx(STEP)
+    assert length(s[-31], s[-1]) == pytest.approx(30.5 * STEP)        # to the survey's end
+    assert length(s[0], s[-1]) == pytest.approx(s[-1] - s[0])          # the whole survey
+
+
 def test_defects_summary_and_hostile_text(exported):
     from openpyxl import load_workbook
 
@@ -222,6 +237,9 @@ def test_defects_summary_and_hostile_text(exported):
         assert dws.cell(r, 5).value == pytest.approx(d.start_chainage_m)
         assert dws.cell(r, 6).number_format == '0"+"000.000'
         assert dws.cell(r, 7).value == pytest.approx(d.end_chainage_m - d.start_chainage_m + STEP)
+        # peak and limit with the digits the limit is checked on (mm: 4, mm/m: 5)
+        assert dws.cell(r, 8).number_format == dws.cell(r, 9).number_format
+        assert dws.cell(r, 8).number_format == {"mm": "0.0000", "mm/m": "0.00000"}[dws.cell(r, 10).value]
     summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
     assert summary["Result"] == "FAIL" and summary["Defects"] == len(rep.defects)
     assert summary["Project"] == "=1+1" and wb["Summary"]["B3"].data_type == "s"
@@ -421,3 +439,21 @@ def test_a_limit_in_mm_on_a_column_shown_in_metres_compares_metres(tmp_path, exp
     e_row = rows["E [m]"]
     assert (e_row[8].value, e_row[9].value) == (-0.0005, 0.0005)
     assert all(d.column == "E_m" for d in res.report.defects) and res.report.defects
+
+
+def test_section_quality_takes_twist_less_design(exported):
+    # the track's cant is its design's (0 -> 120 mm ramps at 100-150 m and 350-400 m): the
+    # designed twist of the ramps is no irregularity, the twist itself is not zero there
+    from trolley.sectionquality import section_quality
+
+    from survey.workbook import section_table
+
+    rep = exported[1].report
+    keys, quals = section_table(rep)
+    labels = [lab for _, lab in keys]
+    assert "twist less design" in labels and "twist" not in labels
+    q = quals[labels.index("twist less design")]
+    assert np.nanmax(q.std) < 1e-6
+    g = rep.geometry
+    raw = section_quality(g.chainage_m, g.columns["twist_m"], step_m=g.step_m)
+    assert np.nanmax(raw.std) > 1e-3
