@@ -202,16 +202,37 @@ def test_bad_settings_raise():
         GeometryConfig(long_chords_m=((5.0, 30.0),))
 
 
-@settings(max_examples=40, deadline=None)
-@given(d=st.floats(-20.0, 20.0), seed=st.integers(0, 1000))
-def test_shifted_matches_interp(d, seed):
-    x = np.random.default_rng(seed).normal(size=50)
-    y = shifted(x, d)
-    pos = np.arange(50) + d
+@settings(max_examples=60, deadline=None)
+@given(d=st.floats(-20.0, 20.0), c=st.lists(st.floats(-2.0, 2.0), min_size=4, max_size=4))
+def test_shifted_reads_cubics_exactly_inside_and_quadratics_everywhere(d, c):
+    i = np.arange(50.0)
+    cubic = lambda u: c[0] + c[1] * u / 10 + c[2] * (u / 10) ** 2 + c[3] * (u / 10) ** 3   # noqa: E731
+    quad = lambda u: c[0] + c[1] * u / 10 + c[2] * (u / 10) ** 2                        # noqa: E731
+    pos = i + d
     inside = (pos >= 0) & (pos <= 49)
-    np.testing.assert_allclose(y[inside], np.interp(pos[inside], np.arange(50), x), atol=1e-8)
+    y = shifted(quad(i), d, cubic=True)
+    np.testing.assert_allclose(y[inside], quad(pos[inside]), atol=1e-9)
+    four = (pos >= 1) & (pos <= 47)                      # the cubic's four points exist
+    np.testing.assert_allclose(shifted(cubic(i), d, cubic=True)[four], cubic(pos[four]), atol=1e-9)
+    # linear (the default): np.interp
+    x = cubic(i)
+    np.testing.assert_allclose(shifted(x, d)[inside], np.interp(pos[inside], i, x), atol=1e-9)
     # shifts within 1e-9 of an integer snap to it, so only clearly outside points must be NaN
     assert np.isnan(y[(pos < -1e-6) | (pos > 49 + 1e-6)]).all()
+
+
+def test_shifted_falls_back_beside_a_gap_and_a_fractional_chord_versine_is_the_arcs():
+    i = np.arange(30.0)
+    x = 0.5 * i ** 2
+    x[12] = np.nan
+    y = shifted(x, 0.5, cubic=True)
+    np.testing.assert_allclose(y[[9, 10, 13, 14]], 0.5 * (i[[9, 10, 13, 14]] + 0.5) ** 2, atol=1e-12)  # quadratic
+    assert np.isnan(y[[11, 12]]).all()                   # a neighbour is missing
+    # a 5.3 m chord (half-chord 4.24 steps) on R = 600 m: R (1 - cos(c / 2R)) at every station;
+    # linear interpolation had read it 0.059 mm too deep
+    R, s = 600.0, np.arange(0.0, 300.0, STEP)
+    v = horizontal_versine(R * np.sin(s / R), R * (1 - np.cos(s / R)), 5.3, STEP)
+    np.testing.assert_allclose(v[np.isfinite(v)], R * (1 - np.cos(2.65 / R)), atol=1e-9)
 
 
 def test_twist_less_design_removes_the_design_ramp():
