@@ -269,3 +269,36 @@ def test_the_worst_point_grows_with_every_error_across_the_accepted_ranges():
         w = np.array([worst(**{name: v}, **extra) for v in values])
         assert np.all(np.isfinite(w))
         assert np.all(np.diff(w, axis=0) >= -1e-12 * w[1:]), (name, w)
+
+
+def test_the_fixes_are_worst_points_too_when_the_bias_drift_dwarfs_the_fix_sigma():
+    # ARW, level and heading errors zero, 200 deg/h over 10 km: the fix at T absorbs the bias and
+    # the worst sigma is the fixes' own 0.6 mm (a cancelling grid had said 0.480 mm at 8750 m, PASS)
+    res, out = _json("--gyro-bias-deg-h", "200", "--gyro-arw-deg-sqrt-h", "0", "--heading-error-deg", "0",
+                     "--level-error-deg", "0", "--odo-scale-noise", "0", "--fix-spacing-m", "10000",
+                     "--target-mm", "0.5")
+    assert res.exit_code == 1 and out["pass"] is False
+    for d in ("vertical", "lateral"):
+        assert out[d]["max_mm"] == pytest.approx(0.6, rel=1e-9)
+        assert out[d]["worst_at_m"] in (0.0, 10000.0)
+
+
+def test_limits_fed_back_pass_and_unbounded_ones_are_told_from_none_meets():
+    res, out = _json()
+    lim = out["limits"]
+    for args, d in ((["--fix-spacing-m", repr(lim["max_fix_spacing_m_by_direction"]["longitudinal"])], "longitudinal"),
+                    (["--odo-scale-noise", repr(lim["max_odo_scale_noise_per_sqrt_s"])], "longitudinal"),
+                    (["--gyro-arw-deg-sqrt-h", repr(lim["max_gyro_arw_deg_sqrt_h"]["vertical"])], "vertical")):
+        _, back = _json(*args)
+        assert back[d]["pass"] is True and back[d]["max_mm"] == pytest.approx(0.67, rel=1e-9), args
+    res, out = _json("--odo-scale-noise", "0", "--target-mm", "0.8", "--fix-spacing-m", "10")
+    assert out["limits"]["max_fix_spacing_m_by_direction"]["longitudinal"] is None
+    assert "max_fix_spacing_m.longitudinal" in out["limits_unbounded"]
+    assert "max_gyro_bias_deg_h.vertical" in out["limits_unbounded"]
+    table = _run("--odo-scale-noise", "0", "--target-mm", "0.8", "--fix-spacing-m", "10").output
+    assert "any to the cap" in table and "none meets" not in table
+    _, low = _json("--target-mm", "0.5", "--level-error-deg", "0")
+    assert low["limits"]["max_fix_spacing_m_by_direction"]["lateral"] < 1.0
+    assert "below the 1 m this budget models" in low["limit_notes"]["max_fix_spacing_m.lateral"]
+    assert "max_gyro_bias_deg_h.lateral" not in low["limits_unbounded"]
+

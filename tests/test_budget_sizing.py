@@ -202,9 +202,19 @@ def test_monte_carlo_of_a_very_long_slow_interval_gets_a_coarser_grid():
     # MONTE_CARLO_MAX_NODES nodes, and the RMS still follows the analytic sigma at its nodes
     r = _preset("fog", heading_error_rad=units.deg_to_rad(0.6), fix_spacing_m=10000.0, speed_m_s=0.01)
     mc = B.monte_carlo(r.case, 60, seed=3)
-    assert mc.times_s.size == B.MONTE_CARLO_MAX_NODES
+    assert mc.times_s.size == B.MONTE_CARLO_MAX_NODES - 1          # an even number of steps
     assert mc.times_s[-1] == pytest.approx(1e6) and np.allclose(np.diff(mc.times_s), 1e6 / (mc.times_s.size - 1))
     tol = 4.5 * mc.relative_sampling_error()
     for d in B.DIRECTIONS:
         k = mc.mid_index
         assert abs(mc.rms_m[d][k] / mc.sigma_m[d][k] - 1) < tol, d
+
+
+@pytest.mark.parametrize("spacing", [2.5, 61.0])
+def test_the_monte_carlo_mid_node_is_mid_interval(spacing):
+    # T = 2.5 s on a 1 s grid had no node at T/2: "mid" was read at 0.833 s (0.447 against 0.424 mm)
+    r = _preset("fog", heading_error_rad=units.deg_to_rad(0.6), fix_spacing_m=spacing)
+    mc = B.monte_carlo(r.case, 2, seed=0)
+    T = float(r.case.interval_s)
+    assert mc.times_s[mc.mid_index] == pytest.approx(T / 2, rel=1e-12)
+    assert np.diff(mc.times_s).max() <= 1.0 + 1e-12

@@ -179,9 +179,11 @@ def compute_report(imu: str, figs, target_mm: float, monte_carlo_runs: int, seed
             "sources_mid_mm": {names[k]: units.m_to_mm(math.sqrt(max(r.mid_sources_m2[k], 0.0))) for k in names},
             "sources_max_mm": {names[k]: units.m_to_mm(math.sqrt(max(r.max_sources_m2[k], 0.0))) for k in names},
         }
-    limits, notes = _limits(case, resolved, figs, target)
+    limits, notes, unbounded = _limits(case, resolved, figs, target)
     out["limits"] = limits
     out["limit_notes"] = notes
+    # which nulls of "limits" mean "any value up to the search cap meets" (the others: none does)
+    out["limits_unbounded"] = unbounded
     out["pass"] = all(out[d]["pass"] for d in B.DIRECTIONS)
     heading_term = (units.EARTH_RATE_RAD_S * math.cos(figs.latitude_rad) * abs(resolved.heading_error_rad))
     out["inputs"] = {
@@ -235,6 +237,7 @@ def _limits(case, resolved, figs, target):
     from trolley import units
 
     notes: dict[str, str] = {}
+    unbounded: list[str] = []
 
     def one(size, parameter, direction, convert, key):
         try:
@@ -245,7 +248,11 @@ def _limits(case, resolved, figs, target):
         if math.isinf(x):
             notes[key] = (f"no {B.PARAMETER_LABELS[parameter]} up to the search cap brings the {direction} "
                           f"worst point above the target")
+            unbounded.append(key)
             return None
+        if parameter == "fix_spacing_m" and x < RANGES["fix_spacing_m"][0]:
+            notes[key] = (f"the largest {direction} fix spacing, {x:.3g} m, is below the "
+                          f"{RANGES['fix_spacing_m'][0]:g} m this budget models (--fix-spacing-m)")
         return convert(x)
 
     def held(parameter, direction, convert, key):
@@ -272,7 +279,7 @@ def _limits(case, resolved, figs, target):
             d: one(lambda d=d: B.max_gyro_bias_instability(figs, d, target), "gyro_bias_instability_rad_s", d,
                    units.rad_s_to_deg_h, f"max_gyro_bias_instability_deg_h.{d}")
             for d in ("lateral", "vertical")}
-    return limits, notes
+    return limits, notes, unbounded
 
 
 def _print_table(rep: dict) -> None:
@@ -331,20 +338,28 @@ def _print_table(rep: dict) -> None:
     L.add_column("lateral", justify="right")
     L.add_column("vertical", justify="right")
     L.add_column("longitudinal", justify="right")
-    fmt = lambda x, f="{:.4g}": "none meets" if x is None else f.format(x)  # noqa: E731
-    L.add_row("equivalent gyro bias (deg/h)", fmt(lim["max_gyro_bias_deg_h"]["lateral"]),
-              fmt(lim["max_gyro_bias_deg_h"]["vertical"]), "-")
+    unbounded = set(rep["limits_unbounded"])
+
+    def fmt(key: str, f: str = "{:.4g}") -> str:
+        # keys as in limit_notes: "group.direction"; the spacing per direction has its own group
+        group, _, direction = key.partition(".")
+        if group == "max_fix_spacing_m":
+            group = "max_fix_spacing_m_by_direction"
+        x = lim[group][direction] if direction else lim[group]
+        if x is None:
+            return "any to the cap" if key in unbounded else "none meets"
+        return f.format(x)
+
+    L.add_row("equivalent gyro bias (deg/h)", fmt("max_gyro_bias_deg_h.lateral"),
+              fmt("max_gyro_bias_deg_h.vertical"), "-")
     if "max_gyro_bias_instability_deg_h" in lim:
         follows = inp["heading_error_source"] == "gyrocompassing"
         L.add_row("gyro bias instability (deg/h)" + (" *" if follows else ""),
-                  fmt(lim["max_gyro_bias_instability_deg_h"]["lateral"]),
-                  fmt(lim["max_gyro_bias_instability_deg_h"]["vertical"]), "-")
-    L.add_row("angle random walk (deg/sqrt(h))", fmt(lim["max_gyro_arw_deg_sqrt_h"]["lateral"]),
-              fmt(lim["max_gyro_arw_deg_sqrt_h"]["vertical"]), "-")
-    L.add_row("odometer scale noise (1/sqrt(s))", "-", "-", fmt(lim["max_odo_scale_noise_per_sqrt_s"], "{:.3g}"))
-    sp = lim["max_fix_spacing_m_by_direction"]
-    L.add_row("fix spacing (m)", fmt(sp["lateral"], "{:.1f}"), fmt(sp["vertical"], "{:.1f}"),
-              fmt(sp["longitudinal"], "{:.1f}"))
+                  fmt("max_gyro_bias_instability_deg_h.lateral"), fmt("max_gyro_bias_instability_deg_h.vertical"), "-")
+    L.add_row("angle random walk (deg/sqrt(h))", fmt("max_gyro_arw_deg_sqrt_h.lateral"),
+              fmt("max_gyro_arw_deg_sqrt_h.vertical"), "-")
+    L.add_row("odometer scale noise (1/sqrt(s))", "-", "-", fmt("max_odo_scale_noise_per_sqrt_s", "{:.3g}"))
+    L.add_row("fix spacing (m)", *(fmt(f"max_fix_spacing_m.{d}", "{:.1f}") for d in ("lateral", "vertical", "longitudinal")))
     con.print(L)
     if "max_gyro_bias_instability_deg_h" in lim and inp["heading_error_source"] == "gyrocompassing":
         con.print("[dim]* with the gyrocompassing heading error and the equivalent bias following the bias "
