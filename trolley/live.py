@@ -133,7 +133,7 @@ class LiveProcessor:
         self.alignment = static_alignment(
             t, np.asarray(imu_w_rad_s, float), np.asarray(imu_f_m_s2, float), np.inf, self.meta.latitude_rad,
             self._misalign, initial_heading_rad=self.meta.initial_heading_rad,
-            gyro_bias_rad_s=imu.gyro_bias_instability_rad_s, accel_bias_m_s2=imu.accel_bias_m_s2,
+            gyro_bias_rad_s=imu.gyro_bias_sigma_rad_s, accel_bias_m_s2=imu.accel_bias_m_s2,
             gyrocompassing=imu.gyrocompassing, given_heading_sigma_rad=self.config.given_heading_sigma_rad)
         if self.alignment.heading_source == "fixes":
             raise ValueError("this IMU cannot gyrocompass: give initial_heading_deg for a live session")

@@ -835,7 +835,7 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig(),
     imu = cfg.imu
     if cfg.errors:
         bi = np.full(3, imu.gyro_bias_instability_rad_s)
-        gyro_bias = rng.standard_normal(3) * bi + _gauss_markov(
+        gyro_bias = rng.standard_normal(3) * imu.gyro_turn_on_bias_rad_s + _gauss_markov(
             rng, n_imu, bi, cfg.gyro_correlation_time_s, dt)
         gyro_sf = rng.standard_normal(3) * imu.gyro_scale_factor
         w_meas = w_b * (1.0 + gyro_sf) + gyro_bias \
