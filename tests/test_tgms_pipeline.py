@@ -370,3 +370,40 @@ def test_an_encoder_counting_backwards_is_refused_naming_the_row(sim_folder, tmp
     for cmd in (["process", str(dst), "--out", str(tmp_path / "o")], ["tune", str(dst), "--out", str(tmp_path / "p.toml")]):
         r = CliRunner().invoke(app, ["tgms", *cmd])
         assert r.exit_code == 2 and "encoder.csv: row 649, column count: the count goes backwards (-1 after 0)" in r.stderr, r.stderr
+
+
+def _edit_lasers(dst, edit):
+    """Rewrite laser_left.csv and laser_right.csv of a copied recording by ``edit(left, right)``."""
+    import pandas as pd
+
+    dfs = [pd.read_csv(dst / f"laser_{side}.csv") for side in ("left", "right")]
+    for side, df in zip(("left", "right"), edit(*dfs)):
+        df.to_csv(dst / f"laser_{side}.csv", index=False)
+
+
+def _late_row_of_frame_3(left, right):
+    t = left["t_s"].to_numpy().copy()
+    t[np.flatnonzero(left["frame"].to_numpy() == 3)[-1]] += 0.01      # 0.4 frame periods at 40 Hz
+    return left.assign(t_s=t), right
+
+
+@pytest.mark.parametrize("edit, said", [
+    # (bug hunt 2026-11-27) every frame number of the right camera one too high gave exit 0 and 13x
+    # the gauge error; its times were never compared with the left camera's
+    (lambda left, right: (left, right.assign(frame=right["frame"] + 1)),
+     "laser_right.csv: row 2, column t_s: frame 1 at 0 s, but laser_left.csv row 106 has it at 0.025 s, 1 frame "
+     "period apart: rows with the same frame number are the same instant"),
+    (lambda left, right: (left, right.assign(t_s=right["t_s"] + 0.5)),
+     "laser_right.csv: row 2, column t_s: frame 0 at 0.5 s, but laser_left.csv row 2 has it at 0 s, 20 frame periods"),
+    (_late_row_of_frame_3, "laser_left.csv: row 414, column t_s: frame 3 at 0.085 s, but its row 312 says 0.075 s"),
+    # 100 s late: "zero-size array to reduction operation fmin"
+    (lambda left, right: (left.assign(t_s=left["t_s"] + 100.0), right.assign(t_s=right["t_s"] + 100.0)),
+     "laser_left.csv and laser_right.csv start at 100 s (column t_s), when imu.csv has ended (22.88 s): the files "
+     "share no time"),
+], ids=["right-frames-plus-1", "right-times-plus-0.5s", "a-row-late-within-its-frame", "cameras-100s-late"])
+def test_camera_frames_at_other_times_than_their_number_says_are_refused(sim_folder, tmp_path, edit, said):
+    dst = _copy(sim_folder, tmp_path)
+    _edit_lasers(dst, edit)
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and said in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
