@@ -218,6 +218,14 @@ def test_band_option_parsing():
             parse_band(text, 0.25)
     with pytest.raises(ValueError, match=r"the cut-off LONG must exceed 2.5 steps \(0.625 m at --step-m 0.25\)"):
         parse_band("0.1", 0.25)
+    # (bug hunt 2026-11-27) the short edge obeys the same 2.5 steps: D1 (3-25 m) on a 5 m grid was
+    # accepted while --band 3 at --step-m 2 was refused
+    for text in ("D1", "3-25", "12-30"):
+        with pytest.raises(ValueError, match=r"short edge \d+ m is below 2.5 steps \(12.5 m at --step-m 5\).*"
+                                             r"use --step-m \d\.?\d* or less"):
+            parse_band(text, 5.0)
+    assert parse_band("D2", 5.0) == (25.0, 70.0) and parse_band("12.5-30", 5.0) == (12.5, 30.0)
+    assert parse_band("D1", 1.2) == (3.0, 25.0)
 
 
 def test_params_out_of_range_are_refused_naming_the_key():

@@ -46,20 +46,27 @@ def _read_recording(folder: Path):
         _fail(str(exc))
 
 
+#: shortest wavelength the output grid holds for --band, in steps (two are its Nyquist limit; the
+#: low-pass edge needs a little room above it): the short edge of any band, and the one a single
+#: LONG implies (bug hunt 2026-11-27: --band D1 at --step-m 5 was accepted, 3-25 m on a 5 m grid)
+BAND_MIN_STEPS = 2.5
+
+
 def parse_band(text: str, step_m: float):
     """``--band``: D1, D2, D3, none, SHORT-LONG (e.g. 3-25) or LONG (a user cut-off: keeps the
-    wavelengths from 2.5 steps up to LONG, i.e. removes the longer ones). Returns (short_m, long_m)
-    or None."""
+    wavelengths from :data:`BAND_MIN_STEPS` steps up to LONG, i.e. removes the longer ones). SHORT
+    may not be below that either. Returns (short_m, long_m) or None."""
     from trolley.bands import BANDS
     t = text.strip()
     if t.lower() == "none":
         return None
-    if t.upper() in BANDS:
-        return BANDS[t.upper()]
-    single = "-" not in t
+    shortest = BAND_MIN_STEPS * step_m
+    single = "-" not in t and t.upper() not in BANDS
     try:
-        if single:
-            a, b = 2.5 * step_m, float(t)
+        if t.upper() in BANDS:
+            a, b = BANDS[t.upper()]
+        elif single:
+            a, b = shortest, float(t)
         else:
             a, b = (float(x) for x in t.split("-", 1))
     except ValueError:
@@ -67,9 +74,14 @@ def parse_band(text: str, step_m: float):
     if not (math.isfinite(a) and math.isfinite(b)):
         raise ValueError(f"--band {text!r}: wavelengths must be finite numbers of metres")
     if single and not b > a:
-        raise ValueError(f"--band {text!r}: the cut-off LONG must exceed 2.5 steps ({a:g} m at --step-m {step_m:g})")
+        raise ValueError(f"--band {text!r}: the cut-off LONG must exceed {BAND_MIN_STEPS:g} steps ({a:g} m at "
+                         f"--step-m {step_m:g})")
     if not (0 < a < b):
         raise ValueError(f"--band {text!r}: need 0 < SHORT < LONG")
+    if a < shortest:
+        raise ValueError(f"--band {text!r}: its short edge {a:g} m is below {BAND_MIN_STEPS:g} steps ({shortest:g} m "
+                         f"at --step-m {step_m:g}), shorter than the output grid holds; use --step-m "
+                         f"{a / BAND_MIN_STEPS:g} or less, or a band from {shortest:g} m up")
     return (a, b)
 
 
@@ -217,7 +229,8 @@ def process_cmd(
     step: Annotated[float, typer.Option("--step-m", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
     band: Annotated[str, typer.Option("--band", help="D1, D2, D3 (EN 13848 bands), none, SHORT-LONG in m (e.g. 3-25) "
                                                     "or a single number LONG in m (e.g. 3: keeps wavelengths from "
-                                                    "2.5 steps up to LONG, i.e. removes the longer ones)")] = "none",
+                                                    f"{BAND_MIN_STEPS:g} steps up to LONG, i.e. removes the longer "
+                                                    f"ones); SHORT may not be below {BAND_MIN_STEPS:g} steps")] = "none",
     params_file: Annotated[Optional[Path], typer.Option("--params", help="parameter file from 'tgms tune'")] = None,
     orientation: Annotated[Optional[TgmsOrientation], typer.Option(help="attitude estimator (overrides --params; ignored with "
                                                             "--trajectory ekf, which estimates the attitude itself). "
