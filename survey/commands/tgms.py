@@ -155,10 +155,9 @@ def params_toml_text(params, extra: dict | None = None) -> str:
 def simulate_cmd(
     out: Annotated[Path, typer.Option("--out", help="recording folder to write")],
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
-    length_m: Annotated[float, typer.Option("--length-m", min=60.0, help="track length ridden, m")] = 200.0,
-    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=1.0, max=40.0, help="nominal speed, m/s")] = 10.0,
-    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0,
-                                                  help="camera frame rate, Hz")] = 100.0,
+    length_m: Annotated[float, typer.Option("--length-m", help="track length ridden, m (>= 60)")] = 200.0,
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", help="nominal speed, m/s (1-40)")] = 10.0,
+    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", help="camera frame rate, Hz (5-500)")] = 100.0,
     rail_profile: Annotated[RailProfile, typer.Option("--rail-profile", help="rail profile (EN 13674-1)")] = "60E1",
     json_output: JsonAlways = False,
 ) -> None:
@@ -168,7 +167,10 @@ def simulate_cmd(
     st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
                             camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
     try:
-        check_finite(length_m, "--length-m")
+        # the ranges here, not as typer min/max: nan got "Input should be greater than or equal to 60"
+        check_finite(length_m, "--length-m", minimum=60.0)
+        check_finite(speed_m_s, "--speed-m-s", minimum=1.0, maximum=40.0)
+        check_finite(camera_rate_hz, "--camera-rate-hz", minimum=5.0, maximum=500.0)
         guard_overwrite(out, "tgms simulate", force=False, reuse_own=True)
     except ValueError as exc:
         _fail(str(exc))
@@ -226,7 +228,7 @@ def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[
 def process_cmd(
     folder: Annotated[Path, typer.Argument(help="TGMS recording folder (FORMATS.md section 3)")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
-    step: Annotated[float, typer.Option("--step-m", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
+    step: Annotated[float, typer.Option("--step-m", help="station step of the output, m (0.01-5)")] = 0.25,
     band: Annotated[str, typer.Option("--band", help="D1, D2, D3 (EN 13848 bands), none, SHORT-LONG in m (e.g. 3-25) "
                                                     "or a single number LONG in m (e.g. 3: keeps wavelengths from "
                                                     f"{BAND_MIN_STEPS:g} steps up to LONG, i.e. removes the longer "
@@ -239,8 +241,7 @@ def process_cmd(
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="write PNG plots into --out")] = True,
     json_output: JsonAlways = False,
-    step_old: Annotated[Optional[float], typer.Option("--step", min=0.01, max=5.0, hidden=True,
-                                                      help=old_name("--step-m"))] = None,
+    step_old: Annotated[Optional[float], typer.Option("--step", hidden=True, help=old_name("--step-m"))] = None,
 ) -> None:
     """Process a recording into irregularities.csv (+ PNG plots)."""
     import dataclasses
@@ -255,6 +256,7 @@ def process_cmd(
 
     step = renamed(step, step_old, "--step-m", "--step", 0.25)
     try:
+        check_finite(step, "--step-m", minimum=0.01, maximum=5.0)
         bounds = parse_band(band, step)
         check_outputs([], inputs=[folder], folders=[("--out", out)])
     except ValueError as exc:
