@@ -15,6 +15,7 @@ import os
 import re
 import tomllib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -22,11 +23,15 @@ import pandas as pd
 from trolley.landxml import landxml_text, parse_landxml
 from trolley.tgms.camera import Camera
 from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
+from trolley.tgms.irregularities import empty_gap_m
 from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import write_csv_frame, write_text_atomic
 from survey.names import inside
 from survey.sessionio import PLAUSIBLE_ABS, implicit_index_problem, line_spans
+
+if TYPE_CHECKING:
+    from trolley.tgms.pipeline import TgmsResult
 
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
@@ -401,6 +406,36 @@ def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
         raise TgmsFormatError(f"{late} {verb} at {span[late][0]:.6g} s (column t_s), when {early} has ended "
                               f"({span[early][1]:.6g} s): the files share no time; their t_s must be seconds on one "
                               "clock")
+
+
+def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str]:
+    """What ``trolley tgms process`` must tell about a run that went through but measured less
+    than the recording promised: a camera file without the frames the other one has (its end cut
+    off, a stretch lost). One line each, naming the file and the chainage and time lost."""
+    out = []
+    gap = empty_gap_m(step_m)
+    n = len(res.vision.frame)
+    s = res.frames.s_m                       # per frame number; NaN: no station (standing, outside the IMU)
+    has = {side: np.bincount(lp.frame, minlength=n)[:n] > 0 for side, lp in rec.lasers.items()}
+    seen = np.flatnonzero(has["left"] | has["right"])
+    for side, other in (("left", "right"), ("right", "left")):
+        missing = ~has[side][seen] & has[other][seen]
+        edges = np.flatnonzero(np.diff(np.r_[0, missing.astype(np.int8), 0]))
+        lost = []
+        for a, b in zip(edges[::2], edges[1::2]):        # runs of the other camera's frames only
+            f = seen[a:b]
+            if np.isfinite(s[f]).any() and np.nanmax(s[f]) - np.nanmin(s[f]) >= gap:
+                lost.append((f, np.nanmin(s[f]), np.nanmax(s[f])))
+        if lost:
+            t = res.vision.t_s
+            shown = "; ".join(f"frames {f[0]}-{f[-1]} (t_s {t[f[0]]:.6g}-{t[f[-1]]:.6g} s, s {lo:.1f}-{hi:.1f} m)"
+                              for f, lo, hi in lost[:3])
+            more = f"; and {len(lost) - 3} more stretches" if len(lost) > 3 else ""
+            g = res.grid.s_m
+            n_cells = sum(int(((g >= lo) & (g <= hi)).sum()) for _, lo, hi in lost)
+            out.append(f"laser_{side}.csv has no rows for {shown}{more}, which laser_{other}.csv has: no {side}-rail "
+                       f"profile there; those {n_cells} cells of irregularities.csv are empty")
+    return out
 
 
 def write_recording(folder: str | os.PathLike, rec: Recording) -> None:

@@ -96,6 +96,8 @@ def test_cli_process_writes_csv_and_plots(sim_folder, tmp_path):
     import json
     summary = json.loads(r.stdout)
     assert summary["accuracy_3_25m"]["std_mm"]["gauge_variation"] < 0.15
+    # a clean ride gets no warning (0.3 m between frames on the 0.25 m grid fills every cell)
+    assert summary["warnings"] == [] and "warning" not in r.stderr
     data = tgms_io.read_irregularities(out / "irregularities.csv")
     assert list(data)[:5] == tgms_io.IRREGULARITY_COLUMNS
     assert np.allclose(np.diff(data["s_m"]), 0.25)
@@ -350,6 +352,8 @@ def test_cli_warns_that_orientation_is_ignored_with_the_ekf(sim_folder, tmp_path
                                  "--orientation", "madgwick", "--no-plots"])
     assert r.exit_code == 0, r.output
     assert "--orientation madgwick is ignored" in r.stderr
+    import json
+    assert [w.split(":")[0] for w in json.loads(r.stdout)["warnings"]] == ["--orientation madgwick is ignored"]
 
 
 @pytest.mark.parametrize("edit, said", [
@@ -369,15 +373,26 @@ def test_an_imu_with_a_gap_or_in_ms_is_refused(sim_folder, tmp_path, edit, said)
     assert not (tmp_path / "o").exists()
 
 
-def test_an_encoder_counting_backwards_is_refused_naming_the_row(sim_folder, tmp_path):
+def _reverse_after_row_6000(df):
+    c = df["count"].to_numpy().copy()
+    c[5999:] = 2 * c[5998] - c[5999:]         # data row 5999 (file row 6001) on, the counts fall again
+    return df.assign(count=c)
+
+
+@pytest.mark.parametrize("edit, said", [
+    (lambda df: df.assign(count=-df["count"]), "encoder.csv: row 649, column count: the count goes backwards (-1 after 0)"),
+    # (bug hunt 2026-11-27) an encoder reversing midway: refused at the row where the counts start to fall
+    (_reverse_after_row_6000, "encoder.csv: row 6001, column count: the count goes backwards ("),
+], ids=["from-the-start", "midway"])
+def test_an_encoder_counting_backwards_is_refused_naming_the_row(sim_folder, tmp_path, edit, said):
     import pandas as pd
 
     dst = _copy(sim_folder, tmp_path)
     df = pd.read_csv(dst / "encoder.csv")
-    df.assign(count=-df["count"]).to_csv(dst / "encoder.csv", index=False)
+    edit(df).to_csv(dst / "encoder.csv", index=False)
     for cmd in (["process", str(dst), "--out", str(tmp_path / "o")], ["tune", str(dst), "--out", str(tmp_path / "p.toml")]):
         r = CliRunner().invoke(app, ["tgms", *cmd])
-        assert r.exit_code == 2 and "encoder.csv: row 649, column count: the count goes backwards (-1 after 0)" in r.stderr, r.stderr
+        assert r.exit_code == 2 and said in r.stderr, r.stderr
 
 
 def _edit_lasers(dst, edit):
@@ -414,4 +429,44 @@ def test_camera_frames_at_other_times_than_their_number_says_are_refused(sim_fol
     _edit_lasers(dst, edit)
     r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and said in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def _process_json(dst, out, *extra):
+    import json
+
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(out), "--no-plots", *extra])
+    assert r.exit_code == 0, r.output
+    return json.loads(r.stdout), " ".join(r.stderr.split())
+
+
+def test_a_camera_file_that_ends_early_leaves_its_stretch_empty_and_says_so(sim_folder, tmp_path):
+    # (bug hunt 2026-11-27) laser_right.csv cut half-way: exit 0, no warning, irregularities.csv
+    # ended half-way with empty_cells 0
+    dst = _copy(sim_folder, tmp_path)
+    truth = tgms_io.read_truth(dst / "truth.csv")
+    _edit_lasers(dst, lambda left, right: (left, right[right["frame"] < 500]))
+    summary, err = _process_json(dst, tmp_path / "o")
+    said = [w for w in summary["warnings"] if w.startswith("laser_right.csv has no rows for frames 500-")]
+    assert len(said) == 1 and said[0] in err and "which laser_left.csv has: no right-rail profile there" in said[0]
+    t = float(said[0].split("(t_s ")[1].split("-")[0])
+    s_lo, s_hi = (float(x) for x in said[0].split(", s ")[1].split(" m)")[0].split("-"))
+    assert t == pytest.approx(12.5) and s_lo == pytest.approx(np.interp(t, truth["t_s"], truth["s_m"]), abs=0.5)
+    data = tgms_io.read_irregularities(tmp_path / "o" / "irregularities.csv")
+    s = data["s_m"]
+    # the grid still runs to the end of the ride, empty from where the right camera stopped
+    assert s[-1] > truth["s_m"][-1] - 2.0 and s_hi > s[-1] - 1.0
+    assert np.isnan(data["gauge_variation_mm"][s > s_lo + 0.5]).all()
+    assert np.isfinite(data["gauge_variation_mm"][(s > 30.0) & (s < s_lo - 1.0)]).mean() > 0.95
+    assert summary["empty_cells"]["gauge_variation"] == int(np.isnan(data["gauge_variation_mm"]).sum()) > 100
+
+
+def test_camera_frames_only_while_standing_are_a_clear_error(sim_folder, tmp_path):
+    # frames only in the first 0.4 s (at rest): no frame has a station ("zero-size array to
+    # reduction operation fmin" before)
+    dst = _copy(sim_folder, tmp_path)
+    _edit_lasers(dst, lambda left, right: (left[left["frame"] < 16], right[right["frame"] < 16]))
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "no camera frame was taken while the vehicle moved within the IMU and encoder record " \
+        "(frames at 0-0.375 s, IMU at" in " ".join(r.stderr.split()), r.stderr
     assert not (tmp_path / "o").exists()

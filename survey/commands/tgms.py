@@ -21,7 +21,6 @@ from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guar
 from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
 from survey.limits import check_finite
-from rich.markup import escape
 
 console = Console(stderr=True)
 
@@ -34,6 +33,10 @@ def _fail(msg: str) -> None:
 
     console.print(Text.assemble(("error:", "red"), " ", msg), highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
+
+
+def _warn(msg: str) -> None:
+    console.print(f"warning: {msg}", highlight=False, markup=False, soft_wrap=True)
 
 
 def _read_recording(folder: Path):
@@ -277,9 +280,11 @@ def process_cmd(
             params = TgmsParams.from_dict(d)
     except ValueError as exc:
         _fail(str(exc))
+    warnings = []
     if params.trajectory == "ekf" and orientation is not None:
-        console.print(f"[yellow]warning:[/yellow] --orientation {escape(orientation)} is ignored: the 12-state smoother "
-                      "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
+        warnings.append(f"--orientation {orientation} is ignored: the 12-state smoother (--trajectory ekf) estimates "
+                        "the attitude itself")
+        _warn(warnings[-1])
     with progress_bar("reading the recording", console) as report:
         rec = _read_recording(folder)
         try:
@@ -288,6 +293,9 @@ def process_cmd(
         except ValueError as exc:
             _fail(f"{folder}: {exc}")
         report("done", 1.0)
+    for text in tgms_io.process_warnings(rec, res, step):
+        warnings.append(text)
+        _warn(text)
     g = res.grid
     cols = {"s_m": g.s_m}
     for name in g.NAMES:
@@ -332,7 +340,7 @@ def process_cmd(
         "frames": int(len(res.vision.frame)), "frames_flagged": int((~res.vision.ok).sum()),
         "empty_cells": {n: int(np.isnan(cols[f"{n}_mm"]).sum()) for n in g.NAMES},   # (after --band)
         "curve_anchors": [[float(a), float(d)] for a, d in zip(res.odometry.anchors_app_m, res.odometry.anchors_design_m)],
-        "params": dataclasses.asdict(params), "timings_s": res.timings_s,
+        "params": dataclasses.asdict(params), "timings_s": res.timings_s, "warnings": warnings,
     }
     if truth is not None:
         from trolley.tgms.accuracy import accuracy
