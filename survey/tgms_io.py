@@ -408,10 +408,18 @@ def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
                               "clock")
 
 
+#: share of empty cells of irregularities.csv above which ``process`` warns even when no other
+#: warning says why (bug hunt 2026-11-27: 5 Hz cameras at 10 m/s left 98 % of the cells empty
+#: without a word)
+EMPTY_SHARE_WARNING = 0.5
+
+
 def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str]:
     """What ``trolley tgms process`` must tell about a run that went through but measured less
     than the recording promised: a camera file without the frames the other one has (its end cut
-    off, a stretch lost). One line each, naming the file and the chainage and time lost."""
+    off, a stretch lost), camera frames too far apart along the track for the output step, or most
+    cells empty for another reason (frames flagged). One line each, naming the file and the
+    chainage and time lost."""
     out = []
     gap = empty_gap_m(step_m)
     n = len(res.vision.frame)
@@ -435,6 +443,25 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
             n_cells = sum(int(((g >= lo) & (g <= hi)).sum()) for _, lo, hi in lost)
             out.append(f"laser_{side}.csv has no rows for {shown}{more}, which laser_{other}.csv has: no {side}-rail "
                        f"profile there; those {n_cells} cells of irregularities.csv are empty")
+    # camera frames farther apart than the grid interpolates across: the cells between them are
+    # empty. A spacing between one step and this gap fills every cell by interpolation, so it is not
+    # warned about (the tests' 40 Hz ride at 12 m/s has 0.3 m between frames on the 0.25 m grid).
+    fs = s[seen]
+    both = np.isfinite(fs[1:]) & np.isfinite(fs[:-1])
+    spacing = float(np.median(np.diff(fs)[both])) if both.any() else 0.0
+    cells = np.max([np.isnan(getattr(res.grid, f"{name}_m")).sum() for name in res.grid.NAMES])
+    total = len(res.grid.s_m)
+    if spacing > gap:
+        rate = 1.0 / float(np.median(np.diff(res.vision.t_s[seen])[both]))    # of the frames in the files
+        out.append(f"the camera frames are {spacing:.3g} m apart along the track (median; {rate:.3g} Hz at "
+                   f"{spacing * rate:.3g} m/s), more than the {gap:g} m across which irregularities.csv "
+                   f"interpolates: {cells} of {total} cells are empty; record at {spacing * rate / gap:.3g} Hz or "
+                   f"more, ride at {gap * rate:.3g} m/s or less, or use --step-m {spacing / 2:.3g} or more")
+    if not out and cells > EMPTY_SHARE_WARNING * total:
+        ok = res.vision.ok[seen]
+        out.append(f"{cells} of {total} cells of irregularities.csv ({100.0 * cells / total:.0f} %) are empty (no "
+                   f"usable frame within {gap:g} m): {int((~ok).sum())} of {ok.size} camera frames were flagged by "
+                   "the profile fit (too few laser points, a poor fit, no gauge face; docs/tgms.md, Pipeline 1)")
     return out
 
 

@@ -461,6 +461,59 @@ def test_a_camera_file_that_ends_early_leaves_its_stretch_empty_and_says_so(sim_
     assert summary["empty_cells"]["gauge_variation"] == int(np.isnan(data["gauge_variation_mm"]).sum()) > 100
 
 
+def _thin_frames(left, right, keep):
+    """Every frame number not kept by ``keep(frame)`` loses all but 4 of its laser points (flagged)."""
+    out = []
+    for df in (left, right):
+        f = df["frame"]
+        rank = df.groupby("frame").cumcount()
+        out.append(df[keep(f) | (rank < 4)])
+    return out
+
+
+@pytest.mark.parametrize("edit, said", [
+    # (bug hunt 2026-11-27) 5 Hz cameras at 10 m/s: 98 % of the cells empty, accuracy null, no word
+    (lambda left, right: (left[left["frame"] % 10 == 0], right[right["frame"] % 10 == 0]),
+     r"^the camera frames are 2\.\d+ m apart along the track \(median; 4 Hz at \d+\.?\d* m/s\), more than the 0\.5 m "
+     r"across which irregularities.csv interpolates: (\d+) of (\d+) cells are empty; record at \d+\.?\d* Hz or more"),
+    # most frames flagged by the profile fit, the frames themselves close together
+    (lambda left, right: _thin_frames(left, right, lambda f: f % 5 == 0),
+     r"^(\d+) of (\d+) cells of irregularities.csv \(\d+ %\) are empty \(no usable frame within 0.5 m\): \d+ of \d+ "
+     r"camera frames were flagged by the profile fit"),
+])
+def test_mostly_empty_output_is_warned_with_the_reason(sim_folder, tmp_path, edit, said):
+    import re
+
+    dst = _copy(sim_folder, tmp_path)
+    _edit_lasers(dst, edit)
+    summary, err = _process_json(dst, tmp_path / "o")
+    assert len(summary["warnings"]) == 1 and "warning: " + summary["warnings"][0] in err, summary["warnings"]
+    m = re.search(said, summary["warnings"][0])
+    assert m, summary["warnings"][0]
+    empty, total = int(m[1]), int(m[2])
+    assert empty == summary["empty_cells"]["gauge_variation"] and empty > 0.5 * total == 0.5 * summary["rows"]
+
+
+def test_a_processing_rate_below_the_cameras_is_refused_naming_the_file(sim_folder, tmp_path):
+    # (bug hunt 2026-11-27) process_rate_hz = 7 with 100 Hz cameras: exit 0, cross level 20x worse
+    from survey.commands.tgms import check_process_rate
+    d, rec, _ = sim_folder
+    pfile = tmp_path / "p.toml"
+    pfile.write_text('format = "trolley-tgms-params/1"\nprocess_rate_hz = 7.0\n')
+    r = CliRunner().invoke(app, ["tgms", "process", str(d), "--out", str(tmp_path / "o"), "--params", str(pfile)])
+    assert r.exit_code == 2 and (f"{pfile}: parameter process_rate_hz = 7 Hz is below the camera frame rate (40 Hz, "
+                                 "laser_left.csv and laser_right.csv)") in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
+    # the cameras' rate is the limit (40 Hz here); above 100 Hz the default 100 Hz is
+    check_process_rate(TgmsParams(process_rate_hz=40.0), rec, None)
+    with pytest.raises(ValueError, match="process_rate_hz = 39 Hz is below"):
+        check_process_rate(TgmsParams(process_rate_hz=39.0), rec, None)
+    fast = dataclasses.replace(rec, lasers={s: dataclasses.replace(lp, t_s=lp.t_s / 5.0) for s, lp in rec.lasers.items()})
+    check_process_rate(TgmsParams(), fast, None)
+    with pytest.raises(ValueError, match=r"below the camera frame rate \(200 Hz.*use at least 100 Hz"):
+        check_process_rate(TgmsParams(process_rate_hz=90.0), fast, None)
+
+
 def test_camera_frames_only_while_standing_are_a_clear_error(sim_folder, tmp_path):
     # frames only in the first 0.4 s (at rest): no frame has a station ("zero-size array to
     # reduction operation fmin" before)
