@@ -344,7 +344,7 @@ def _check_imu_sampling(imu: dict, rate_hz: float) -> None:
 
 #: how far apart in time two rows of one frame number may be, in camera frame periods: both
 #: cameras are triggered together, rows with the same frame number are the same instant (docs/tgms.md)
-#: (bug hunt 2026-11-27: laser_right.csv with every frame number one too high gave exit 0 and 13x
+#: (bug hunt: laser_right.csv with every frame number one too high gave exit 0 and 13x
 #: the gauge error; its t_s were never read, so 0.5 s added to them changed nothing)
 FRAME_TIME_TOLERANCE = 0.1
 
@@ -396,7 +396,7 @@ def _check_frame_times(raw: dict[str, dict], lasers: dict[str, LaserPoints]) -> 
 
 
 def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
-    """The IMU, the encoder and the cameras share some time (bug hunt 2026-11-26: laser files
+    """The IMU, the encoder and the cameras share some time (bug hunt: laser files
     100 s late ended in "zero-size array to reduction operation fmin")."""
     span = {k: (float(np.min(t)), float(np.max(t))) for k, t in times.items()}
     late = max(span, key=lambda k: span[k][0])
@@ -409,7 +409,7 @@ def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
 
 
 #: share of empty cells of irregularities.csv above which ``process`` warns even when no other
-#: warning says why (bug hunt 2026-11-27: 5 Hz cameras at 10 m/s left 98 % of the cells empty
+#: warning says why (bug hunt: 5 Hz cameras at 10 m/s left 784 of 793 cells empty
 #: without a word)
 EMPTY_SHARE_WARNING = 0.5
 

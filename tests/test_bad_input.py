@@ -369,7 +369,7 @@ PROBES: list[Probe] = [
           ["tgms", "simulate", "--out", str(t / "rec"), "--length-m", "60"], ("rec",)),
     Probe("tgms-simulate/length-inf", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--length-m", "inf"],
           ("--length-m",)),
-    # (bug hunt 2026-11-27) nan got typer's "Input should be greater than or equal to 60" (or
+    # (bug hunt) nan got typer's "Input should be greater than or equal to 60" (or
     # "... less than or equal to 40": typer compares nan with the upper bound first)
     *(Probe(f"tgms-simulate/{opt[2:]}-nan", lambda t, i, opt=opt: ["tgms", "simulate", "--out", str(t / "n"), opt, "nan"],
             (f"{opt}: must be a finite number, got nan",)) for opt in ("--length-m", "--speed-m-s", "--camera-rate-hz")),

@@ -51,7 +51,7 @@ def _read_recording(folder: Path):
 
 #: shortest wavelength the output grid holds for --band, in steps (two are its Nyquist limit; the
 #: low-pass edge needs a little room above it): the short edge of any band, and the one a single
-#: LONG implies (bug hunt 2026-11-27: --band D1 at --step-m 5 was accepted, 3-25 m on a 5 m grid)
+#: LONG implies (bug hunt: --band D1 at --step-m 5 was accepted, 3-25 m on a 5 m grid)
 BAND_MIN_STEPS = 2.5
 
 

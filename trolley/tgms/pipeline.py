@@ -229,7 +229,7 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
         getattr(fr, f"sigma_{name}_m")[~use] = np.nan
     # every frame taken while moving keeps its station, usable or not: the grid spans the stretch
     # the cameras saw, and what they could not measure (a camera file that ends early, flagged
-    # frames at the ends) is there as empty cells, not cut off (bug hunt 2026-11-27: a right camera
+    # frames at the ends) is there as empty cells, not cut off (bug hunt: a right camera
     # file ending half-way gave an irregularities.csv ending half-way, with no empty cell)
     fr.s_m = np.where(np.isfinite(s_f), s_las, np.nan)
     grid = resample_irregularities(fr, step_m)
