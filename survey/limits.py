@@ -44,8 +44,12 @@ def check_allocation(count: float, bytes_each: float, what: str) -> None:
                          f"({limit / 1e9:.3g} GB); choose a coarser value")
 
 
-def check_finite(value: float | None, option: str, *, positive: bool = False, minimum: float | None = None) -> None:
-    """Refuse nan, inf and (optionally) non-positive or too small option values.
+def check_finite(value: float | None, option: str, *, positive: bool = False, minimum: float | None = None,
+                 maximum: float | None = None) -> None:
+    """Refuse nan, inf and (optionally) non-positive, too small or too large option values.
+
+    (A typer ``min=``/``max=`` range would answer nan with "Input should be greater than or equal
+    to ..."; check the range here, after the finiteness.)
 
     Raises
     ------
@@ -60,3 +64,5 @@ def check_finite(value: float | None, option: str, *, positive: bool = False, mi
         raise ValueError(f"{option}: must be > 0, got {value}")
     if minimum is not None and value < minimum:
         raise ValueError(f"{option}: must be >= {minimum:g}, got {value:g}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{option}: must be <= {maximum:g}, got {value:g}")

@@ -15,6 +15,7 @@ import os
 import re
 import tomllib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -22,11 +23,15 @@ import pandas as pd
 from trolley.landxml import landxml_text, parse_landxml
 from trolley.tgms.camera import Camera
 from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
+from trolley.tgms.irregularities import empty_gap_m
 from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import write_csv_frame, write_text_atomic
 from survey.names import inside
 from survey.sessionio import PLAUSIBLE_ABS, implicit_index_problem, line_spans
+
+if TYPE_CHECKING:
+    from trolley.tgms.pipeline import TgmsResult
 
 FORMAT = "trolley-tgms/1"
 IRREGULARITY_COLUMNS = ["s_m", "gauge_variation_mm", "cross_level_mm", "alignment_mm", "vertical_profile_mm"]
@@ -293,7 +298,7 @@ def read_recording(folder: str | os.PathLike) -> Recording:
         raise TgmsFormatError(f"encoder.csv: row {enc['_line'][i]}, column count: the count goes backwards "
                               f"({int(enc['count'][i])} after {int(enc['count'][i - 1])}): the vehicle must run one "
                               "way, with its encoder counting up")
-    lasers = {}
+    lasers, raw = {}, {}
     for side in ("left", "right"):
         d = _read_csv(folder / f"laser_{side}.csv", ["frame", "t_s", "u_px", "v_px"], integer=("frame",))
         f = d["frame"]
@@ -303,7 +308,11 @@ def read_recording(folder: str | os.PathLike) -> Recording:
         if f.min() < 0:
             raise TgmsFormatError(f"laser_{side}.csv: row {d['_line'][int(np.argmin(f))]}, column frame: negative "
                                   "frame number")
+        raw[side] = d
         lasers[side] = LaserPoints(frame=f, t_s=d["t_s"], u_px=d["u_px"], v_px=d["v_px"])
+    _check_frame_times(raw, lasers)
+    _check_time_overlap({"imu.csv": imu["t_s"], "encoder.csv": enc["t_s"],
+                         "laser_left.csv and laser_right.csv": np.concatenate([raw[s]["t_s"] for s in raw])})
     return Recording(config=cfg, alignment=alignment, imu_t_s=imu["t_s"],
                      imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),
                      imu_f_m_s2=np.column_stack([imu["fx_m_s2"], imu["fy_m_s2"], imu["fz_m_s2"]]),
@@ -331,6 +340,129 @@ def _check_imu_sampling(imu: dict, rate_hz: float) -> None:
         raise TgmsFormatError(f"imu.csv: row {imu['_line'][i + 1]}, column t_s: a gap of {dt[i]:.6g} s after "
                               f"{imu['t_s'][i]:.6g} s ({dt[i] / step:.0f} sample periods): the IMU must be "
                               "continuous")
+
+
+#: how far apart in time two rows of one frame number may be, in camera frame periods: both
+#: cameras are triggered together, rows with the same frame number are the same instant (docs/tgms.md)
+#: (bug hunt: laser_right.csv with every frame number one too high gave exit 0 and 13x
+#: the gauge error; its t_s were never read, so 0.5 s added to them changed nothing)
+FRAME_TIME_TOLERANCE = 0.1
+
+
+def _frame_starts(frame: np.ndarray) -> np.ndarray:
+    """Index of the first row of each frame of a laser file (its frames are non-decreasing)."""
+    return np.flatnonzero(np.r_[True, np.diff(frame) != 0])
+
+
+def frame_period_s(lasers: dict[str, LaserPoints]) -> float:
+    """Camera frame period, s: the median time per frame number between consecutive frames of the
+    laser files (dropped frames do not bias it); nan with fewer than two frames."""
+    steps = []
+    for lp in lasers.values():
+        first = _frame_starts(lp.frame)
+        steps.append(np.diff(lp.t_s[first]) / np.diff(lp.frame[first]))
+    steps = np.concatenate(steps)
+    return float(np.median(steps)) if steps.size else float("nan")
+
+
+def _check_frame_times(raw: dict[str, dict], lasers: dict[str, LaserPoints]) -> None:
+    """Rows with the same frame number, in one laser file or in both, have the same t_s (to
+    :data:`FRAME_TIME_TOLERANCE` frame periods); the refusal names the file, row and frame."""
+    period = frame_period_s(lasers)
+    tol = FRAME_TIME_TOLERANCE * period if np.isfinite(period) else 0.0
+    same = "rows with the same frame number are the same instant (both cameras are triggered together)"
+    per = {}
+    for side, d in raw.items():
+        first = _frame_starts(d["frame"])
+        t_frame = d["t_s"][first]
+        off = np.abs(d["t_s"] - t_frame[np.cumsum(np.r_[False, np.diff(d["frame"]) != 0])]) > tol
+        if off.any():
+            i = int(np.argmax(off))
+            j = first[np.searchsorted(first, i, side="right") - 1]
+            raise TgmsFormatError(f"laser_{side}.csv: row {d['_line'][i]}, column t_s: frame {int(d['frame'][i])} at "
+                                  f"{d['t_s'][i]:.6g} s, but its row {d['_line'][j]} says {d['t_s'][j]:.6g} s: {same}")
+        per[side] = (d["frame"][first], t_frame, d["_line"][first])
+    (fl, tl, ll), (fr, tr, lr) = per["left"], per["right"]
+    _, il, ir = np.intersect1d(fl, fr, assume_unique=True, return_indices=True)
+    off = np.abs(tr[ir] - tl[il]) > tol
+    if off.any():
+        k = int(np.argmax(off))       # the first frame in both files, so the first such row of each
+        a, b = il[k], ir[k]
+        n = f"{abs(tr[b] - tl[a]) / period:.3g}" if period > 0 else ""
+        apart = f", {n} frame period{'' if n == '1' else 's'} apart" if n else ""
+        raise TgmsFormatError(f"laser_right.csv: row {lr[b]}, column t_s: frame {int(fr[b])} at {tr[b]:.6g} s, but "
+                              f"laser_left.csv row {ll[a]} has it at {tl[a]:.6g} s{apart}: {same}; a frame number or "
+                              "a time is off in one of the files")
+
+
+def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
+    """The IMU, the encoder and the cameras share some time (bug hunt: laser files
+    100 s late ended in "zero-size array to reduction operation fmin")."""
+    span = {k: (float(np.min(t)), float(np.max(t))) for k, t in times.items()}
+    late = max(span, key=lambda k: span[k][0])
+    early = min(span, key=lambda k: span[k][1])
+    if late != early and span[late][0] >= span[early][1]:
+        verb = "start" if " and " in late else "starts"
+        raise TgmsFormatError(f"{late} {verb} at {span[late][0]:.6g} s (column t_s), when {early} has ended "
+                              f"({span[early][1]:.6g} s): the files share no time; their t_s must be seconds on one "
+                              "clock")
+
+
+#: share of empty cells of irregularities.csv above which ``process`` warns even when no other
+#: warning says why (bug hunt: 5 Hz cameras at 10 m/s left 784 of 793 cells empty
+#: without a word)
+EMPTY_SHARE_WARNING = 0.5
+
+
+def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str]:
+    """What ``trolley tgms process`` must tell about a run that went through but measured less
+    than the recording promised: a camera file without the frames the other one has (its end cut
+    off, a stretch lost), camera frames too far apart along the track for the output step, or most
+    cells empty for another reason (frames flagged). One line each, naming the file and the
+    chainage and time lost."""
+    out = []
+    gap = empty_gap_m(step_m)
+    n = len(res.vision.frame)
+    s = res.frames.s_m                       # per frame number; NaN: no station (standing, outside the IMU)
+    has = {side: np.bincount(lp.frame, minlength=n)[:n] > 0 for side, lp in rec.lasers.items()}
+    seen = np.flatnonzero(has["left"] | has["right"])
+    for side, other in (("left", "right"), ("right", "left")):
+        missing = ~has[side][seen] & has[other][seen]
+        edges = np.flatnonzero(np.diff(np.r_[0, missing.astype(np.int8), 0]))
+        lost = []
+        for a, b in zip(edges[::2], edges[1::2]):        # runs of the other camera's frames only
+            f = seen[a:b]
+            if np.isfinite(s[f]).any() and np.nanmax(s[f]) - np.nanmin(s[f]) >= gap:
+                lost.append((f, np.nanmin(s[f]), np.nanmax(s[f])))
+        if lost:
+            t = res.vision.t_s
+            shown = "; ".join(f"frames {f[0]}-{f[-1]} (t_s {t[f[0]]:.6g}-{t[f[-1]]:.6g} s, s {lo:.1f}-{hi:.1f} m)"
+                              for f, lo, hi in lost[:3])
+            more = f"; and {len(lost) - 3} more stretches" if len(lost) > 3 else ""
+            g = res.grid.s_m
+            n_cells = sum(int(((g >= lo) & (g <= hi)).sum()) for _, lo, hi in lost)
+            out.append(f"laser_{side}.csv has no rows for {shown}{more}, which laser_{other}.csv has: no {side}-rail "
+                       f"profile there; those {n_cells} cells of irregularities.csv are empty")
+    # camera frames farther apart than the grid interpolates across: the cells between them are
+    # empty. A spacing between one step and this gap fills every cell by interpolation, so it is not
+    # warned about (the tests' 40 Hz ride at 12 m/s has 0.3 m between frames on the 0.25 m grid).
+    fs = s[seen]
+    both = np.isfinite(fs[1:]) & np.isfinite(fs[:-1])
+    spacing = float(np.median(np.diff(fs)[both])) if both.any() else 0.0
+    cells = np.max([np.isnan(getattr(res.grid, f"{name}_m")).sum() for name in res.grid.NAMES])
+    total = len(res.grid.s_m)
+    if spacing > gap:
+        rate = 1.0 / float(np.median(np.diff(res.vision.t_s[seen])[both]))    # of the frames in the files
+        out.append(f"the camera frames are {spacing:.3g} m apart along the track (median; {rate:.3g} Hz at "
+                   f"{spacing * rate:.3g} m/s), more than the {gap:g} m across which irregularities.csv "
+                   f"interpolates: {cells} of {total} cells are empty; record at {spacing * rate / gap:.3g} Hz or "
+                   f"more, ride at {gap * rate:.3g} m/s or less, or use --step-m {spacing / 2:.3g} or more")
+    if not out and cells > EMPTY_SHARE_WARNING * total:
+        ok = res.vision.ok[seen]
+        out.append(f"{cells} of {total} cells of irregularities.csv ({100.0 * cells / total:.0f} %) are empty (no "
+                   f"usable frame within {gap:g} m): {int((~ok).sum())} of {ok.size} camera frames were flagged by "
+                   "the profile fit (too few laser points, a poor fit, no gauge face; docs/tgms.md, Pipeline 1)")
+    return out
 
 
 def write_recording(folder: str | os.PathLike, rec: Recording) -> None:

@@ -369,6 +369,16 @@ PROBES: list[Probe] = [
           ["tgms", "simulate", "--out", str(t / "rec"), "--length-m", "60"], ("rec",)),
     Probe("tgms-simulate/length-inf", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--length-m", "inf"],
           ("--length-m",)),
+    # (bug hunt) nan got typer's "Input should be greater than or equal to 60" (or
+    # "... less than or equal to 40": typer compares nan with the upper bound first)
+    *(Probe(f"tgms-simulate/{opt[2:]}-nan", lambda t, i, opt=opt: ["tgms", "simulate", "--out", str(t / "n"), opt, "nan"],
+            (f"{opt}: must be a finite number, got nan",)) for opt in ("--length-m", "--speed-m-s", "--camera-rate-hz")),
+    Probe("tgms-simulate/length-below-60", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--length-m", "59"],
+          ("--length-m: must be >= 60, got 59",)),
+    Probe("tgms-simulate/speed-above-40", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--speed-m-s", "41"],
+          ("--speed-m-s: must be <= 40, got 41",)),
+    Probe("tgms-process/step-nan", tgms_process_probe(lambda r: None, "--step-m", "nan"),
+          ("--step-m: must be a finite number, got nan",)),
     Probe("tgms-process/one-row-imu", tgms_process_probe(lambda r: keep_rows(r / "imu.csv", 1)), ("imu.csv",)),
     Probe("tgms-process/two-row-imu", tgms_process_probe(lambda r: keep_rows(r / "imu.csv", 2)),
           ("imu.csv covers", "needs at least")),

@@ -96,6 +96,8 @@ def test_cli_process_writes_csv_and_plots(sim_folder, tmp_path):
     import json
     summary = json.loads(r.stdout)
     assert summary["accuracy_3_25m"]["std_mm"]["gauge_variation"] < 0.15
+    # a clean ride gets no warning (0.3 m between frames on the 0.25 m grid fills every cell)
+    assert summary["warnings"] == [] and "warning" not in r.stderr
     data = tgms_io.read_irregularities(out / "irregularities.csv")
     assert list(data)[:5] == tgms_io.IRREGULARITY_COLUMNS
     assert np.allclose(np.diff(data["s_m"]), 0.25)
@@ -218,6 +220,14 @@ def test_band_option_parsing():
             parse_band(text, 0.25)
     with pytest.raises(ValueError, match=r"the cut-off LONG must exceed 2.5 steps \(0.625 m at --step-m 0.25\)"):
         parse_band("0.1", 0.25)
+    # (bug hunt) the short edge obeys the same 2.5 steps: D1 (3-25 m) on a 5 m grid was
+    # accepted while --band 3 at --step-m 2 was refused
+    for text in ("D1", "3-25", "12-30"):
+        with pytest.raises(ValueError, match=r"short edge \d+ m is below 2.5 steps \(12.5 m at --step-m 5\).*"
+                                             r"use --step-m \d\.?\d* or less"):
+            parse_band(text, 5.0)
+    assert parse_band("D2", 5.0) == (25.0, 70.0) and parse_band("12.5-30", 5.0) == (12.5, 30.0)
+    assert parse_band("D1", 1.2) == (3.0, 25.0)
 
 
 def test_params_out_of_range_are_refused_naming_the_key():
@@ -342,6 +352,8 @@ def test_cli_warns_that_orientation_is_ignored_with_the_ekf(sim_folder, tmp_path
                                  "--orientation", "madgwick", "--no-plots"])
     assert r.exit_code == 0, r.output
     assert "--orientation madgwick is ignored" in r.stderr
+    import json
+    assert [w.split(":")[0] for w in json.loads(r.stdout)["warnings"]] == ["--orientation madgwick is ignored"]
 
 
 @pytest.mark.parametrize("edit, said", [
@@ -361,12 +373,153 @@ def test_an_imu_with_a_gap_or_in_ms_is_refused(sim_folder, tmp_path, edit, said)
     assert not (tmp_path / "o").exists()
 
 
-def test_an_encoder_counting_backwards_is_refused_naming_the_row(sim_folder, tmp_path):
+def _reverse_after_row_6000(df):
+    c = df["count"].to_numpy().copy()
+    c[5999:] = 2 * c[5998] - c[5999:]         # data row 5999 (file row 6001) on, the counts fall again
+    return df.assign(count=c)
+
+
+@pytest.mark.parametrize("edit, said", [
+    (lambda df: df.assign(count=-df["count"]), "encoder.csv: row 649, column count: the count goes backwards (-1 after 0)"),
+    # (bug hunt) an encoder reversing midway: refused at the row where the counts start to fall
+    (_reverse_after_row_6000, "encoder.csv: row 6001, column count: the count goes backwards ("),
+], ids=["from-the-start", "midway"])
+def test_an_encoder_counting_backwards_is_refused_naming_the_row(sim_folder, tmp_path, edit, said):
     import pandas as pd
 
     dst = _copy(sim_folder, tmp_path)
     df = pd.read_csv(dst / "encoder.csv")
-    df.assign(count=-df["count"]).to_csv(dst / "encoder.csv", index=False)
+    edit(df).to_csv(dst / "encoder.csv", index=False)
     for cmd in (["process", str(dst), "--out", str(tmp_path / "o")], ["tune", str(dst), "--out", str(tmp_path / "p.toml")]):
         r = CliRunner().invoke(app, ["tgms", *cmd])
-        assert r.exit_code == 2 and "encoder.csv: row 649, column count: the count goes backwards (-1 after 0)" in r.stderr, r.stderr
+        assert r.exit_code == 2 and said in r.stderr, r.stderr
+
+
+def _edit_lasers(dst, edit):
+    """Rewrite laser_left.csv and laser_right.csv of a copied recording by ``edit(left, right)``."""
+    import pandas as pd
+
+    dfs = [pd.read_csv(dst / f"laser_{side}.csv") for side in ("left", "right")]
+    for side, df in zip(("left", "right"), edit(*dfs)):
+        df.to_csv(dst / f"laser_{side}.csv", index=False)
+
+
+def _late_row_of_frame_3(left, right):
+    t = left["t_s"].to_numpy().copy()
+    t[np.flatnonzero(left["frame"].to_numpy() == 3)[-1]] += 0.01      # 0.4 frame periods at 40 Hz
+    return left.assign(t_s=t), right
+
+
+@pytest.mark.parametrize("edit, said", [
+    # (bug hunt) every frame number of the right camera one too high gave exit 0 and 13x
+    # the gauge error; its times were never compared with the left camera's
+    (lambda left, right: (left, right.assign(frame=right["frame"] + 1)),
+     "laser_right.csv: row 2, column t_s: frame 1 at 0 s, but laser_left.csv row 106 has it at 0.025 s, 1 frame "
+     "period apart: rows with the same frame number are the same instant"),
+    (lambda left, right: (left, right.assign(t_s=right["t_s"] + 0.5)),
+     "laser_right.csv: row 2, column t_s: frame 0 at 0.5 s, but laser_left.csv row 2 has it at 0 s, 20 frame periods"),
+    (_late_row_of_frame_3, "laser_left.csv: row 414, column t_s: frame 3 at 0.085 s, but its row 312 says 0.075 s"),
+    # 100 s late: "zero-size array to reduction operation fmin"
+    (lambda left, right: (left.assign(t_s=left["t_s"] + 100.0), right.assign(t_s=right["t_s"] + 100.0)),
+     "laser_left.csv and laser_right.csv start at 100 s (column t_s), when imu.csv has ended (22.88 s): the files "
+     "share no time"),
+], ids=["right-frames-plus-1", "right-times-plus-0.5s", "a-row-late-within-its-frame", "cameras-100s-late"])
+def test_camera_frames_at_other_times_than_their_number_says_are_refused(sim_folder, tmp_path, edit, said):
+    dst = _copy(sim_folder, tmp_path)
+    _edit_lasers(dst, edit)
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and said in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def _process_json(dst, out, *extra):
+    import json
+
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(out), "--no-plots", *extra])
+    assert r.exit_code == 0, r.output
+    return json.loads(r.stdout), " ".join(r.stderr.split())
+
+
+def test_a_camera_file_that_ends_early_leaves_its_stretch_empty_and_says_so(sim_folder, tmp_path):
+    # (bug hunt) laser_right.csv cut half-way: exit 0, no warning, irregularities.csv
+    # ended half-way with empty_cells 0
+    dst = _copy(sim_folder, tmp_path)
+    truth = tgms_io.read_truth(dst / "truth.csv")
+    _edit_lasers(dst, lambda left, right: (left, right[right["frame"] < 500]))
+    summary, err = _process_json(dst, tmp_path / "o")
+    said = [w for w in summary["warnings"] if w.startswith("laser_right.csv has no rows for frames 500-")]
+    assert len(said) == 1 and said[0] in err and "which laser_left.csv has: no right-rail profile there" in said[0]
+    t = float(said[0].split("(t_s ")[1].split("-")[0])
+    s_lo, s_hi = (float(x) for x in said[0].split(", s ")[1].split(" m)")[0].split("-"))
+    assert t == pytest.approx(12.5) and s_lo == pytest.approx(np.interp(t, truth["t_s"], truth["s_m"]), abs=0.5)
+    data = tgms_io.read_irregularities(tmp_path / "o" / "irregularities.csv")
+    s = data["s_m"]
+    # the grid still runs to the end of the ride, empty from where the right camera stopped
+    assert s[-1] > truth["s_m"][-1] - 2.0 and s_hi > s[-1] - 1.0
+    assert np.isnan(data["gauge_variation_mm"][s > s_lo + 0.5]).all()
+    assert np.isfinite(data["gauge_variation_mm"][(s > 30.0) & (s < s_lo - 1.0)]).mean() > 0.95
+    assert summary["empty_cells"]["gauge_variation"] == int(np.isnan(data["gauge_variation_mm"]).sum()) > 100
+
+
+def _thin_frames(left, right, keep):
+    """Every frame number not kept by ``keep(frame)`` loses all but 4 of its laser points (flagged)."""
+    out = []
+    for df in (left, right):
+        f = df["frame"]
+        rank = df.groupby("frame").cumcount()
+        out.append(df[keep(f) | (rank < 4)])
+    return out
+
+
+@pytest.mark.parametrize("edit, said", [
+    # (bug hunt) 5 Hz cameras at 10 m/s: 784 of 793 cells empty, accuracy null, no word
+    (lambda left, right: (left[left["frame"] % 10 == 0], right[right["frame"] % 10 == 0]),
+     r"^the camera frames are 2\.\d+ m apart along the track \(median; 4 Hz at \d+\.?\d* m/s\), more than the 0\.5 m "
+     r"across which irregularities.csv interpolates: (\d+) of (\d+) cells are empty; record at \d+\.?\d* Hz or more"),
+    # most frames flagged by the profile fit, the frames themselves close together
+    (lambda left, right: _thin_frames(left, right, lambda f: f % 5 == 0),
+     r"^(\d+) of (\d+) cells of irregularities.csv \(\d+ %\) are empty \(no usable frame within 0.5 m\): \d+ of \d+ "
+     r"camera frames were flagged by the profile fit"),
+])
+def test_mostly_empty_output_is_warned_with_the_reason(sim_folder, tmp_path, edit, said):
+    import re
+
+    dst = _copy(sim_folder, tmp_path)
+    _edit_lasers(dst, edit)
+    summary, err = _process_json(dst, tmp_path / "o")
+    assert len(summary["warnings"]) == 1 and "warning: " + summary["warnings"][0] in err, summary["warnings"]
+    m = re.search(said, summary["warnings"][0])
+    assert m, summary["warnings"][0]
+    empty, total = int(m[1]), int(m[2])
+    assert empty == summary["empty_cells"]["gauge_variation"] and empty > 0.5 * total == 0.5 * summary["rows"]
+
+
+def test_a_processing_rate_below_the_cameras_is_refused_naming_the_file(sim_folder, tmp_path):
+    # (bug hunt) process_rate_hz = 7 with 100 Hz cameras: exit 0, cross level 20x worse
+    from survey.commands.tgms import check_process_rate
+    d, rec, _ = sim_folder
+    pfile = tmp_path / "p.toml"
+    pfile.write_text('format = "trolley-tgms-params/1"\nprocess_rate_hz = 7.0\n')
+    r = CliRunner().invoke(app, ["tgms", "process", str(d), "--out", str(tmp_path / "o"), "--params", str(pfile)])
+    assert r.exit_code == 2 and (f"{pfile}: parameter process_rate_hz = 7 Hz is below the camera frame rate (40 Hz, "
+                                 "laser_left.csv and laser_right.csv)") in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
+    # the cameras' rate is the limit (40 Hz here); above 100 Hz the default 100 Hz is
+    check_process_rate(TgmsParams(process_rate_hz=40.0), rec, None)
+    with pytest.raises(ValueError, match="process_rate_hz = 39 Hz is below"):
+        check_process_rate(TgmsParams(process_rate_hz=39.0), rec, None)
+    fast = dataclasses.replace(rec, lasers={s: dataclasses.replace(lp, t_s=lp.t_s / 5.0) for s, lp in rec.lasers.items()})
+    check_process_rate(TgmsParams(), fast, None)
+    with pytest.raises(ValueError, match=r"below the camera frame rate \(200 Hz.*use at least 100 Hz"):
+        check_process_rate(TgmsParams(process_rate_hz=90.0), fast, None)
+
+
+def test_camera_frames_only_while_standing_are_a_clear_error(sim_folder, tmp_path):
+    # frames only in the first 0.4 s (at rest): no frame has a station ("zero-size array to
+    # reduction operation fmin" before)
+    dst = _copy(sim_folder, tmp_path)
+    _edit_lasers(dst, lambda left, right: (left[left["frame"] < 16], right[right["frame"] < 16]))
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "no camera frame was taken while the vehicle moved within the IMU and encoder record " \
+        "(frames at 0-0.375 s, IMU at" in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()

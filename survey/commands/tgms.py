@@ -21,7 +21,6 @@ from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guar
 from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
 from survey.limits import check_finite
-from rich.markup import escape
 
 console = Console(stderr=True)
 
@@ -36,6 +35,10 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _warn(msg: str) -> None:
+    console.print(f"warning: {msg}", highlight=False, markup=False, soft_wrap=True)
+
+
 def _read_recording(folder: Path):
     """The recording in ``folder``; a bad folder is one line naming the file, exit 2."""
     from survey import tgms_io
@@ -46,20 +49,27 @@ def _read_recording(folder: Path):
         _fail(str(exc))
 
 
+#: shortest wavelength the output grid holds for --band, in steps (two are its Nyquist limit; the
+#: low-pass edge needs a little room above it): the short edge of any band, and the one a single
+#: LONG implies (bug hunt: --band D1 at --step-m 5 was accepted, 3-25 m on a 5 m grid)
+BAND_MIN_STEPS = 2.5
+
+
 def parse_band(text: str, step_m: float):
     """``--band``: D1, D2, D3, none, SHORT-LONG (e.g. 3-25) or LONG (a user cut-off: keeps the
-    wavelengths from 2.5 steps up to LONG, i.e. removes the longer ones). Returns (short_m, long_m)
-    or None."""
+    wavelengths from :data:`BAND_MIN_STEPS` steps up to LONG, i.e. removes the longer ones). SHORT
+    may not be below that either. Returns (short_m, long_m) or None."""
     from trolley.bands import BANDS
     t = text.strip()
     if t.lower() == "none":
         return None
-    if t.upper() in BANDS:
-        return BANDS[t.upper()]
-    single = "-" not in t
+    shortest = BAND_MIN_STEPS * step_m
+    single = "-" not in t and t.upper() not in BANDS
     try:
-        if single:
-            a, b = 2.5 * step_m, float(t)
+        if t.upper() in BANDS:
+            a, b = BANDS[t.upper()]
+        elif single:
+            a, b = shortest, float(t)
         else:
             a, b = (float(x) for x in t.split("-", 1))
     except ValueError:
@@ -67,9 +77,14 @@ def parse_band(text: str, step_m: float):
     if not (math.isfinite(a) and math.isfinite(b)):
         raise ValueError(f"--band {text!r}: wavelengths must be finite numbers of metres")
     if single and not b > a:
-        raise ValueError(f"--band {text!r}: the cut-off LONG must exceed 2.5 steps ({a:g} m at --step-m {step_m:g})")
+        raise ValueError(f"--band {text!r}: the cut-off LONG must exceed {BAND_MIN_STEPS:g} steps ({a:g} m at "
+                         f"--step-m {step_m:g})")
     if not (0 < a < b):
         raise ValueError(f"--band {text!r}: need 0 < SHORT < LONG")
+    if a < shortest:
+        raise ValueError(f"--band {text!r}: its short edge {a:g} m is below {BAND_MIN_STEPS:g} steps ({shortest:g} m "
+                         f"at --step-m {step_m:g}), shorter than the output grid holds; use --step-m "
+                         f"{a / BAND_MIN_STEPS:g} or less, or a band from {shortest:g} m up")
     return (a, b)
 
 
@@ -118,6 +133,31 @@ def read_params(path: Path):
         raise ValueError(f"{path}: {exc}") from None
 
 
+#: how far below the cameras' frame rate process_rate_hz may lie, relative (timestamp rounding)
+PROCESS_RATE_TOLERANCE = 0.01
+
+
+def check_process_rate(params, rec, params_file: Path | None) -> None:
+    """Refuse a processing rate below the camera frame rate (or below the default 100 Hz for faster
+    cameras): each frame's attitude and trajectory would be interpolated between estimator samples
+    farther apart than the frames, across the vehicle body's motion. Measured on the default
+    simulated ride (200 m, 10 m/s, 100 Hz cameras): cross level 0.652 mm at 7 Hz, 0.066 at 25 Hz,
+    0.033 at 50 Hz against 0.032 at 100 Hz; 100 Hz processing of 200 Hz cameras lost nothing
+    (0.034 against 0.035 mm at 200 Hz). A refusal, like the file's other limits (bug hunt
+    2026-11-27: process_rate_hz = 7.0 was accepted without a word)."""
+    from survey.tgms_io import frame_period_s
+    from trolley.tgms.params import TgmsParams
+
+    camera_hz = 1.0 / frame_period_s(rec.lasers)
+    need = min(camera_hz, TgmsParams().process_rate_hz)
+    if params.process_rate_hz < need * (1.0 - PROCESS_RATE_TOLERANCE):
+        where = f"{params_file}: parameter process_rate_hz" if params_file is not None else "process_rate_hz"
+        raise ValueError(f"{where} = {params.process_rate_hz:g} Hz is below the camera frame rate ({camera_hz:.4g} Hz, "
+                         f"laser_left.csv and laser_right.csv): each frame's attitude and trajectory would be "
+                         f"interpolated between samples {1.0 / params.process_rate_hz:.3g} s apart; use at least "
+                         f"{need:.4g} Hz")
+
+
 def _params_file(path: Path) -> bool:
     """True for a parameter file that ``tune`` wrote (its first line names the format)."""
     try:
@@ -143,10 +183,9 @@ def params_toml_text(params, extra: dict | None = None) -> str:
 def simulate_cmd(
     out: Annotated[Path, typer.Option("--out", help="recording folder to write")],
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
-    length_m: Annotated[float, typer.Option("--length-m", min=60.0, help="track length ridden, m")] = 200.0,
-    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=1.0, max=40.0, help="nominal speed, m/s")] = 10.0,
-    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", min=5.0, max=500.0,
-                                                  help="camera frame rate, Hz")] = 100.0,
+    length_m: Annotated[float, typer.Option("--length-m", help="track length ridden, m (>= 60)")] = 200.0,
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", help="nominal speed, m/s (1-40)")] = 10.0,
+    camera_rate_hz: Annotated[float, typer.Option("--camera-rate-hz", help="camera frame rate, Hz (5-500)")] = 100.0,
     rail_profile: Annotated[RailProfile, typer.Option("--rail-profile", help="rail profile (EN 13674-1)")] = "60E1",
     json_output: JsonAlways = False,
 ) -> None:
@@ -156,7 +195,10 @@ def simulate_cmd(
     st = SimulationSettings(length_m=length_m, speed_m_s=speed_m_s, seed=seed,
                             camera_rate_hz=camera_rate_hz, rail_profile=rail_profile)
     try:
-        check_finite(length_m, "--length-m")
+        # the ranges here, not as typer min/max: nan got "Input should be greater than or equal to 60"
+        check_finite(length_m, "--length-m", minimum=60.0)
+        check_finite(speed_m_s, "--speed-m-s", minimum=1.0, maximum=40.0)
+        check_finite(camera_rate_hz, "--camera-rate-hz", minimum=5.0, maximum=500.0)
         guard_overwrite(out, "tgms simulate", force=False, reuse_own=True)
     except ValueError as exc:
         _fail(str(exc))
@@ -214,10 +256,11 @@ def _plots(out: Path, grid, band_label: str, truth: dict | None = None) -> list[
 def process_cmd(
     folder: Annotated[Path, typer.Argument(help="TGMS recording folder (FORMATS.md section 3)")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
-    step: Annotated[float, typer.Option("--step-m", min=0.01, max=5.0, help="station step of the output, m")] = 0.25,
+    step: Annotated[float, typer.Option("--step-m", help="station step of the output, m (0.01-5)")] = 0.25,
     band: Annotated[str, typer.Option("--band", help="D1, D2, D3 (EN 13848 bands), none, SHORT-LONG in m (e.g. 3-25) "
                                                     "or a single number LONG in m (e.g. 3: keeps wavelengths from "
-                                                    "2.5 steps up to LONG, i.e. removes the longer ones)")] = "none",
+                                                    f"{BAND_MIN_STEPS:g} steps up to LONG, i.e. removes the longer "
+                                                    f"ones); SHORT may not be below {BAND_MIN_STEPS:g} steps")] = "none",
     params_file: Annotated[Optional[Path], typer.Option("--params", help="parameter file from 'tgms tune'")] = None,
     orientation: Annotated[Optional[TgmsOrientation], typer.Option(help="attitude estimator (overrides --params; ignored with "
                                                             "--trajectory ekf, which estimates the attitude itself). "
@@ -226,8 +269,7 @@ def process_cmd(
     no_curve_matching: Annotated[bool, typer.Option("--no-curve-matching", help="use the encoder stations as they are")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="write PNG plots into --out")] = True,
     json_output: JsonAlways = False,
-    step_old: Annotated[Optional[float], typer.Option("--step", min=0.01, max=5.0, hidden=True,
-                                                      help=old_name("--step-m"))] = None,
+    step_old: Annotated[Optional[float], typer.Option("--step", hidden=True, help=old_name("--step-m"))] = None,
 ) -> None:
     """Process a recording into irregularities.csv (+ PNG plots)."""
     import dataclasses
@@ -242,6 +284,7 @@ def process_cmd(
 
     step = renamed(step, step_old, "--step-m", "--step", 0.25)
     try:
+        check_finite(step, "--step-m", minimum=0.01, maximum=5.0)
         bounds = parse_band(band, step)
         check_outputs([], inputs=[folder], folders=[("--out", out)])
     except ValueError as exc:
@@ -262,17 +305,26 @@ def process_cmd(
             params = TgmsParams.from_dict(d)
     except ValueError as exc:
         _fail(str(exc))
+    warnings = []
     if params.trajectory == "ekf" and orientation is not None:
-        console.print(f"[yellow]warning:[/yellow] --orientation {escape(orientation)} is ignored: the 12-state smoother "
-                      "(--trajectory ekf) estimates the attitude itself", highlight=False, soft_wrap=True)
+        warnings.append(f"--orientation {orientation} is ignored: the 12-state smoother (--trajectory ekf) estimates "
+                        "the attitude itself")
+        _warn(warnings[-1])
     with progress_bar("reading the recording", console) as report:
         rec = _read_recording(folder)
+        try:
+            check_process_rate(params, rec, params_file)
+        except ValueError as exc:
+            _fail(str(exc))
         try:
             res = process(rec, params, step_m=step, match_curves=not no_curve_matching,
                           progress=share(report, 0.1, 1.0))
         except ValueError as exc:
             _fail(f"{folder}: {exc}")
         report("done", 1.0)
+    for text in tgms_io.process_warnings(rec, res, step):
+        warnings.append(text)
+        _warn(text)
     g = res.grid
     cols = {"s_m": g.s_m}
     for name in g.NAMES:
@@ -317,7 +369,7 @@ def process_cmd(
         "frames": int(len(res.vision.frame)), "frames_flagged": int((~res.vision.ok).sum()),
         "empty_cells": {n: int(np.isnan(cols[f"{n}_mm"]).sum()) for n in g.NAMES},   # (after --band)
         "curve_anchors": [[float(a), float(d)] for a, d in zip(res.odometry.anchors_app_m, res.odometry.anchors_design_m)],
-        "params": dataclasses.asdict(params), "timings_s": res.timings_s,
+        "params": dataclasses.asdict(params), "timings_s": res.timings_s, "warnings": warnings,
     }
     if truth is not None:
         from trolley.tgms.accuracy import accuracy

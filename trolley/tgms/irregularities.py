@@ -133,13 +133,25 @@ def resample(s_m: np.ndarray, values: np.ndarray, grid_m: np.ndarray, max_gap_m:
     return out
 
 
+#: shortest distance between two usable frames across which the grid is left empty, m (or two steps
+#: when that is longer)
+MIN_EMPTY_GAP_M = 0.5
+
+
+def empty_gap_m(step_m: float) -> float:
+    """Distance between neighbouring usable frames beyond which :func:`resample_irregularities`
+    leaves the grid points between them empty, m."""
+    return max(2.0 * step_m, MIN_EMPTY_GAP_M)
+
+
 def resample_irregularities(irr: Irregularities, step_m: float, max_gap_m: float | None = None) -> Irregularities:
-    """The irregularities on the uniform grid k * step within the measured stations."""
+    """The irregularities on the uniform grid k * step within the frames' stations (frames with a
+    station and NaN values, e.g. flagged ones, extend the grid with empty points)."""
     ok = np.isfinite(irr.s_m)
     lo = np.ceil(np.nanmin(irr.s_m[ok]) / step_m) * step_m
     hi = np.nanmax(irr.s_m[ok])
     grid = np.round(np.arange(lo, hi + 1e-9, step_m) / step_m) * step_m
-    gap = max(2.0 * step_m, 0.5) if max_gap_m is None else max_gap_m
+    gap = empty_gap_m(step_m) if max_gap_m is None else max_gap_m
     vals = {}
     for name in Irregularities.NAMES:
         vals[f"{name}_m"] = resample(irr.s_m, getattr(irr, f"{name}_m"), grid, gap)

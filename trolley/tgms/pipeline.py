@@ -27,6 +27,8 @@ from trolley.tgms.vision import FitOptions, RailFit, fit_rail
 
 #: shortest stretch of track a recording must cover, m (a few camera frames' worth of irregularity)
 MIN_TRACK_M = 10.0
+#: speed below which a camera frame gets no station (standing still: the frames repeat one cut)
+MOVING_M_S = 0.5
 
 
 @dataclass
@@ -195,8 +197,12 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
         return np.where(inside, np.interp(tfi, t_grid, x), np.nan)
 
     s_f = at(odo.s_m)
-    moving = at(odo.v_m_s) > 0.5
+    moving = at(odo.v_m_s) > MOVING_M_S
     s_f = np.where(moving, s_f, np.nan)
+    if not np.isfinite(s_f).any():
+        raise ValueError(f"no camera frame was taken while the vehicle moved within the IMU and encoder record "
+                         f"(frames at {np.nanmin(tf):.6g}-{np.nanmax(tf):.6g} s, IMU at {t_grid[0]:.6g}-"
+                         f"{t_grid[-1]:.6g} s)")
     L, R = vis.left, vis.right
     roll_f, ry_f, rz_f = at(att.roll_rad), at(traj.dr_y_m), r0_z + at(traj.dr_z_m)
     # first-order form (Eq. 24, 27) for the sigmas; the values come from the exact transform below
@@ -218,7 +224,14 @@ def process(rec: Recording, params: TgmsParams = TgmsParams(), step_m: float = 0
         fr.cross_level_m[use] = qr[:, 2] - ql[:, 2]
         fr.alignment_m[use] = 0.5 * (ql[:, 1] + qr[:, 1])
         fr.vertical_profile_m[use] = -0.5 * (ql[:, 2] + qr[:, 2])
-    fr.s_m = np.where(use, s_las, np.nan)
+    for name in fr.NAMES:
+        getattr(fr, f"{name}_m")[~use] = np.nan
+        getattr(fr, f"sigma_{name}_m")[~use] = np.nan
+    # every frame taken while moving keeps its station, usable or not: the grid spans the stretch
+    # the cameras saw, and what they could not measure (a camera file that ends early, flagged
+    # frames at the ends) is there as empty cells, not cut off (bug hunt: a right camera
+    # file ending half-way gave an irregularities.csv ending half-way, with no empty cell)
+    fr.s_m = np.where(np.isfinite(s_f), s_las, np.nan)
     grid = resample_irregularities(fr, step_m)
     tim["irregularities"] = time.perf_counter() - t5
     report("irregularities", 1.0)
