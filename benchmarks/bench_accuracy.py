@@ -56,7 +56,7 @@ def main() -> None:
                                       with_observability=False)
                 dt = time.perf_counter() - t0
                 tj = res.trajectory
-                e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth)
+                e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth, cov_EN_m2=tj.cov_EN_m2)
                 errs[smoother].append(e)
                 rms = np.array(e.rms_m()) * 1e3
                 nr = e.normalised_rms()

@@ -59,7 +59,7 @@ def main() -> None:
             print(f"{head}\n  refused: {exc}")
             continue
         tj = res.trajectory
-        e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth)
+        e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth, cov_EN_m2=tj.cov_EN_m2)
         rms = [1e3 * x for x in e.rms_m()]
         worst = [1e3 * float(np.max(np.abs(x))) for x in (e.lateral_m, e.longitudinal_m, e.vertical_m)]
         q = e.normalised_rms()

@@ -30,7 +30,8 @@ from survey.sessionio import PLAUSIBLE_ABS, line_spans
 from survey.sheet_text import csv_read_text
 
 TRACK_REQUIRED = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm"]
-TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
+TRACK_OPTIONAL = ["lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m",
+                  "cov_EN_mm2", "sigma_cant_mm"]
 FIX_NUMERIC = ["t_s", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm", "nis"]
 
 
@@ -277,7 +278,8 @@ def _track_columns_fast(path: Path) -> dict[str, np.ndarray] | None:
 #: Largest plausible |value| of track.csv's mm columns (the SI ones: sessionio.PLAUSIBLE_ABS):
 #: a 1-sigma or deviation beyond 100 m, a gauge, cant or twist beyond 10 m is a corrupt cell.
 _TRACK_PLAUSIBLE_ABS_MM = {"sigma_E_mm": 1e5, "sigma_N_mm": 1e5, "sigma_H_mm": 1e5, "lateral_dev_mm": 1e5,
-                           "vertical_dev_mm": 1e5, "gauge_mm": 1e4, "cant_mm": 1e4, "twist_mm": 1e4}
+                           "vertical_dev_mm": 1e5, "gauge_mm": 1e4, "cant_mm": 1e4, "twist_mm": 1e4,
+                           "cov_EN_mm2": 1e10, "sigma_cant_mm": 1e4}
 
 
 def _check_plausible_track(path: Path, cols: dict[str, np.ndarray]) -> None:
@@ -374,7 +376,10 @@ def read_track_file(path: Path) -> TrackFile:
         chainage_m=s, E_m=cols["E_m"], N_m=cols["N_m"], H_m=cols["H_m"],
         sigma_E_m=mm(cols["sigma_E_mm"]), sigma_N_m=mm(cols["sigma_N_mm"]), sigma_H_m=mm(cols["sigma_H_mm"]),
         lateral_dev_m=mm(cols.get("lateral_dev_mm", nan)), vertical_dev_m=mm(cols.get("vertical_dev_mm", nan)),
-        gauge_m=mm(cols.get("gauge_mm", nan)), cant_m=mm(cols.get("cant_mm", nan)))
+        gauge_m=mm(cols.get("gauge_mm", nan)), cant_m=mm(cols.get("cant_mm", nan)),
+        # a track.csv of before 2026-11-26 has neither: the lateral sigma then takes cov 0
+        cov_EN_m2=mm(mm(cols["cov_EN_mm2"])) if "cov_EN_mm2" in cols else None,
+        sigma_cant_m=mm(cols["sigma_cant_mm"]) if "sigma_cant_mm" in cols else None)
     st = stationing_of_track(s, cols["chainage_m"]) if along == "distance_m" else None
     return TrackFile(track, mm(cols.get("twist_mm", nan)), st, _ignored_column_notes(path, set(cols)))
 

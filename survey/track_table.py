@@ -140,6 +140,7 @@ def sheet_columns(config: GeometryConfig) -> list[SheetColumn]:
         ("gauge_dev_m", f"Gauge dev [mm] (nominal {units.m_to_mm(config.nominal_gauge_m):g})", "gauge_dev_mm", "mm", "0.00"),
         ("gauge_rate_m_per_m", f"Gauge rate {gb} m [mm/m]", "gauge_rate_mm_per_m", "mm/m", "0.000"),
         ("cant_m", f"Cant [mm] {cant}", "cant_mm", "mm", "0.00"),
+        ("sigma_cant_m", "σ cant [mm]", "sigma_cant_mm", "mm", "0.00"),
         ("design_cant_m", f"Design cant [mm] {cant}", "design_cant_mm", "mm", "0.00"),
         ("cant_dev_m", f"Cant dev [mm] {cant}", "cant_dev_mm", "mm", "0.00"),
         ("twist_m", f"Twist {tb} m [mm] {cant}", "twist_mm", "mm", "0.00"),

@@ -25,7 +25,8 @@ from survey.sheet_text import csv_safe_text
 from survey.track_reader import equipment_figures
 
 TRACK_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "sigma_E_mm", "sigma_N_mm", "sigma_H_mm",
-                 "lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m"]
+                 "lateral_dev_mm", "vertical_dev_mm", "gauge_mm", "cant_mm", "twist_mm", "distance_m",
+                 "cov_EN_mm2", "sigma_cant_mm"]
 FIX_COLUMNS = ["t_s", "point", "E_m", "N_m", "H_m", "innov_E_mm", "innov_N_mm", "innov_H_mm",
                "nis", "accepted", "reason"]
 
@@ -55,6 +56,8 @@ def track_frame(result: ProcessResult, stationing: Stationing | None = None) -> 
         "lateral_dev_mm": mm(s.lateral_dev_m), "vertical_dev_mm": mm(s.vertical_dev_m),
         "gauge_mm": mm(s.gauge_m), "cant_mm": mm(s.cant_m), "twist_mm": mm(s.twist_m),
         "distance_m": s.chainage_m,
+        "cov_EN_mm2": mm(mm(s.cov_EN_m2)) if s.cov_EN_m2 is not None else np.nan,
+        "sigma_cant_mm": mm(s.sigma_cant_m) if s.sigma_cant_m is not None else np.nan,
     }, columns=TRACK_COLUMNS)
 
 

@@ -9,7 +9,7 @@ from survey.cli import app
 
 runner = CliRunner()
 TRACK_COLUMNS = ("chainage_m,E_m,N_m,H_m,sigma_E_mm,sigma_N_mm,sigma_H_mm,"
-                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm,distance_m").split(",")
+                 "lateral_dev_mm,vertical_dev_mm,gauge_mm,cant_mm,twist_mm,distance_m,cov_EN_mm2,sigma_cant_mm").split(",")
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +40,13 @@ def test_process_writes_track_csv_as_formats_says(session, tmp_path):
     fixes = pd.read_csv(out / "fixes.csv")
     assert len(fixes) == summary["fixes_used"]
     assert "fixes used / rejected" in r.stdout
+    # the horizontal covariance is one (|rho| <= 1) and correlated; the cant's sigma is the rail
+    # spacing times the level sigma, one value for the whole survey (cos(cant angle) aside)
+    rho = track["cov_EN_mm2"] / (track["sigma_E_mm"] * track["sigma_N_mm"])
+    assert rho.abs().max() <= 1.0 + 1e-9 and rho.abs().median() > 0.05
+    sc = track["sigma_cant_mm"]
+    assert sc.notna().all() and sc.max() - sc.min() < 0.01 * sc.max()
+    assert 0.05 < sc.max() < 0.3          # RLG: hypot(50 ug / g, 0.003 deg) x 1.5 m = 0.11 mm
 
 
 def test_bad_cell_names_file_row_column_and_writes_nothing(session, tmp_path):

@@ -40,7 +40,7 @@ def _run(design, east_m, seed, **sim):
 def _errors(design, sim):
     r = process_session(sim.session, design, with_observability=False)
     tj = r.trajectory
-    return r, track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth)
+    return r, track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, sim.truth, cov_EN_m2=tj.cov_EN_m2)
 
 
 def test_simulated_site_has_the_convergence_of_the_issue(design):

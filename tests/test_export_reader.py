@@ -23,7 +23,7 @@ def _track(path, n=40, step=0.625):
     s = np.arange(n) * step
     lines = [",".join(HEADER)]
     for x in s.tolist():
-        lines.append(f"{x!r},{1000 + x!r},5000.0,50.0,0.4,0.5,0.3,,,1435.2,0.0,,")
+        lines.append(f"{x!r},{1000 + x!r},5000.0,50.0,0.4,0.5,0.3,,,1435.2,0.0,," + "," * (len(HEADER) - 13))
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
@@ -88,9 +88,9 @@ def test_cli_export_field_session_folder_and_raw_session_error(tmp_path):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=12, max_size=12),
-                min_size=1, max_size=30),
-       st.lists(st.booleans(), min_size=6, max_size=6))
+@given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64),
+                         min_size=len(HEADER) - 1, max_size=len(HEADER) - 1), min_size=1, max_size=30),
+       st.lists(st.booleans(), min_size=len(TRACK_OPTIONAL), max_size=len(TRACK_OPTIONAL)))
 def test_fast_reader_equals_strict_reader(tmp_path_factory, rows, empty_optional):
     """pandas' C reader gives exactly the floats of the strict cell-by-cell reader."""
     path = tmp_path_factory.mktemp("fast") / "track.csv"
@@ -138,10 +138,10 @@ def test_a_row_cut_short_is_refused_on_both_paths(tmp_path):
     mid = tmp_path / "mid.csv"
     lines = text.splitlines()
     mid.write_text("\n".join(lines[:10] + [",".join(lines[10].split(",")[:7])] + lines[11:]) + "\n", encoding="utf-8")
-    assert len(lines[1].split(",")) == 13
+    assert len(lines[1].split(",")) == len(HEADER)
     for path, row, cells in ((cut, 41, 9), (mid, 11, 7)):
         assert _track_columns_fast(path) is None
-        with pytest.raises(ExportInputError, match=f"row {row}: {cells} cells, the header has 13 columns .a truncated"):
+        with pytest.raises(ExportInputError, match=f"row {row}: {cells} cells, the header has {len(HEADER)} columns .a truncated"):
             read_track_csv(path)
 
 

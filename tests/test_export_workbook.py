@@ -183,7 +183,7 @@ def test_print_settings_and_header_block(exported):
     head, _ = track_table(track)
     assert track.print_title_cols == "$A:$B" and track.print_title_rows == f"${head}:${head}"
     assert track.freeze_panes == f"C{head + 1}"                         # frozen below the column header
-    assert [b.id for b in track.col_breaks.brk] == [11, 17, 26, 32]    # positions | deviations | gauge, cant | ...
+    assert [b.id for b in track.col_breaks.brk] == [11, 17, 27, 33]    # positions | deviations | gauge, cant | ...
     summary = {r[0].value: r[1].value for r in wb["Summary"].iter_rows(min_row=1, max_col=2)}
     assert summary["Line"] == "not given" and summary["Total station serial number"] == "not given"
     assert summary["Tolerance set"].startswith("hsr_ballastless_static")

@@ -259,3 +259,14 @@ def test_a_regular_wave_near_the_end_is_no_false_defect_in_the_bands():
     ok = np.isfinite(d3)
     assert np.array_equal(ok, (s >= 200.0 - 1e-9) & (s <= s[-1] - 200.0 + 1e-9))
     assert np.nanmax(np.abs(d3)) < 0.016 * (0.975 + 0.09) < 0.018
+
+
+def test_lateral_sigma_takes_the_e_n_covariance():
+    # sigma_E = sigma_N = 1, cov 0.5, bearing 45 deg: the right normal (1, -1)/sqrt(2) has
+    # variance (1 + 1 - 2 x 0.5) / 2 = 0.5; along the track (1, 1)/sqrt(2) it would be 1.5
+    psi = np.deg2rad(45.0)
+    assert lateral_sigma(1.0, 1.0, psi, 0.5) == pytest.approx(np.sqrt(0.5), rel=1e-12)
+    assert lateral_sigma(1.0, 1.0, psi + np.pi / 2, 0.5) == pytest.approx(np.sqrt(1.5), rel=1e-12)
+    assert lateral_sigma(1.0, 1.0, psi) == pytest.approx(1.0, rel=1e-12)          # without it
+    # along a northbound track the lateral is E alone, whatever the covariance
+    assert lateral_sigma(0.3, 0.7, 0.0, 0.2) == pytest.approx(0.3, rel=1e-12)

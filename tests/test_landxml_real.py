@@ -330,11 +330,11 @@ def test_track_csv_chainage_is_the_drawing_station_distance_kept():
     s = 1296.0 + np.arange(n) * 1.0
     stations = type("S", (), dict(chainage_m=s, **{c: np.zeros(n) for c in (
         "E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m", "lateral_dev_m", "vertical_dev_m", "gauge_m",
-        "cant_m", "twist_m")}))()
+        "cant_m", "twist_m")}, cov_EN_m2=None, sigma_cant_m=None))()
     result = type("R", (), dict(stations=stations))()
     al = read_landxml(text("station_equation.xml")).alignment
     frame = track_frame(result, al.stationing)
-    assert list(frame.columns) == TRACK_COLUMNS and TRACK_COLUMNS[-1] == "distance_m"
+    assert list(frame.columns) == TRACK_COLUMNS and TRACK_COLUMNS[12] == "distance_m"
     np.testing.assert_allclose(frame["chainage_m"], [1296, 1297, 1298, 1299, 2300, 2301, 2302, 2303])
     np.testing.assert_allclose(frame["distance_m"], s)
     plain = track_frame(result)

@@ -36,7 +36,7 @@ from trolley.trackgeometry import TrackInput
 STATION_END_TOLERANCE_M = 0.005
 
 _STATION_FIELDS = ("chainage_m", "E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m", "lateral_dev_m",
-                   "vertical_dev_m", "gauge_m", "cant_m", "twist_m", "t_s")
+                   "vertical_dev_m", "gauge_m", "cant_m", "twist_m", "t_s", "cov_EN_m2", "sigma_cant_m")
 
 #: Order of the combined 8-state error vector: level channel then vertical channel.
 STATE_NAMES = em.LEVEL_STATES + em.VERTICAL_STATES
@@ -141,6 +141,8 @@ class Trajectory:
     roll_rad: np.ndarray
     error_states: np.ndarray  # (K, 8) smoothed (or filtered) error estimate
     odometer_m: np.ndarray | None = None
+    #: (K,) covariance of grid E and N, m^2 (None: not known, taken as 0)
+    cov_EN_m2: np.ndarray | None = None
 
 
 @dataclass
@@ -192,6 +194,31 @@ def sigmas_to_grid(sigma_enh: np.ndarray, grid: GridFactors | None) -> np.ndarra
     out[:, 0] = k * np.hypot(c * sigma_enh[:, 0], s * sigma_enh[:, 1])
     out[:, 1] = k * np.hypot(s * sigma_enh[:, 0], c * sigma_enh[:, 1])
     return out
+
+
+def horizontal_covariance_to_grid(var_E, var_N, cov_EN, grid: GridFactors | None):
+    """Variances and covariance along true east / north turned into grid E / N (exactly, unlike
+    :func:`sigmas_to_grid`): ``k R C R^T k`` with R the convergence rotation of
+    :meth:`trolley.projection.GridFactors.local_to_grid`.
+
+    Returns
+    -------
+    var_E, var_N, cov_EN : grid variances and covariance, m^2.
+    """
+    if grid is None:
+        return var_E, var_N, cov_EN
+    c, s, k2 = np.cos(grid.convergence_rad), np.sin(grid.convergence_rad), grid.combined_scale ** 2
+    vE = k2 * (c * c * var_E - 2 * c * s * cov_EN + s * s * var_N)
+    vN = k2 * (s * s * var_E + 2 * c * s * cov_EN + c * c * var_N)
+    cEN = k2 * (c * s * (var_E - var_N) + (c * c - s * s) * cov_EN)
+    return vE, vN, cEN
+
+
+def level_sigma_rad(align: StaticAlignment, config: ProcessConfig) -> float:
+    """1-sigma of the level (roll and pitch) the alignment leaves: accelerometer bias / g and the
+    residual mounting error in quadrature (the filter's P0 of the equivalent pitch; the roll, not
+    a filter state, keeps it: it is the cant's error)."""
+    return float(np.hypot(align.level_sigma_rad, config.residual_level_rad))
 
 
 class GridRotationError(ValueError):
@@ -338,7 +365,7 @@ def initial_covariance(meta, align: StaticAlignment, static_s: float, config: Pr
     eq_bias = float(em.equivalent_gyro_bias(imu.gyro_bias_sigma_rad_s, heading_sigma, meta.latitude_rad))
     p0u = em.InitialUncertainty(
         position_m=config.prior_position_m,
-        pitch_rad=float(np.hypot(align.level_sigma_rad, config.residual_level_rad)),
+        pitch_rad=level_sigma_rad(align, config),
         heading_rad=heading_sigma, gyro_bias_y_rad_s=eq_bias, gyro_bias_z_rad_s=eq_bias,
         odo_scale_error=meta.odometer.scale_error)
     return block_diag(em.level_initial_covariance(p0u), em.vertical_initial_covariance(p0u)), heading_sigma
@@ -650,12 +677,13 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
 
     # smoothed errors at every DR block, subtracted from the dead-reckoned trajectory
     Pdiag = np.diagonal(Ps, axis1=1, axis2=2)[:, _POS]
-    var_blocks = _interp_nodes(dr, nodes, Pdiag)
+    var_blocks = _interp_nodes(dr, nodes, np.column_stack([Pdiag, Ps[:, _IDX_N, _IDX_E]]))
     enh = ned_to_grid(ned, origin, grid)
-    sig = np.sqrt(np.maximum(var_blocks, 0.0))
-    sigma_enh = sigmas_to_grid(np.column_stack([sig[:, 1], sig[:, 0], sig[:, 2]]), grid)
+    vE, vN, cEN = horizontal_covariance_to_grid(var_blocks[:, 1], var_blocks[:, 0], var_blocks[:, 3], grid)
+    sigma_enh = np.sqrt(np.maximum(np.column_stack([vE, vN, var_blocks[:, 2]]), 0.0))
     roll = dr_used.euler_rad()[:, 0]
-    traj = Trajectory(dr.t_s, dr.travel_m, enh, sigma_enh, roll, x_blocks, odometer_m=dr.distance_m)
+    traj = Trajectory(dr.t_s, dr.travel_m, enh, sigma_enh, roll, x_blocks, odometer_m=dr.distance_m,
+                      cov_EN_m2=cEN)
 
     # innovation: the DR error the fix saw minus the error the filter predicted, in grid E, N, H
     # (of the first pass, the one that gated the fixes)
@@ -679,7 +707,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     fixes = FixReport(fix_t, fix_pt, fix_enh, innov_enh, fwd.nis, fwd.accepted, reasons)
 
     report("stations", 0.85)
-    stations = make_stations(traj, session, design, config)
+    stations = make_stations(traj, session, design, config, level_sigma_rad(align, config))
     ranks = None
     if with_observability:
         report("observability", 0.95)
@@ -826,8 +854,12 @@ def _facing(chainage_m: np.ndarray, odometer_m: np.ndarray) -> np.ndarray:
     return out
 
 
-def make_stations(traj: Trajectory, session: RawSession, design, config: ProcessConfig) -> Stations:
-    """Resample the corrected trajectory on a fixed chainage step (FORMATS.md section 2)."""
+def make_stations(traj: Trajectory, session: RawSession, design, config: ProcessConfig,
+                  level_sigma: float = float("nan")) -> Stations:
+    """Resample the corrected trajectory on a fixed chainage step (FORMATS.md section 2).
+
+    ``level_sigma`` (rad, :func:`level_sigma_rad`) gives the cant's 1-sigma; NaN leaves it unknown.
+    """
     enh = traj.enh_m
     if design is not None:
         # chainage is smooth in the odometer distance: project every metre and interpolate (on the
@@ -868,6 +900,9 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
 
     E, N, Hh = at(enh[:, 0]), at(enh[:, 1]), at(enh[:, 2])
     sE, sN, sH = (at(traj.sigma_enh_m[:, i]) for i in range(3))
+    cEN = at(traj.cov_EN_m2) if traj.cov_EN_m2 is not None else np.zeros_like(sE)
+    # interpolated apart, the covariance could step past the sigmas' product by rounding
+    cEN = np.clip(cEN, -sE * sN, sE * sN)
     t = at(traj.t_s)
     # cant from the roll of a trolley that faces increasing chainage; turned around, its roll is
     # the opposite of the track's (FORMATS.md 2: cant > 0 when the left rail is higher)
@@ -877,6 +912,8 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
     rail = session.meta.trolley.rail_spacing_m
     cant = at(facing * rail * np.sin(traj.roll_rad))
     twist = cant - np.interp(s - config.twist_base_m, s, cant, left=np.nan)
+    # d(rail sin roll) = rail cos(roll) d(roll)
+    sigma_cant = rail * np.sqrt(np.clip(1.0 - (cant / rail) ** 2, 0.0, 1.0)) * level_sigma
     if session.gauge_t_s is not None and len(session.gauge_t_s) > 1:
         gt = np.asarray(session.gauge_t_s, dtype=float)
         gauge = np.interp(t, gt, session.gauge_m, left=np.nan, right=np.nan)
@@ -897,5 +934,5 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
         lat = np.full_like(s, np.nan)
         vert = np.full_like(s, np.nan)
     order = np.argsort(chain, kind="stable")
-    cols = [chain, E, N, Hh, sE, sN, sH, lat, vert, gauge, cant, twist, t]
+    cols = [chain, E, N, Hh, sE, sN, sH, lat, vert, gauge, cant, twist, t, cEN, sigma_cant]
     return Stations(**{k: np.asarray(x)[order] for k, x in zip(_STATION_FIELDS, cols)})

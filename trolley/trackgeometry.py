@@ -103,6 +103,13 @@ class TrackInput:
     cant_m : measured cant, positive when the left rail is higher, m.
     design_E_m, design_N_m, design_H_m, design_cant_m : design at the stations (cant + left
         high), m; None without a design.
+    cov_EN_m2 : covariance of E and N, m^2 (with the sigmas the whole horizontal covariance; E
+        and N errors are correlated, |rho| 0.29 median for the RLG, 0.71 for MEMS); None: not
+        known, taken as 0 by the lateral sigma.
+    sigma_cant_m : 1-sigma of the cant, m (the engine's: the rail spacing times the level error
+        the alignment and the re-levelling at the stops leave, accelerometer bias / g and the
+        residual roll mounting; one error for the whole survey, so it cancels in twist; the
+        gyros' roll drift between stops is not in it). None: not known.
     """
 
     chainage_m: np.ndarray
@@ -120,6 +127,8 @@ class TrackInput:
     design_N_m: np.ndarray | None = None
     design_H_m: np.ndarray | None = None
     design_cant_m: np.ndarray | None = None
+    cov_EN_m2: np.ndarray | None = None
+    sigma_cant_m: np.ndarray | None = None
 
 
 @dataclass
@@ -168,7 +177,7 @@ def column_names(config: GeometryConfig) -> list[str]:
              "lateral_dev_m", "vertical_dev_m", "sigma_lateral_m", "sigma_vertical_m",
              "slew_m", "lift_m",
              "gauge_m", "gauge_dev_m", "gauge_rate_m_per_m",
-             "cant_m", "design_cant_m", "cant_dev_m", "twist_m", "twist_rate_m_per_m", "twist_dev_m",
+             "cant_m", "sigma_cant_m", "design_cant_m", "cant_dev_m", "twist_m", "twist_rate_m_per_m", "twist_dev_m",
              "versine_h_m", "design_versine_h_m", "versine_h_dev_m",
              "versine_v_m", "design_versine_v_m", "versine_v_dev_m"]
     for chord, spacing in config.long_chords_m:
@@ -317,16 +326,20 @@ def long_chord_check(dev_m: np.ndarray, chord_m: float, spacing_m: float, step_m
     return out
 
 
-def lateral_sigma(sigma_E_m, sigma_N_m, heading_rad) -> np.ndarray:
-    """1-sigma of the lateral position from the horizontal sigmas.
+def lateral_sigma(sigma_E_m, sigma_N_m, heading_rad, cov_EN_m2=None) -> np.ndarray:
+    """1-sigma of the lateral position from the horizontal covariance.
 
     The lateral direction is the right normal of the track, (cos psi, -sin psi) in (E, N) for a
     grid bearing psi clockwise from north, so ``sigma_lat^2 = cos^2 psi sigma_E^2 +
-    sin^2 psi sigma_N^2``. The E-N covariance is not in track.csv and is neglected (the result
-    lies between min and max of sigma_E, sigma_N either way).
+    sin^2 psi sigma_N^2 - 2 sin psi cos psi cov_EN``. Without ``cov_EN_m2`` (a track.csv of
+    before 2026-11-26) the covariance is taken as 0: over 64 simulated RLG surveys that made the
+    lateral sigma 13 % too large, over MEMS surveys 12 % too small.
     """
     c, s = np.cos(heading_rad), np.sin(heading_rad)
-    return np.sqrt((c * sigma_E_m) ** 2 + (s * sigma_N_m) ** 2)
+    var = (c * sigma_E_m) ** 2 + (s * sigma_N_m) ** 2
+    if cov_EN_m2 is not None:
+        var = var - 2.0 * s * c * np.asarray(cov_EN_m2, dtype=float)
+    return np.sqrt(np.maximum(var, 0.0))
 
 
 def heading_from_positions(E_m: np.ndarray, N_m: np.ndarray) -> np.ndarray:
@@ -397,7 +410,7 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     s = np.asarray(track.chainage_m, dtype=float)
     fields = ("E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m", "lateral_dev_m",
               "vertical_dev_m", "gauge_m", "cant_m", "design_E_m", "design_N_m", "design_H_m",
-              "design_cant_m")
+              "design_cant_m", "cov_EN_m2", "sigma_cant_m")
     gaps = chainage_gaps(s, step) if resampled else []
     if resampled:
         # grid stations strictly inside a gap have no measurement: empty, never a straight line
@@ -429,7 +442,7 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     c["design_E_m"], c["design_N_m"], c["design_H_m"] = dE, dN, dH
     c["lateral_dev_m"] = lat_sign * lat
     c["vertical_dev_m"] = vert
-    c["sigma_lateral_m"] = lateral_sigma(vals["sigma_E_m"], vals["sigma_N_m"], heading)
+    c["sigma_lateral_m"] = lateral_sigma(vals["sigma_E_m"], vals["sigma_N_m"], heading, vals["cov_EN_m2"])
     c["sigma_vertical_m"] = vals["sigma_H_m"]
     c["slew_m"] = -c["lateral_dev_m"]
     c["lift_m"] = -vert
@@ -442,6 +455,7 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
     cant = cant_sign * vals["cant_m"]
     design_cant = cant_sign * vals["design_cant_m"] if vals["design_cant_m"] is not None else nan
     c["cant_m"] = cant
+    c["sigma_cant_m"] = vals["sigma_cant_m"] if vals["sigma_cant_m"] is not None else nan
     c["design_cant_m"] = design_cant
     c["cant_dev_m"] = cant - design_cant
     c["twist_m"] = backward_difference(cant, config.twist_base_m, step)

@@ -96,7 +96,7 @@ def _accuracy_line(con: Console, result, truth) -> dict:
     from trolley.validation import track_errors
 
     tj = result.trajectory
-    e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth)
+    e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth, cov_EN_m2=tj.cov_EN_m2)
     rms = np.array(e.rms_m()) * 1e3
     nr = e.normalised_rms()
     con.print(f"accuracy against the truth: RMS lateral {rms[0]:.3f} mm, vertical {rms[2]:.3f} mm, "
