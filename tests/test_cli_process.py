@@ -182,3 +182,27 @@ def test_an_out_that_is_a_link_to_an_earlier_output_is_replaced_as_a_link(sessio
     assert sorted(p.name for p in tmp_path.iterdir()) == ["earlier", "l"]
     assert not (tmp_path / "l").is_symlink() and (tmp_path / "l" / "track.csv").is_file()
     assert {p.name: p.read_bytes() for p in target.iterdir()} == before
+
+
+def test_fixes_rejected_one_after_another_are_warned_about(session, tmp_path):
+    import shutil
+
+    from trolley.engine import longest_run
+
+    assert longest_run([True, False, True, True, True, False, True, True]) == 3
+    assert longest_run([False, False]) == 0 and longest_run([]) == 0
+    # three fixes in a row 0.5 m off: the gate rejects them, and the user hears what that means
+    bad = tmp_path / "bad"
+    shutil.copytree(session, bad)
+    fixes = pd.read_csv(bad / "fixes.csv")
+    assert len(fixes) == 4
+    fixes.loc[1:3, "E_m"] += 0.5
+    fixes.to_csv(bad / "fixes.csv", index=False, float_format="%.6f")
+    r = runner.invoke(app, ["process", str(bad), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["longest_rejected_run"] == 3
+    assert "3 fixes in a row were rejected" in " ".join(r.stderr.split())
+    ok = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "clean")])
+    assert "in a row were rejected" not in ok.stderr
+    assert json.loads((tmp_path / "clean" / "summary.json").read_text())["longest_rejected_run"] == 0

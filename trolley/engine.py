@@ -371,6 +371,13 @@ def initial_covariance(meta, align: StaticAlignment, static_s: float, config: Pr
     return block_diag(em.level_initial_covariance(p0u), em.vertical_initial_covariance(p0u)), heading_sigma
 
 
+def longest_run(flags: np.ndarray) -> int:
+    """Length of the longest run of consecutive True values."""
+    f = np.concatenate(([0], np.asarray(flags, dtype=np.int8), [0]))
+    edges = np.flatnonzero(np.diff(f))
+    return int(np.max(edges[1::2] - edges[::2])) if edges.size else 0
+
+
 def fix_covariances(sigma_enh_m: np.ndarray) -> np.ndarray:
     """(n, 3, 3) noise covariances of fixes in the filter's N, E, D order from E, N, H sigmas."""
     sig = np.atleast_2d(sigma_enh_m)
@@ -716,6 +723,9 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     summary = {
         "fixes_used": int(acc.sum()),
         "fixes_rejected": int((~acc).sum()),
+        # the most fixes rejected one after another: from 3 on, the filter has likely stopped
+        # trusting correct fixes (a MEMS audit: 3-13 in a row, tracks off by 23 mm to 2.5 m)
+        "longest_rejected_run": longest_run(~acc),
         # the first fix anchors the dead reckoning (its innovation is zero by construction)
         "rms_innovation_m": (float(np.sqrt(np.mean(innov_enh[1:][acc[1:]] ** 2))) if acc[1:].any()
                              else float("nan")),

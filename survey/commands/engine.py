@@ -167,8 +167,19 @@ def print_summary(result, written, con: Console | None = None) -> None:
         if not result.fixes.accepted[i]:
             err.print(Text.assemble(("rejected fix", "yellow"), f" {result.fixes.point[i]} at t="
                                     f"{result.fixes.t_s[i]:.1f} s: {result.fixes.reason[i]}"), highlight=False)
+    run = s["longest_rejected_run"]
+    if run >= REJECTED_RUN_WARNING:
+        err.print(Text.assemble(("warning", "bold yellow"), (
+            f": {run} fixes in a row were rejected; across them the track is dead reckoning (max 1-sigma "
+            f"{units.m_to_mm(s['max_sigma_m']):.1f} mm). Correct fixes are rejected one after another when "
+            "the filter is too sure of its prediction (seen with MEMS IMUs), or the fixes are wrong (a station "
+            "setup, a target): check their NIS in fixes.csv before using this track.")), highlight=False)
     con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
               markup=False, highlight=False)
+
+
+#: this many fixes rejected one after another are warned about (summary.json longest_rejected_run)
+REJECTED_RUN_WARNING = 3
 
 
 def register(app: typer.Typer) -> None:
