@@ -27,6 +27,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from trolley import units
+from trolley.numbertext import parse_number
 from trolley.sensors import ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
@@ -480,6 +481,10 @@ def _cell_problem(value: str) -> str:
         return "empty value"
     if value.lower().lstrip("+-") in ("nan", "inf", "infinity"):
         return f"{value!r} is not a finite number"
+    try:
+        parse_number(value)
+    except ValueError as exc:
+        return str(exc)
     return f"{value!r} is not a number"
 
 
@@ -557,7 +562,7 @@ def _bad_row_text(path: Path, header: list[str], names: dict[str, str], numeric:
         j = header.index(names[c])
         text = cells[j] if j < len(cells) else ""
         try:
-            ok = np.isfinite(float(text))
+            ok = np.isfinite(parse_number(text.strip()))
         except ValueError:
             ok = False
         if not ok:
@@ -778,10 +783,7 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
                 np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
                 f"{value.strip()} is not a plausible value (|{c}| <= {PLAUSIBLE_ABS[c]:g})"
                 if c in PLAUSIBLE_ABS and np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
-                "empty value" if value.strip() == "" else
-                f"{value!r} is not a finite number"
-                if value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity")
-                else f"{value!r} is not a number")
+                _cell_problem(value))
         raise SessionFormatError(f"{path.name}: row {_row(int(file_rows[i]))}, column {c}: {what}")
     t = vals["t_s"]
     _check_time(path, t, rows=file_rows)

@@ -386,6 +386,9 @@ PROBES: list[Probe] = [
     Probe("tgms-process/bad-cell-after-a-blank-line",
           tgms_process_probe(lambda r: (insert_line(r / "imu.csv", 10, ""), set_cell(r / "imu.csv", 41, "fx_m_s2", "abc"))),
           ("imu.csv: row 41, column fx_m_s2: not a finite number",)),
+    Probe("tgms-process/full-width-digit",
+          tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "-\uff10.0003")),
+          ("imu.csv: row 40, column wz_rad_s:", "'\uff10' (U+FF10 FULLWIDTH DIGIT ZERO) is not ASCII")),
     Probe("tgms-process/duplicated-row", tgms_process_probe(lambda r: duplicate_line(r / "imu.csv", 30)),
           ("imu.csv: row 31, column t_s: time repeats the previous row's", "a duplicated row?")),
     Probe("tgms-process/imu-1e308", tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "1e308")),
@@ -442,6 +445,11 @@ PROBES: list[Probe] = [
     Probe("project-import-cpiii/not-utf8", lambda t, i: new_project(t / "r") or
           (t / "c.csv").write_bytes(b"point,E_m,N_m,H_m\nCP\xe91,1,2,3\n") and
           ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")], ("c.csv",)),
+    Probe("project-import-cpiii/full-width-digit", lambda t, i: new_project(t / "r") or
+          (t / "c.csv").write_text("id,E_m,N_m,H_m\nCP1,500226.004,3100232.185,50.3\nCP2,\uff1500226.0040,3100232.2,50.3\n",
+                                   encoding="utf-8") and
+          ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")],
+          ("c.csv:3: column E_m:", "'\uff15' (U+FF15 FULLWIDTH DIGIT FIVE)", "nothing imported")),
     Probe("project-import-cpiii/markup-label", lambda t, i: new_project(t / "r") or
           (t / "c.csv").write_text("id,E_m,N_m,H_m\nCP[/x]1,1,2,inf\n") and
           ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")], ("c.csv",)),

@@ -242,6 +242,10 @@ def test_missing_and_malformed_attributes():
     _expect(EXAMPLE.replace('rot="cw" crvType="arc"', 'crvType="arc"'), "<Curve> no. 3", "rot")
     _expect(EXAMPLE.replace('length="60.0" radiusStart="INF"', 'length="6O.0" radiusStart="INF"'),
             "<Spiral> no. 2", "'6O.0'", "not a number")
+    _expect(EXAMPLE.replace('length="60.0" radiusStart="INF"', 'length="\uff160.0" radiusStart="INF"'),
+            "<Spiral> no. 2", "length='\uff160.0' is not a number", "(U+FF16 FULLWIDTH DIGIT SIX) is not ASCII")
+    _expect(EXAMPLE.replace("<End>4966.2411 1367.2468</End>", "<End>4966.2411 1367.246\uff18</End>"),
+            "<Line> no. 5", "value '1367.246\uff18' is not a number", "U+FF18 FULLWIDTH DIGIT EIGHT")
     _expect(EXAMPLE.replace('radiusEnd="600.0"', ""), "<Spiral> no. 2", "radiusEnd")
     _expect(EXAMPLE.replace('<Alignment name="UP-MAIN" staStart="0"', '<Alignment name="UP-MAIN"'),
             "UP-MAIN", "staStart")

@@ -36,6 +36,8 @@ CELL_CASES = [
     ("odometer.csv", 7, "distance_m", "12m", "not a number"),
     ("gauge.csv", 3, "gauge_m", "NaN", "not a finite number"),
     ("fixes.csv", 3, "E_m", "x", "not a number"),
+    ("fixes.csv", 3, "N_m", "\uff13100264.56", "'\uff13' (U+FF13 FULLWIDTH DIGIT THREE) is not ASCII"),
+    ("imu.csv", 8, "fz_m_s2", "-\uff19.79", "'-\uff19.79' is not a number: '\uff19' (U+FF19 FULLWIDTH DIGIT NINE)"),
     ("fixes.csv", 2, "H_m", "nan", "not a finite number"),
     ("fixes.csv", 2, "sigma_N_m", "-0.001", "positive"),
     ("fixes.csv", 3, "point", "", "empty point label"),

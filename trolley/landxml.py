@@ -61,6 +61,7 @@ import numpy as np
 from trolley import units
 from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line,
                                VerticalProfile)
+from trolley.numbertext import parse_number
 from trolley.stationing import StationEquation, StationNotFound, Stationing
 
 __all__ = ["LandXmlError", "AlignmentChoiceError", "LandXmlDesign", "read_landxml", "parse_landxml",
@@ -126,9 +127,9 @@ def _number(text: str | None, where: str, what: str) -> float:
     if text is None:
         raise LandXmlError(f"{where}: missing attribute {what!r}")
     try:
-        value = float(text.strip())
-    except ValueError:
-        raise LandXmlError(f"{where}: {what}={text!r} is not a number") from None
+        value = parse_number(text.strip())
+    except ValueError as exc:
+        raise LandXmlError(f"{where}: {what}={exc}") from None
     if math.isnan(value):
         raise LandXmlError(f"{where}: {what}={text!r} is not a number")
     return value
@@ -164,9 +165,9 @@ def _values(el: ET.Element, where: str, counts: tuple[int, ...], what: str) -> l
     out = []
     for p in parts:
         try:
-            v = float(p)
-        except ValueError:
-            raise LandXmlError(f"{where}: <{_local(el.tag)}> value {p!r} is not a number") from None
+            v = parse_number(p)
+        except ValueError as exc:
+            raise LandXmlError(f"{where}: <{_local(el.tag)}> value {exc}") from None
         if not math.isfinite(v):
             raise LandXmlError(f"{where}: <{_local(el.tag)}> value {p!r} must be finite")
         out.append(v)
