@@ -222,6 +222,14 @@ PROBES: list[Probe] = [
           ("odometer.csv: row 2: 4 cells, the header has 2 columns", "decimal comma")),
     Probe("process/decimal-commas-fixes", process_probe(lambda s: decimal_commas(s / "fixes.csv")),
           ("fixes.csv: row 2:", "the header has", "decimal comma")),
+    # a message names the session folder as given (relative here), not only "fixes.csv": with
+    # several sessions the user must see which one (hunt22_files item 10)
+    Probe("process/bad-fix-names-the-session-folder", lambda t, i: set_cell(copy(i.session, t / "day2") / "fixes.csv", 3,
+                                                                            "t_s", "") or
+          ["process", "w/day2", "--out", "w/out"], ("error: w/day2/fixes.csv: row 3, column t_s: empty value",)),
+    Probe("process/bad-design-names-the-session-folder",
+          lambda t, i: edit_text(copy(i.session, t / "day2") / "alignment.xml", "<Start>", "<Start>x") or
+          ["process", "w/day2", "--out", "w/out"], ("error: w/day2/alignment.xml: <Alignment", "<Start> value 'x")),
     Probe("process/missing-folder", lambda t, i: ["process", str(t / "nope"), "--out", str(t / "o")], ("nope",)),
     Probe("process/session-is-a-file", lambda t, i: (t / "f.csv").write_text("x") and
           ["process", str(t / "f.csv"), "--out", str(t / "o")], ("f.csv",)),
@@ -438,6 +446,10 @@ PROBES: list[Probe] = [
            "../x"], ("../x",)),
     Probe("project-import-session/project-dotdot", lambda t, i:
           ["project", "import-session", str(_sess(t, i)), "--project", "../..", "--root", str(t / "r")], ("../..",)),
+    Probe("project-import-session/bad-fix-names-the-session-folder", lambda t, i: new_project(t / "r") or
+          set_cell(copy(i.session, t / "day2") / "fixes.csv", 3, "t_s", "") or
+          ["project", "import-session", "w/day2", "--project", "p", "--root", str(t / "r")],
+          ("error: w/day2/fixes.csv: row 3, column t_s: empty value",)),
     Probe("project-import-session/imu-1e308", lambda t, i: new_project(t / "r") or
           set_cell(_sess(t, i) / "imu.csv", 100, "fy_m_s2", "1e308") or
           ["project", "import-session", str(t / "sess"), "--project", "p", "--root", str(t / "r")],
