@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trolley.numbertext import foreign_character, parse_number
+
 from survey.store import ControlPoint, PointConflict, ProjectStore
 
 #: GSI unit digit -> divisor turning the integer data into metres.
@@ -97,12 +99,9 @@ def parse_cpiii_csv(text: str, name: str = "<csv>") -> list[ControlPoint]:
         for col in _CSV_COLUMNS[1:]:
             cell = row[index[col]].strip()
             try:
-                # Python's float() also takes "1_000" (digit grouping): not a number in a CSV
-                if "_" in cell:
-                    raise ValueError(cell)
-                v = float(cell)
-            except ValueError:
-                raise CpiiiError(name, line, f"column {col}: {cell!r} is not a number") from None
+                v = parse_number(cell)
+            except ValueError as exc:
+                raise CpiiiError(name, line, f"column {col}: {exc}") from None
             if not math.isfinite(v):
                 raise CpiiiError(name, line, f"column {col}: {cell!r} is not finite")
             _check_plausible(col, v, f"column {col}", name, line)
@@ -124,7 +123,7 @@ def _gsi_words(body: str, wide: bool, name: str, line: int) -> list[tuple[str, s
         if len(w) != size:
             kind = "GSI-16: line starts with '*'" if wide else "GSI-8: line without '*'"
             raise CpiiiError(name, line, f"word {k} {w!r} has {len(w)} characters, expected {size} and a blank ({kind})")
-        if not (w[:2].isdigit() and w[6] in "+-"):
+        if not (w[:2].isascii() and w[:2].isdigit() and w[6] in "+-"):
             raise CpiiiError(name, line, f"word {k} {w!r} is not a GSI word (WI digits, then sign at position 7)")
         wi = w[:3] if (w[0] == "5" and w[2].isdigit()) else w[:2]
         out.append((wi, w[2:6], w[5], w[6:]))
@@ -148,8 +147,10 @@ def _gsi_coordinate(wi: str, unit: str, data: str, name: str, line: int) -> floa
         raise CpiiiError(name, line, f"word {wi} ({what}): unit digit {unit!r} = {_GSI_UNIT_NAMES.get(unit, 'unknown')}; "
                                      f"coordinates must be metres (unit digit 0, 6 or 8)")
     digits = data[1:]
-    if not digits.isdigit():
-        raise CpiiiError(name, line, f"word {wi} ({what}): data {data!r} is not a number")
+    foreign = foreign_character(digits)
+    if foreign is not None or not digits.isdigit():
+        raise CpiiiError(name, line, f"word {wi} ({what}): data {data!r} is not a number"
+                         + (f": {foreign}" if foreign else ""))
     value = int(digits) / GSI_METRE_DIVISORS[unit]
     value = -value if data[0] == "-" else value
     _check_plausible(_GSI_COLUMNS[wi], value, f"word {wi} ({what})", name, line)

@@ -27,6 +27,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from trolley import units
+from trolley.numbertext import parse_number
 from trolley.sensors import ImuFigures, OdometerFigures
 from trolley.session import Fixes, RawSession, SessionMeta, TrolleyGeometry
 
@@ -352,8 +353,8 @@ def read_session_meta(folder: Path) -> SessionMeta:
     except FileNotFoundError:
         raise SessionFormatError(f"{path}: file missing") from None
     except UnicodeDecodeError as exc:
-        raise SessionFormatError(f"session.toml: not UTF-8 ({exc})") from None
-    return _parse_meta(text)
+        raise SessionFormatError(f"{path}: not UTF-8 ({exc})") from None
+    return _parse_meta(text, str(path))
 
 
 def write_session_meta(path: Path, meta: SessionMeta) -> None:
@@ -375,13 +376,13 @@ def _header(path: Path) -> list[str]:
     try:
         cols = pd.read_csv(path, nrows=0, encoding="utf-8-sig", engine="c").columns
     except FileNotFoundError:
-        raise SessionFormatError(f"{path.name}: file missing") from None
+        raise SessionFormatError(f"{path}: file missing") from None
     except UnicodeDecodeError:
         raise _utf8_error(path) from None
     except pd.errors.EmptyDataError:
-        raise SessionFormatError(f"{path.name}: row 1: empty file, no header row") from None
+        raise SessionFormatError(f"{path}: row 1: empty file, no header row") from None
     except pd.errors.ParserError as exc:
-        raise SessionFormatError(f"{path.name}: row 1: cannot parse header ({exc})") from None
+        raise SessionFormatError(f"{path}: row 1: cannot parse header ({exc})") from None
     return [str(c) for c in cols]
 
 
@@ -392,9 +393,9 @@ def _utf8_error(path: Path) -> SessionFormatError:
         data.decode("utf-8")
     except UnicodeDecodeError as exc:
         row = data.count(b"\n", 0, exc.start) + 1
-        return SessionFormatError(f"{path.name}: row {row}: not UTF-8 (byte {exc.object[exc.start]:#04x}"
+        return SessionFormatError(f"{path}: row {row}: not UTF-8 (byte {exc.object[exc.start]:#04x}"
                                   f" at file offset {exc.start})")
-    return SessionFormatError(f"{path.name}: not UTF-8")
+    return SessionFormatError(f"{path}: not UTF-8")
 
 
 def _require(path: Path, header: list[str], required: list[str]) -> dict[str, str]:
@@ -404,7 +405,7 @@ def _require(path: Path, header: list[str], required: list[str]) -> dict[str, st
         stripped.setdefault(h.strip(), h)
     missing = [c for c in required if c not in stripped]
     if missing:
-        raise SessionFormatError(f"{path.name}: row 1: missing required column "
+        raise SessionFormatError(f"{path}: row 1: missing required column "
                                  f"{', '.join(missing)} (header has {', '.join(header)})")
     return stripped
 
@@ -433,7 +434,8 @@ def implicit_index_problem(path: Path, df) -> str | None:
     if isinstance(df.index, pd.RangeIndex):
         return None
     n = len(df.columns)
-    return f"{path.name}: row 2: {n + df.index.nlevels} cells, the header has {n} columns (a decimal comma? use a point: 0.5)"
+    return (f"{path}: row 2: {n + df.index.nlevels} cells, the header has {n} columns (a decimal comma? use a "
+            "point: 0.5)")
 
 
 def _check_no_implicit_index(path: Path, df) -> None:
@@ -451,9 +453,9 @@ def _parser_error(path: Path, exc: Exception) -> SessionFormatError:
     q = re.search(r"EOF inside string starting at row (\d+)", msg)
     if q:
         # pandas counts that row from 0 with the header: a spreadsheet's row is one more
-        return SessionFormatError(f"{path.name}: row {int(q.group(1)) + 1}: a quote (\") opens a text that no "
+        return SessionFormatError(f"{path}: row {int(q.group(1)) + 1}: a quote (\") opens a text that no "
                                   "quote closes before the end of the file (a stray quote in a cell?)")
-    return SessionFormatError(f"{path.name}: {where}malformed CSV ({msg.strip()})")
+    return SessionFormatError(f"{path}: {where}malformed CSV ({msg.strip()})")
 
 
 #: Largest magnitude a cell of these columns can plausibly hold, SI units. A finite but absurd
@@ -480,6 +482,10 @@ def _cell_problem(value: str) -> str:
         return "empty value"
     if value.lower().lstrip("+-") in ("nan", "inf", "infinity"):
         return f"{value!r} is not a finite number"
+    try:
+        parse_number(value)
+    except ValueError as exc:
+        return str(exc)
     return f"{value!r} is not a number"
 
 
@@ -510,7 +516,7 @@ def _first_bad_text(path: Path, header: list[str], names: dict[str, str], numeri
     if best is None:
         return None
     i, c, value = best
-    return SessionFormatError(f"{path.name}: row {_row(first + i)}, column {c}: {_cell_problem(value)}")
+    return SessionFormatError(f"{path}: row {_row(first + i)}, column {c}: {_cell_problem(value)}")
 
 
 _BLOCK_BYTES = 1 << 24
@@ -557,11 +563,11 @@ def _bad_row_text(path: Path, header: list[str], names: dict[str, str], numeric:
         j = header.index(names[c])
         text = cells[j] if j < len(cells) else ""
         try:
-            ok = np.isfinite(float(text))
+            ok = np.isfinite(parse_number(text.strip()))
         except ValueError:
             ok = False
         if not ok:
-            return SessionFormatError(f"{path.name}: row {_row(row)}, column {c}: {_cell_problem(text)}")
+            return SessionFormatError(f"{path}: row {_row(row)}, column {c}: {_cell_problem(text)}")
     return None
 
 
@@ -654,7 +660,7 @@ def _locate_bad_cell(path: Path, names: dict[str, str], numeric: list[str],
                 if found is not None:
                     return found
             first += len(chunk)
-    return SessionFormatError(f"{path.name}: unreadable numeric data")
+    return SessionFormatError(f"{path}: unreadable numeric data")
 
 
 def _check_plausible(path: Path, columns: list[str], m: np.ndarray) -> None:
@@ -670,7 +676,7 @@ def _check_plausible(path: Path, columns: list[str], m: np.ndarray) -> None:
     i = int(np.argmax(rows))
     j = int(np.argmax(out[i]))
     c = columns[j]
-    raise SessionFormatError(f"{path.name}: row {_row(i)}, column {c}: {float(m[i, j]):g} is not a plausible "
+    raise SessionFormatError(f"{path}: row {_row(i)}, column {c}: {float(m[i, j]):g} is not a plausible "
                              f"value (|{c}| <= {limits[j]:g})")
 
 
@@ -700,8 +706,8 @@ def _read_numeric(path: Path, required: list[str], *, min_rows: int = 1) -> np.n
         raise _locate_bad_cell(path, names, required, exc) from None
     _check_no_implicit_index(path, df)
     if len(df) < min_rows:
-        raise SessionFormatError(f"{path.name}: {len(df)} data row(s), at least {min_rows} needed"
-                                 if len(df) else f"{path.name}: row 2: no data rows")
+        raise SessionFormatError(f"{path}: {len(df)} data row(s), at least {min_rows} needed"
+                                 if len(df) else f"{path}: row 2: no data rows")
     # one float block: a view, its rows being the file's rows
     m = df[[names[c] for c in required]].to_numpy(dtype=float)
     m.flags.writeable = False
@@ -720,7 +726,7 @@ def _check_time(path: Path, t: np.ndarray, rows: np.ndarray | None = None) -> No
     if np.any(back):
         i = int(np.argmax(back)) + 1
         row = _row(i if rows is None else int(rows[i]))
-        raise SessionFormatError(f"{path.name}: row {row}, column t_s: time goes backwards "
+        raise SessionFormatError(f"{path}: row {row}, column t_s: time goes backwards "
                                  f"({float(t[i])!r} after {float(t[i - 1])!r})")
 
 
@@ -747,7 +753,7 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
     raw = raw[~blank].reset_index(drop=True)
     n = len(raw)
     if n < 1:
-        raise SessionFormatError(f"{path.name}: row 2: no data rows")
+        raise SessionFormatError(f"{path}: row 2: no data rows")
     num = ["t_s", "E_m", "N_m", "H_m"]
     vals = {}
     for c in num + sig:
@@ -778,11 +784,8 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
                 np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
                 f"{value.strip()} is not a plausible value (|{c}| <= {PLAUSIBLE_ABS[c]:g})"
                 if c in PLAUSIBLE_ABS and np.isfinite(pd.to_numeric(value.strip(), errors="coerce")) else
-                "empty value" if value.strip() == "" else
-                f"{value!r} is not a finite number"
-                if value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity")
-                else f"{value!r} is not a number")
-        raise SessionFormatError(f"{path.name}: row {_row(int(file_rows[i]))}, column {c}: {what}")
+                _cell_problem(value))
+        raise SessionFormatError(f"{path}: row {_row(int(file_rows[i]))}, column {c}: {what}")
     t = vals["t_s"]
     _check_time(path, t, rows=file_rows)
     sigma = np.full((n, 3), float(default_sigma))
@@ -826,13 +829,14 @@ def read_session(folder: Path) -> RawSession:
                                                and (folder / "gauge.csv").stat().st_size == 0):
         g = _read_numeric(folder / "gauge.csv", GAUGE_COLUMNS, min_rows=0)
         gauge_t, gauge = g[:, 0], g[:, 1]
-    _check_coverage(imu[:, 0], odo[:, 0], odo[:, 1], fixes.t_s)
+    _check_coverage(folder, imu[:, 0], odo[:, 0], odo[:, 1], fixes.t_s)
     if meta.crs and not math.isfinite(meta.latitude_rad):
         from trolley.projection import CrsError, session_site
         try:
             meta, _ = session_site(meta, fixes.enh_m)
         except CrsError as exc:
-            raise SessionFormatError(f"session.toml: key site.crs: {exc} (site placed at the fixes' centroid)") from None
+            raise SessionFormatError(f"{folder / 'session.toml'}: key site.crs: {exc} (site placed at the fixes' "
+                                     "centroid)") from None
     return RawSession(
         meta=meta, imu_t_s=imu[:, 0], imu_w_rad_s=imu[:, 1:4], imu_f_m_s2=imu[:, 4:7],
         odo_t_s=odo[:, 0], odo_distance_m=odo[:, 1], fixes=fixes,
@@ -849,7 +853,8 @@ MAX_IMU_GAP_S = 2.0
 TIME_SPAN_SLACK_S = 2.0
 
 
-def _check_coverage(imu_t: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray, fix_t: np.ndarray) -> None:
+def _check_coverage(folder: Path, imu_t: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray,
+                    fix_t: np.ndarray) -> None:
     """The files must describe one survey: no impossible odometer speed, no long hole in the IMU
     log, and the odometer and the fixes within the IMU's time span. Each file is valid on its own
     when this runs; without these checks one wrong distance made a 2 GB track of nonsense and a
@@ -861,21 +866,22 @@ def _check_coverage(imu_t: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray, fix
     if fast.any():
         i = int(np.argmax(fast)) + 1
         raise SessionFormatError(
-            f"odometer.csv: row {_row(i)}, column distance_m: moves {dd[i - 1]:+.6g} m in {dt[i - 1]:.6g} s (faster "
-            f"than {MAX_TROLLEY_SPEED_M_S:g} m/s, the fastest a trolley moves): a wrong value, or distances in mm?")
+            f"{folder / 'odometer.csv'}: row {_row(i)}, column distance_m: moves {dd[i - 1]:+.6g} m in "
+            f"{dt[i - 1]:.6g} s (faster than {MAX_TROLLEY_SPEED_M_S:g} m/s, the fastest a trolley moves): a wrong "
+            "value, or distances in mm?")
     gaps = np.diff(imu_t)
     if gaps.size and gaps.max() > MAX_IMU_GAP_S:
         i = int(np.argmax(gaps)) + 1
         raise SessionFormatError(
-            f"imu.csv: row {_row(i)}, column t_s: no IMU samples for {gaps[i - 1]:.6g} s (from t = {imu_t[i - 1]:.6g} "
-            f"s): the dead reckoning cannot bridge a gap of more than {MAX_IMU_GAP_S:g} s in the IMU log")
+            f"{folder / 'imu.csv'}: row {_row(i)}, column t_s: no IMU samples for {gaps[i - 1]:.6g} s (from t = "
+            f"{imu_t[i - 1]:.6g} s): the dead reckoning cannot bridge a gap of more than {MAX_IMU_GAP_S:g} s in the IMU log")
     lo, hi = imu_t[0] - TIME_SPAN_SLACK_S, imu_t[-1] + TIME_SPAN_SLACK_S
     for name, t in (("fixes.csv", fix_t), ("odometer.csv", odo_t)):
         outside = (t < lo) | (t > hi)
         if outside.any():
             i = int(np.argmax(outside))
             raise SessionFormatError(
-                f"{name}: row {_row(i)}, column t_s: {t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
+                f"{folder / name}: row {_row(i)}, column t_s: {t[i]:.6g} s is outside the IMU log ({imu_t[0]:.6g} to "
                 f"{imu_t[-1]:.6g} s): imu.csv cut short, or the files of two sessions?")
 
 
@@ -901,14 +907,14 @@ def read_design(folder: Path, meta: SessionMeta, notes: list[str] | None = None)
     try:
         text = decoded_landxml(path.read_bytes())
     except FileNotFoundError:
-        raise SessionFormatError(f"session.toml: key design.alignment: file "
+        raise SessionFormatError(f"{Path(folder) / 'session.toml'}: key design.alignment: file "
                                  f"{meta.design_alignment!r} not found in {folder}") from None
     except LandXmlError as exc:
         raise SessionFormatError(f"{path}: {exc}") from None
     try:
         design = read_landxml(text, meta.design_alignment_name)
     except ValueError as exc:
-        raise SessionFormatError(f"{meta.design_alignment}: {exc}") from None
+        raise SessionFormatError(f"{path}: {exc}") from None
     if notes is not None:
         notes.extend(f"{meta.design_alignment}: {n}" for n in design.notes)
     return design.alignment

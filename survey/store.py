@@ -1126,18 +1126,33 @@ class ProjectStore:
         return a[:, 0].copy(), a[:, 1].copy()
 
     # -- processed results -----------------------------------------------------------------------
-    def add_track(self, session_id: int, kind: str, t_start_s: float, t_end_s: float, track: TrackResult) -> int:
-        """Store processed track rows as one processing run. Returns the run id."""
+    @staticmethod
+    def _insert_track(c, session_id: int, kind: str, t_start_s: float, t_end_s: float, track: TrackResult) -> int:
         n = len(track)
         cols = np.column_stack([track.chainage_m, track.enh_m, track.sigma_enh_m, track.lateral_dev_m,
                                 track.vertical_dev_m, track.gauge_m, track.cant_m, track.twist_m]).reshape(n, 12)
+        run_id = int(c.execute("INSERT INTO processing_run (session_id, kind, t_start_s, t_end_s, created_utc) "
+                               "VALUES (?, ?, ?, ?, ?)", (session_id, kind, t_start_s, t_end_s, utc_now())).lastrowid)
+        c.executemany("INSERT INTO track_row (run_id, chainage_m, e_m, n_m, h_m, sigma_e_m, sigma_n_m, sigma_h_m, "
+                      "lateral_dev_m, vertical_dev_m, gauge_m, cant_m, twist_m) VALUES "
+                      "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                      ((run_id, *[_nullable(x) for x in r]) for r in cols.tolist()))
+        return run_id
+
+    def add_track(self, session_id: int, kind: str, t_start_s: float, t_end_s: float, track: TrackResult) -> int:
+        """Store processed track rows as one processing run. Returns the run id."""
         with self._transaction() as c:
-            run_id = int(c.execute("INSERT INTO processing_run (session_id, kind, t_start_s, t_end_s, created_utc) "
-                                   "VALUES (?, ?, ?, ?, ?)", (session_id, kind, t_start_s, t_end_s, utc_now())).lastrowid)
-            c.executemany("INSERT INTO track_row (run_id, chainage_m, e_m, n_m, h_m, sigma_e_m, sigma_n_m, sigma_h_m, "
-                          "lateral_dev_m, vertical_dev_m, gauge_m, cant_m, twist_m) VALUES "
-                          "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                          ((run_id, *[_nullable(x) for x in r]) for r in cols.tolist()))
+            return self._insert_track(c, session_id, kind, t_start_s, t_end_s, track)
+
+    def add_interval(self, session_id: int, t_start_s: float, t_end_s: float, track: TrackResult,
+                     detail: dict) -> int:
+        """Store a live interval summary in one transaction: its track rows as an "interval"
+        processing run and its ``interval`` event (at ``t_end_s``), whose JSON detail is ``detail``
+        with the run id and the interval's times. Returns the run id."""
+        with self._transaction() as c:
+            run_id = self._insert_track(c, session_id, "interval", t_start_s, t_end_s, track)
+            full = {"run_id": run_id, "t_start_s": t_start_s, "t_end_s": t_end_s, **detail}
+            self._insert_event(c, session_id, SessionEvent(t_end_s, "interval", json.dumps(full)))
         return run_id
 
     def processing_runs(self, session_id: int) -> list[ProcessingRun]:

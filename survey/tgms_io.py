@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from trolley.landxml import landxml_text, parse_landxml
+from trolley.numbertext import foreign_character
 from trolley.tgms.camera import Camera
 from trolley.tgms.config import EncoderSettings, TgmsConfig, TrackSettings
 from trolley.tgms.irregularities import empty_gap_m
@@ -214,7 +215,10 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
             if pd.isna(col.iloc[i]) and _cells_in_row(path, int(line[i])) < len(df.columns):
                 raise TgmsFormatError(f"{name}: row {line[i]}: {_cells_in_row(path, int(line[i]))} cells, the "
                                       f"header has {len(df.columns)} columns (a row cut short?)")
-            raise TgmsFormatError(f"{name}: row {line[i]}, column {c}: not a finite number ({str(col.iloc[i])!r})")
+            cell = str(col.iloc[i])
+            foreign = foreign_character(cell)
+            raise TgmsFormatError(f"{name}: row {line[i]}, column {c}: not a finite number ({cell!r})"
+                                  + (f": {foreign}" if foreign else ""))
         limit = PLAUSIBLE_ABS.get(c, _TGMS_PLAUSIBLE_ABS.get(c, np.inf))
         far = np.abs(vals) > limit
         if far.any():

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from trolley import units
+from trolley.numbertext import all_plain, parse_number
 from trolley.stationing import StationEquation, Stationing
 from trolley.trackgeometry import TrackInput
 
@@ -167,9 +168,9 @@ def _parse_float(text: str, where: str, allow_missing: bool) -> float:
             return math.nan
         raise ExportInputError(f"{where}: value missing")
     try:
-        v = float(t)
-    except ValueError:
-        raise ExportInputError(f"{where}: not a number: {t[:40]!r}") from None
+        v = parse_number(t)
+    except ValueError as exc:
+        raise ExportInputError(f"{where}: {exc}") from None
     if not math.isfinite(v):
         raise ExportInputError(f"{where}: not finite: {t[:40]!r}")
     return v
@@ -217,7 +218,7 @@ def _numeric_columns(path: Path, header: list[str], body: list[list[str]], names
             bad = ~np.isfinite(arr)
             if name in optional:
                 bad &= ~np.isnan(arr)
-            if bad.any():
+            if bad.any() or not all_plain(raw):
                 raise ValueError
         except ValueError:
             for i, x in enumerate(raw):

@@ -222,6 +222,14 @@ PROBES: list[Probe] = [
           ("odometer.csv: row 2: 4 cells, the header has 2 columns", "decimal comma")),
     Probe("process/decimal-commas-fixes", process_probe(lambda s: decimal_commas(s / "fixes.csv")),
           ("fixes.csv: row 2:", "the header has", "decimal comma")),
+    # a message names the session folder as given (relative here), not only "fixes.csv": with
+    # several sessions the user must see which one (hunt22_files item 10)
+    Probe("process/bad-fix-names-the-session-folder", lambda t, i: set_cell(copy(i.session, t / "day2") / "fixes.csv", 3,
+                                                                            "t_s", "") or
+          ["process", "w/day2", "--out", "w/out"], ("error: w/day2/fixes.csv: row 3, column t_s: empty value",)),
+    Probe("process/bad-design-names-the-session-folder",
+          lambda t, i: edit_text(copy(i.session, t / "day2") / "alignment.xml", "<Start>", "<Start>x") or
+          ["process", "w/day2", "--out", "w/out"], ("error: w/day2/alignment.xml: <Alignment", "<Start> value 'x")),
     Probe("process/missing-folder", lambda t, i: ["process", str(t / "nope"), "--out", str(t / "o")], ("nope",)),
     Probe("process/session-is-a-file", lambda t, i: (t / "f.csv").write_text("x") and
           ["process", str(t / "f.csv"), "--out", str(t / "o")], ("f.csv",)),
@@ -396,6 +404,9 @@ PROBES: list[Probe] = [
     Probe("tgms-process/bad-cell-after-a-blank-line",
           tgms_process_probe(lambda r: (insert_line(r / "imu.csv", 10, ""), set_cell(r / "imu.csv", 41, "fx_m_s2", "abc"))),
           ("imu.csv: row 41, column fx_m_s2: not a finite number",)),
+    Probe("tgms-process/full-width-digit",
+          tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "-\uff10.0003")),
+          ("imu.csv: row 40, column wz_rad_s:", "'\uff10' (U+FF10 FULLWIDTH DIGIT ZERO) is not ASCII")),
     Probe("tgms-process/duplicated-row", tgms_process_probe(lambda r: duplicate_line(r / "imu.csv", 30)),
           ("imu.csv: row 31, column t_s: time repeats the previous row's", "a duplicated row?")),
     Probe("tgms-process/imu-1e308", tgms_process_probe(lambda r: set_cell(r / "imu.csv", 40, "wz_rad_s", "1e308")),
@@ -445,6 +456,10 @@ PROBES: list[Probe] = [
            "../x"], ("../x",)),
     Probe("project-import-session/project-dotdot", lambda t, i:
           ["project", "import-session", str(_sess(t, i)), "--project", "../..", "--root", str(t / "r")], ("../..",)),
+    Probe("project-import-session/bad-fix-names-the-session-folder", lambda t, i: new_project(t / "r") or
+          set_cell(copy(i.session, t / "day2") / "fixes.csv", 3, "t_s", "") or
+          ["project", "import-session", "w/day2", "--project", "p", "--root", str(t / "r")],
+          ("error: w/day2/fixes.csv: row 3, column t_s: empty value",)),
     Probe("project-import-session/imu-1e308", lambda t, i: new_project(t / "r") or
           set_cell(_sess(t, i) / "imu.csv", 100, "fy_m_s2", "1e308") or
           ["project", "import-session", str(t / "sess"), "--project", "p", "--root", str(t / "r")],
@@ -452,6 +467,11 @@ PROBES: list[Probe] = [
     Probe("project-import-cpiii/not-utf8", lambda t, i: new_project(t / "r") or
           (t / "c.csv").write_bytes(b"point,E_m,N_m,H_m\nCP\xe91,1,2,3\n") and
           ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")], ("c.csv",)),
+    Probe("project-import-cpiii/full-width-digit", lambda t, i: new_project(t / "r") or
+          (t / "c.csv").write_text("id,E_m,N_m,H_m\nCP1,500226.004,3100232.185,50.3\nCP2,\uff1500226.0040,3100232.2,50.3\n",
+                                   encoding="utf-8") and
+          ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")],
+          ("c.csv:3: column E_m:", "'\uff15' (U+FF15 FULLWIDTH DIGIT FIVE)", "nothing imported")),
     Probe("project-import-cpiii/markup-label", lambda t, i: new_project(t / "r") or
           (t / "c.csv").write_text("id,E_m,N_m,H_m\nCP[/x]1,1,2,inf\n") and
           ["project", "import-cpiii", str(t / "c.csv"), "--project", "p", "--root", str(t / "r")], ("c.csv",)),

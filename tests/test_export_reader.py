@@ -124,7 +124,12 @@ def test_unusual_file_takes_strict_path_with_same_result(tmp_path):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
     bad = tmp_path / "c.csv"
     bad.write_text("\n".join(text[:3] + [text[3].replace("1435.2", "abc")]) + "\n", encoding="utf-8")
-    with pytest.raises(ExportInputError, match="row 4, column gauge_mm: not a number"):
+    with pytest.raises(ExportInputError, match="row 4, column gauge_mm: .abc. is not a number"):
+        read_track_csv(bad)
+    # numpy (the strict path's column parser) reads a full-width digit as its ASCII twin: refused like the rest
+    bad.write_text("\n".join(text[:3] + [text[3].replace("1435.2", "1\uff1435.2")]) + "\n", encoding="utf-8")
+    with pytest.raises(ExportInputError, match="row 4, column gauge_mm: '1\uff1435.2' is not a number: "
+                                               "'\uff14' \\(U\\+FF14 FULLWIDTH DIGIT FOUR\\) is not ASCII"):
         read_track_csv(bad)
 
 

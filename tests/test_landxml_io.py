@@ -238,10 +238,38 @@ def test_unsupported_spiral_type():
     _expect(bad, "<Spiral> no. 4", 'staStart="210.0"', "cubic")
 
 
+_METRIC = '''<Metric areaUnit="squareMeter" linearUnit="meter" volumeUnit="cubicMeter"'''
+
+
+@pytest.mark.parametrize("other", ['<Imperial linearUnit="foot" elevationUnit="feet"/>',
+                                   '<Imperial linearUnit="USSurveyFoot"/>', '<Metric linearUnit="millimeter"/>'])
+@pytest.mark.parametrize("first", [True, False])
+def test_units_that_disagree_are_refused_whatever_their_order(other, first):
+    # the schema allows one unit element; the reader took <Metric> whatever else <Units> held
+    # (a file in feet read as metres: every length 3.28 times too long, without a word)
+    text = EXAMPLE.replace(_METRIC, other + "\n    " + _METRIC) if first else \
+        EXAMPLE.replace("</Units>", other + "\n  </Units>")
+    _expect(text, "<Units> holds 2 unit elements that disagree", other.split()[0], '<Metric linearUnit="meter">',
+            "nothing says which")
+
+
+def test_units_repeated_alike_are_used_with_a_note():
+    plain = read_landxml(EXAMPLE)
+    twice = read_landxml(EXAMPLE.replace("</Units>", '<Metric linearUnit="meter"/>\n  </Units>'))
+    assert twice.notes[0] == ('<Units> holds 2 unit elements (<Metric linearUnit="meter">, '
+                              '<Metric linearUnit="meter">); they agree and are used'), twice.notes
+    assert twice.notes[1:] == plain.notes
+    assert twice.alignment.horizontal.end_chainage_m == plain.alignment.horizontal.end_chainage_m
+
+
 def test_missing_and_malformed_attributes():
     _expect(EXAMPLE.replace('rot="cw" crvType="arc"', 'crvType="arc"'), "<Curve> no. 3", "rot")
     _expect(EXAMPLE.replace('length="60.0" radiusStart="INF"', 'length="6O.0" radiusStart="INF"'),
             "<Spiral> no. 2", "'6O.0'", "not a number")
+    _expect(EXAMPLE.replace('length="60.0" radiusStart="INF"', 'length="\uff160.0" radiusStart="INF"'),
+            "<Spiral> no. 2", "length='\uff160.0' is not a number", "(U+FF16 FULLWIDTH DIGIT SIX) is not ASCII")
+    _expect(EXAMPLE.replace("<End>4966.2411 1367.2468</End>", "<End>4966.2411 1367.246\uff18</End>"),
+            "<Line> no. 5", "value '1367.246\uff18' is not a number", "U+FF18 FULLWIDTH DIGIT EIGHT")
     _expect(EXAMPLE.replace('radiusEnd="600.0"', ""), "<Spiral> no. 2", "radiusEnd")
     _expect(EXAMPLE.replace('<Alignment name="UP-MAIN" staStart="0"', '<Alignment name="UP-MAIN"'),
             "UP-MAIN", "staStart")

@@ -8,6 +8,7 @@ within 0.05 mm.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import sqlite3
@@ -223,6 +224,50 @@ def test_sigkill_in_an_interval_then_resume_matches_an_uninterrupted_run(project
         assert np.max(np.abs(a.enh_m - b.enh_m)) < 0.05e-3
         kinds = [e.kind for e in st.events(st.session("killed").session_id)]
         assert "resumed" in kinds and kinds[-1] == "end"
+
+
+def _interval_summaries(st, name):
+    """(interval events, interval processing runs, the chainage span each summary shows)."""
+    sid = st.session(name).session_id
+    events = [json.loads(e.detail) for e in st.events(sid) if e.kind == "interval"]
+    runs = [r for r in st.processing_runs(sid) if r.kind == "interval"]
+    return len(events), len(runs), [e["summary"].split(":")[0] for e in events]
+
+
+def test_sigkill_before_an_interval_summary_is_stored_then_resume_summarises_it(project):
+    """The summary of the interval a fix closes is computed on a thread and stored at the next
+    refresh; a kill in between lost it for good (bug hunt 2026-11-26: one ``interval`` event
+    instead of two). Killed as the script step of the second fix is stored (before its summary,
+    in every run measured; a later kill makes the test pass without testing it, never fail)."""
+    root, _ = project
+    db = root / "projects" / "t1" / "project.sqlite"
+    p = subprocess.Popen(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", "cut",
+                                    "--simulate", "--speedup", "40", "--script", "crew.txt"],
+                         cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    step_3 = ("SELECT COUNT(*) FROM session_event e JOIN session s ON s.id = e.session_id "
+              "WHERE s.name = 'cut' AND e.kind = 'script' AND e.detail = '3'")
+    deadline = time.monotonic() + 90
+    while not _count(db, step_3):
+        assert p.poll() is None and time.monotonic() < deadline
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+    r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "cut", "--speedup", "40"], root)
+    assert r.returncode == 0, r.stderr[-3000:]
+    with store(root) as st:
+        ref, cut = _interval_summaries(st, "ref"), _interval_summaries(st, "cut")
+    # as many summaries (events and runs) as the uninterrupted run, of the same intervals
+    assert ref[:2] == (3, 3) and cut == ref, (cut, ref)
+
+
+def _count(db: Path, sql: str) -> int:
+    try:
+        c = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.2)
+        try:
+            return int(c.execute(sql).fetchone()[0])
+        finally:
+            c.close()
+    except sqlite3.Error:
+        return 0
 
 
 def _lose_odometer_rows(db: Path, name: str, where: str) -> None:

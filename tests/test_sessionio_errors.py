@@ -36,6 +36,8 @@ CELL_CASES = [
     ("odometer.csv", 7, "distance_m", "12m", "not a number"),
     ("gauge.csv", 3, "gauge_m", "NaN", "not a finite number"),
     ("fixes.csv", 3, "E_m", "x", "not a number"),
+    ("fixes.csv", 3, "N_m", "\uff13100264.56", "'\uff13' (U+FF13 FULLWIDTH DIGIT THREE) is not ASCII"),
+    ("imu.csv", 8, "fz_m_s2", "-\uff19.79", "'-\uff19.79' is not a number: '\uff19' (U+FF19 FULLWIDTH DIGIT NINE)"),
     ("fixes.csv", 2, "H_m", "nan", "not a finite number"),
     ("fixes.csv", 2, "sigma_N_m", "-0.001", "positive"),
     ("fixes.csv", 3, "point", "", "empty point label"),
@@ -48,7 +50,9 @@ def test_bad_cell_named(folder, fname, row, column, value, words):
     with pytest.raises(SessionFormatError) as exc:
         read_session(folder)
     msg = str(exc.value)
-    assert fname in msg and f"row {row}" in msg and f"column {column}" in msg and words in msg, msg
+    # the folder too, as the caller gave it: with several sessions "fixes.csv" alone says not which
+    assert msg.startswith(f"{folder / fname}: row {row}, column {column}: "), msg
+    assert words in msg, msg
     assert "\n" not in msg
 
 
@@ -59,7 +63,7 @@ def test_time_backwards_named(folder, fname, row):
     with pytest.raises(SessionFormatError) as exc:
         read_session(folder)
     msg = str(exc.value)
-    assert fname in msg and f"row {row}" in msg and "column t_s" in msg and "backwards" in msg
+    assert msg.startswith(f"{folder / fname}: row {row}, column t_s: ") and "backwards" in msg, msg
 
 
 @pytest.mark.parametrize("fname,column", [("imu.csv", "fz_m_s2"), ("odometer.csv", "distance_m"),
@@ -72,7 +76,7 @@ def test_missing_column_named(folder, fname, column):
     with pytest.raises(SessionFormatError) as exc:
         read_session(folder)
     msg = str(exc.value)
-    assert fname in msg and "row 1" in msg and column in msg and "missing" in msg
+    assert msg.startswith(f"{folder / fname}: row 1: ") and column in msg and "missing" in msg, msg
 
 
 @pytest.mark.parametrize("fname", ["imu.csv", "odometer.csv", "fixes.csv", "session.toml"])
@@ -137,7 +141,21 @@ def test_bad_toml_key_named(folder, old, new, key, words):
     with pytest.raises(SessionFormatError) as exc:
         read_session(folder)
     msg = str(exc.value)
-    assert "session.toml" in msg and f"key {key}:" in msg and words in msg, msg
+    assert msg.startswith(f"{folder / 'session.toml'}: key {key}:") and words in msg, msg
+
+
+def test_errors_name_the_folder_as_given(folder, monkeypatch):
+    # a user with several sessions must see which one: relative to the cwd when given so, also
+    # for the coverage checks across files (the design: tests/test_bad_input.py, day2 probes)
+    monkeypatch.chdir(folder.parent)
+    set_cell(folder / "fixes.csv", 3, "t_s", "")
+    with pytest.raises(SessionFormatError) as exc:
+        read_session(Path("s"))
+    assert str(exc.value) == "s/fixes.csv: row 3, column t_s: empty value"
+    set_cell(folder / "fixes.csv", 3, "t_s", "0.1")
+    set_cell(folder / "fixes.csv", 4, "t_s", "1e6")
+    with pytest.raises(SessionFormatError, match=r"^s/fixes\.csv: row 4, column t_s: 1e\+06 s is outside the IMU log"):
+        read_session(Path("s"))
 
 
 def test_toml_syntax_error(folder):

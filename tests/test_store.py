@@ -1,6 +1,7 @@
 """Project store: schema, migrations, append-only raw rows, batch commits, row round trips (survey/store.py)."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sqlite3
@@ -291,6 +292,30 @@ def test_track_rows_round_trip(store):
     back = store.track(run)
     for name in ("chainage_m", "enh_m", "sigma_enh_m", "lateral_dev_m", "gauge_m"):
         np.testing.assert_array_equal(getattr(back, name), getattr(tr, name))
+
+
+def test_an_interval_summary_is_its_run_and_its_event_or_nothing(store, monkeypatch):
+    # two transactions left a run without its event when the session died between them, and
+    # the resume, which summarises an interval without an event again, stored it twice
+    sid = store.create_session("s").session_id
+    n = 3
+    tr = TrackResult(np.arange(n) * 0.625, np.zeros((n, 3)), np.full((n, 3), 3e-4), np.zeros(n), np.zeros(n),
+                     np.zeros(n), np.zeros(n), np.zeros(n))
+    run = store.add_interval(sid, 2.0, 55.0, tr, {"seconds": 0.02, "defects": 1, "summary": "interval 0.0-60.0 m"})
+    (event,) = store.events(sid)
+    assert (event.kind, event.t_s) == ("interval", 55.0)
+    assert json.loads(event.detail) == {"run_id": run, "t_start_s": 2.0, "t_end_s": 55.0, "seconds": 0.02,
+                                        "defects": 1, "summary": "interval 0.0-60.0 m"}
+    assert [(r.run_id, r.kind, r.row_count) for r in store.processing_runs(sid)] == [(run, "interval", n)]
+
+    def dies(*args):
+        raise KeyboardInterrupt("killed between the run and its event")
+
+    monkeypatch.setattr(ProjectStore, "_insert_event", staticmethod(dies))
+    with pytest.raises(KeyboardInterrupt):
+        store.add_interval(sid, 55.0, 97.0, tr, {})
+    assert len(store.processing_runs(sid)) == 1 and len(store.events(sid)) == 1
+    assert store.connection.execute("SELECT COUNT(*) FROM track_row").fetchone()[0] == n
 
 
 def test_raw_session_round_trip_arrays(store):

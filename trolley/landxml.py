@@ -5,7 +5,8 @@ What is read (schema LandXML-1.2.xsd; see ``docs/conventions.md``, "Design geome
 
 - ``<Units>``: ``<Metric>`` (metre, millimetre, centimetre, kilometre) or ``<Imperial>``
   (``foot`` = international foot 0.3048 m, ``USSurveyFoot`` = 1200/3937 m, ``inch``, ``mile``),
-  converted to metres here; cant values are mm (inches in an imperial file).
+  converted to metres here; cant values are mm (inches in an imperial file). Several unit
+  elements are read only when they agree (see :func:`_units`).
 - A file may hold several ``<Alignment>``: one is chosen by name (:func:`alignment_names` lists
   them; :class:`AlignmentChoiceError` when the choice is missing or unknown).
 - ``<CoordGeom>``: ``<Line>``, ``<Curve>`` (circular arc, Start/Center/End) and ``<Spiral>``
@@ -53,7 +54,7 @@ import datetime as _dt
 import math
 import re
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -61,6 +62,7 @@ import numpy as np
 from trolley import units
 from trolley.alignment import (Alignment, Arc, CantProfile, Clothoid, HorizontalAlignment, Line,
                                VerticalProfile)
+from trolley.numbertext import parse_number
 from trolley.stationing import StationEquation, StationNotFound, Stationing
 
 __all__ = ["LandXmlError", "AlignmentChoiceError", "LandXmlDesign", "read_landxml", "parse_landxml",
@@ -126,9 +128,9 @@ def _number(text: str | None, where: str, what: str) -> float:
     if text is None:
         raise LandXmlError(f"{where}: missing attribute {what!r}")
     try:
-        value = float(text.strip())
-    except ValueError:
-        raise LandXmlError(f"{where}: {what}={text!r} is not a number") from None
+        value = parse_number(text.strip())
+    except ValueError as exc:
+        raise LandXmlError(f"{where}: {what}={exc}") from None
     if math.isnan(value):
         raise LandXmlError(f"{where}: {what}={text!r} is not a number")
     return value
@@ -164,9 +166,9 @@ def _values(el: ET.Element, where: str, counts: tuple[int, ...], what: str) -> l
     out = []
     for p in parts:
         try:
-            v = float(p)
-        except ValueError:
-            raise LandXmlError(f"{where}: <{_local(el.tag)}> value {p!r} is not a number") from None
+            v = parse_number(p)
+        except ValueError as exc:
+            raise LandXmlError(f"{where}: <{_local(el.tag)}> value {exc}") from None
         if not math.isfinite(v):
             raise LandXmlError(f"{where}: <{_local(el.tag)}> value {p!r} must be finite")
         out.append(v)
@@ -975,15 +977,43 @@ _IMPERIAL_M = {"foot": units.INTERNATIONAL_FOOT_M, "USSurveyFoot": units.US_SURV
 
 def _units(root: ET.Element) -> _Units:
     """``<Units>``: ``<Metric>`` or ``<Imperial>`` (schema types metLinear, impLinear and
-    elevationType; cant values are mm, or inches in an imperial file)."""
+    elevationType; cant values are mm, or inches in an imperial file).
+
+    The schema allows one of them (``xs:choice``). A file holding several is read only when they
+    all give the same conversions (a tool that repeats its ``<Metric>``), with a note; when they
+    disagree it is refused: the numbers are in one of the units and nothing in the file says
+    which, and the wrong one scales every coordinate, station and height (a metre read as a foot:
+    3.28 times; a cant inch read as a millimetre: 25.4 times). A ``<Metric>`` beside an
+    ``<Imperial>`` always disagrees (no metric length unit is an imperial one, and cant values are
+    mm in the one and inches in the other), so such a file is always refused.
+    """
     units_el = [el for el in root if _local(el.tag) == "Units"]
     if not units_el:
         raise LandXmlError("missing <Units>")
-    kinds = _children(units_el[0], "Metric") + _children(units_el[0], "Imperial")
+    kinds = [c for u in units_el for c in u if _local(c.tag) in ("Metric", "Imperial")]
     if not kinds:
         found = ", ".join(f"<{_local(c.tag)}>" for c in units_el[0]) or "nothing"
         raise LandXmlError(f"<Units> holds {found}; expected <Metric> or <Imperial>")
-    el = kinds[0]
+    read = [_unit_element(el) for el in kinds]
+    if len(read) == 1:
+        return read[0]
+    listed = ", ".join(_unit_label(el) for el in kinds)
+    if any(r != read[0] for r in read[1:]):
+        raise LandXmlError(f"<Units> holds {len(kinds)} unit elements that disagree ({listed}): the file's numbers "
+                           "are in one of them and nothing says which; keep the one the file was written in "
+                           "(LandXML 1.2 allows one)")
+    note = f"<Units> holds {len(kinds)} unit elements ({listed}); they agree and are used"
+    return replace(read[0], note=f"{note}; {read[0].note}" if read[0].note else note)
+
+
+def _unit_label(el: ET.Element) -> str:
+    """``<Metric linearUnit="meter">``: how the unit messages name a unit element."""
+    attrs = "".join(f' {k}="{el.get(k)}"' for k in ("linearUnit", "elevationUnit") if el.get(k) is not None)
+    return f"<{_local(el.tag)}{attrs}>"
+
+
+def _unit_element(el: ET.Element) -> _Units:
+    """The conversions one ``<Metric>`` or ``<Imperial>`` gives."""
     kind = _local(el.tag)
     table = _METRIC_M if kind == "Metric" else _IMPERIAL_M
     lin = el.get("linearUnit")

@@ -216,7 +216,7 @@ def _session_feed(folder: Path, station: str | None):
     try:
         s = read_session(folder)
     except SessionFormatError as e:
-        _err(f"--session-dir {folder}: {e}")
+        _err(f"--session-dir: {e}")     # e names the file inside the folder (folder/imu.csv: row ...)
         raise typer.Exit(code=2)
     enh = np.asarray(s.fixes.enh_m, float)
     st = _floats(station, 4, "--station") if station else station_beside(enh)

@@ -270,7 +270,7 @@ def import_session(
     try:
         raw = read_session(folder)
     except SessionFormatError as e:
-        fail(f"{folder}: {e}")
+        fail(str(e))            # names the file inside the folder (folder/fixes.csv: row ...)
     toml_text = (folder / "session.toml").read_text(encoding="utf-8")
     design = None
     if raw.meta.design_alignment is not None:

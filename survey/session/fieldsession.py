@@ -158,6 +158,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         # not a new one (its row can be committed before the odometer rows that show it)
         self._last_stop_end_s = -math.inf
         self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
+        self._summarised: set[tuple[float, float]] = set()  # resume: the intervals summarised before
         self._confirm_end = False
         self._stop_held = False
         self._key_prompt = ""  # a question of the station setup, shown instead of the loop's keys

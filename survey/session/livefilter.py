@@ -6,6 +6,7 @@ A mixin of :class:`survey.session.fieldsession.FieldSession`. The processor is
 """
 from __future__ import annotations
 
+import json
 import math
 import threading
 import time
@@ -98,49 +99,48 @@ class LiveFiltering:
         if lp is None:
             return
         t_start, t_end = self.accepted_fixes[-2].t_s, self.accepted_fixes[-1].t_s
-
-        def run() -> None:
-            from survey.session.interval import defects_text, interval_check, tolerance_set
-
-            try:
-                t0 = time.perf_counter()
-                r = lp.smooth_last_interval()
-                if self._tolerances is None:
-                    self._tolerances = tolerance_set(self.tolerance_name)
-                tr = self.rec.meta.trolley
-                chk = interval_check(r.stations, self._design, self._tolerances, tr.rail_spacing_m, tr.nominal_gauge_m)
-                dt = time.perf_counter() - t0
-                self.interval_seconds.append(dt)
-                station = None if self._design is None else self._design.station
-                self.screen.last_interval = (interval_summary_text(r, dt, station) + "; "
-                                             + defects_text(chk, self._tolerances, station))
-                self.screen.last_interval_alarm = bool(chk.defects)
-                self.console.print(Text(self.screen.last_interval, style="bold red" if chk.defects else ""))
-                # stored by the session's thread (the store's connection belongs to it)
-                self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
-            except Exception as exc:
-                self.screen.last_interval = f"interval processing failed: {exc}"
-
         if self._live_thread is not None:
             self._live_thread.join()
-        self._live_thread = threading.Thread(target=run, name="interval", daemon=True)
+        self._live_thread = threading.Thread(target=self._summarise_interval, args=(lp, t_start, t_end),
+                                             name="interval", daemon=True)
         self._live_thread.start()
 
-    def _store_intervals(self) -> None:
-        """Store the intervals processed since the last call: their track rows as an "interval"
-        processing run, and an ``interval`` event with the run id, the seconds taken, the
-        defects and the line the crew saw."""
-        import json
+    def _summarise_interval(self, lp, t_start: float, t_end: float) -> None:
+        """Smooth the interval closed by the processor's last fix, check it, show its summary and
+        queue it for :meth:`_store_intervals` (on the interval thread, or the session's on resume)."""
+        from survey.session.interval import defects_text, interval_check, tolerance_set
 
+        try:
+            t0 = time.perf_counter()
+            r = lp.smooth_last_interval()
+            if self._tolerances is None:
+                self._tolerances = tolerance_set(self.tolerance_name)
+            tr = self.rec.meta.trolley
+            chk = interval_check(r.stations, self._design, self._tolerances, tr.rail_spacing_m, tr.nominal_gauge_m)
+            dt = time.perf_counter() - t0
+            self.interval_seconds.append(dt)
+            station = None if self._design is None else self._design.station
+            self.screen.last_interval = (interval_summary_text(r, dt, station) + "; "
+                                         + defects_text(chk, self._tolerances, station))
+            self.screen.last_interval_alarm = bool(chk.defects)
+            self.console.print(Text(self.screen.last_interval, style="bold red" if chk.defects else ""))
+            # stored by the session's thread (the store's connection belongs to it)
+            self._intervals_to_store.append((t_start, t_end, r, chk, dt, self.screen.last_interval))
+        except Exception as exc:
+            self.screen.last_interval = f"interval processing failed: {exc}"
+
+    def _store_intervals(self) -> None:
+        """Store the intervals processed since the last call, each in one transaction: its track
+        rows as an "interval" processing run and an ``interval`` event with the run id, the seconds
+        taken, the defects and the line the crew saw (a kill between the two would leave a run
+        without its event, and the resume would store the interval again)."""
         from survey.session.final import track_result
-        from survey.store import SessionEvent
 
         while self._intervals_to_store:
             t_start, t_end, r, chk, dt, text = self._intervals_to_store.pop(0)
-            run_id = self.store.add_track(self.rec.session_id, "interval", t_start, t_end, track_result(r.stations))
-            detail = {"run_id": run_id, "t_start_s": t_start, "t_end_s": t_end, "seconds": dt,
-                      "defects": len(chk.defects), "tolerances": self._tolerances.name, "summary": text}
-            self.store.add_event(self.rec.session_id, SessionEvent(t_end, "interval", json.dumps(detail)))
+            self.store.add_interval(self.rec.session_id, t_start, t_end, track_result(r.stations),
+                                    {"seconds": dt, "defects": len(chk.defects), "tolerances": self._tolerances.name,
+                                     "summary": text})
 
     def _replay_live(self) -> None:
         """On resume: the stored accepted fixes into the live processor, each once the data up to
@@ -150,6 +150,11 @@ class LiveFiltering:
         if lp is None:
             return
         self._live_replay = [f for f in self.accepted_fixes if f.t_s > self._live_fed_t]
+        # the intervals whose summary is stored; one the kill interrupted (its closing fix stored,
+        # its summary not yet) is summarised again as its fix is replayed (bug hunt 2026-11-26:
+        # it was lost, neither shown before the kill nor after the resume)
+        self._summarised = {_interval_key(d["t_start_s"], d["t_end_s"]) for d in
+                            (json.loads(e.detail) for e in self.store.events(self.rec.session_id) if e.kind == "interval")}
         self._replay_due()
 
     def _replay_due(self) -> None:
@@ -164,12 +169,24 @@ class LiveFiltering:
         try:
             while pending and self.data_time() >= pending[0].t_s - DATA_SLACK_S:
                 f = pending.pop(0)
+                if self._live_thread is not None:
+                    self._live_thread.join()   # the processor is not changed under a smoothing
                 self._feed_live(f.t_s)
                 lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
                            np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
+                times = lp.fixes.t_s
+                if times.size >= 2 and _interval_key(times[-2], f.t_s) not in self._summarised:
+                    # here, not on the interval thread: the next replayed fix changes the processor
+                    self._summarise_interval(lp, float(times[-2]), f.t_s)
         except Exception as exc:
             self.console.print(f"[yellow]live processing unavailable after resume: {escape(str(exc))}[/]")
             self._live = False
+
+def _interval_key(t_start_s: float, t_end_s: float) -> tuple[float, float]:
+    """An interval by its fixes' times (a repeated fix at a stop closes one of no length, which
+    ends at the same time as the one before it)."""
+    return round(float(t_start_s), 6), round(float(t_end_s), 6)
+
 
 def interval_summary_text(r, seconds: float, station=None) -> str:
     """One line for the crew about the interval just smoothed: deviations, sigma, gauge and cant
