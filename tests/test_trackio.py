@@ -30,7 +30,8 @@ def test_track_csv_of_a_result_is_what_pandas_writes(tmp_path):
     rng = np.random.default_rng(1)
     n = 50
     cols = {c: rng.normal(0, 1e3, n) for c in ("E_m", "N_m", "H_m", "sigma_E_m", "sigma_N_m", "sigma_H_m",
-                                              "lateral_dev_m", "vertical_dev_m", "gauge_m", "cant_m", "twist_m")}
+                                              "lateral_dev_m", "vertical_dev_m", "gauge_m", "cant_m", "twist_m",
+                                              "cov_EN_m2", "sigma_cant_m")}
     cols["gauge_m"][10:20] = np.nan  # a sensor gap
     stations = type("S", (), dict(chainage_m=np.arange(n) * 0.625, **cols))()
     result = type("R", (), dict(stations=stations))()
