@@ -105,3 +105,31 @@ def test_killed_after_a_scripted_undo_and_after_the_last_sample_the_resumes_end_
     assert [s.label for s in stops] == ["S000", "S001", "S002"]
     assert np.allclose([s.chainage_m for s in stops], [0.0, 60.0, 120.0], atol=0.05)
     assert (root / "projects" / "t1" / "sessions" / "undo" / "survey.xlsx").is_file()
+
+
+@pytest.mark.parametrize("fix_after_the_step", [True, False], ids=["fix-stored-then-killed", "killed-before-the-fix"])
+def test_a_scripted_fix_stored_at_the_time_of_the_step_before_is_not_taken_again(tmp_path, fix_after_the_step):
+    # (found 2026-11-26) a crew's fix takes no simulated time: the fix of step 2 has the time of
+    # step 1's script event, and a kill between the fix and step 2's event made the resume take
+    # that fix again (by time, "t_fix > t_step" was false). The script event keeps the newest fix id.
+    from types import SimpleNamespace
+
+    from survey.session.fieldsession import FieldSession
+    from survey.session.script import parse_script
+    from survey.store import FixRecord, ProjectStore, SessionEvent
+
+    make_project(tmp_path)
+    with ProjectStore.open(tmp_path / "t1") as st:
+        sid = st.create_session("s").session_id
+        st.add_fix(sid, FixRecord(100.0, "FIX001", 1.0, 2.0, 3.0, 6e-4, 6e-4, 6e-4))
+        stub = SimpleNamespace(config=SimpleNamespace(script=parse_script("fix\nfix\nend\n")), script_index=1,
+                               store=st, rec=SimpleNamespace(session_id=sid))
+        stub._event = lambda kind, detail: st.add_event(sid, SessionEvent(100.0, kind, detail))
+        stub._script_event_detail = lambda: FieldSession._script_event_detail(stub)
+        stub._event("script", FieldSession._script_event_detail(stub))        # step 1 done: "1 <id of FIX001>"
+        if fix_after_the_step:
+            st.add_fix(sid, FixRecord(100.0, "FIX002", 1.0, 2.0, 3.0, 6e-4, 6e-4, 6e-4))
+        FieldSession._resume_script_step(stub, st.fixes(sid))
+        assert stub.script_index == (2 if fix_after_the_step else 1)
+        last = [e for e in st.events(sid) if e.kind == "script"][-1]
+        assert last.detail.split()[0] == str(stub.script_index)

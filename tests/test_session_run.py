@@ -245,7 +245,7 @@ def test_sigkill_before_an_interval_summary_is_stored_then_resume_summarises_it(
                                     "--simulate", "--speedup", "40", "--script", "crew.txt"],
                          cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     step_3 = ("SELECT COUNT(*) FROM session_event e JOIN session s ON s.id = e.session_id "
-              "WHERE s.name = 'cut' AND e.kind = 'script' AND e.detail = '3'")
+              "WHERE s.name = 'cut' AND e.kind = 'script' AND e.detail LIKE '3 %'")
     deadline = time.monotonic() + 90
     while not _count(db, step_3):
         assert p.poll() is None and time.monotonic() < deadline

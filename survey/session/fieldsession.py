@@ -896,7 +896,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 if done:
                     if self.config.script is not None:
                         self.script_index += 1
-                        self._event("script", str(self.script_index))
+                        self._event("script", self._script_event_detail())
                     current = None
                 self.screen.prompt = self.keys_prompt()
                 live.update(render(self.screen))
@@ -921,7 +921,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             elif ev.kind == "turn":
                 self.direction = -self.direction
             elif ev.kind == "script":
-                self.script_index = int(ev.detail)
+                self.script_index = int(ev.detail.split()[0])
             elif ev.kind == "reopened":  # the script of a reopened session starts again
                 self.script_index = 0
         fixes = self.store.fixes(sid, accepted_only=True)
@@ -988,7 +988,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._resume_seen_t = last_step_t
         done = False
         if a.name in ("fix", "remeasure"):
-            done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t
+            detail = events[last].detail.split() if last >= 0 and events[last].kind == "script" else []
+            if len(detail) > 1:     # the newest fix id at the last step: a fix stored since is this step's
+                done = max((f.fix_id or 0 for f in all_fixes), default=0) > int(detail[1])
+            else:                   # a store of before 2026-11-26 (or a reopened session): by time
+                done = bool(all_fixes) and all_fixes[-1].t_s > last_step_t
         elif a.name == "note":
             done = any(n.t_s >= last_step_t and n.text == a.text for n in self.store.notes(self.rec.session_id))
         elif a.name in ("undo", "turn", "pause", "resume"):
@@ -1009,7 +1013,15 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                                           > STAND_TOLERANCE_M)
         if done:
             self.script_index += 1
-            self._event("script", str(self.script_index))
+            self._event("script", self._script_event_detail())
+
+    def _script_event_detail(self) -> str:
+        """A ``script`` event's detail: the next step's index and the newest fix's id when it was
+        stored, so that a resume knows whether a fix was stored after it even at the same
+        simulated time (a crew's fix takes none: by time, a kill between the fix and its step's
+        event made the resume take that fix again)."""
+        ids = [f.fix_id for f in self.store.fixes(self.rec.session_id) if f.fix_id is not None]
+        return f"{self.script_index} {max(ids, default=0)}"
 
     # ================================================================== end
     def finish(self) -> SessionOutcome:
