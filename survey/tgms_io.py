@@ -399,9 +399,17 @@ def _check_frame_times(raw: dict[str, dict], lasers: dict[str, LaserPoints]) -> 
                               "a time is off in one of the files")
 
 
+#: camera frames may lie this far outside the IMU's and the encoder's time (their last samples
+#: need not be at the same instant), s
+CAMERA_SPAN_TOLERANCE_S = 0.1
+
+
 def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
     """The IMU, the encoder and the cameras share some time (bug hunt: laser files
-    100 s late ended in "zero-size array to reduction operation fmin")."""
+    100 s late ended in "zero-size array to reduction operation fmin"), and every camera frame
+    lies within the IMU's and the encoder's time: a frame outside cannot be placed along the track
+    or levelled (an encoder.csv cut at 15 s of a 26 s ride gave exit 0, an output ending at
+    89.5 m and 2.2 mm of cross-level error). The camera files are the last entry of ``times``."""
     span = {k: (float(np.min(t)), float(np.max(t))) for k, t in times.items()}
     late = max(span, key=lambda k: span[k][0])
     early = min(span, key=lambda k: span[k][1])
@@ -410,6 +418,15 @@ def _check_time_overlap(times: dict[str, np.ndarray]) -> None:
         raise TgmsFormatError(f"{late} {verb} at {span[late][0]:.6g} s (column t_s), when {early} has ended "
                               f"({span[early][1]:.6g} s): the files share no time; their t_s must be seconds on one "
                               "clock")
+    cams = list(span)[-1]
+    c0, c1 = span[cams]
+    for name, (a, b) in list(span.items())[:-1]:
+        if c1 > b + CAMERA_SPAN_TOLERANCE_S or c0 < a - CAMERA_SPAN_TOLERANCE_S:
+            where = (f"run to {c1:.6g} s and {name} ends at {b:.6g} s" if c1 > b + CAMERA_SPAN_TOLERANCE_S
+                     else f"begin at {c0:.6g} s and {name} at {a:.6g} s")
+            raise TgmsFormatError(f"{cams} {where} (column t_s): camera frames outside the {name} record cannot be "
+                                  f"placed along the track; the files must cover one ride (a cut or shorter "
+                                  f"{name}? give it whole, or cut the camera files to its time)")
 
 
 #: share of empty cells of irregularities.csv above which ``process`` warns even when no other

@@ -523,3 +523,19 @@ def test_camera_frames_only_while_standing_are_a_clear_error(sim_folder, tmp_pat
     assert r.exit_code == 2 and "no camera frame was taken while the vehicle moved within the IMU and encoder record " \
         "(frames at 0-0.375 s, IMU at" in " ".join(r.stderr.split()), r.stderr
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name", ["encoder.csv", "imu.csv"])
+def test_camera_frames_outside_the_encoder_or_imu_record_are_refused(sim_folder, tmp_path, name):
+    # (bug hunt 2026-11-26) encoder.csv cut at 15 s of a 26 s ride: exit 0, the output ended at
+    # 89.5 m with 2.2 mm of cross-level error; an IMU cut likewise
+    import pandas as pd
+
+    dst = _copy(sim_folder, tmp_path)
+    df = pd.read_csv(dst / name)
+    end = float(df["t_s"].iloc[len(df) // 2])
+    df[df["t_s"] <= end].to_csv(dst / name, index=False)
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    said = "laser_left.csv and laser_right.csv run to"
+    assert r.exit_code == 2 and said in r.stderr and f"{name} ends at {end:.6g} s" in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "o").exists()
