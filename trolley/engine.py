@@ -189,10 +189,9 @@ def sigmas_to_grid(sigma_enh: np.ndarray, grid: GridFactors | None) -> np.ndarra
     """1-sigmas along true east / north to grid E / N (the E-N correlation is dropped)."""
     if grid is None:
         return sigma_enh
-    c, s, k = np.cos(grid.convergence_rad), np.sin(grid.convergence_rad), grid.combined_scale
+    vE, vN, _ = horizontal_covariance_to_grid(sigma_enh[:, 0] ** 2, sigma_enh[:, 1] ** 2, 0.0, grid)
     out = sigma_enh.copy()
-    out[:, 0] = k * np.hypot(c * sigma_enh[:, 0], s * sigma_enh[:, 1])
-    out[:, 1] = k * np.hypot(s * sigma_enh[:, 0], c * sigma_enh[:, 1])
+    out[:, 0], out[:, 1] = np.sqrt(vE), np.sqrt(vN)
     return out
 
 
