@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trolley.trackgeometry import lateral_sigma
+
 
 @dataclass
 class TrackErrors:
@@ -62,9 +64,10 @@ def track_errors(t_s, distance_m, enh_m, sigma_enh_m, truth, cov_EN_m2=None) -> 
     dE, dN, dH = enh_m[moving, 0] - te, enh_m[moving, 1] - tn, enh_m[moving, 2] - th
     c, s = np.cos(yaw), np.sin(yaw)
     sE, sN = sigma_enh_m[moving, 0], sigma_enh_m[moving, 1]
-    cEN = np.zeros_like(sE) if cov_EN_m2 is None else np.asarray(cov_EN_m2, dtype=float)[moving]
+    cEN = None if cov_EN_m2 is None else np.asarray(cov_EN_m2, dtype=float)[moving]
     return TrackErrors(
         lateral_m=c * dE - s * dN, longitudinal_m=s * dE + c * dN, vertical_m=dH,
-        sigma_lateral_m=np.sqrt(np.maximum((c * sE) ** 2 + (s * sN) ** 2 - 2 * c * s * cEN, 0.0)),
-        sigma_longitudinal_m=np.sqrt(np.maximum((s * sE) ** 2 + (c * sN) ** 2 + 2 * c * s * cEN, 0.0)),
+        sigma_lateral_m=lateral_sigma(sE, sN, yaw, cEN),
+        # the along-track direction (sin psi, cos psi) is the right normal of the bearing psi - 90 deg
+        sigma_longitudinal_m=lateral_sigma(sE, sN, yaw - 0.5 * np.pi, cEN),
         sigma_vertical_m=sigma_enh_m[moving, 2])

@@ -19,6 +19,10 @@ from survey.limits import check_allocation
 err = Console(stderr=True)
 
 
+#: this many fixes rejected one after another are warned about (summary.json longest_rejected_run)
+REJECTED_RUN_WARNING = 3
+
+
 def fail(message: str, code: int = 2) -> None:
     """Print a one-line error to stderr (literally: no markup from the data) and exit non-zero."""
     from rich.text import Text
@@ -176,10 +180,6 @@ def print_summary(result, written, con: Console | None = None) -> None:
             "setup, a target): check their NIS in fixes.csv before using this track.")), highlight=False)
     con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
               markup=False, highlight=False)
-
-
-#: this many fixes rejected one after another are warned about (summary.json longest_rejected_run)
-REJECTED_RUN_WARNING = 3
 
 
 def register(app: typer.Typer) -> None:

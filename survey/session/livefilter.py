@@ -182,6 +182,7 @@ class LiveFiltering:
             self.console.print(f"[yellow]live processing unavailable after resume: {escape(str(exc))}[/]")
             self._live = False
 
+
 def _interval_key(t_start_s: float, t_end_s: float) -> tuple[float, float]:
     """An interval by its fixes' times (a repeated fix at a stop closes one of no length, which
     ends at the same time as the one before it)."""
