@@ -1,9 +1,12 @@
 """Forward filter, RTS (filterpy) and two-filter smoother agree; gating keeps rejected fixes."""
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from trolley import error_models as em
-from trolley.smoothers import Measurements, forward_filter, rts_smooth, two_filter_smooth
+from trolley.engine import longest_run
+from trolley.smoothers import (CONFIRMING_MEASUREMENTS, Measurements, confirmed_forward_filter, forward_filter,
+                               rts_smooth, two_filter_smooth)
 
 
 def _level_problem(seed, n_nodes=61, fix_every=20):
@@ -107,3 +110,62 @@ def test_both_smoothers_match_40_digit_arithmetic():
     nrm = np.sqrt(np.einsum("kii,kjj->kij", ref, ref))
     assert np.max(np.abs(rts.P - ref) / nrm) < 1e-9
     assert np.max(np.abs(tfs.P - ref) / nrm) < 1e-9
+
+
+def _walk_problem(n_meas: int = 12, sigma: float = 0.1, q: float = 1.0):
+    """A scalar random walk (step sigma q) measured every step with noise sigma << q, as a
+    position fix is against the dead reckoning's error: a fix taken sets the state to itself."""
+    F = np.ones((n_meas - 1, 1, 1))
+    Q = np.full((n_meas - 1, 1, 1), q**2)
+    meas = Measurements(np.arange(n_meas), np.zeros((n_meas, 1)), np.ones((1, 1)), np.full((1, 1), sigma**2))
+    return F, Q, np.zeros(1), np.array([[1.0]]), meas
+
+
+def test_a_jump_the_model_cannot_follow_is_taken_back_once_confirmed():
+    F, Q, x0, P0, meas = _walk_problem()
+    meas.z[6:, 0] += 20.0  # 20 sigma of the prediction: every later measurement agrees with it
+    plain = forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
+    assert not plain.accepted[6:].any()  # the cascade: the plain gate never takes one again
+    conf = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
+    assert conf.accepted.all()
+    # the first of the run is taken back; its followers then pass the plain gate
+    assert list(np.flatnonzero(conf.readmitted)) == [6]
+    assert np.array_equal(conf.gate_accepted, plain.accepted)
+    assert conf.nis[6] == pytest.approx(plain.nis[6])
+    assert conf.x_post[-1, 0] == pytest.approx(20.0, abs=0.01)
+
+
+def test_a_blunder_pair_stays_rejected_and_a_longer_run_needs_more_confirmation():
+    F, Q, x0, P0, meas = _walk_problem()
+    meas.z[[5, 6], 0] += 20.0  # two blunders that agree, the measurements after them right
+    conf = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
+    assert list(np.flatnonzero(~conf.accepted)) == [5, 6] and not conf.readmitted.any()
+    # three that agree with one another are taken with two confirming (and the right ones after
+    # them cascade and are taken back in turn); with three confirming they are not
+    meas.z[7, 0] += 20.0
+    two = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
+    assert two.accepted.all() and list(np.flatnonzero(two.readmitted)) == [5, 8]
+    three = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999, confirming=3)
+    assert list(np.flatnonzero(~three.accepted)) == [5, 6, 7]
+    with pytest.raises(ValueError, match="at least 1"):
+        confirmed_forward_filter(F, Q, x0, P0, meas, confirming=0)
+
+
+def test_a_run_that_disagrees_with_itself_stays_rejected():
+    F, Q, x0, P0, meas = _walk_problem()
+    meas.z[5:, 0] += 20.0 * (-1.0) ** np.arange(7)  # +20, -20, +20, ...: no two agree
+    conf = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
+    assert not conf.accepted[5:].any() and not conf.readmitted.any()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), blunders=st.lists(st.integers(0, 3), max_size=2, unique=True))
+def test_confirmed_filter_is_the_plain_one_when_nothing_cascades(seed, blunders):
+    F, Q, P0, meas = _level_problem(seed)
+    meas.z[blunders] += 0.05  # 50 mm: rejected, and no run long enough to be tried
+    plain = forward_filter(F, Q, np.zeros(5), P0, meas, gate_probability=0.9999)
+    assert longest_run(~plain.accepted) <= CONFIRMING_MEASUREMENTS
+    conf = confirmed_forward_filter(F, Q, np.zeros(5), P0, meas, gate_probability=0.9999)
+    assert np.array_equal(conf.accepted, plain.accepted)
+    assert np.array_equal(conf.x_post, plain.x_post) and np.array_equal(conf.P_post, plain.P_post)
+    assert not conf.readmitted.any()

@@ -29,7 +29,8 @@ from trolley.projection import GridFactors, session_site
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
                                    quat_multiply, static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
-from trolley.smoothers import Measurements, forward_filter, rts_smooth, state_scale, two_filter_smooth
+from trolley.smoothers import (CONFIRMING_MEASUREMENTS, Measurements, confirmed_forward_filter, forward_filter,
+                               rts_smooth, state_scale, two_filter_smooth)
 from trolley.trackgeometry import TrackInput
 
 #: Grid stations this far beyond the first or last projected chainage are still output.
@@ -636,8 +637,16 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     dr_cur = dr
     # the linearisation point must follow the error dynamics: only a smoothed estimate does
     passes = 1 if config.smoother == "none" else config.relinearisations + 1
-    share = 0.6 / passes  # of the run, for each pass: error model, filter and smoother
-    for it in range(passes):
+    # a pass more when the relinearised gate takes fixes back (below): they must move the
+    # linearisation point too
+    regate = passes > 1 and config.gate_probability is not None
+    share = 0.6 / (passes + regate)  # of the run, for each pass: error model, filter and smoother
+    retaken = np.zeros(len(fix_t), dtype=bool)
+    retaken_nis = np.full(len(fix_t), np.nan)
+    retaken_confirmed = np.zeros(len(fix_t), dtype=bool)
+    it = -1
+    while True:
+        it += 1
         base = 0.25 + it * share
         label = f"pass {it + 1} of {passes}"
         report(f"error model, {label}", base)
@@ -654,10 +663,32 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         F, Q = error_model(dr_cur, nodes, noise, *turn_sigmas(meta, config), handling=handling)
         fwd_progress = within(f"forward filter, {label}", base + 0.1 * share, base + 0.55 * share)
         if it == 0:
-            fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
-                                 force_accept=forced, progress=fwd_progress)
-            gated = fwd  # the gate decides once; later passes keep its verdicts
+            if config.gate_probability is None:
+                fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=None, progress=fwd_progress)
+            else:
+                # a run of rejected fixes that agree with one another is the filter's error, not
+                # theirs (a MEMS cascade): the gate takes its first back
+                fwd = confirmed_forward_filter(F, Q, np.zeros(8), P0, meas, config.gate_probability,
+                                               force_accept=forced, progress=fwd_progress)
+            gated = fwd  # the gate decides here; later passes keep its verdicts, or take fixes back
         else:
+            if it == 1 and regate and not gated.accepted.all():
+                # The first pass gates against the raw dead reckoning, whose error model is linear
+                # in the attitude errors; with a MEMS heading off by 1.5 deg the dropped second
+                # order shortens each 60 m interval by 20 mm along the track, 5 sigma of the
+                # odometer's, and every later fix is rejected. Against the dead reckoning
+                # corrected by the first pass (the residual, with the correction's share left
+                # out), that part is gone: the rejected fixes are gated once more there.
+                resid = Measurements(fix_nodes, z - offset[fix_blocks] - lever_offset, H, R)
+                again = confirmed_forward_filter(F, Q, np.zeros(8), P0, resid, config.gate_probability,
+                                                 force_accept=gated.accepted)
+                retaken = again.accepted & ~gated.accepted
+                retaken_nis = np.where(retaken, again.nis, np.nan)
+                retaken_confirmed = again.readmitted & retaken
+                if retaken.any():
+                    gated.accepted = gated.accepted | retaken
+                    passes += 1
+                    label = f"pass {it + 1} of {passes}"
             kept = meas.subset(gated.accepted)
             fwd = forward_filter(F, Q, np.zeros(8), P0, kept, gate_probability=None, progress=fwd_progress)
             meas = kept
@@ -677,7 +708,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         correction = x_blocks
         worst_angle = float(np.max(np.abs(x_blocks[:, [3, 6]])))
         worst_scale = float(np.max(np.abs(x_blocks[:, 2])))
-        if it == passes - 1 or (worst_angle < config.relinearise_above_rad and worst_scale < 1e-3):
+        if it >= passes - 1 or (worst_angle < config.relinearise_above_rad and worst_scale < 1e-3):
             break  # the dead reckoning is close enough to the truth for the linear model
         dr_cur = corrected_dead_reckoning(dr, correction)
 
@@ -698,14 +729,27 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     innov_enh = np.column_stack([y[:, 1], y[:, 0], -y[:, 2]])
     if grid is not None:
         innov_enh = grid.local_to_grid(innov_enh)
-    check_rotation(dr, fix_blocks, fix_ned, lever, fwd.accepted, heading_sigma, grid)
+    # on the plain gate's verdicts: fixes turned against north agree with one another, and the
+    # gates that take fixes back would take them (the track turned with them, the cause unsaid)
+    check_rotation(dr, fix_blocks, fix_ned, lever, fwd.accepted if fwd.gate_accepted is None else fwd.gate_accepted,
+                   heading_sigma, grid)
     reasons = []
     thr = None
     if config.gate_probability is not None:
         from trolley.smoothers import gate_threshold
         thr = gate_threshold(config.gate_probability, 3)
-    for acc, nis_j, f in zip(fwd.accepted, fwd.nis, forced):
-        if acc:
+    confirmed = fwd.readmitted if fwd.readmitted is not None else np.zeros(len(fwd.nis), dtype=bool)
+    readmitted = confirmed | retaken
+    confirming = (f"the next {CONFIRMING_MEASUREMENTS} fixes, rejected too, pass the gate with it")
+    for acc, nis_j, f, back, again_j, again_back in zip(fwd.accepted, fwd.nis, forced, confirmed, retaken_nis,
+                                                         retaken_confirmed):
+        if back:
+            reasons.append(f"taken back: innovation NIS {nis_j:.1f} > {thr:.1f}, but {confirming}")
+        elif np.isfinite(again_j):
+            reasons.append(f"taken back: innovation NIS {nis_j:.1f} > {thr:.1f} against the dead reckoning, "
+                           f"{again_j:.1f} against the dead reckoning corrected by the other fixes"
+                           + (f" ({confirming})" if again_back else ""))
+        elif acc:
             reasons.append("accepted by the crew despite the gate" if f and thr is not None and nis_j > thr else "")
         else:
             reasons.append(f"innovation NIS {nis_j:.1f} > {thr:.1f} (chi-square gate, 3 dof, "
@@ -722,9 +766,12 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     summary = {
         "fixes_used": int(acc.sum()),
         "fixes_rejected": int((~acc).sum()),
-        # the most fixes rejected one after another: from 3 on, the filter has likely stopped
-        # trusting correct fixes (a MEMS audit: 3-13 in a row, tracks off by 23 mm to 2.5 m)
+        # the most fixes rejected one after another (from 3 on, warned about): runs of fixes
+        # that agree with one another are taken back, so these disagree among themselves too
         "longest_rejected_run": longest_run(~acc),
+        # rejected by the gate, then taken back: confirmed by the fixes after them, or passing
+        # against the dead reckoning corrected by the other fixes
+        "fixes_readmitted": int(readmitted.sum()),
         # the first fix anchors the dead reckoning (its innovation is zero by construction)
         "rms_innovation_m": (float(np.sqrt(np.mean(innov_enh[1:][acc[1:]] ** 2))) if acc[1:].any()
                              else float("nan")),

@@ -68,6 +68,11 @@ class ForwardResult:
     innovation_cov : (M, m, m) its covariance S.
     nis : (M,) normalised innovation squared y^T S^-1 y.
     accepted : (M,) bool, False where the gate rejected the measurement.
+    readmitted : (M,) bool, True where the gate rejected the measurement and
+        :func:`confirmed_forward_filter` took it back because the ones after it confirmed it.
+    gate_accepted : (M,) bool, :func:`confirmed_forward_filter`'s plain gate verdicts, before any
+        measurement was taken back (a rejected run whose rejection has a cause of its own, such
+        as fixes turned against the filter's north, is seen there).
     """
 
     x_prior: np.ndarray
@@ -78,6 +83,8 @@ class ForwardResult:
     innovation_cov: np.ndarray
     nis: np.ndarray
     accepted: np.ndarray
+    readmitted: np.ndarray | None = None
+    gate_accepted: np.ndarray | None = None
 
 
 @dataclass
@@ -173,6 +180,86 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     if progress is not None:
         progress(1.0)
     return ForwardResult(x_prior, P_prior, x_post, P_post, innov, S_all, nis, accepted)
+
+
+#: A rejected fix is taken back when this many fixes after it, all rejected too, pass the gate
+#: once it is taken (:func:`confirmed_forward_filter`). With one, two fixes from one bad station
+#: setup would confirm each other; with two, a run of three must agree.
+CONFIRMING_MEASUREMENTS = 2
+
+
+def confirmed_forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+                             meas: Measurements, gate_probability: float = 0.9999,
+                             force_accept: np.ndarray | None = None,
+                             confirming: int = CONFIRMING_MEASUREMENTS,
+                             progress: Callable[[float], None] | None = None) -> ForwardResult:
+    """:func:`forward_filter` whose gate takes back a rejected measurement that those after it confirm.
+
+    A chi-square gate rejects what disagrees with the filter's prediction. When the prediction is
+    wrong by more than its covariance says (an overconfident model: a MEMS IMU's heading and
+    pitch), one rejected fix leaves the filter on dead reckoning, the next fix disagrees even more
+    and every later fix is rejected too, correct as they are (a cascade: 13 correct fixes in a
+    row, the track 2.5 m off). A blunder, by contrast, disagrees with the fixes after it as well.
+    So: where measurement ``a`` was rejected and the ``confirming`` measurements after it were
+    rejected too, the filter is run again from just before ``a`` with ``a`` taken; if the
+    ``confirming`` measurements then all pass the gate, ``a`` and they agree with one another
+    through the model and ``a`` is taken back (``readmitted``); else ``a`` stays rejected and the
+    next one is tried. Each rejected measurement is tried at most once.
+
+    This is not in Jiang 2017, whose filter takes every fix; it is a consistency check across
+    fixes of the kind used to end the divergence of a gated navigation filter. Its limit: a run
+    of ``confirming`` + 1 fixes that are wrong by the same amount (one bad station setup for all
+    of them) is taken; the free-station check at the setup and the overlap check of two setups
+    are what catch a bad setup.
+
+    Parameters
+    ----------
+    F, Q, x0, P0, meas, force_accept, progress : as for :func:`forward_filter`.
+    gate_probability : chi-square gate probability.
+    confirming : how many rejected measurements after a rejected one must pass the gate once it
+        is taken (at least 1).
+
+    Returns
+    -------
+    ForwardResult with ``readmitted`` set; ``accepted`` is True for the measurements taken back.
+    """
+    if confirming < 1:
+        raise ValueError(f"confirming must be at least 1, got {confirming}")
+    M = len(meas)
+    forced = np.zeros(M, dtype=bool) if force_accept is None else np.asarray(force_accept, dtype=bool).copy()
+    readmitted = np.zeros(M, dtype=bool)
+    fwd = forward_filter(F, Q, x0, P0, meas, gate_probability, forced, progress)
+    gate_accepted = fwd.accepted.copy()
+    tried = np.zeros(M, dtype=bool)
+    while True:
+        rejected = ~fwd.accepted
+        # a rejected measurement followed by `confirming` rejected ones, not tried yet
+        runs = np.ones(max(M - confirming, 0), dtype=bool)
+        for i in range(confirming + 1):
+            runs &= rejected[i:M - confirming + i]
+        candidates = np.flatnonzero(runs & ~tried[:M - confirming])
+        if not candidates.size:
+            break
+        a = int(candidates[0])
+        tried[a] = True
+        last = a + confirming
+        na, nb = int(meas.node[a]), int(meas.node[last])
+        # from the prior at a's node: the measurements taken there before a, then a, then the
+        # confirming ones through the gate
+        same_node = np.arange(int(np.searchsorted(meas.node, na)), a)
+        take = np.concatenate([same_node[fwd.accepted[same_node]], np.arange(a, last + 1)])
+        sub = Measurements(meas.node[take] - na, meas.z[take], meas.H[take], meas.R[take])
+        sub_forced = np.zeros(len(take), dtype=bool)
+        sub_forced[:-confirming] = True
+        trial = forward_filter(F[na:nb], Q[na:nb], fwd.x_prior[na], fwd.P_prior[na], sub,
+                               gate_probability, sub_forced)
+        if trial.accepted[-confirming:].all():
+            forced[a] = True
+            readmitted[a] = True
+            fwd = forward_filter(F, Q, x0, P0, meas, gate_probability, forced)
+    fwd.readmitted = readmitted
+    fwd.gate_accepted = gate_accepted
+    return fwd
 
 
 def rts_smooth(F: np.ndarray, Q: np.ndarray, fwd: ForwardResult,

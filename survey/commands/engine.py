@@ -167,17 +167,22 @@ def print_summary(result, written, con: Console | None = None) -> None:
     t.add_row("smoother", result.config.smoother)
     con = con if con is not None else Console()
     con.print(t)
-    for i in range(len(result.fixes.t_s)):
-        if not result.fixes.accepted[i]:
-            err.print(Text.assemble(("rejected fix", "yellow"), f" {result.fixes.point[i]} at t="
-                                    f"{result.fixes.t_s[i]:.1f} s: {result.fixes.reason[i]}"), highlight=False)
+    f = result.fixes
+    for i in range(len(f.t_s)):
+        if not f.accepted[i]:
+            err.print(Text.assemble(("rejected fix", "yellow"), f" {f.point[i]} at t="
+                                    f"{f.t_s[i]:.1f} s: {f.reason[i]}"), highlight=False)
+        elif f.reason[i].startswith("taken back"):
+            err.print(Text.assemble(("fix taken back", "cyan"), f" {f.point[i]} at t="
+                                    f"{f.t_s[i]:.1f} s: {f.reason[i].removeprefix('taken back: ')}"), highlight=False)
     run = s["longest_rejected_run"]
     if run >= REJECTED_RUN_WARNING:
         err.print(Text.assemble(("warning", "bold yellow"), (
             f": {run} fixes in a row were rejected; across them the track is dead reckoning (max 1-sigma "
-            f"{units.m_to_mm(s['max_sigma_m']):.1f} mm). Correct fixes are rejected one after another when "
-            "the filter is too sure of its prediction (seen with MEMS IMUs), or the fixes are wrong (a station "
-            "setup, a target): check their NIS in fixes.csv before using this track.")), highlight=False)
+            f"{units.m_to_mm(s['max_sigma_m']):.1f} mm). The gate takes back a run of fixes that agree with "
+            "one another; these do not, neither against the dead reckoning nor against the track corrected by "
+            "the other fixes: the fixes are likely wrong (a station setup, a target). Check their NIS in "
+            "fixes.csv before using this track.")), highlight=False)
     con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
               markup=False, highlight=False)
 
