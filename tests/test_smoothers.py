@@ -4,9 +4,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from trolley import error_models as em
-from trolley.engine import longest_run
-from trolley.smoothers import (CONFIRMING_MEASUREMENTS, Measurements, confirmed_forward_filter, forward_filter,
-                               rts_smooth, two_filter_smooth)
+from trolley.smoothers import (Measurements, fix_statistics, forward_filter, gate_threshold, rts_smooth,
+                               snooped_verdicts, two_filter_smooth)
 
 
 def _level_problem(seed, n_nodes=61, fix_every=20):
@@ -121,51 +120,99 @@ def _walk_problem(n_meas: int = 12, sigma: float = 0.1, q: float = 1.0):
     return F, Q, np.zeros(1), np.array([[1.0]]), meas
 
 
-def test_a_jump_the_model_cannot_follow_is_taken_back_once_confirmed():
-    F, Q, x0, P0, meas = _walk_problem()
-    meas.z[6:, 0] += 20.0  # 20 sigma of the prediction: every later measurement agrees with it
-    plain = forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
-    assert not plain.accepted[6:].any()  # the cascade: the plain gate never takes one again
-    conf = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
-    assert conf.accepted.all()
-    # the first of the run is taken back; its followers then pass the plain gate
-    assert list(np.flatnonzero(conf.readmitted)) == [6]
-    assert np.array_equal(conf.gate_accepted, plain.accepted)
-    assert conf.nis[6] == pytest.approx(plain.nis[6])
-    assert conf.x_post[-1, 0] == pytest.approx(20.0, abs=0.01)
+def _snooped(F, Q, x0, P0, meas, **kw):
+    gated = forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
+    return gated, snooped_verdicts(F, Q, x0, P0, meas, gated.accepted, 0.9999, **kw)
 
 
-def test_a_blunder_pair_stays_rejected_and_a_longer_run_needs_more_confirmation():
-    F, Q, x0, P0, meas = _walk_problem()
-    meas.z[[5, 6], 0] += 20.0  # two blunders that agree, the measurements after them right
-    conf = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
-    assert list(np.flatnonzero(~conf.accepted)) == [5, 6] and not conf.readmitted.any()
-    # three that agree with one another are taken with two confirming (and the right ones after
-    # them cascade and are taken back in turn); with three confirming they are not
-    meas.z[7, 0] += 20.0
-    two = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
-    assert two.accepted.all() and list(np.flatnonzero(two.readmitted)) == [5, 8]
-    three = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999, confirming=3)
-    assert list(np.flatnonzero(~three.accepted)) == [5, 6, 7]
-    with pytest.raises(ValueError, match="at least 1"):
-        confirmed_forward_filter(F, Q, x0, P0, meas, confirming=0)
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), j=st.integers(0, 3))
+def test_fix_statistic_is_the_nis_against_a_smoother_run_without_the_fix(seed, j):
+    # the leave-one-out identity against its definition: smooth without fix j, then its NIS
+    F, Q, P0, meas = _level_problem(seed)
+    acc = np.ones(len(meas), dtype=bool)
+    sm = rts_smooth(F, Q, forward_filter(F, Q, np.zeros(5), P0, meas, gate_probability=None))
+    T = fix_statistics(meas, acc, sm)
+    acc[j] = False
+    sm_without = rts_smooth(F, Q, forward_filter(F, Q, np.zeros(5), P0, meas.subset(acc), gate_probability=None))
+    k = meas.node[j]
+    e = meas.z[j] - meas.H[j] @ sm_without.x[k]
+    S = meas.H[j] @ sm_without.P[k] @ meas.H[j].T + meas.R[j]
+    assert T[j] == pytest.approx(float(e @ np.linalg.solve(S, e)), rel=1e-6, abs=1e-9)
+    # and for an unused fix the statistic is that NIS directly
+    assert fix_statistics(meas, acc, sm_without)[j] == pytest.approx(T[j], rel=1e-6, abs=1e-9)
 
 
-def test_a_run_that_disagrees_with_itself_stays_rejected():
-    F, Q, x0, P0, meas = _walk_problem()
-    meas.z[5:, 0] += 20.0 * (-1.0) ** np.arange(7)  # +20, -20, +20, ...: no two agree
-    conf = confirmed_forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999)
-    assert not conf.accepted[5:].any() and not conf.readmitted.any()
+def test_a_measurement_no_other_checks_is_not_tested():
+    F, Q, x0, _, meas = _walk_problem(n_meas=3)
+    P0 = np.array([[1e4]])  # the prior does not check the first one either
+    acc = np.array([True, False, False])
+    sm = rts_smooth(F, Q, forward_filter(F, Q, x0, P0, meas.subset(acc), gate_probability=None))
+    T = fix_statistics(meas, acc, sm)
+    assert np.isnan(T[0]) and np.isfinite(T[1:]).all()
+
+
+def _drift_problem(n_meas: int = 16, qv: float = 0.05, sigma: float = 0.01):
+    """Position and drift rate (constant velocity, rate random walk qv per step), position
+    measured every step: as the dead reckoning drifts with a heading error, one accepted wrong
+    fix turns the predicted drift, and one rejected right one leaves it unchecked."""
+    F = np.tile(np.array([[1.0, 1.0], [0.0, 1.0]]), (n_meas - 1, 1, 1))
+    Q = np.tile(np.diag([0.0, qv**2]), (n_meas - 1, 1, 1))
+    meas = Measurements(np.arange(n_meas), np.zeros((n_meas, 1)), np.array([[1.0, 0.0]]), np.full((1, 1), sigma**2))
+    return F, Q, np.zeros(2), np.eye(2), meas
+
+
+def test_right_fixes_the_forward_gate_rejected_in_a_row_are_taken_back():
+    F, Q, x0, P0, meas = _drift_problem()
+    k = np.arange(len(meas))
+    meas.z[:, 0] = np.where(k >= 6, 0.30 * (k - 5), 0.0)  # the drift turns by 6 of its sigmas at 5
+    gated, res = _snooped(F, Q, x0, P0, meas)
+    assert list(np.flatnonzero(~gated.accepted)) == [6, 7, 8, 9, 10]  # the forward gate's cascade
+    assert res.accepted.all() and list(np.flatnonzero(res.added)) == [6, 7, 8, 9, 10]
+    # the fix at the turn stays over the gate (18.5 > 15.1), under the threshold for taking out
+    assert np.max(res.statistic) == pytest.approx(18.54, abs=0.01)
+    assert (res.statistic <= gate_threshold(1 - 1e-6, 1)).all()
+
+
+@pytest.mark.parametrize("run", [[5], [5, 6], [5, 6, 7], [5, 6, 7, 8]])
+def test_wrong_measurements_that_agree_with_one_another_stay_rejected(run):
+    F, Q, x0, P0, meas = _walk_problem(n_meas=16)
+    meas.z[run, 0] += 20.0  # one bad setup measuring several stops, the rest right
+    gated, res = _snooped(F, Q, x0, P0, meas)
+    assert list(np.flatnonzero(~res.accepted)) == run
+
+
+def test_a_wrong_measurement_the_gate_took_is_exchanged_for_the_right_ones_it_held_out():
+    # the prior sigma grows while the gate rejects: the third wrong fix of a run passes the
+    # forward gate, turns the drift, and the right ones after it fail
+    F, Q, x0, P0, meas = _drift_problem()
+    meas.z[[5, 6, 7], 0] += 0.5
+    gated, res = _snooped(F, Q, x0, P0, meas)
+    assert list(np.flatnonzero(~gated.accepted)) == [5, 6, 8, 9, 10, 11]
+    assert list(np.flatnonzero(~res.accepted)) == [5, 6, 7]
+    assert list(np.flatnonzero(res.removed)) == [7] and list(np.flatnonzero(res.added)) == [8, 9, 10, 11]
+
+
+def test_the_crew_keeps_a_fix_the_snooping_would_take_out():
+    F, Q, x0, P0, meas = _drift_problem()
+    meas.z[[5, 6, 7], 0] += 0.5
+    forced = np.zeros(len(meas), dtype=bool)
+    forced[7] = True
+    gated = forward_filter(F, Q, x0, P0, meas, gate_probability=0.9999, force_accept=forced)
+    res = snooped_verdicts(F, Q, x0, P0, meas, gated.accepted, 0.9999, force_accept=forced)
+    assert res.accepted[7]
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 10_000), blunders=st.lists(st.integers(0, 3), max_size=2, unique=True))
-def test_confirmed_filter_is_the_plain_one_when_nothing_cascades(seed, blunders):
+@given(seed=st.integers(0, 10_000))
+def test_snooping_changes_nothing_on_consistent_data(seed):
     F, Q, P0, meas = _level_problem(seed)
-    meas.z[blunders] += 0.05  # 50 mm: rejected, and no run long enough to be tried
-    plain = forward_filter(F, Q, np.zeros(5), P0, meas, gate_probability=0.9999)
-    assert longest_run(~plain.accepted) <= CONFIRMING_MEASUREMENTS
-    conf = confirmed_forward_filter(F, Q, np.zeros(5), P0, meas, gate_probability=0.9999)
-    assert np.array_equal(conf.accepted, plain.accepted)
-    assert np.array_equal(conf.x_post, plain.x_post) and np.array_equal(conf.P_post, plain.P_post)
-    assert not conf.readmitted.any()
+    gated = forward_filter(F, Q, np.zeros(5), P0, meas, gate_probability=0.9999)
+    res = snooped_verdicts(F, Q, np.zeros(5), P0, meas, gated.accepted, 0.9999)
+    if gated.accepted.all() and np.nanmax(res.statistic) <= gate_threshold(0.9999, 2):
+        assert res.accepted.all() and not res.removed.any() and not res.added.any()
+    # whatever it changed, every used measurement it could test ends under the out threshold and
+    # every unused one over the gate
+    T = res.statistic
+    assert not (res.accepted & (T > gate_threshold(1 - 1e-6, 2))).any()
+    assert (T[~res.accepted] > gate_threshold(0.9999, 2)).all()

@@ -29,9 +29,13 @@ from trolley.projection import GridFactors, session_site
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
                                    quat_multiply, static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
-from trolley.smoothers import (CONFIRMING_MEASUREMENTS, Measurements, confirmed_forward_filter, forward_filter,
-                               rts_smooth, state_scale, two_filter_smooth)
+from trolley.smoothers import (SNOOP_OUT_PROBABILITY, Measurements, SmoothedResult, forward_filter, rts_smooth,
+                               snooped_verdicts, state_scale, two_filter_smooth)
 from trolley.trackgeometry import TrackInput
+
+#: Passes the data snooping may add (each when it changed a verdict); the third run of the
+#: snooping ends the loop whatever it found.
+SNOOPING_PASSES = 2
 
 #: Grid stations this far beyond the first or last projected chainage are still output.
 STATION_END_TOLERANCE_M = 0.005
@@ -637,13 +641,14 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     dr_cur = dr
     # the linearisation point must follow the error dynamics: only a smoothed estimate does
     passes = 1 if config.smoother == "none" else config.relinearisations + 1
-    # a pass more when the relinearised gate takes fixes back (below): they must move the
-    # linearisation point too
-    regate = passes > 1 and config.gate_probability is not None
-    share = 0.6 / (passes + regate)  # of the run, for each pass: error model, filter and smoother
-    retaken = np.zeros(len(fix_t), dtype=bool)
-    retaken_nis = np.full(len(fix_t), np.nan)
-    retaken_confirmed = np.zeros(len(fix_t), dtype=bool)
+    # every pass's smoothed track tests each fix against all the others (data snooping); a pass
+    # more, up to SNOOPING_PASSES, when that changes a verdict
+    snoop = config.gate_probability is not None and config.smoother != "none"
+    share = 0.6 / (passes + snoop)  # of the run, for each pass: error model, filter and smoother
+    # the snooping's statistics: the last, and the one on which a fix was last moved
+    snoop_stat = np.full(len(fix_t), np.nan)
+    moved_stat = np.full(len(fix_t), np.nan)
+    snoop_passes = 0
     it = -1
     while True:
         it += 1
@@ -659,36 +664,15 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         att = [_IDX_HEADING, _IDX_PITCH]
         lever_offset = np.einsum("mik,mk->mi", H[:, :, att], correction[fix_blocks][:, att])
         z = p0 + dr_cur.position_ned_m[fix_blocks] + lever_ned - fix_ned + offset[fix_blocks] + lever_offset
-        meas = Measurements(fix_nodes, z, H, R)
+        meas = meas_all = Measurements(fix_nodes, z, H, R)
         F, Q = error_model(dr_cur, nodes, noise, *turn_sigmas(meta, config), handling=handling)
         fwd_progress = within(f"forward filter, {label}", base + 0.1 * share, base + 0.55 * share)
         if it == 0:
-            if config.gate_probability is None:
-                fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=None, progress=fwd_progress)
-            else:
-                # a run of rejected fixes that agree with one another is the filter's error, not
-                # theirs (a MEMS cascade): the gate takes its first back
-                fwd = confirmed_forward_filter(F, Q, np.zeros(8), P0, meas, config.gate_probability,
-                                               force_accept=forced, progress=fwd_progress)
-            gated = fwd  # the gate decides here; later passes keep its verdicts, or take fixes back
+            fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
+                                 force_accept=forced, progress=fwd_progress)
+            gated = fwd  # the gate decides here; the snooping below may change its verdicts
+            gate_accepted = fwd.accepted.copy()
         else:
-            if it == 1 and regate and not gated.accepted.all():
-                # The first pass gates against the raw dead reckoning, whose error model is linear
-                # in the attitude errors; with a MEMS heading off by 1.5 deg the dropped second
-                # order shortens each 60 m interval by 20 mm along the track, 5 sigma of the
-                # odometer's, and every later fix is rejected. Against the dead reckoning
-                # corrected by the first pass (the residual, with the correction's share left
-                # out), that part is gone: the rejected fixes are gated once more there.
-                resid = Measurements(fix_nodes, z - offset[fix_blocks] - lever_offset, H, R)
-                again = confirmed_forward_filter(F, Q, np.zeros(8), P0, resid, config.gate_probability,
-                                                 force_accept=gated.accepted)
-                retaken = again.accepted & ~gated.accepted
-                retaken_nis = np.where(retaken, again.nis, np.nan)
-                retaken_confirmed = again.readmitted & retaken
-                if retaken.any():
-                    gated.accepted = gated.accepted | retaken
-                    passes += 1
-                    label = f"pass {it + 1} of {passes}"
             kept = meas.subset(gated.accepted)
             fwd = forward_filter(F, Q, np.zeros(8), P0, kept, gate_probability=None, progress=fwd_progress)
             meas = kept
@@ -702,13 +686,26 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
             xs, Ps = sm.x, sm.P
         else:
             xs, Ps = fwd.x_post, fwd.P_post
+        snooped = False
+        if snoop:
+            # the forward gate judges a fix by the ones before it; here each is judged by all the
+            # others (a wrong fix the gate took, a right one rejected after it)
+            res = snooped_verdicts(F, Q, np.zeros(8), P0, meas_all, gated.accepted, config.gate_probability,
+                                   force_accept=forced, scale=scale, smoothed=SmoothedResult(xs, Ps))
+            snoop_stat = res.statistic
+            if (res.removed | res.added).any() and snoop_passes < SNOOPING_PASSES:
+                snooped = True
+                snoop_passes += 1
+                moved_stat[res.removed | res.added] = res.moved_statistic[res.removed | res.added]
+                gated.accepted = res.accepted
+                passes = max(passes, it + 2)
         x_blocks = _interp_nodes(dr, nodes, xs)
         ned = p0 + dr_cur.position_ned_m - (x_blocks[:, _POS] - offset)
         dr_used = dr_cur
         correction = x_blocks
         worst_angle = float(np.max(np.abs(x_blocks[:, [3, 6]])))
         worst_scale = float(np.max(np.abs(x_blocks[:, 2])))
-        if it >= passes - 1 or (worst_angle < config.relinearise_above_rad and worst_scale < 1e-3):
+        if not snooped and (it >= passes - 1 or (worst_angle < config.relinearise_above_rad and worst_scale < 1e-3)):
             break  # the dead reckoning is close enough to the truth for the linear model
         dr_cur = corrected_dead_reckoning(dr, correction)
 
@@ -729,31 +726,31 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     innov_enh = np.column_stack([y[:, 1], y[:, 0], -y[:, 2]])
     if grid is not None:
         innov_enh = grid.local_to_grid(innov_enh)
-    # on the plain gate's verdicts: fixes turned against north agree with one another, and the
-    # gates that take fixes back would take them (the track turned with them, the cause unsaid)
-    check_rotation(dr, fix_blocks, fix_ned, lever, fwd.accepted if fwd.gate_accepted is None else fwd.gate_accepted,
-                   heading_sigma, grid)
+    # on the forward gate's verdicts: fixes turned against north agree with one another, and the
+    # snooping would take them back (the track turned with them, the cause unsaid)
+    check_rotation(dr, fix_blocks, fix_ned, lever, gate_accepted, heading_sigma, grid)
     reasons = []
     thr = None
     if config.gate_probability is not None:
         from trolley.smoothers import gate_threshold
         thr = gate_threshold(config.gate_probability, 3)
-    confirmed = fwd.readmitted if fwd.readmitted is not None else np.zeros(len(fwd.nis), dtype=bool)
-    readmitted = confirmed | retaken
-    confirming = (f"the next {CONFIRMING_MEASUREMENTS} fixes, rejected too, pass the gate with it")
-    for acc, nis_j, f, back, again_j, again_back in zip(fwd.accepted, fwd.nis, forced, confirmed, retaken_nis,
-                                                         retaken_confirmed):
-        if back:
-            reasons.append(f"taken back: innovation NIS {nis_j:.1f} > {thr:.1f}, but {confirming}")
-        elif np.isfinite(again_j):
-            reasons.append(f"taken back: innovation NIS {nis_j:.1f} > {thr:.1f} against the dead reckoning, "
-                           f"{again_j:.1f} against the dead reckoning corrected by the other fixes"
-                           + (f" ({confirming})" if again_back else ""))
+        out_thr = gate_threshold(SNOOP_OUT_PROBABILITY, 3)
+    for j, (acc, nis_j, f) in enumerate(zip(fwd.accepted, fwd.nis, forced)):
+        gate = f"innovation NIS {nis_j:.1f} > {thr:.1f}" if thr is not None else ""
+        # the statistic on which the snooping moved the fix; else the last one
+        stat = moved_stat[j] if np.isfinite(moved_stat[j]) else snoop_stat[j]
+        others = f"NIS {stat:.1f} against the smoothed track of the other fixes"
+        if acc and not gate_accepted[j]:
+            reasons.append(f"taken back: {gate} at the forward gate, {others} (data snooping)")
+        elif not acc and gate_accepted[j]:
+            why = (f"> {out_thr:.1f} (data snooping, p={SNOOP_OUT_PROBABILITY})" if stat > out_thr else
+                   f"> {thr:.1f}, and without it rejected fixes agree again (data snooping)")
+            reasons.append(f"rejected: {others} {why}; the forward gate took it at NIS {nis_j:.1f}")
         elif acc:
             reasons.append("accepted by the crew despite the gate" if f and thr is not None and nis_j > thr else "")
         else:
-            reasons.append(f"innovation NIS {nis_j:.1f} > {thr:.1f} (chi-square gate, 3 dof, "
-                           f"p={config.gate_probability})")
+            reasons.append(f"{gate} (chi-square gate, 3 dof, p={config.gate_probability})"
+                           + (f"; {others}" if np.isfinite(stat) else ""))
     fixes = FixReport(fix_t, fix_pt, fix_enh, innov_enh, fwd.nis, fwd.accepted, reasons)
 
     report("stations", 0.85)
@@ -769,9 +766,10 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         # the most fixes rejected one after another (from 3 on, warned about): runs of fixes
         # that agree with one another are taken back, so these disagree among themselves too
         "longest_rejected_run": longest_run(~acc),
-        # rejected by the gate, then taken back: confirmed by the fixes after them, or passing
-        # against the dead reckoning corrected by the other fixes
-        "fixes_readmitted": int(readmitted.sum()),
+        # rejected by the gate, taken back by the snooping (they agree with the other fixes)
+        "fixes_readmitted": int((acc & ~gate_accepted).sum()),
+        # taken by the forward gate, rejected against the smoothed track of the other fixes
+        "fixes_snooped_out": int((~acc & gate_accepted).sum()),
         # the first fix anchors the dead reckoning (its innovation is zero by construction)
         "rms_innovation_m": (float(np.sqrt(np.mean(innov_enh[1:][acc[1:]] ** 2))) if acc[1:].any()
                              else float("nan")),

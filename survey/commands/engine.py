@@ -171,7 +171,7 @@ def print_summary(result, written, con: Console | None = None) -> None:
     for i in range(len(f.t_s)):
         if not f.accepted[i]:
             err.print(Text.assemble(("rejected fix", "yellow"), f" {f.point[i]} at t="
-                                    f"{f.t_s[i]:.1f} s: {f.reason[i]}"), highlight=False)
+                                    f"{f.t_s[i]:.1f} s: {f.reason[i].removeprefix('rejected: ')}"), highlight=False)
         elif f.reason[i].startswith("taken back"):
             err.print(Text.assemble(("fix taken back", "cyan"), f" {f.point[i]} at t="
                                     f"{f.t_s[i]:.1f} s: {f.reason[i].removeprefix('taken back: ')}"), highlight=False)
@@ -179,10 +179,10 @@ def print_summary(result, written, con: Console | None = None) -> None:
     if run >= REJECTED_RUN_WARNING:
         err.print(Text.assemble(("warning", "bold yellow"), (
             f": {run} fixes in a row were rejected; across them the track is dead reckoning (max 1-sigma "
-            f"{units.m_to_mm(s['max_sigma_m']):.1f} mm). The gate takes back a run of fixes that agree with "
-            "one another; these do not, neither against the dead reckoning nor against the track corrected by "
-            "the other fixes: the fixes are likely wrong (a station setup, a target). Check their NIS in "
-            "fixes.csv before using this track.")), highlight=False)
+            f"{units.m_to_mm(s['max_sigma_m']):.1f} mm). Each was tested against the smoothed track of all "
+            "the other fixes as well, and disagrees with it: the fixes are likely wrong (a station setup, a "
+            "target), or the dead reckoning turned between them by more than its model allows. Check their "
+            "NIS in fixes.csv before using this track.")), highlight=False)
     con.print(f"track:   {written.track_csv}\nfixes:   {written.fixes_csv}\nsummary: {written.summary_json}",
               markup=False, highlight=False)
 
