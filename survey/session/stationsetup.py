@@ -57,9 +57,7 @@ class StationSetupSteps:
 
         self.screen.phase = "station setup"
         points = self._setup_points()
-        config = self.settings.resection_config(self._grid_scale())
-        if self.world is not None:  # the twin has no curvature/refraction model
-            config = replace(config, model=replace(config.model, curvature_refraction=False))
+        config = replace(self.settings.resection_config(), model=self.polar_model())
         first = not self.store.station_setups(self.rec.session_id)
         drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"] if first else []
         exclude: list[str] = []
@@ -186,16 +184,35 @@ class StationSetupSteps:
             self._grid_scale_value = None if grid is None else grid.combined_scale
         return self._grid_scale_value
 
-    def grid_coordinates(self, m) -> tuple[float, float, float]:
-        """E, N, H of a measurement reduced to the grid (:func:`trolley.resection.reduce_to_grid`):
-        the instrument computed them with the ground distance from the station it was given."""
-        from trolley.resection import reduce_to_grid
+    def polar_model(self):
+        """The polar model of this session's total-station readings (``trolley.resection.PolarModel``),
+        one for the station setups and the fixes: the project's, with the CRS's combined scale when
+        there is a CRS. The simulated twin measures grid distances without curvature or refraction,
+        so a simulated session takes grid scale 1 and no curvature, whatever the project says."""
+        model = self.settings.resection_config(self._grid_scale()).model
+        if self.world is not None:
+            model = replace(model, curvature_refraction=False, grid_scale=1.0)
+        return model
 
-        scale = self._grid_scale()
+    def grid_coordinates(self, m) -> tuple[float, float, float]:
+        """Grid E, N, H of a prism measurement, from its readings (Hz, V, slope distance) by the
+        setup's polar model (:func:`trolley.resection.point_from_observation`).
+
+        The circle reads grid azimuths once the station is given (:meth:`_give_station`), so the
+        orientation is 0 here. The instrument's own coordinates (TMC_GetCoordinate) are not used:
+        they are computed with ground distances and hold curvature and refraction only if the
+        instrument is set so, while the resection took both from this model. Taken from them (and
+        reduced to the grid only with a CRS, not by the project's own grid scale), a fix 250 m away
+        with grid scale 1.00004 and no CRS was 10 mm short and 4.3 mm low
+        (``tests/test_session_devices.py::test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature``).
+        """
+        from trolley.resection import PolarObservations, point_from_observation
+
         station = getattr(self, "_station_enh_m", None)
-        if scale is None or station is None:
+        if station is None:
             return m.E_m, m.N_m, m.H_m
-        e, n, h = reduce_to_grid(station, [m.E_m, m.N_m, m.H_m], scale)
+        obs = PolarObservations(m.hz_rad, m.v_rad, m.slope_m)
+        e, n, h = point_from_observation(station, 0.0, obs, self.polar_model())[0]
         return float(e), float(n), float(h)
 
     def fix_sigmas(self, enh_m) -> tuple[float, float, float]:
