@@ -246,6 +246,10 @@ def test_sigkill_in_an_interval_then_resume_matches_an_uninterrupted_run(project
     with store(root) as st:
         assert counts(st, "killed") == counts(st, "ref")
         assert [f.accepted for f in st.fixes(st.session("killed").session_id)] == [True] * 4
+        # the fix after the resume carries the restored setup's error in its sigma, as uninterrupted
+        sig = [[(f.sigma_e_m, f.sigma_n_m, f.sigma_h_m) for f in st.fixes(st.session(n).session_id)]
+               for n in ("ref", "killed")]
+        np.testing.assert_allclose(sig[1], sig[0], rtol=1e-9)
         a, b = final_track(st, "ref"), final_track(st, "killed")
         assert np.array_equal(a.chainage_m, b.chainage_m)
         assert np.max(np.abs(a.enh_m - b.enh_m)) < 0.05e-3
