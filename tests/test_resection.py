@@ -18,6 +18,7 @@ from trolley.resection import (
     overlap_check,
     point_from_observation,
     resect,
+    setup_covariance_at,
     suggest_point_to_drop,
 )
 
@@ -225,3 +226,75 @@ def test_sigma0_near_one_on_correctly_weighted_noise(n_points, seed, orientation
     assert stats.chi2.ppf(1e-5, dof_total) < vpv < stats.chi2.ppf(1 - 1e-5, dof_total)
     s0 = np.sqrt(vpv / dof_total)
     assert 0.6 < s0 < 1.4
+
+
+def test_setup_covariance_at_a_point_by_hand():
+    # orientation alone, 1 arc second: a point 200 m due north moves east by 200 m x 4.85e-6 rad,
+    # one 100 m east and 100 m north moves across the sight line, (+dN, -dE) d_orientation
+    so = np.deg2rad(1.0 / 3600.0)
+    c = np.diag([0.0, 0.0, 0.0, so**2])
+    st_ = np.array([10.0, 20.0, 5.0])
+    cov = setup_covariance_at(c, st_, [st_ + [0.0, 200.0, 1.0], st_ + [100.0, 100.0, -2.0]])
+    np.testing.assert_allclose(cov[0], np.diag([(200 * so) ** 2, 0.0, 0.0]), atol=1e-22)
+    q = (100 * so) ** 2
+    np.testing.assert_allclose(cov[1], [[q, -q, 0.0], [-q, q, 0.0], [0.0, 0.0, 0.0]], atol=1e-22)
+    # the station's position alone moves every point with it, whatever its distance
+    c = np.diag([1e-8, 4e-8, 9e-8, 0.0])
+    c[0, 1] = c[1, 0] = 1e-8
+    np.testing.assert_allclose(setup_covariance_at(c, st_, st_ + [250.0, -30.0, 0.6])[0], c[:3, :3], atol=1e-22)
+    # station and orientation correlated: var E = C_EE + 2 dN C_Eo + dN^2 C_oo (dE = 0, dN = 150)
+    c = np.diag([1e-8, 1e-8, 1e-9, so**2])
+    c[0, 3] = c[3, 0] = 0.5 * np.sqrt(1e-8) * so
+    var_e = setup_covariance_at(c, st_, st_ + [0.0, 150.0, 0.0])[0][0, 0]
+    assert var_e == pytest.approx(1e-8 + 2 * 150 * 0.5 * 1e-4 * so + 150**2 * so**2, rel=1e-12)
+
+
+@settings(max_examples=50, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**31 - 1), d_m=st.floats(1.0, 500.0), az=st.floats(0.0, 2 * np.pi))
+def test_setup_covariance_orientation_adds_nothing_along_the_sight(seed, d_m, az):
+    # in the line-of-sight frame the orientation moves a point across the sight only, by d x
+    # d_orientation: along the sight the variance is the station's, across it that of
+    # (across . dS + d d_orientation)
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(4, 4)) * np.array([1e-4, 1e-4, 1e-4, 1e-6])
+    c = a @ a.T
+    st_ = rng.normal(size=3) * 100.0
+    p = st_ + [d_m * np.sin(az), d_m * np.cos(az), rng.normal()]
+    cov = setup_covariance_at(c, st_, p)[0]
+    along = np.array([np.sin(az), np.cos(az), 0.0])
+    across = np.array([np.cos(az), -np.sin(az), 0.0])
+    assert along @ cov @ along == pytest.approx(along @ c[:3, :3] @ along, rel=1e-9, abs=1e-24)
+    g = np.r_[across, d_m]
+    assert across @ cov @ across == pytest.approx(g @ c @ g, rel=1e-9, abs=1e-24)
+    assert cov[2, 2] == pytest.approx(c[2, 2], rel=1e-12)
+
+
+@pytest.mark.parametrize("model", [PolarModel(curvature_refraction=False),
+                                   PolarModel(grid_scale=0.99961)])
+def test_setup_covariance_matches_a_monte_carlo_of_resected_fixes(model):
+    # a noise-free prism 250 m ahead measured from each of 1500 noisy free stations: its spread is the
+    # setup error the fix carries, and it follows the propagated covariance (chi-square bounds)
+    rng = np.random.default_rng(2024)
+    sig = InstrumentSigmas()
+    ids, pts = cpiii_layout()
+    exact = observations_from_station(STATION, ORIENTATION, pts, model)
+    heading = np.deg2rad(35.0)
+    prism = STATION + [250.0 * np.sin(heading) + 2.0, 250.0 * np.cos(heading) - 3.0, -0.6]
+    prism_obs = observations_from_station(STATION, ORIENTATION, prism, model)
+    config = ResectionConfig(model=model)
+    n = 1500
+    err = np.empty((n, 3))
+    cov = None
+    for i in range(n):
+        res = resect(ids, pts, noisy(exact, sig, rng), config)
+        err[i] = point_from_observation(res.station_enh_m, res.orientation_rad, prism_obs, model)[0] - prism
+        cov = setup_covariance_at(res.covariance, res.station_enh_m, prism)[0] if cov is None else cov
+    lo, hi = np.sqrt(stats.chi2.ppf([0.0005, 0.9995], n - 1) / (n - 1))
+    ratio = err.std(axis=0, ddof=1) / np.sqrt(np.diag(cov))
+    assert np.all((ratio > lo) & (ratio < hi)), ratio
+    # the whole 3x3 covariance, correlations included: e' C^-1 e is chi-square with 3 dof
+    maha = np.einsum("ij,jk,ik->i", err, np.linalg.inv(cov), err)
+    assert stats.chi2.ppf(0.0005, 3 * n) / n < maha.mean() < stats.chi2.ppf(0.9995, 3 * n) / n
+    # at 250 m the orientation's part dominates across the sight: more than the station's own sigma
+    across = np.array([np.cos(heading), -np.sin(heading), 0.0])
+    assert np.sqrt(across @ cov @ across) > 1.5 * np.sqrt(across @ res.covariance[:3, :3] @ across)

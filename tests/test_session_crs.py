@@ -61,3 +61,32 @@ def test_field_session_off_the_central_meridian(tmp_path):
     grid = cells[cells.index("Grid convergence and scale") + 1]
     assert abs(float(grid.split("convergence ")[1].split(" deg")[0]) - 0.96) < 0.01
     shutil.rmtree(tmp_path / "projects")
+
+
+def test_a_simulated_session_measures_grid_distances_whatever_the_projects_grid_scale(tmp_path):
+    # the total-station twin measures in the grid, without curvature: a simulated session resects
+    # and fixes with grid scale 1 even when the project's polar model says 1.00004 (4 mm at 100 m;
+    # taken, the setup's sigma0 was 2.73 instead of about 1, its residuals the scale error)
+    import dataclasses
+
+    from session_project import make_project
+    from survey.commands.survey import simulated_world
+    from survey.store import ProjectStore
+    from trolley.resection import PolarModel
+
+    folder = make_project(tmp_path / "projects")
+    with ProjectStore.open(folder / "project.sqlite") as st:
+        st.set_settings(dataclasses.replace(st.settings(), polar_model=PolarModel(grid_scale=1.00004)))
+    (tmp_path / "crew.txt").write_text("fix\nmove\nfix\nend\n")
+    r = subprocess.run(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", "k", "--simulate",
+                                  "--speedup", "25", "--script", "crew.txt"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    with ProjectStore.open(folder / "project.sqlite") as st:
+        rec = st.session("k")
+        setup = st.station_setups(rec.session_id)[0]
+        instrument = simulated_world(st, 1.0).station_enh_m
+        fixes = st.fixes(rec.session_id)
+    assert setup.sigma0 < 2.0
+    assert np.max(np.abs(setup.station_enh_m - instrument)) < 0.001
+    assert len(fixes) == 2 and all(f.accepted for f in fixes)

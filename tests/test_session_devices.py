@@ -31,8 +31,11 @@ def _setup_points(tmp_path, n=6):
         return pts
 
 
-def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0):
-    """IMU, odometer, gauge and a crew-aimed total station, each started on its own like an instrument."""
+def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0, seen=None, noise=True):
+    """IMU, odometer, gauge and a crew-aimed total station, each started on its own like an instrument.
+
+    ``seen`` maps a grid point to where the instrument sees it (ground distances, refraction); the
+    default is the point itself. ``noise=False``: readings without noise."""
     from drivers import geocom as gc
     from drivers.twins.gauge import GaugeTwin
     from drivers.twins.imu import ImuTwin
@@ -48,18 +51,20 @@ def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0):
     odo = OdometerTwin(to, np.zeros_like(to), mode="time", link_path=tmp_path / "odo")
     tg = np.arange(1, int(seconds * 10) + 1) / 10.0
     gauge = GaugeTwin(tg, np.full(tg.size, 1.4352), link_path=tmp_path / "gauge")
-    targets = [(p.e_m, p.n_m, p.h_m) for p in pts]
+    seen = seen or (lambda x: np.asarray(x, dtype=float))
+    targets = [tuple(seen([p.e_m, p.n_m, p.h_m])) for p in pts]
+    prism_seen = tuple(seen(prism))
 
     class CrewAimedStation(TotalStationTwin):
         """The crew aims at the next CPIII point for each setup pointing, then at the trolley's prism."""
 
         def handle(self, req):
             if req.rpc == gc.AUT_FINEADJUST:
-                self.target = targets.pop(0) if targets else tuple(prism)
+                self.target = targets.pop(0) if targets else prism_seen
             return super().handle(req)
 
-    ts = CrewAimedStation(station=(*station, 0.0), link_path=tmp_path / "ts", noise_angle_rad=2e-6,
-                          noise_dist_m=3e-4, seed=3)
+    ts = CrewAimedStation(station=(*station, 0.0), link_path=tmp_path / "ts", noise_angle_rad=2e-6 if noise else 0.0,
+                          noise_dist_m=3e-4 if noise else 0.0, seed=3)
     return imu, odo, gauge, ts
 
 
@@ -111,6 +116,58 @@ def test_session_on_devices_given_by_ports(tmp_path):
     # the free station from the crew's pointings, and the fix of the prism in grid coordinates
     assert np.max(np.abs(setup.station_enh_m - station)) < 0.002 and setup.sigma0 < 3.0
     assert len(fixes) == 1 and np.max(np.abs(np.array([fixes[0].e_m, fixes[0].n_m, fixes[0].h_m]) - prism)) < 0.003
+
+
+def test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature(tmp_path):
+    """The fix is computed with the polar model of the station setup: the project's grid scale
+    (here 1.00004 without a CRS) and Earth curvature and refraction. The instrument sees the prism
+    250 m away at the ground distance (grid / 1.00004) and lowered by (1 - 0.13) hd^2 / 2R (4.3 mm);
+    its own coordinates (TMC_GetCoordinate) hold neither. The fix must be the prism's grid point."""
+    import dataclasses
+
+    from survey.commands.survey import read_devices
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore
+    from trolley.resection import PolarModel
+
+    k = 1.00004
+    make_project(tmp_path, static_s="2.0")
+    with ProjectStore.open(tmp_path / "t1") as st:
+        st.set_settings(dataclasses.replace(st.settings(), polar_model=PolarModel(grid_scale=k)))
+        drop = st.settings().polar_model.height_drop_per_m2
+    pts = _setup_points(tmp_path)
+    station = np.array([pts[0].e_m + 10.0, pts[0].n_m + 5.0, pts[0].h_m + 1.5])
+    prism = station + np.array([125.0, 216.5, -0.9])  # 250 m away
+
+    def seen(x):
+        d = np.asarray(x, dtype=float) - station
+        hd = np.hypot(d[0], d[1]) / k
+        return station + np.array([d[0] / k, d[1] / k, d[2] - drop * hd**2])
+
+    twins = _twins(tmp_path, pts, station, prism, seen=seen, noise=False)
+    (tmp_path / "ports.json").write_text(json.dumps({"imu": str(tmp_path / "imu"), "odometer": str(tmp_path / "odo"),
+                                                     "gauge": str(tmp_path / "gauge"),
+                                                     "totalstation": str(tmp_path / "ts"), "imu_type": 26}))
+    ports, options = read_devices(tmp_path / "ports.json")
+    for twin in twins:
+        twin.start(wait_client_s=20.0)
+    try:
+        with ProjectStore.open(tmp_path / "t1") as st:
+            fs = FieldSession(st, "real", SessionConfig(script=parse_script("wait 3\nfix\nend\n"), out_dir=None,
+                                                        setup_points=6),
+                              ports=ports, device_options=options, console=Console(stderr=True, width=150))
+            fs.run()
+            fixes = st.fixes(fs.rec.session_id)
+            setup = st.station_setups(fs.rec.session_id)[0]
+    finally:
+        for twin in twins:
+            twin.stop()
+    assert np.max(np.abs(setup.station_enh_m - station)) < 1e-6
+    assert len(fixes) == 1
+    # from the instrument's coordinates the fix was 250 m x 4e-5 = 10 mm short horizontally (E -5.0,
+    # N -8.7 mm) and 4.3 mm low (rtol 0: the default 1e-7 of 3.1e6 m would be 0.3 m)
+    np.testing.assert_allclose([fixes[0].e_m, fixes[0].n_m, fixes[0].h_m], prism, rtol=0, atol=1e-6)
 
 
 def test_resume_after_a_host_restart_starts_a_new_time_segment(tmp_path):

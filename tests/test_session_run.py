@@ -148,6 +148,33 @@ def test_scripted_session_records_everything_and_processes(project):
         assert "other" not in [x.name for x in st.sessions()]      # refused before it was stored
 
 
+def test_each_fix_carries_its_station_setups_error_in_its_sigma(project):
+    # sigma^2 = fix sigma^2 + the setup's station and orientation covariance carried to the fix,
+    # written out by hand here: E moves by dN and N by -dE per radian of orientation
+    root, _ = project
+    with store(root) as st:
+        rec = st.session("ref")
+        sig = rec.meta.fix_sigma_m
+        setups = {s.setup_id: s for s in st.station_setups(rec.session_id)}
+        fixes = st.fixes(rec.session_id)
+        for fx in fixes:
+            s = setups[fx.setup_id]
+            c = s.covariance
+            de, dn = fx.e_m - s.station_enh_m[0], fx.n_m - s.station_enh_m[1]
+            var_e = sig**2 + c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3]
+            var_n = sig**2 + c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3]
+            var_h = sig**2 + c[2, 2]
+            np.testing.assert_allclose([fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m], np.sqrt([var_e, var_n, var_h]),
+                                       rtol=1e-12)
+            assert min(fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m) > sig
+    # the raw session handed to the engine carries them (fixes.csv, FORMATS.md section 1)
+    import pandas as pd
+
+    csv = pd.read_csv(root / "projects/t1/sessions/ref/session/fixes.csv")
+    stored = np.array([[f.sigma_e_m, f.sigma_n_m, f.sigma_h_m] for f in fixes if f.accepted])
+    np.testing.assert_allclose(csv[["sigma_E_m", "sigma_N_m", "sigma_H_m"]].to_numpy(), stored, rtol=1e-15)
+
+
 def test_live_summaries_and_the_sheet_use_the_projects_tolerance_set(project):
     import openpyxl
 
@@ -219,6 +246,10 @@ def test_sigkill_in_an_interval_then_resume_matches_an_uninterrupted_run(project
     with store(root) as st:
         assert counts(st, "killed") == counts(st, "ref")
         assert [f.accepted for f in st.fixes(st.session("killed").session_id)] == [True] * 4
+        # the fix after the resume carries the restored setup's error in its sigma, as uninterrupted
+        sig = [[(f.sigma_e_m, f.sigma_n_m, f.sigma_h_m) for f in st.fixes(st.session(n).session_id)]
+               for n in ("ref", "killed")]
+        np.testing.assert_allclose(sig[1], sig[0], rtol=1e-9)
         a, b = final_track(st, "ref"), final_track(st, "killed")
         assert np.array_equal(a.chainage_m, b.chainage_m)
         assert np.max(np.abs(a.enh_m - b.enh_m)) < 0.05e-3

@@ -467,6 +467,40 @@ def suggest_point_to_drop(result: Resection) -> str | None:
     return flagged[0] if flagged else None
 
 
+def setup_covariance_at(setup_covariance: np.ndarray, station_enh_m: np.ndarray,
+                        points_enh_m: np.ndarray) -> np.ndarray:
+    """Covariance of the grid E, N, H that a station setup's own errors give the points measured from it.
+
+    An instrument given the resected station S and orientation o puts a point at
+    ``S + hd_grid (sin(hz + o), cos(hz + o)) + (0, 0, dh)`` (:func:`point_from_observation`): its
+    derivative with respect to S is the identity and with respect to o is (dN, -dE, 0), where
+    (dE, dN) is the point's grid offset from the station (the offset turns about the station). The
+    covariance is ``J C J^T`` with ``J = [I3 | (dN, -dE, 0)^T]``, the general law of propagation of
+    variances (Ghilani 2017, ch. 6), C the setup's (E, N, H, orientation) covariance with its
+    correlations. It is exact to first order: the orientation sigma of a setup is about 1e-6 rad.
+
+    Every point measured from one setup shares the same setup error: these covariances are the
+    diagonal blocks of a joint covariance whose off-diagonal blocks ``J_i C J_j^T`` are not zero.
+
+    Parameters
+    ----------
+    setup_covariance : (4, 4) covariance of E, N, H, orientation (``Resection.covariance``).
+    station_enh_m : (3,) the resected station the instrument was given.
+    points_enh_m : (3,) or (n, 3) the points measured from it, grid E, N, H.
+
+    Returns
+    -------
+    (n, 3, 3) covariance of E, N, H per point, m^2.
+    """
+    c = np.asarray(setup_covariance, dtype=float).reshape(4, 4)
+    d = np.atleast_2d(np.asarray(points_enh_m, dtype=float)) - np.asarray(station_enh_m, dtype=float).reshape(3)
+    jac = np.zeros((d.shape[0], 3, 4))
+    jac[:, :, :3] = np.eye(3)
+    jac[:, 0, 3] = d[:, 1]
+    jac[:, 1, 3] = -d[:, 0]
+    return jac @ c @ np.swapaxes(jac, 1, 2)
+
+
 def reduce_to_grid(station_enh_m: np.ndarray, points_enh_m: np.ndarray, grid_scale: float) -> np.ndarray:
     """Coordinates an instrument computed with unreduced distances, reduced to the grid.
 

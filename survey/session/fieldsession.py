@@ -481,7 +481,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self._device_fault(f"total station: {exc}")
             return False
         label = f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}"
-        fix = FixRecord(t, label, *self.grid_coordinates(m), sigma, sigma, sigma, setup_id=self.setup_id)
+        here = self.grid_coordinates(m)
+        fix = FixRecord(t, label, *here, *self.fix_sigmas(here), setup_id=self.setup_id)
         verdict = self._live_verdict(fix)
         accepted = verdict is None or bool(verdict.accepted)
         reason = "accepted" if accepted else f"{SUSPICIOUS}: {verdict.reason}"

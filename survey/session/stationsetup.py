@@ -32,7 +32,7 @@ class StationSetupSteps:
             self.setup_id = setups[-1].setup_id
             if self.world is not None:
                 self._restore_simulated_instrument()
-            self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad)
+            self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad, setups[-1].covariance)
             self.say(f"station setup {self.setup_id} restored from the store")
             return
         with self.crew_busy():
@@ -57,9 +57,7 @@ class StationSetupSteps:
 
         self.screen.phase = "station setup"
         points = self._setup_points()
-        config = self.settings.resection_config(self._grid_scale())
-        if self.world is not None:  # the twin has no curvature/refraction model
-            config = replace(config, model=replace(config.model, curvature_refraction=False))
+        config = replace(self.settings.resection_config(), model=self.polar_model())
         first = not self.store.station_setups(self.rec.session_id)
         drops = [a.text.split(None, 1)[1] for a in (self.config.script or []) if a.name == "setup"] if first else []
         exclude: list[str] = []
@@ -115,7 +113,7 @@ class StationSetupSteps:
             self.world.quiet_instrument()  # the setup pointings were noisy; fixes get their own noise
         setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
         self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
-        self._give_station(res.station_enh_m, res.orientation_rad)
+        self._give_station(res.station_enh_m, res.orientation_rad, res.covariance)
         self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
 
     def _setup_points(self):
@@ -186,21 +184,66 @@ class StationSetupSteps:
             self._grid_scale_value = None if grid is None else grid.combined_scale
         return self._grid_scale_value
 
-    def grid_coordinates(self, m) -> tuple[float, float, float]:
-        """E, N, H of a measurement reduced to the grid (:func:`trolley.resection.reduce_to_grid`):
-        the instrument computed them with the ground distance from the station it was given."""
-        from trolley.resection import reduce_to_grid
+    def polar_model(self):
+        """The polar model of this session's total-station readings (``trolley.resection.PolarModel``),
+        one for the station setups and the fixes: the project's, with the CRS's combined scale when
+        there is a CRS. The simulated twin measures grid distances without curvature or refraction,
+        so a simulated session takes grid scale 1 and no curvature, whatever the project says."""
+        model = self.settings.resection_config(self._grid_scale()).model
+        if self.world is not None:
+            model = replace(model, curvature_refraction=False, grid_scale=1.0)
+        return model
 
-        scale = self._grid_scale()
+    def grid_coordinates(self, m) -> tuple[float, float, float]:
+        """Grid E, N, H of a prism measurement, from its readings (Hz, V, slope distance) by the
+        setup's polar model (:func:`trolley.resection.point_from_observation`).
+
+        The circle reads grid azimuths once the station is given (:meth:`_give_station`), so the
+        orientation is 0 here. The instrument's own coordinates (TMC_GetCoordinate) are not used:
+        they are computed with ground distances and hold curvature and refraction only if the
+        instrument is set so, while the resection took both from this model. Taken from them (and
+        reduced to the grid only with a CRS, not by the project's own grid scale), a fix 250 m away
+        with grid scale 1.00004 and no CRS was 10 mm short and 4.3 mm low
+        (``tests/test_session_devices.py::test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature``).
+        """
+        from trolley.resection import PolarObservations, point_from_observation
+
         station = getattr(self, "_station_enh_m", None)
-        if scale is None or station is None:
+        if station is None:
             return m.E_m, m.N_m, m.H_m
-        e, n, h = reduce_to_grid(station, [m.E_m, m.N_m, m.H_m], scale)
+        obs = PolarObservations(m.hz_rad, m.v_rad, m.slope_m)
+        e, n, h = point_from_observation(station, 0.0, obs, self.polar_model())[0]
         return float(e), float(n), float(h)
 
-    def _give_station(self, station_enh_m, orientation_rad: float) -> None:
-        """TMC_SetStation, then orient the circle so that it reads grid azimuths."""
+    def fix_sigmas(self, enh_m) -> tuple[float, float, float]:
+        """1-sigma of grid E, N, H of a prism fix at ``enh_m`` measured from the current setup.
+
+        The measurement's own sigma (the session's ``fix_sigma_m`` per axis) and the setup's error
+        carried to the fix (:func:`trolley.resection.setup_covariance_at`: station position and
+        orientation with their correlations, the orientation's part growing with the distance to
+        the instrument), added in quadrature per axis. The E-N covariance of the setup part is not
+        kept: fixes.csv has sigmas only (FORMATS.md section 1); on the demo the lateral error/sigma
+        is the same with it (docs/field_session.md, "The fix sigma and the station setup").
+
+        All fixes of one setup share its error, and the engine takes fixes as independent: these
+        sigmas make each fix honest on its own, not the average of several fixes of one setup.
+        """
+        from trolley.resection import setup_covariance_at
+
+        s = float(self.rec.meta.fix_sigma_m)
+        cov = getattr(self, "_setup_covariance", None)
+        station = getattr(self, "_station_enh_m", None)
+        if cov is None or station is None:
+            return s, s, s
+        var = np.diag(setup_covariance_at(cov, station, np.asarray(enh_m, dtype=float))[0])
+        e, n, h = np.sqrt(s * s + var)
+        return float(e), float(n), float(h)
+
+    def _give_station(self, station_enh_m, orientation_rad: float, covariance=None) -> None:
+        """TMC_SetStation, then orient the circle so that it reads grid azimuths; ``covariance``,
+        the setup's (E, N, H, orientation) covariance, goes into the sigma of every fix from it."""
         self._station_enh_m = np.asarray(station_enh_m, dtype=float).copy()
+        self._setup_covariance = None if covariance is None else np.asarray(covariance, dtype=float).copy()
         e, n, h = (float(x) for x in station_enh_m)
         self.ts.set_station(e, n, h, 0.0)
         hz, _ = self.ts.angle()
@@ -268,9 +311,8 @@ class StationSetupSteps:
         verdict = "within" if oc.within_tolerance else "OUTSIDE"   # say() prints without markup
         self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
                  f"{verdict} the tolerance of {1e3 * oc.tolerance_m:.1f} mm")
-        sigma = self.rec.meta.fix_sigma_m
         fix = FixRecord(t, f"FIX{len(self.store.fixes(self.rec.session_id)) + 1:03d}", *here,
-                        sigma, sigma, sigma, setup_id=self.setup_id)
+                        *self.fix_sigmas(here), setup_id=self.setup_id)
         v = self._live_verdict(fix)
         ok = oc.within_tolerance and (v is None or bool(v.accepted))
         reason = f"overlap check from station {k + 1}: " + ("accepted" if ok else "difference outside the tolerance"
