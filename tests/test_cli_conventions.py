@@ -224,7 +224,8 @@ def test_the_table_holds_every_float_option_of_inservice_and_devices():
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
-@pytest.mark.parametrize("command, option", [(c, o) for c, o, _, _ in NUMERIC], ids=[f"{c} {o}" for c, o, _, _ in NUMERIC])
+@pytest.mark.parametrize("command, option", [(c, o) for c, o, _, _ in NUMERIC],
+                         ids=[f"{c} {o}" for c, o, _, _ in NUMERIC])
 def test_a_float_option_that_is_not_finite_gets_the_finite_number_message(command, option, value, stop_dir):
     r, err = run_option(command, STOP[command][0](stop_dir), option, value)
     assert r.exit_code == 2
