@@ -390,7 +390,7 @@ class ProcessingRun:
 
     run_id: int
     session_id: int
-    kind: str  # "interval" or "final"
+    kind: str  # "interval", "final", or "interval_undone" (its closing fix undone by the crew)
     t_start_s: float
     t_end_s: float
     created_utc: str
@@ -975,15 +975,29 @@ class ProjectStore:
         return fix_id
 
     def decide_fix(self, fix_id: int, accepted: bool, reason: str,
-                   event: tuple[int, SessionEvent] | None = None) -> None:
+                   event: tuple[int, SessionEvent] | None = None, withdraw_interval: int | None = None) -> None:
         """Append a decision on a fix (accept, reject, undo); the newest decision counts. ``event``
         (session id, event) is stored in the same transaction: a resumed script then knows the
-        step was done (a crew's undo done twice would undo the fix before it)."""
+        step was done (a crew's undo done twice would undo the fix before it).
+
+        ``withdraw_interval``: the run id of the live interval summary the undone fix had closed
+        (needs ``event``). In the same transaction its processing run becomes kind
+        ``interval_undone`` and an ``interval_undone`` event (JSON: run id, fix id) is stored at the
+        event's time: a kill between the undo and the withdrawal would leave the summary of an
+        interval that no accepted fix closes (:meth:`interval_summaries` leaves it out)."""
         with self._transaction() as c:
             c.execute("INSERT INTO fix_decision (fix_id, accepted, reason, created_utc) VALUES (?, ?, ?, ?)",
                       (fix_id, int(accepted), reason, utc_now()))
             if event is not None:
                 self._insert_event(c, *event)
+            if withdraw_interval is not None:
+                if event is None:
+                    raise ValueError("withdrawing an interval summary needs the undo event")
+                sid, ev = event
+                c.execute("UPDATE processing_run SET kind = 'interval_undone' WHERE id = ? AND kind = 'interval'",
+                          (withdraw_interval,))
+                self._insert_event(c, sid, SessionEvent(ev.t_s, "interval_undone", json.dumps(
+                    {"run_id": withdraw_interval, "fix_id": fix_id})))
 
     def fixes(self, session_id: int, accepted_only: bool = False) -> list[FixRecord]:
         """A session's fixes in time order, each with its newest decision."""
@@ -1154,6 +1168,15 @@ class ProjectStore:
             full = {"run_id": run_id, "t_start_s": t_start_s, "t_end_s": t_end_s, **detail}
             self._insert_event(c, session_id, SessionEvent(t_end_s, "interval", json.dumps(full)))
         return run_id
+
+    def interval_summaries(self, session_id: int) -> list[dict]:
+        """The live interval summaries that stand, oldest first: the JSON details of the ``interval``
+        events (run id, times, seconds, defects, tolerance set, the line shown) without those
+        withdrawn by the undo of their closing fix (``interval_undone``, :meth:`decide_fix`)."""
+        events = self.events(session_id)
+        withdrawn = {json.loads(e.detail)["run_id"] for e in events if e.kind == "interval_undone"}
+        return [d for d in (json.loads(e.detail) for e in events if e.kind == "interval")
+                if d["run_id"] not in withdrawn]
 
     def processing_runs(self, session_id: int) -> list[ProcessingRun]:
         """A session's processing runs, oldest first."""

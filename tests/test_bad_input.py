@@ -499,7 +499,7 @@ PROBES: list[Probe] = [
     Probe("survey-start/markup-session", lambda t, i: ["survey", "start", "[blink red]", "--session", "[bold]s1",
                                                        "--root", str(t / "r")], ("[blink red]",)),
     Probe("devices-probe/timeout-inf", lambda t, i: ["devices", "probe", "--totalstation-port", str(t / "nodev"),
-                                                       "--timeout-s", "inf"], ("--timeout-s", "positive finite")),
+                                                       "--timeout-s", "inf"], ("--timeout-s: must be a finite number, got inf",)),
     Probe("devices-probe/timeout-negative", lambda t, i: ["devices", "probe", "--totalstation-port", str(t / "nodev"),
                                                             "--timeout-s", "-1"], ("--timeout-s",)),
     Probe("simulate/seed-negative", lambda t, i: ["simulate", "--seed", "-1", "--out", str(t / "s")],

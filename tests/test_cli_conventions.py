@@ -147,6 +147,116 @@ def test_booleans_are_flags(path, cmd):
             assert not p.secondary_opts, f"{p.opts} of `trolley {' '.join(path)}` has an off switch"
 
 
+# ------------------------------------------------------------------------------ numeric options
+# nan, inf and -inf get the finite-number message of survey.limits.check_finite on every float
+# option of `inservice` and `devices` (typer's own range check answered nan with "Input should be
+# less than or equal to 60", and `devices simulate --seconds inf` ran until killed).
+
+#: each command's other arguments, chosen so that a run with valid option values stops at once on
+#: a later check (exit code, what that check says): no simulation runs and no port is opened.
+STOP = {
+    "inservice simulate": (lambda t: ["--out", str(t / "mine")], 2, "was not made by"),
+    "inservice calibrate": (lambda t: ["--out", str(t)], 2, "is a folder"),
+    "inservice process": (lambda t: [str(t / "norec"), "--out", str(t / "o")], 2, "not a folder"),
+    "devices probe": (lambda t: [], 2, "the serial port of the total station is required"),
+    "devices record": (lambda t: ["--imu-port", str(t / "nodev"), "--seconds", "1", "--out", str(t / "mine")], 2,
+                       "was not made by"),
+    "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
+                         "does not exist"),
+}
+
+#: every float option: (command, option, values that must pass, values refused with their message)
+NUMERIC = [
+    ("inservice simulate", "--speed-m-s", ["2", "60"], [("1.99", "must be >= 2"), ("60.1", "must be <= 60")]),
+    ("inservice simulate", "--length-m", ["10", "20000"], [("9", "must be >= 10"), ("20001", "must be <= 20000")]),
+    ("inservice simulate", "--curvature-1-m", ["-0.01", "0.01"], [("-0.011", "must be >= -0.01"),
+                                                                   ("0.011", "must be <= 0.01")]),
+    ("inservice simulate", "--conicity-factor", ["0.1", "5"], [("0.09", "must be >= 0.1"), ("5.1", "must be <= 5")]),
+    ("inservice simulate", "--creep-factor", ["0.05", "5"], [("0.04", "must be >= 0.05"), ("5.1", "must be <= 5")]),
+    ("inservice simulate", "--harmonic-wavelength-m", ["1", "1000"], [("0.9", "must be >= 1"),
+                                                                       ("1001", "must be <= 1000")]),
+    ("inservice simulate", "--harmonic-amplitude-mm", ["0", "20"], [("-0.1", "must be >= 0"),
+                                                                     ("20.1", "must be <= 20")]),
+    ("inservice simulate", "--rate-hz", ["20", "2000"], [("19", "must be >= 20"), ("2001", "must be <= 2000")]),
+    ("inservice process", "--filter-rate-hz", ["20", "5000"], [("19", "must be >= 20"), ("5001", "must be <= 5000")]),
+    ("inservice calibrate", "--speed-m-s", ["2", "60"], [("1.99", "must be >= 2"), ("60.1", "must be <= 60")]),
+    ("inservice calibrate", "--length-m", ["250", "5000"], [("249", "must be >= 250"), ("5001", "must be <= 5000")]),
+    ("inservice calibrate", "--rate-hz", ["20", "2000"], [("19", "must be >= 20"), ("2001", "must be <= 2000")]),
+    ("inservice calibrate", "--filter-rate-hz", ["20", "5000"], [("19", "must be >= 20"),
+                                                                  ("5001", "must be <= 5000")]),
+    ("devices probe", "--timeout-s", ["0.5", "600"], [("0", "must be > 0"), ("601", "must be <= 600")]),
+    ("devices record", "--seconds", ["0", "5"], [("-1", "must be >= 0")]),
+    ("devices record", "--imu-rate-hz", ["200"], []),
+    ("devices record", "--wheel-diameter-m", ["0.1"], []),
+    ("devices record", "--odometer-scale", ["1.0001"], []),
+    ("devices record", "--odometer-rate-hz", ["100", "1000"], [("99", "must be >= 100")]),
+    ("devices simulate", "--seconds", ["0", "1"], [("-1", "must be >= 0")]),
+    ("devices simulate", "--imu-rate-hz", ["1", "400"], [("0.5", "must be >= 1")]),
+    ("devices simulate", "--gauge-rate-hz", ["1", "100"], [("0.5", "must be >= 1")]),
+    ("devices simulate", "--speed-m-s", ["-1", "2"], []),
+    ("devices simulate", "--noise-angle-rad", ["0", "1e-5"], [("-1e-5", "must be >= 0")]),
+    ("devices simulate", "--noise-dist-m", ["0", "0.001"], [("-0.001", "must be >= 0")]),
+    *(("devices simulate", opt, ["0", "1"], [("-0.1", "must be >= 0"), ("1.1", "must be <= 1")])
+      for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
+    ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
+]
+
+
+@pytest.fixture
+def stop_dir(tmp_path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("not made by trolley\n")
+    return tmp_path
+
+
+def run_option(command: str, base: list[str], option: str, value: str):
+    r = runner.invoke(app, command.split() + base + [option, value])
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
+    assert "Traceback" not in r.output and "Input should be" not in r.stderr
+    return r, " ".join(r.stderr.split())
+
+
+def test_the_table_holds_every_float_option_of_inservice_and_devices():
+    """A float option added later without its check_finite would be missing here."""
+    found = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS if path[:1] in (["inservice"], ["devices"])
+             for p in cmd.params if not p.hidden and p.type_descriptor.annotation is float}
+    assert found == {(c, o) for c, o, _, _ in NUMERIC}
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+@pytest.mark.parametrize("command, option", [(c, o) for c, o, _, _ in NUMERIC],
+                         ids=[f"{c} {o}" for c, o, _, _ in NUMERIC])
+def test_a_float_option_that_is_not_finite_gets_the_finite_number_message(command, option, value, stop_dir):
+    r, err = run_option(command, STOP[command][0](stop_dir), option, value)
+    assert r.exit_code == 2
+    assert err == f"error: {option}: must be a finite number, got {value}"
+
+
+@pytest.mark.parametrize("command, option, values", [(c, o, v) for c, o, v, _ in NUMERIC],
+                         ids=[f"{c} {o}" for c, o, _, _ in NUMERIC])
+def test_valid_float_values_pass_the_option_checks(command, option, values, stop_dir):
+    make, code, says = STOP[command]
+    for value in values:
+        r, err = run_option(command, make(stop_dir), option, value)
+        assert r.exit_code == code and says in err and f"{option}:" not in err, (value, err)
+
+
+@pytest.mark.parametrize("command, option, bad", [(c, o, b) for c, o, _, b in NUMERIC if b],
+                         ids=[f"{c} {o}" for c, o, _, b in NUMERIC if b])
+def test_a_float_option_out_of_its_range_is_refused_naming_it(command, option, bad, stop_dir):
+    for value, says in bad:
+        r, err = run_option(command, STOP[command][0](stop_dir), option, value)
+        assert r.exit_code == 2 and err.startswith(f"error: {option}: {says}, got "), (value, err)
+
+
+@pytest.mark.parametrize("option, value, bad", [("--station", "0,0,nan,1.5", "nan"),
+                                                ("--target", "10,inf,0.5", "inf"), ("--target", "-inf,20,0.5", "-inf")])
+def test_a_coordinate_that_is_not_finite_gets_the_finite_number_message(option, value, bad):
+    r, err = run_option("devices simulate", ["--seconds", "0"], option, value)
+    assert r.exit_code == 2
+    assert err == f"error: {option}: must be a finite number, got {bad}"
+
+
 # ---------------------------------------------------------------------------------------- JSON
 
 def test_json_writer_hand_cases():

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -16,6 +17,7 @@ import typer
 from survey import jsonout
 from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite, write_marker, write_text_atomic
 from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
+from survey.limits import check_finite
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
                           no_args_is_help=True, rich_markup_mode=None)
@@ -23,6 +25,21 @@ devices_app = typer.Typer(help="Check, record and simulate the trolley's serial 
 
 def _err(msg: str) -> None:
     typer.echo("error: " + " ".join(str(msg).split()), err=True)
+
+
+@contextmanager
+def _option_values():
+    """Around the survey.limits.check_finite calls of a command: a ValueError is the one-line
+    error, exit 2.
+
+    The ranges are checked there, not as typer ``min=``/``max=``: typer's range check answered
+    nan with "Input should be greater than or equal to 0", and let inf through (``devices
+    simulate --seconds inf`` ran until killed)."""
+    try:
+        yield
+    except ValueError as e:
+        _err(str(e))
+        raise typer.Exit(code=2)
 
 
 def _csv(header: list[str], cols: list) -> str:
@@ -40,19 +57,18 @@ def probe(
     baud: int = typer.Option(19200, "--baud", help="Baud rate (9600 and 19200 are both common)."),
     crc: bool | None = typer.Option(None, "--crc/--no-crc",
                                     help="GeoCOM CRC-16 field on/off (default: on if the instrument answers with it)."),
-    timeout_s: float = typer.Option(3.0, "--timeout-s", help="Reply timeout of quick calls."),
+    timeout_s: float = typer.Option(3.0, "--timeout-s", help="Reply timeout of quick calls, s (> 0, up to 600)."),
     as_json: JsonFlag = False,
     totalstation_old: str | None = typer.Option(None, "--totalstation", hidden=True,
                                                 help=old_name("--totalstation-port")),
 ) -> None:
     """Connection check, software version, ATR fine-adjust and one measurement."""
+    with _option_values():
+        check_finite(timeout_s, "--timeout-s", positive=True, maximum=600.0)
     totalstation = renamed(totalstation, totalstation_old, "--totalstation-port", "--totalstation")
     if totalstation is None:
         raise typer.BadParameter("the serial port of the total station is required",
                                  param_hint="--totalstation-port")
-    if not (math.isfinite(timeout_s) and 0.0 < timeout_s <= 600.0):
-        raise typer.BadParameter(f"must be a positive finite number of seconds up to 600, got {timeout_s}",
-                                 param_hint="--timeout-s")
     from drivers import geocom
     from drivers.serialport import DeviceError
     from drivers.totalstation import TotalStation
@@ -92,7 +108,7 @@ def record_cmd(
                                                              "required)."),
     odometer: str | None = typer.Option(None, "--odometer-port", help="Serial port of the encoder counter."),
     gauge: str | None = typer.Option(None, "--gauge-port", help="Serial port of the gauge sensor."),
-    seconds: float = typer.Option(..., "--seconds", min=0.0, help="How long to record."),
+    seconds: float = typer.Option(..., "--seconds", help="How long to record, s (>= 0)."),
     out: Path = typer.Option(..., "--out", help="Output folder."),
     imu_axes: str = typer.Option("x,y,z", "--imu-axes", help="IMU axes to trolley FRD, e.g. 'x,-y,-z'."),
     imu_type: int | None = typer.Option(None, "--imu-type", help="IMU type for the scale table (default: from the frames)."),
@@ -102,7 +118,7 @@ def record_cmd(
     wheel_diameter_m: float = typer.Option(0.1, "--wheel-diameter-m", help="Measuring wheel diameter."),
     odometer_scale: float = typer.Option(1.0, "--odometer-scale", help="Calibrated scale factor."),
     odometer_bits: int = typer.Option(32, "--odometer-bits", help="Counter width (8, 16, 24, 32)."),
-    odometer_rate_hz: float = typer.Option(100.0, "--odometer-rate-hz", min=100.0, help="Polling rate."),
+    odometer_rate_hz: float = typer.Option(100.0, "--odometer-rate-hz", help="Polling rate (>= 100 Hz)."),
     imu_baud: int = typer.Option(460800, "--imu-baud", min=1, help="IMU line speed."),
     odometer_baud: int = typer.Option(115200, "--odometer-baud", min=1, help="Counter module line speed."),
     gauge_baud: int = typer.Option(115200, "--gauge-baud", min=1, help="Gauge sensor line speed."),
@@ -112,6 +128,12 @@ def record_cmd(
     gauge_old: str | None = typer.Option(None, "--gauge", hidden=True, help=old_name("--gauge-port")),
 ) -> None:
     """Record imu.csv, odometer.csv, gauge.csv (FORMATS.md section 1), raw logs and stats.json."""
+    with _option_values():
+        check_finite(seconds, "--seconds", minimum=0.0)
+        check_finite(imu_rate_hz, "--imu-rate-hz")
+        check_finite(wheel_diameter_m, "--wheel-diameter-m")
+        check_finite(odometer_scale, "--odometer-scale")
+        check_finite(odometer_rate_hz, "--odometer-rate-hz", minimum=100.0)
     imu = renamed(imu, imu_old, "--imu-port", "--imu")
     odometer = renamed(odometer, odometer_old, "--odometer-port", "--odometer")
     gauge = renamed(gauge, gauge_old, "--gauge-port", "--gauge")
@@ -200,9 +222,12 @@ def _floats(s: str, n: int, name: str) -> tuple[float, ...]:
         v = tuple(float(x) for x in s.split(","))
     except ValueError:
         v = ()
-    if len(v) != n or not all(math.isfinite(x) for x in v):
+    if len(v) != n:
         _err(f"{name}: need {n} comma-separated numbers, got {s!r}")
         raise typer.Exit(code=2)
+    with _option_values():
+        for x in v:
+            check_finite(x, name)
     return v
 
 
@@ -231,24 +256,24 @@ def simulate(
     session_old: Path | None = typer.Option(None, "--session", hidden=True, help=old_name("--session-dir")),
     device: list[Device] = typer.Option(list(Device), "--device",
                                         help="Twin to start (repeat the option; default: all four)."),
-    seconds: float | None = typer.Option(None, "--seconds", min=0.0,
-                                         help="Stop after this long (default: run until interrupted)."),
+    seconds: float | None = typer.Option(None, "--seconds",
+                                         help="Stop after this long, s (>= 0; default: run until interrupted)."),
     link_dir: Path | None = typer.Option(None, "--link-dir", help="Also make stable symlinks DIR/<device>."),
-    imu_rate_hz: float = typer.Option(200.0, "--imu-rate-hz", min=1.0, help="Synthetic IMU data rate."),
-    gauge_rate_hz: float = typer.Option(50.0, "--gauge-rate-hz", min=1.0, help="Synthetic gauge rate."),
+    imu_rate_hz: float = typer.Option(200.0, "--imu-rate-hz", help="Synthetic IMU data rate (>= 1 Hz)."),
+    gauge_rate_hz: float = typer.Option(50.0, "--gauge-rate-hz", help="Synthetic gauge rate (>= 1 Hz)."),
     imu_type: int = typer.Option(26, "--imu-type", help="IMU type of the IMU twin (scale table)."),
     speed_m_s: float = typer.Option(1.0, "--speed-m-s", help="Synthetic trolley speed (odometer twin)."),
     station: str | None = typer.Option(None, "--station", help="Total station E0,N0,H0,Hi "
                                        "(default 0,0,0,1.5; with --session-dir: beside the fixes)."),
     target: str = typer.Option("10,20,0.5", "--target", help="Synthetic prism E,N,H."),
-    noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad", min=0.0, help="Total station angle noise, 1-sigma."),
-    noise_dist_m: float = typer.Option(0.0, "--noise-dist-m", min=0.0, help="Total station distance noise, 1-sigma."),
-    corrupt_rate: float = typer.Option(0.0, "--corrupt-rate", min=0.0, max=1.0, help="Per byte: corrupted."),
-    drop_rate: float = typer.Option(0.0, "--drop-rate", min=0.0, max=1.0, help="Per byte: dropped."),
-    garbage_rate: float = typer.Option(0.0, "--garbage-rate", min=0.0, max=1.0, help="Per write: garbage burst."),
-    delay_rate: float = typer.Option(0.0, "--delay-rate", min=0.0, max=1.0, help="Per reply: late (odometer, total station)."),
-    delay_s: float = typer.Option(0.5, "--delay-s", min=0.0, help="How late a delayed reply is."),
-    missing_rate: float = typer.Option(0.0, "--missing-rate", min=0.0, max=1.0, help="Per reply: never sent."),
+    noise_angle_rad: float = typer.Option(0.0, "--noise-angle-rad", help="Total station angle noise, 1-sigma (>= 0)."),
+    noise_dist_m: float = typer.Option(0.0, "--noise-dist-m", help="Total station distance noise, 1-sigma (>= 0)."),
+    corrupt_rate: float = typer.Option(0.0, "--corrupt-rate", help="Per byte: corrupted (0-1)."),
+    drop_rate: float = typer.Option(0.0, "--drop-rate", help="Per byte: dropped (0-1)."),
+    garbage_rate: float = typer.Option(0.0, "--garbage-rate", help="Per write: garbage burst (0-1)."),
+    delay_rate: float = typer.Option(0.0, "--delay-rate", help="Per reply: late (odometer, total station; 0-1)."),
+    delay_s: float = typer.Option(0.5, "--delay-s", help="How late a delayed reply is, s (>= 0)."),
+    missing_rate: float = typer.Option(0.0, "--missing-rate", help="Per reply: never sent (0-1)."),
     fault_device: list[Device] = typer.Option(list(Device), "--fault-device",
                                               help="Devices the faults apply to (repeat; default: all)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the faults' random draws."),
@@ -256,6 +281,18 @@ def simulate(
 ) -> None:
     """Start the device twins on pseudo-terminals, write which port each listens on, run until
     interrupted (SIGINT/SIGTERM: ptys closed, the devices file removed, exit code 0)."""
+    with _option_values():
+        check_finite(seconds, "--seconds", minimum=0.0)
+        check_finite(imu_rate_hz, "--imu-rate-hz", minimum=1.0)
+        check_finite(gauge_rate_hz, "--gauge-rate-hz", minimum=1.0)
+        check_finite(speed_m_s, "--speed-m-s")
+        check_finite(noise_angle_rad, "--noise-angle-rad", minimum=0.0)
+        check_finite(noise_dist_m, "--noise-dist-m", minimum=0.0)
+        for value, option in ((corrupt_rate, "--corrupt-rate"), (drop_rate, "--drop-rate"),
+                              (garbage_rate, "--garbage-rate"), (delay_rate, "--delay-rate"),
+                              (missing_rate, "--missing-rate")):
+            check_finite(value, option, minimum=0.0, maximum=1.0)
+        check_finite(delay_s, "--delay-s", minimum=0.0)
     import signal
     import threading
 

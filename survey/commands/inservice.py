@@ -34,6 +34,7 @@ from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
+from survey.limits import check_finite
 
 console = Console(stderr=True)
 
@@ -226,8 +227,8 @@ def process_cmd(
     smoother: Annotated[InserviceSmoother, typer.Option(
         "--smoother", help="rts (forward filter + RTS smoother) or none (the paper's forward filter)")] = "rts",
     filter_rate_hz: Annotated[float, typer.Option(
-        "--filter-rate-hz", min=20.0, max=5000.0,
-        help="faster recordings are low-passed and decimated to no less than this rate first")] = 200.0,
+        "--filter-rate-hz",
+        help="faster recordings are low-passed and decimated to no less than this rate first (20-5000 Hz)")] = 200.0,
     json_output: JsonAlways = False,
 ) -> None:
     """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
@@ -246,6 +247,11 @@ def process_cmd(
     from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimated, decimation_factor
 
+    try:
+        # the range here, not as typer min/max: nan got "Input should be less than or equal to 5000"
+        check_finite(filter_rate_hz, "--filter-rate-hz", minimum=20.0, maximum=5000.0)
+    except ValueError as exc:
+        _fail(str(exc))
     try:
         check_outputs([], inputs=[recording, truth, model], folders=[("--out", out)])
         if out.is_dir():
@@ -414,15 +420,15 @@ def process_cmd(
 @inservice_app.command("calibrate")
 def calibrate_cmd(
     out: Annotated[Path, typer.Option("--out", help="model.toml to write")],
-    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=2.0, max=60.0, help="speed of the reference run, m/s")] = 20.0,
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", help="speed of the reference run, m/s (2-60)")] = 20.0,
     length_m: Annotated[float, typer.Option(
-        "--length-m", min=MIN_CALIBRATION_LENGTH_M, max=5000.0,
-        help="reference run length, m (the 3-200 m band after the filter's start-up needs 250 m)")] = 400.0,
+        "--length-m",
+        help="reference run length, m (250-5000: the 3-200 m band after the filter's start-up needs 250 m)")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the reference run (use another one for evaluation)")] = 1000,
-    rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    rate_hz: Annotated[float, typer.Option("--rate-hz", help="sensor rate, Hz (20-2000)")] = 200.0,
     filter_rate_hz: Annotated[float, typer.Option(
-        "--filter-rate-hz", min=20.0, max=5000.0,
-        help="faster runs are low-passed and decimated to no less than this rate, as `process` does")] = 200.0,
+        "--filter-rate-hz",
+        help="faster runs are low-passed and decimated to no less than this rate, as `process` does (20-5000 Hz)")] = 200.0,
     extra_runs: Annotated[int, typer.Option("--extra-runs", min=0, max=20,
                                             help="further runs (seeds SEED+1...) the sigma scale is pooled "
                                                  "over")] = 3,
@@ -445,6 +451,14 @@ def calibrate_cmd(
     from trolley.inservice.resample import decimation_factor
     from trolley.inservice.vehicle import simulate_run
 
+    try:
+        # the ranges here, not as typer min/max: nan got "Input should be less than or equal to 60"
+        check_finite(speed_m_s, "--speed-m-s", minimum=2.0, maximum=60.0)
+        check_finite(length_m, "--length-m", minimum=MIN_CALIBRATION_LENGTH_M, maximum=5000.0)
+        check_finite(rate_hz, "--rate-hz", minimum=20.0, maximum=2000.0)
+        check_finite(filter_rate_hz, "--filter-rate-hz", minimum=20.0, maximum=5000.0)
+    except ValueError as exc:
+        _fail(str(exc))
     try:
         # before minutes of simulation: a folder, a recording's file, the vehicle file or an
         # unwritable place is refused now (a missing folder is made at the end)

@@ -22,6 +22,7 @@ from rich.console import Console
 from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, guard_overwrite, write_marker
 from survey.commands.options import JsonAlways
+from survey.limits import check_finite
 
 console = Console(stderr=True)
 
@@ -107,26 +108,26 @@ def vehicle_cmd(
 
 def simulate_cmd(
     out: Annotated[Path, typer.Option("--out", help="output folder: OUT/recording/ and OUT/truth.csv")],
-    speed_m_s: Annotated[float, typer.Option("--speed-m-s", min=2.0, max=60.0, help="constant speed, m/s")] = 20.0,
-    length_m: Annotated[float, typer.Option("--length-m", min=10.0, max=20000.0, help="recorded length, m")] = 400.0,
+    speed_m_s: Annotated[float, typer.Option("--speed-m-s", help="constant speed, m/s (2-60)")] = 20.0,
+    length_m: Annotated[float, typer.Option("--length-m", help="recorded length, m (10-20000)")] = 400.0,
     seed: Annotated[int, typer.Option(help="seed of the irregularities and the sensor noise")] = 0,
     curvature_1_m: Annotated[float, typer.Option(
-        "--curvature-1-m", min=-0.01, max=0.01, help="constant design curvature, 1/m, positive = right turn")] = 0.0,
+        "--curvature-1-m", help="constant design curvature, 1/m, positive = right turn (-0.01 to 0.01)")] = 0.0,
     conicity_factor: Annotated[float, typer.Option(
-        "--conicity-factor", min=0.1, max=5.0, help="multiplies the truth's conicity (0.9: -10 %)")] = 1.0,
+        "--conicity-factor", help="multiplies the truth's conicity (0.9: -10 %; 0.1-5)")] = 1.0,
     creep_factor: Annotated[float, typer.Option(
-        "--creep-factor", min=0.05, max=5.0, help="multiplies the truth's Kalker coefficients (0.5: 50 %)")] = 1.0,
+        "--creep-factor", help="multiplies the truth's Kalker coefficients (0.5: 50 %; 0.05-5)")] = 1.0,
     no_noise: Annotated[bool, typer.Option("--no-noise", help="no sensor noise")] = False,
     no_vertical: Annotated[bool, typer.Option("--no-vertical", help="no vertical irregularity")] = False,
     no_random_lateral: Annotated[bool, typer.Option(
         "--no-random-lateral", help="no random alignment (with a harmonic: Munoz 2021 Case 2)")] = False,
     harmonic_wavelength_m: Annotated[Optional[float], typer.Option(
-        "--harmonic-wavelength-m", min=1.0, max=1000.0, help="add a harmonic alignment of this wavelength, m")] = None,
+        "--harmonic-wavelength-m", help="add a harmonic alignment of this wavelength, m (1-1000)")] = None,
     harmonic_amplitude_mm: Annotated[float, typer.Option(
-        "--harmonic-amplitude-mm", min=0.0, max=20.0, help="its amplitude, mm")] = 1.0,
+        "--harmonic-amplitude-mm", help="its amplitude, mm (0-20)")] = 1.0,
     resonance: Annotated[bool, typer.Option(
         "--resonance", help="harmonic at the wavelength of the first lateral bogie mode at this speed")] = False,
-    rate_hz: Annotated[float, typer.Option("--rate-hz", min=20.0, max=2000.0, help="sensor rate, Hz")] = 200.0,
+    rate_hz: Annotated[float, typer.Option("--rate-hz", help="sensor rate, Hz (20-2000)")] = 200.0,
     sensor_gravity: Annotated[bool, typer.Option(
         "--sensor-gravity", help="accelerometers also sense g x their roll (not in the paper)")] = False,
     vehicle: VehicleOption = None,
@@ -138,6 +139,18 @@ def simulate_cmd(
     from trolley.inservice import irregularity as irr
     from trolley.inservice.vehicle import first_lateral_mode, simulate_run
 
+    try:
+        # the ranges here, not as typer min/max: nan got "Input should be less than or equal to 60"
+        check_finite(speed_m_s, "--speed-m-s", minimum=2.0, maximum=60.0)
+        check_finite(length_m, "--length-m", minimum=10.0, maximum=20000.0)
+        check_finite(curvature_1_m, "--curvature-1-m", minimum=-0.01, maximum=0.01)
+        check_finite(conicity_factor, "--conicity-factor", minimum=0.1, maximum=5.0)
+        check_finite(creep_factor, "--creep-factor", minimum=0.05, maximum=5.0)
+        check_finite(harmonic_wavelength_m, "--harmonic-wavelength-m", minimum=1.0, maximum=1000.0)
+        check_finite(harmonic_amplitude_mm, "--harmonic-amplitude-mm", minimum=0.0, maximum=20.0)
+        check_finite(rate_hz, "--rate-hz", minimum=20.0, maximum=2000.0)
+    except ValueError as exc:
+        _fail(str(exc))
     if harmonic_wavelength_m is not None and resonance:
         _fail("give --harmonic-wavelength-m or --resonance, not both")
     try:

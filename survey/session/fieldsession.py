@@ -564,9 +564,23 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if not self.accepted_fixes:
             self.say("no fix to undo")
             return
+        # the summary of the interval this fix closed is finished and stored before the undo (the
+        # crew saw it), so that it is withdrawn with the undo in one transaction; and the live
+        # processor is not changed under its smoothing (which would then smooth the interval
+        # before this one and queue it under this one's times)
+        if self._live_thread is not None:
+            self._live_thread.join()
+        self._store_intervals()
         fix = self.accepted_fixes.pop()
+        # Withdrawn, not recomputed: without its closing fix the interval is open again, and there
+        # is no end to smooth it to. The crew takes the fix again (at this stop or further on) and
+        # that fix closes the interval and summarises it, as the final processing will see it.
+        summary = self._summary_closed_by(fix, self.accepted_fixes[-1] if self.accepted_fixes else None)
         self.store.decide_fix(fix.fix_id, False, "undone by the crew",
-                              event=(self.rec.session_id, SessionEvent(self.now(), "undo", fix.point)))
+                              event=(self.rec.session_id, SessionEvent(self.now(), "undo", fix.point)),
+                              withdraw_interval=summary["run_id"] if summary else None)
+        if summary and self.screen.last_interval == summary["summary"]:
+            self.screen.last_interval, self.screen.last_interval_alarm = "", False
         replay = self._live_replay
         if replay and replay[-1].fix_id == fix.fix_id:
             replay.pop()  # resumed, and not replayed yet: it never will be
@@ -578,7 +592,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         # chainage and distance count from the previous accepted fix again
         self._set_last_fix(self.accepted_fixes[-1] if self.accepted_fixes else None)
         self.screen.fixes_accepted = len(self.accepted_fixes)
-        self.say(f"fix {fix.point} undone")
+        self.say(f"fix {fix.point} undone" + ("; the summary of its interval is withdrawn (the next fix closes the "
+                                              "interval again)" if summary else ""))
 
     # ================================================================== device faults
     def _device_fault(self, message: str) -> None:

@@ -6,7 +6,6 @@ A mixin of :class:`survey.session.fieldsession.FieldSession`. The processor is
 """
 from __future__ import annotations
 
-import json
 import math
 import threading
 import time
@@ -142,6 +141,17 @@ class LiveFiltering:
                                     {"seconds": dt, "defects": len(chk.defects), "tolerances": self._tolerances.name,
                                      "summary": text})
 
+    def _summary_closed_by(self, fix: FixRecord, before: FixRecord | None) -> dict | None:
+        """The stored summary (:meth:`survey.store.ProjectStore.interval_summaries`) of the interval
+        from the accepted fix ``before`` to ``fix``; None when there is none (no fix before, live
+        processing off, or it failed)."""
+        if before is None:
+            return None
+        key = _interval_key(before.t_s, fix.t_s)
+        found = [d for d in self.store.interval_summaries(self.rec.session_id)
+                 if _interval_key(d["t_start_s"], d["t_end_s"]) == key]
+        return found[-1] if found else None
+
     def _replay_live(self) -> None:
         """On resume: the stored accepted fixes into the live processor, each once the data up to
         it are in (:meth:`_replay_due`). The fixes of the static alignment are added when the
@@ -153,8 +163,10 @@ class LiveFiltering:
         # the intervals whose summary is stored; one the kill interrupted (its closing fix stored,
         # its summary not yet) is summarised again as its fix is replayed (bug hunt 2026-11-26:
         # it was lost, neither shown before the kill nor after the resume)
-        self._summarised = {_interval_key(d["t_start_s"], d["t_end_s"]) for d in
-                            (json.loads(e.detail) for e in self.store.events(self.rec.session_id) if e.kind == "interval")}
+        # (a summary withdrawn by an undo is not one: the fix taken again at the same stop, in the
+        # same simulated instant, closes an interval with the same times, which is summarised)
+        self._summarised = {_interval_key(d["t_start_s"], d["t_end_s"])
+                            for d in self.store.interval_summaries(self.rec.session_id)}
         self._replay_due()
 
     def _replay_due(self) -> None:
