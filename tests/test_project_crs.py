@@ -13,7 +13,7 @@ from survey.cli import app
 from survey.store import ControlPoint, ProjectSettings, ProjectStore
 from trolley.projection import gaussian_radius_m, site_factors
 from trolley.resection import (PolarModel, ResectionConfig, observations_from_station, point_from_observation,
-                               reduce_to_grid, resect)
+                               resect)
 
 runner = CliRunner()
 CRS = "EPSG:32650"
@@ -50,13 +50,10 @@ def test_distance_reduction_hand_case():
     kc = k * R / (R + 500.0)
     assert g.combined_scale == pytest.approx(kc, abs=5e-9)
     assert kc == pytest.approx(1.0000152, abs=1e-7)  # +94 ppm of projection, -78 ppm of height
-    # a 100.000 m ground distance due east from the station, as the instrument reports it
+    # a 100.000 m ground distance due east from the station lies 100 k m east on the grid
     station = SITE + [1.0, 2.0, 1.5]
-    reported = station + [100.0, 0.0, -0.2]
-    grid = reduce_to_grid(station, reported, kc)
-    assert grid[0] - station[0] == pytest.approx(100.0 * kc, abs=1e-9)
-    assert grid[1] == station[1] and grid[2] == reported[2]
-    # the same through the polar model: observation of a ground distance -> grid point
+    grid = station + [100.0 * kc, 0.0, -0.2]
+    # through the polar model: observation of a ground distance -> grid point
     obs = observations_from_station(station, 0.3, grid, PolarModel(curvature_refraction=False, grid_scale=kc))
     assert math.hypot(100.0, 0.2) == pytest.approx(float(obs.slope_distance_m[0]), abs=1e-9)
     back = point_from_observation(station, 0.3, obs, PolarModel(curvature_refraction=False, grid_scale=kc))

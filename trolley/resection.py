@@ -501,31 +501,6 @@ def setup_covariance_at(setup_covariance: np.ndarray, station_enh_m: np.ndarray,
     return jac @ c @ np.swapaxes(jac, 1, 2)
 
 
-def reduce_to_grid(station_enh_m: np.ndarray, points_enh_m: np.ndarray, grid_scale: float) -> np.ndarray:
-    """Coordinates an instrument computed with unreduced distances, reduced to the grid.
-
-    A total station given its station and orientation puts a prism at station + hd (sin az,
-    cos az) with hd the horizontal distance it measured on the ground; on the grid that offset is
-    ``grid_scale`` times longer (:attr:`PolarModel.grid_scale`, the projection's point scale times
-    the height reduction, ``trolley.projection.GridFactors.combined_scale``). Heights are kept.
-    This is :func:`point_from_observation`'s reduction for coordinates that come ready-made.
-
-    Parameters
-    ----------
-    station_enh_m : (3,) the station the instrument was given.
-    points_enh_m : (3,) or (n, 3) the coordinates it reported.
-    grid_scale : grid distance / ground horizontal distance.
-
-    Returns
-    -------
-    ndarray of the shape of ``points_enh_m``.
-    """
-    st = np.asarray(station_enh_m, dtype=float).reshape(3)
-    p = np.array(points_enh_m, dtype=float)
-    p[..., :2] = st[:2] + grid_scale * (p[..., :2] - st[:2])
-    return p
-
-
 def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarray,
                   tolerance_m: float = 0.002) -> OverlapCheck:
     """Compare a point measured from two station setups.
