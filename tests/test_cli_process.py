@@ -206,3 +206,28 @@ def test_fixes_rejected_one_after_another_are_warned_about(session, tmp_path):
     ok = runner.invoke(app, ["process", str(session), "--out", str(tmp_path / "clean")])
     assert "in a row were rejected" not in ok.stderr
     assert json.loads((tmp_path / "clean" / "summary.json").read_text())["longest_rejected_run"] == 0
+
+
+def test_a_fix_the_user_accepts_is_used_and_an_unknown_one_refused(session, tmp_path):
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(session, bad)
+    fixes = pd.read_csv(bad / "fixes.csv")
+    fixes.loc[2, "E_m"] += 0.05  # 50 mm: the gate rejects it
+    fixes.to_csv(bad / "fixes.csv", index=False, float_format="%.6f")
+    point = str(fixes.loc[2, "point"])
+    r = runner.invoke(app, ["process", str(bad), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    out = pd.read_csv(tmp_path / "o" / "fixes.csv", keep_default_na=False)
+    assert out.accepted.tolist().count(0) == 1 and out.loc[out.point == point, "accepted"].item() == 0
+    r = runner.invoke(app, ["process", str(bad), "--out", str(tmp_path / "f"), "--accept-fix", point])
+    assert r.exit_code == 0, r.output
+    out = pd.read_csv(tmp_path / "f" / "fixes.csv", keep_default_na=False)
+    # used, and said so (this one is wrong: the right ones beside it are then rejected against it)
+    assert out.loc[out.point == point, "accepted"].item() == 1
+    assert out.loc[out.point == point, "reason"].item() == "accepted by the crew despite the gate"
+    r = runner.invoke(app, ["process", str(bad), "--out", str(tmp_path / "g"), "--accept-fix", "CP9999"])
+    assert r.exit_code == 2
+    assert "--accept-fix CP9999: no fix with this point in" in " ".join(r.stderr.split())
+    assert not (tmp_path / "g").exists()

@@ -106,3 +106,27 @@ class Crew:
 
 def test_suspicious_fixes_remeasured_and_accepted_by_key(tmp_path):
     _check(*_run(tmp_path, "keys", 15.0, keys=Crew(), length_m="180.0", static_s="20.0", stop_s="30.0"))
+
+
+def test_the_final_processing_keeps_the_fix_the_crew_accepted(tmp_path):
+    # FIX005 (25 mm up) failed the live test and the crew accepted it anyway: the engine's gate and
+    # its data snooping would reject it again in the final processing, which must not overrule them
+    import pandas as pd
+
+    from survey.commands.survey import simulated_world
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore
+
+    make_project(tmp_path, length_m="180.0")
+    script = "fix\nmove\nfix\nmove\nfix\nremeasure\nmove\nfix\naccept\nend\n"
+    with ProjectStore.open(tmp_path / "t1") as st:
+        world = simulated_world(st, 25.0)
+        world.options = replace(world.options, fix_blunders_m=BLUNDERS)
+        FieldSession(st, "final", SessionConfig(script=parse_script(script), out_dir=tmp_path / "out"),
+                     world=world, console=Console(stderr=True, width=200)).run()
+    fixes = pd.read_csv(next((tmp_path / "out").rglob("processed/fixes.csv")), keep_default_na=False)
+    row = fixes[fixes.point == "FIX005"].iloc[0]
+    assert row.accepted == 1 and row.nis > 21.1
+    assert row.reason == "accepted by the crew despite the gate"
+    assert "FIX003" not in set(fixes.point)  # measured again: not in the session the engine sees

@@ -193,6 +193,24 @@ def test_a_wrong_measurement_the_gate_took_is_exchanged_for_the_right_ones_it_he
     assert list(np.flatnonzero(res.removed)) == [7] and list(np.flatnonzero(res.added)) == [8, 9, 10, 11]
 
 
+def test_a_wrong_fix_that_passes_is_exchanged_when_right_ones_come_back_without_it():
+    # smaller wrong fixes on a stiffer drift: the third passes against the others (12.5 < 15.1),
+    # and holds every right fix after it out; without it all eight come back
+    F, Q, x0, P0, meas = _drift_problem(qv=0.02)
+    meas.z[[5, 6, 7], 0] += 0.3
+    gated, res = _snooped(F, Q, x0, P0, meas)
+    assert list(np.flatnonzero(~gated.accepted)) == [5, 6] + list(range(8, 16))
+    assert list(np.flatnonzero(~res.accepted)) == [5, 6, 7]
+
+
+def test_a_right_fix_is_not_traded_for_a_lone_wrong_one():
+    F, Q, x0, P0, meas = _drift_problem()
+    meas.z[6, 0] += 0.5  # alone: the right ones beside it hold it out, and are not traded for it
+    gated, res = _snooped(F, Q, x0, P0, meas)
+    assert list(np.flatnonzero(~gated.accepted)) == [6]
+    assert list(np.flatnonzero(~res.accepted)) == [6]
+
+
 def test_the_crew_keeps_a_fix_the_snooping_would_take_out():
     F, Q, x0, P0, meas = _drift_problem()
     meas.z[[5, 6, 7], 0] += 0.5

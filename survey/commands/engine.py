@@ -43,11 +43,15 @@ def process(
                                 "(Jiang 2017 Eq. 26; imports python-control, about 1 s more)")] = False,
     json_output: Annotated[bool, typer.Option("--json", help="print the summary as one JSON object on "
                                                              "stdout, nothing else")] = False,
+    accept_fix: Annotated[Optional[list[str]], typer.Option(
+        "--accept-fix", metavar="POINT", help="use this fix (its point label in fixes.csv) whatever the gate and "
+                                              "the data snooping say; repeat for more")] = None,
     step_old: Annotated[Optional[float], typer.Option("--step", hidden=True, help=old_name("--step-m"))] = None,
 ) -> None:
     """Filter and smooth a raw stop-and-go session into track.csv (Jiang 2017)."""
     step_m = renamed(step_m, step_old, "--step-m", "--step", 0.625)
-    result, session, written = run_process(session_dir, out, smoother, step_m, observability=observability)
+    result, session, written = run_process(session_dir, out, smoother, step_m, force_accept=tuple(accept_fix or ()),
+                                           observability=observability)
     if json_output:
         from survey import jsonout
         from survey.trackio import summary_dict
@@ -110,6 +114,9 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         if session.meta.static_s >= duration_s:
             fail(f"{session_dir / 'session.toml'}: key alignment.static_s: {session.meta.static_s:g} s is not "
                  f"shorter than the IMU data ({duration_s:g} s in imu.csv); nothing would be left to survey")
+        unknown = sorted(set(force_accept) - {str(p) for p in session.fixes.point})
+        if unknown:
+            fail(f"--accept-fix {unknown[0]}: no fix with this point in {session_dir / 'fixes.csv'}")
         span_m = float(np.ptp(session.odo_distance_m)) if session.odo_distance_m.size else 0.0
         try:
             # stations: a few dozen float columns each through resampling and writing

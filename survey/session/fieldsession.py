@@ -41,6 +41,8 @@ TICK_S = 0.05
 SIM_STEP_S = 2.0
 #: reason stored with a fix that failed the innovation test, until the crew decides
 SUSPICIOUS = "innovation test failed"
+#: the decision on a suspicious fix the crew accepted anyway (the final processing keeps it)
+CREW_ACCEPTED = "accepted by the crew despite the innovation test"
 #: how long the device check retries opening a port (a USB adapter being plugged in)
 OPEN_TIMEOUT_S = 2.0
 
@@ -538,7 +540,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             return
         fix_id, fix, _ = self.pending
         self.pending = None
-        self.store.decide_fix(fix_id, True, "accepted by the crew despite the innovation test")
+        self.store.decide_fix(fix_id, True, CREW_ACCEPTED)
         if self._live not in (None, False):
             try:
                 if self._live_thread is not None:

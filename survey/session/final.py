@@ -53,8 +53,14 @@ def process_stored_session(store: ProjectStore, name: str, out_dir: Path, outcom
     raw = replace(raw, meta=replace(raw.meta, design_alignment="alignment.xml" if xml else None))
     console.print("end of session: exporting the raw session, re-processing it (filter + RTS smoother) ...")
     write_session(session_dir, raw, xml, overwrite=True)
-    result, _, written = run_process(session_dir, out_dir / "processed", project_name=store.info().name,
-                                     session_name=name)
+    from survey.session.fieldsession import CREW_ACCEPTED
+
+    # the fixes the crew accepted despite the live innovation test stay accepted: neither the
+    # engine's gate nor its data snooping may overrule the crew
+    crew = tuple(f.point for f in store.fixes(store.session(name).session_id, accepted_only=True)
+                 if f.reason == CREW_ACCEPTED)
+    result, _, written = run_process(session_dir, out_dir / "processed", force_accept=crew,
+                                     project_name=store.info().name, session_name=name)
     rec = store.session(name)
     st = result.stations
     from survey.fieldrecord import field_record, write_field_record
