@@ -249,6 +249,26 @@ def test_a_float_option_out_of_its_range_is_refused_naming_it(command, option, b
         assert r.exit_code == 2 and err.startswith(f"error: {option}: {says}, got "), (value, err)
 
 
+@pytest.mark.parametrize("kwargs, value, message", [
+    # %g would print 5.0000001 as 5: "must be <= 5, got 5" contradicts itself
+    ({"maximum": 5.0}, 5.0000001, "--x: must be <= 5, got 5.0000001"),
+    ({"minimum": -85.0}, -85.00001, "--x: must be >= -85, got -85.00001"),
+    ({"minimum": 2.0}, 1.5, "--x: must be >= 2, got 1.5"),
+    ({"positive": True}, 0.0, "--x: must be > 0, got 0"),
+    ({"maximum": 1e7}, 1e12, "--x: must be <= 1e+07, got 1e+12"),
+    ({"maximum": 85.0, "why": "no gyrocompassing near the poles"}, 86.0,
+     "--x: must be <= 85, got 86 (no gyrocompassing near the poles)"),
+    # the reason is for the range: the finite-number message stays the same on every option
+    ({"maximum": 85.0, "why": "no gyrocompassing near the poles"}, math.inf, "--x: must be a finite number, got inf"),
+])
+def test_check_finite_messages(kwargs, value, message):
+    from survey.limits import check_finite
+
+    with pytest.raises(ValueError) as exc:
+        check_finite(value, "--x", **kwargs)
+    assert str(exc.value) == message
+
+
 @pytest.mark.parametrize("option, value, bad", [("--station", "0,0,nan,1.5", "nan"),
                                                 ("--target", "10,inf,0.5", "inf"), ("--target", "-inf,20,0.5", "-inf")])
 def test_a_coordinate_that_is_not_finite_gets_the_finite_number_message(option, value, bad):
