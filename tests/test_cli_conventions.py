@@ -163,6 +163,8 @@ STOP = {
                        "was not made by"),
     "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
                          "does not exist"),
+    "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
+    "survey resume": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
 }
 
 #: every float option: (command, option, values that must pass, values refused with their message)
@@ -199,6 +201,9 @@ NUMERIC = [
     *(("devices simulate", opt, ["0", "1"], [("-0.1", "must be >= 0"), ("1.1", "must be <= 1")])
       for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
     ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
+    # inf passed `> 0` and the session ran at an unbounded clock
+    *((c, "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")])
+      for c in ("survey start", "survey resume")),
 ]
 
 
@@ -216,9 +221,9 @@ def run_option(command: str, base: list[str], option: str, value: str):
     return r, " ".join(r.stderr.split())
 
 
-def test_the_table_holds_every_float_option_of_inservice_and_devices():
+def test_the_table_holds_every_float_option_of_the_commands_it_covers():
     """A float option added later without its check_finite would be missing here."""
-    found = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS if path[:1] in (["inservice"], ["devices"])
+    found = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS if " ".join(path) in STOP
              for p in cmd.params if not p.hidden and p.type_descriptor.annotation is float}
     assert found == {(c, o) for c, o, _, _ in NUMERIC}
 
@@ -247,6 +252,22 @@ def test_a_float_option_out_of_its_range_is_refused_naming_it(command, option, b
     for value, says in bad:
         r, err = run_option(command, STOP[command][0](stop_dir), option, value)
         assert r.exit_code == 2 and err.startswith(f"error: {option}: {says}, got "), (value, err)
+
+
+def test_a_resume_refuses_a_stored_speedup_that_is_not_finite(tmp_path):
+    # a session started with --speedup inf before the option was checked holds inf in its start
+    # event; a resume without --speedup takes it from there
+    from survey.store import ProjectStore, SessionEvent
+
+    assert runner.invoke(app, ["project", "new", "p", "--root", str(tmp_path), "--no-toml"]).exit_code == 0
+    with ProjectStore.open_project(tmp_path, "p") as store:
+        rec = store.create_session("s")
+        store.add_event(rec.session_id, SessionEvent(0.0, "start", json.dumps(
+            {"simulate": True, "speedup": math.inf, "script": None, "devices": None, "out": "sessions/s"})))
+    r = runner.invoke(app, ["survey", "resume", "p", "--root", str(tmp_path), "--session", "s"])
+    assert r.exit_code == 2
+    assert "error: session s: its start event holds --speedup inf, not a finite number > 0" in r.stderr
+    assert "try: give --speedup" in r.stderr
 
 
 @pytest.mark.parametrize("kwargs, value, message", [
