@@ -163,6 +163,7 @@ STOP = {
                        "was not made by"),
     "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
                          "does not exist"),
+    "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
     "survey resume": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
 }
@@ -201,6 +202,20 @@ NUMERIC = [
     *(("devices simulate", opt, ["0", "1"], [("-0.1", "must be >= 0"), ("1.1", "must be <= 1")])
       for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
     ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
+    # budget: the ranges of its error model (survey.commands.budget.RANGES)
+    ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
+    ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
+                                                                ("1000.1", "must be <= 1000")]),
+    ("budget", "--gyro-arw-deg-sqrt-h", ["0", "34"], [("-0.1", "must be >= 0"), ("34.1", "must be <= 34")]),
+    ("budget", "--heading-error-deg", ["0", "10"], [("-0.1", "must be >= 0"), ("10.1", "must be <= 10")]),
+    ("budget", "--level-error-deg", ["0", "10"], [("-0.1", "must be >= 0"), ("10.1", "must be <= 10")]),
+    ("budget", "--odo-scale-noise", ["0", "0.01"], [("-1e-6", "must be >= 0"), ("0.0101", "must be <= 0.01")]),
+    ("budget", "--odo-scale-error", ["0", "0.01"], [("-1e-6", "must be >= 0"), ("0.0101", "must be <= 0.01")]),
+    ("budget", "--fix-spacing-m", ["1", "10000"], [("0.9", "must be >= 1"), ("10001", "must be <= 10000")]),
+    ("budget", "--speed-m-s", ["0.01", "30"], [("0", "must be >= 0.01"), ("30.1", "must be <= 30")]),
+    ("budget", "--fix-sigma-mm", ["0.001", "1000"], [("0", "must be >= 0.001"), ("1001", "must be <= 1000")]),
+    ("budget", "--latitude-deg", ["-85", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
+    ("budget", "--target-mm", ["0.01", "1e6"], [("0", "must be > 0"), ("-1", "must be > 0")]),
     # inf passed `> 0` and the session ran at an unbounded clock
     *((c, "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")])
       for c in ("survey start", "survey resume")),
