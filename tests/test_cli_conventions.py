@@ -164,6 +164,7 @@ STOP = {
     "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
                          "does not exist"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
+    "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
     "survey resume": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
 }
@@ -216,9 +217,20 @@ NUMERIC = [
     ("budget", "--fix-sigma-mm", ["0.001", "1000"], [("0", "must be >= 0.001"), ("1001", "must be <= 1000")]),
     ("budget", "--latitude-deg", ["-85", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
     ("budget", "--target-mm", ["0.01", "1e6"], [("0", "must be > 0"), ("-1", "must be > 0")]),
+    # the sites project.toml takes (survey.commands.simulate: MAX_LATITUDE_DEG, SITE_HEIGHT_RANGE_M)
+    ("project new", "--latitude-deg", ["-85", "0", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
+    ("project new", "--height-m", ["-1000", "10000"], [("-1000.1", "must be >= -1000"),
+                                                       ("10000.1", "must be <= 10000")]),
     # inf passed `> 0` and the session ran at an unbounded clock
     *((c, "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")])
       for c in ("survey start", "survey resume")),
+]
+
+
+#: the hidden old names of float options (docs/conventions.md): (command, old name, new name, a valid
+#: value, an out-of-range one and its message); the message names the option as it was typed
+OLD_NAMES = [
+    ("project new", "--height", "--height-m", "50", ("-1001", "must be >= -1000")),
 ]
 
 
@@ -226,6 +238,7 @@ NUMERIC = [
 def stop_dir(tmp_path):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("not made by trolley\n")
+    (tmp_path / "afile").write_text("a file where a folder is needed\n")
     return tmp_path
 
 
@@ -241,6 +254,25 @@ def test_the_table_holds_every_float_option_of_the_commands_it_covers():
     found = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS if " ".join(path) in STOP
              for p in cmd.params if not p.hidden and p.type_descriptor.annotation is float}
     assert found == {(c, o) for c, o, _, _ in NUMERIC}
+
+
+def test_the_old_names_table_holds_every_hidden_float_option_of_the_commands_it_covers():
+    found = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS if " ".join(path) in STOP
+             for p in cmd.params if p.hidden and p.type_descriptor.annotation is float}
+    assert found == {(c, o) for c, o, *_ in OLD_NAMES}
+
+
+@pytest.mark.parametrize("command, old, new, valid, bad", OLD_NAMES, ids=[f"{c} {o}" for c, o, *_ in OLD_NAMES])
+def test_an_old_option_name_gets_the_same_checks_naming_the_old_name(command, old, new, valid, bad, stop_dir):
+    make, code, says = STOP[command]
+    for value in ("nan", "inf", "-inf"):
+        r, err = run_option(command, make(stop_dir), old, value)
+        assert r.exit_code == 2 and err == f"error: {old}: must be a finite number, got {value}", err
+    value, message = bad
+    r, err = run_option(command, make(stop_dir), old, value)
+    assert r.exit_code == 2 and err.startswith(f"error: {old}: {message}, got "), err
+    r, err = run_option(command, make(stop_dir), old, valid)
+    assert r.exit_code == code and says in err, err
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
