@@ -163,6 +163,7 @@ STOP = {
                        "was not made by"),
     "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
                          "does not exist"),
+    "process": (lambda t: [str(t / "nosession"), "--out", str(t / "o")], 2, "no such session folder"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
     "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
@@ -203,6 +204,7 @@ NUMERIC = [
     *(("devices simulate", opt, ["0", "1"], [("-0.1", "must be >= 0"), ("1.1", "must be <= 1")])
       for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
     ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
+    ("process", "--step-m", ["0.001", "0.625", "100"], [("0", "must be > 0"), ("-0.625", "must be > 0")]),
     # budget: the ranges of its error model (survey.commands.budget.RANGES)
     ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
     ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
@@ -230,6 +232,7 @@ NUMERIC = [
 #: the hidden old names of float options (docs/conventions.md): (command, old name, new name, a valid
 #: value, an out-of-range one and its message); the message names the option as it was typed
 OLD_NAMES = [
+    ("process", "--step", "--step-m", "1.25", ("0", "must be > 0")),
     ("project new", "--height", "--height-m", "50", ("-1001", "must be >= -1000")),
 ]
 
