@@ -164,6 +164,7 @@ STOP = {
     "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
                          "does not exist"),
     "process": (lambda t: [str(t / "nosession"), "--out", str(t / "o")], 2, "no such session folder"),
+    "export": (lambda t: [str(t / "notrack"), "--csv", str(t / "o.csv")], 2, "no such file or folder"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
     "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
@@ -205,6 +206,8 @@ NUMERIC = [
       for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
     ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
     ("process", "--step-m", ["0.001", "0.625", "100"], [("0", "must be > 0"), ("-0.625", "must be > 0")]),
+    *(("export", opt, ["0.5", "3", "100"], [("0", "must be > 0"), ("-3", "must be > 0")])
+      for opt in ("--twist-base-m", "--chord-m", "--gauge-rate-base-m")),
     # budget: the ranges of its error model (survey.commands.budget.RANGES)
     ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
     ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
@@ -233,6 +236,9 @@ NUMERIC = [
 #: value, an out-of-range one and its message); the message names the option as it was typed
 OLD_NAMES = [
     ("process", "--step", "--step-m", "1.25", ("0", "must be > 0")),
+    ("export", "--twist-base", "--twist-base-m", "3", ("0", "must be > 0")),
+    ("export", "--chord", "--chord-m", "10", ("0", "must be > 0")),
+    ("export", "--gauge-rate-base", "--gauge-rate-base-m", "3", ("0", "must be > 0")),
     ("project new", "--height", "--height-m", "50", ("-1001", "must be >= -1000")),
 ]
 
