@@ -165,6 +165,7 @@ STOP = {
                          "does not exist"),
     "process": (lambda t: [str(t / "nosession"), "--out", str(t / "o")], 2, "no such session folder"),
     "export": (lambda t: [str(t / "notrack"), "--csv", str(t / "o.csv")], 2, "no such file or folder"),
+    "simulate": (lambda t: ["--out", str(t / "mine"), "--project", str(DEMO)], 2, "already exists and is not empty"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
     "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
@@ -208,6 +209,13 @@ NUMERIC = [
     ("process", "--step-m", ["0.001", "0.625", "100"], [("0", "must be > 0"), ("-0.625", "must be > 0")]),
     *(("export", opt, ["0.5", "3", "100"], [("0", "must be > 0"), ("-3", "must be > 0")])
       for opt in ("--twist-base-m", "--chord-m", "--gauge-rate-base-m")),
+    ("simulate", "--length-m", ["1", "200"], [("0.99", "must be >= 1"), ("0", "must be >= 1")]),
+    ("simulate", "--fix-spacing-m", ["10", "60", "1e4"], [("0", "must be > 0")]),
+    ("simulate", "--static-s", ["10", "120"], [("-1", "must be >= 0")]),
+    ("simulate", "--rate-hz", ["50", "400"], [("0", "must be > 0")]),
+    ("simulate", "--truth-step-m", ["0.01", "0.1", "5"], [("0", "must be > 0")]),
+    ("simulate", "--site-east-m", ["-1e7", "0", "200000", "1e7"], [("-1.0000001e7", "must be >= -1e+07"),
+                                                                    ("1e12", "must be <= 1e+07")]),
     # budget: the ranges of its error model (survey.commands.budget.RANGES)
     ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
     ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
