@@ -166,6 +166,7 @@ STOP = {
     "process": (lambda t: [str(t / "nosession"), "--out", str(t / "o")], 2, "no such session folder"),
     "export": (lambda t: [str(t / "notrack"), "--csv", str(t / "o.csv")], 2, "no such file or folder"),
     "simulate": (lambda t: ["--out", str(t / "mine"), "--project", str(DEMO)], 2, "already exists and is not empty"),
+    "demo": (lambda t: ["--out", str(t / "afile")], 2, "exists and is not a folder"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
     "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
@@ -216,6 +217,7 @@ NUMERIC = [
     ("simulate", "--truth-step-m", ["0.01", "0.1", "5"], [("0", "must be > 0")]),
     ("simulate", "--site-east-m", ["-1e7", "0", "200000", "1e7"], [("-1.0000001e7", "must be >= -1e+07"),
                                                                     ("1e12", "must be <= 1e+07")]),
+    ("demo", "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")]),
     # budget: the ranges of its error model (survey.commands.budget.RANGES)
     ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
     ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
