@@ -169,6 +169,8 @@ STOP = {
     "demo": (lambda t: ["--out", str(t / "afile")], 2, "exists and is not a folder"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
     "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
+    "tgms simulate": (lambda t: ["--out", str(t / "mine")], 2, "was not made by"),
+    "tgms process": (lambda t: [str(t / "norec"), "--out", str(t / "o")], 2, "not a folder"),
     "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
     "survey resume": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
 }
@@ -236,6 +238,10 @@ NUMERIC = [
     ("project new", "--latitude-deg", ["-85", "0", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
     ("project new", "--height-m", ["-1000", "10000"], [("-1000.1", "must be >= -1000"),
                                                        ("10000.1", "must be <= 10000")]),
+    ("tgms simulate", "--length-m", ["60", "1000"], [("59", "must be >= 60")]),
+    ("tgms simulate", "--speed-m-s", ["1", "40"], [("0.9", "must be >= 1"), ("40.1", "must be <= 40")]),
+    ("tgms simulate", "--camera-rate-hz", ["5", "500"], [("4.9", "must be >= 5"), ("500.1", "must be <= 500")]),
+    ("tgms process", "--step-m", ["0.01", "0.25", "5"], [("0.009", "must be >= 0.01"), ("5.1", "must be <= 5")]),
     # inf passed `> 0` and the session ran at an unbounded clock
     *((c, "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")])
       for c in ("survey start", "survey resume")),
@@ -249,6 +255,7 @@ OLD_NAMES = [
     ("export", "--twist-base", "--twist-base-m", "3", ("0", "must be > 0")),
     ("export", "--chord", "--chord-m", "10", ("0", "must be > 0")),
     ("export", "--gauge-rate-base", "--gauge-rate-base-m", "3", ("0", "must be > 0")),
+    ("tgms process", "--step", "--step-m", "0.5", ("5.1", "must be <= 5")),
     ("project new", "--height", "--height-m", "50", ("-1001", "must be >= -1000")),
 ]
 
