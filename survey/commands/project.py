@@ -75,17 +75,16 @@ def new(
 
     import numpy as np
 
+    from survey.commands.simulate import SITE_HEIGHT_RANGE_M
     from survey.cpiii import CpiiiError, read_cpiii_file
+    from survey.limits import check_finite
     from survey.names import UnsafeNameError, check_name, inside
     from survey.store import ProjectSettings, ProjectStore, StoreError, alignment_record_from_text, project_path
     from trolley import units
+    from trolley.earth import MAX_LATITUDE_DEG
     from trolley.sensors import IMU_PRESETS
 
-    from survey.commands.simulate import SITE_HEIGHT_RANGE_M
-    from survey.limits import check_finite
-    from trolley.earth import MAX_LATITUDE_DEG
-
-    height_option = "--height" if height_old is not None else "--height-m"
+    height_option = "--height" if height_old is not None else "--height-m"   # named as typed
     height = renamed(height, height_old, "--height-m", "--height")
     try:
         check_name("project name", name)

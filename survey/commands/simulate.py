@@ -278,7 +278,6 @@ def register(app: typer.Typer) -> None:
             check_finite(static_s, "--static-s", minimum=0.0)
             if seed is not None and seed < 0:
                 raise ValueError(f"--seed must be an integer >= 0, got {seed}")
-            # the session's grid coordinates must stay readable by `trolley process` (|E_m| <= 1e8)
             check_finite(site_east_m, "--site-east-m", minimum=-SITE_EAST_LIMIT_M, maximum=SITE_EAST_LIMIT_M,
                          why="the session's grid coordinates must stay readable by `trolley process`")
             for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given

@@ -176,13 +176,13 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.store import SessionEvent, StoreError
 
     from survey.limits import check_finite
-    from survey.names import UnsafeNameError, check_name
+    from survey.names import check_name
 
     try:
         check_name("--session", session)
         # before the store is opened: inf passed `> 0` and the session ran at an unbounded clock
         check_finite(speedup, "--speedup", positive=True)
-    except (UnsafeNameError, ValueError) as exc:
+    except ValueError as exc:      # UnsafeNameError is one
         fail(str(exc))
     store = open_store(project, root)
     lock = session_lock(store.path.parent, session)
