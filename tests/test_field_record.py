@@ -118,7 +118,8 @@ def test_project_set_validates_and_show_lists(tmp_path):
                             ("imu_calibrated", "14.03.2026", "not a date as YYYY-MM-DD"),
                             ("rail_temperature_c", "hot", "not a temperature"),
                             ("rail_temperature_c", "150", "error: rail_temperature_c: must be <= 90, got 150 (°C)"),
-                            ("rail_temperature_c", "-60.5", "error: rail_temperature_c: must be >= -60, got -60.5 (°C)"),
+                            ("rail_temperature_c", "-60.5",
+                             "error: rail_temperature_c: must be >= -60, got -60.5 (°C)"),
                             # the finite-number message of every number on the command line
                             *(("rail_temperature_c", v, f"error: rail_temperature_c: must be a finite number, got {v}")
                               for v in ("nan", "inf", "-inf")),
