@@ -44,25 +44,35 @@ def check_allocation(count: float, bytes_each: float, what: str) -> None:
                          f"({limit / 1e9:.3g} GB); choose a coarser value")
 
 
+def shown(value: float) -> str:
+    """``value`` as ``%g`` when that is the value itself, else with all its digits: "must be <= 5,
+    got 5" for 5.0000001 would read as a contradiction."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
+
+
 def check_finite(value: float | None, option: str, *, positive: bool = False, minimum: float | None = None,
-                 maximum: float | None = None) -> None:
+                 maximum: float | None = None, why: str = "") -> None:
     """Refuse nan, inf and (optionally) non-positive, too small or too large option values.
 
     (A typer ``min=``/``max=`` range would answer nan with "Input should be greater than or equal
-    to ..."; check the range here, after the finiteness.)
+    to ..."; check the range here, after the finiteness.) ``why``, when given, follows a range
+    message in parentheses (``--latitude-deg: must be <= 85, got 86 (no gyrocompassing near the
+    poles)``); the finite-number message is the same for every option.
 
     Raises
     ------
     ValueError
-        ``<option>: must be a finite number ...``.
+        ``<option>: must be a finite number, got nan`` or ``<option>: must be >= 1, got 0.5``.
     """
     if value is None:
         return
     if not math.isfinite(value):
         raise ValueError(f"{option}: must be a finite number, got {value}")
+    reason = f" ({why})" if why else ""
     if positive and not value > 0:
-        raise ValueError(f"{option}: must be > 0, got {value}")
+        raise ValueError(f"{option}: must be > 0, got {shown(value)}{reason}")
     if minimum is not None and value < minimum:
-        raise ValueError(f"{option}: must be >= {minimum:g}, got {value:g}")
+        raise ValueError(f"{option}: must be >= {minimum:g}, got {shown(value)}{reason}")
     if maximum is not None and value > maximum:
-        raise ValueError(f"{option}: must be <= {maximum:g}, got {value:g}")
+        raise ValueError(f"{option}: must be <= {maximum:g}, got {shown(value)}{reason}")

@@ -59,6 +59,8 @@ CRS_FIELDS = {"coordinate_system": "Coordinate system", "height_datum": "Height 
               "grid": "Grid convergence and scale"}
 
 _MAX_LEN = 200
+#: rail temperatures a header may hold, °C (`project set rail_temperature_c`)
+RAIL_TEMPERATURE_RANGE_C = (-60.0, 90.0)
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
@@ -92,8 +94,10 @@ def check_header_value(key: str, value: str) -> str:
             t = float(number)
         except ValueError:
             raise ValueError(f"{key}: {text!r} is not a temperature in °C (a number)") from None
-        if not (math.isfinite(t) and -60.0 <= t <= 90.0):
-            raise ValueError(f"{key}: {text!r} is outside -60..90 °C")
+        from survey.limits import check_finite
+
+        # the messages every number on the command line gets ("nan" was "outside -60..90 °C")
+        check_finite(t, key, minimum=RAIL_TEMPERATURE_RANGE_C[0], maximum=RAIL_TEMPERATURE_RANGE_C[1], why="°C")
         text = f"{t:g}"
     return text
 

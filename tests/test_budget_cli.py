@@ -73,16 +73,16 @@ def test_table_output_has_verdicts_and_limits():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--gyro-bias-deg-h", "-0.1", "--gyro-arw-deg-sqrt-h", "0.005"], "--gyro-bias-deg-h must be"),
-    (["--speed-m-s", "0"], "--speed-m-s must be"),
-    (["--fix-spacing-m", "-5"], "--fix-spacing-m must be"),
+    (["--gyro-bias-deg-h", "-0.1", "--gyro-arw-deg-sqrt-h", "0.005"], "--gyro-bias-deg-h: must be >= 0, got -0.1"),
+    (["--speed-m-s", "0"], "--speed-m-s: must be >= 0.01, got 0"),
+    (["--fix-spacing-m", "-5"], "--fix-spacing-m: must be >= 1, got -5"),
     (["--target-mm", "0.3"], "cannot be met by any IMU"),
     (["--gyro-bias-deg-h", "0.1", "--gyro-bias-instability-deg-h", "0.1"], "not both"),
     (["--imu", "mems"], "--imu mems cannot find north by gyrocompassing: give --heading-error-deg"),
     (["--imu", "custom", "--gyro-arw-deg-sqrt-h", "0.005"], "--imu custom needs"),
     (["--latitude-deg", "90"], "--latitude-deg"),
     (["--monte-carlo", "-3"], "--monte-carlo"),
-    (["--odo-scale-noise", "nan"], "--odo-scale-noise must be"),
+    (["--odo-scale-noise", "nan"], "--odo-scale-noise: must be a finite number, got nan"),
     (["--monte-carlo", "10", "--seed", "-1"], "--seed must be"),
 ])
 def test_bad_input_exits_2_with_one_line_and_no_output(args, message):
@@ -231,14 +231,22 @@ def test_out_of_memory_is_a_clear_exit_2(monkeypatch):
     assert "Traceback" not in res.output
 
 
+#: the reason the range messages give (survey.limits.check_finite's why=)
+MODEL = "(the range of the error model)"
+
+
 @pytest.mark.parametrize("args, message", [
-    (["--gyro-bias-deg-h", "1e300", "--gyro-arw-deg-sqrt-h", "0.005"], "--gyro-bias-deg-h must lie within 0..1000"),
-    (["--level-error-deg", "1e5"], "--level-error-deg must lie within 0..10"),
-    (["--fix-spacing-m", "1e-9", "--monte-carlo", "2"], "--fix-spacing-m must lie within 1..10000"),
-    (["--fix-spacing-m", "1e300", "--monte-carlo", "10"], "--fix-spacing-m must lie within 1..10000"),
-    (["--speed-m-s", "1e11"], "--speed-m-s must lie within 0.01..30"),
+    (["--gyro-bias-deg-h", "1e300", "--gyro-arw-deg-sqrt-h", "0.005"],
+     "--gyro-bias-deg-h: must be <= 1000, got 1e+300 " + MODEL),
+    (["--level-error-deg", "1e5"], "--level-error-deg: must be <= 10, got 100000 " + MODEL),
+    (["--fix-spacing-m", "1e-9", "--monte-carlo", "2"], "--fix-spacing-m: must be >= 1, got 1e-09 " + MODEL),
+    (["--fix-spacing-m", "1e300", "--monte-carlo", "10"],
+     "--fix-spacing-m: must be <= 10000, got 1e+300 " + MODEL),
+    (["--speed-m-s", "1e11"], "--speed-m-s: must be <= 30, got 1e+11 " + MODEL),
     (["--monte-carlo", "99999999999"], "--monte-carlo must be at most 1000000"),
-    (["--latitude-deg", "89.999999"], "--latitude-deg must lie within -85..85"),
+    # all the digits: "%g" showed 89.999999 as 90
+    (["--latitude-deg", "89.999999"],
+     "--latitude-deg: must be <= 85, got 89.999999 (no gyrocompassing near the poles)"),
     (["--imu", "custom", "--gyro-bias-instability-deg-h", "3", "--gyro-arw-deg-sqrt-h", "0.15"],
      "gyrocompasses to a heading error of 13.2 deg"),
 ])

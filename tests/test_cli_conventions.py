@@ -149,8 +149,12 @@ def test_booleans_are_flags(path, cmd):
 
 # ------------------------------------------------------------------------------ numeric options
 # nan, inf and -inf get the finite-number message of survey.limits.check_finite on every float
-# option of `inservice` and `devices` (typer's own range check answered nan with "Input should be
-# less than or equal to 60", and `devices simulate --seconds inf` ran until killed).
+# option of every command, old names included, and a value out of range its range message
+# (typer's own range check answered nan with "Input should be less than or equal to 60",
+# `devices simulate --seconds inf` ran until killed, `survey start --speedup inf` ran a session at
+# an unbounded clock, and budget, project new and process each had their own wording). No option
+# takes inf on purpose (as "no limit"); an option without an upper bound in the table has none in
+# the code either.
 
 #: each command's other arguments, chosen so that a run with valid option values stops at once on
 #: a later check (exit code, what that check says): no simulation runs and no port is opened.
@@ -163,6 +167,16 @@ STOP = {
                        "was not made by"),
     "devices simulate": (lambda t: ["--out", str(t / "none" / "ports.json"), "--seconds", "0"], 2,
                          "does not exist"),
+    "process": (lambda t: [str(t / "nosession"), "--out", str(t / "o")], 2, "no such session folder"),
+    "export": (lambda t: [str(t / "notrack"), "--csv", str(t / "o.csv")], 2, "no such file or folder"),
+    "simulate": (lambda t: ["--out", str(t / "mine"), "--project", str(DEMO)], 2, "already exists and is not empty"),
+    "demo": (lambda t: ["--out", str(t / "afile")], 2, "exists and is not a folder"),
+    "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
+    "project new": (lambda t: ["p", "--root", str(t / "afile"), "--no-toml"], 2, "is a file, not a folder of projects"),
+    "tgms simulate": (lambda t: ["--out", str(t / "mine")], 2, "was not made by"),
+    "tgms process": (lambda t: [str(t / "norec"), "--out", str(t / "o")], 2, "not a folder"),
+    "survey start": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
+    "survey resume": (lambda t: ["nope", "--root", str(t), "--session", "s", "--simulate"], 2, "no project 'nope'"),
 }
 
 #: every float option: (command, option, values that must pass, values refused with their message)
@@ -199,6 +213,54 @@ NUMERIC = [
     *(("devices simulate", opt, ["0", "1"], [("-0.1", "must be >= 0"), ("1.1", "must be <= 1")])
       for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
     ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
+    ("process", "--step-m", ["0.001", "0.625", "100"], [("0", "must be > 0"), ("-0.625", "must be > 0")]),
+    *(("export", opt, ["0.5", "3", "100"], [("0", "must be > 0"), ("-3", "must be > 0")])
+      for opt in ("--twist-base-m", "--chord-m", "--gauge-rate-base-m")),
+    ("simulate", "--length-m", ["1", "200"], [("0.99", "must be >= 1"), ("0", "must be >= 1")]),
+    ("simulate", "--fix-spacing-m", ["10", "60", "1e4"], [("0", "must be > 0")]),
+    ("simulate", "--static-s", ["10", "120"], [("-1", "must be >= 0")]),
+    ("simulate", "--rate-hz", ["50", "400"], [("0", "must be > 0")]),
+    ("simulate", "--truth-step-m", ["0.01", "0.1", "5"], [("0", "must be > 0")]),
+    ("simulate", "--site-east-m", ["-1e7", "0", "200000", "1e7"], [("-1.0000001e7", "must be >= -1e+07"),
+                                                                    ("1e12", "must be <= 1e+07")]),
+    ("demo", "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")]),
+    # budget: the ranges of its error model (survey.commands.budget.RANGES)
+    ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
+    ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
+                                                                ("1000.1", "must be <= 1000")]),
+    ("budget", "--gyro-arw-deg-sqrt-h", ["0", "34"], [("-0.1", "must be >= 0"), ("34.1", "must be <= 34")]),
+    ("budget", "--heading-error-deg", ["0", "10"], [("-0.1", "must be >= 0"), ("10.1", "must be <= 10")]),
+    ("budget", "--level-error-deg", ["0", "10"], [("-0.1", "must be >= 0"), ("10.1", "must be <= 10")]),
+    ("budget", "--odo-scale-noise", ["0", "0.01"], [("-1e-6", "must be >= 0"), ("0.0101", "must be <= 0.01")]),
+    ("budget", "--odo-scale-error", ["0", "0.01"], [("-1e-6", "must be >= 0"), ("0.0101", "must be <= 0.01")]),
+    ("budget", "--fix-spacing-m", ["1", "10000"], [("0.9", "must be >= 1"), ("10001", "must be <= 10000")]),
+    ("budget", "--speed-m-s", ["0.01", "30"], [("0", "must be >= 0.01"), ("30.1", "must be <= 30")]),
+    ("budget", "--fix-sigma-mm", ["0.001", "1000"], [("0", "must be >= 0.001"), ("1001", "must be <= 1000")]),
+    ("budget", "--latitude-deg", ["-85", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
+    ("budget", "--target-mm", ["0.01", "1e6"], [("0", "must be > 0"), ("-1", "must be > 0")]),
+    # the sites project.toml takes (survey.commands.simulate: MAX_LATITUDE_DEG, SITE_HEIGHT_RANGE_M)
+    ("project new", "--latitude-deg", ["-85", "0", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
+    ("project new", "--height-m", ["-1000", "10000"], [("-1000.1", "must be >= -1000"),
+                                                       ("10000.1", "must be <= 10000")]),
+    ("tgms simulate", "--length-m", ["60", "1000"], [("59", "must be >= 60")]),
+    ("tgms simulate", "--speed-m-s", ["1", "40"], [("0.9", "must be >= 1"), ("40.1", "must be <= 40")]),
+    ("tgms simulate", "--camera-rate-hz", ["5", "500"], [("4.9", "must be >= 5"), ("500.1", "must be <= 500")]),
+    ("tgms process", "--step-m", ["0.01", "0.25", "5"], [("0.009", "must be >= 0.01"), ("5.1", "must be <= 5")]),
+    # inf passed `> 0` and the session ran at an unbounded clock
+    *((c, "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")])
+      for c in ("survey start", "survey resume")),
+]
+
+
+#: the hidden old names of float options (docs/conventions.md): (command, old name, new name, a valid
+#: value, an out-of-range one and its message); the message names the option as it was typed
+OLD_NAMES = [
+    ("process", "--step", "--step-m", "1.25", ("0", "must be > 0")),
+    ("export", "--twist-base", "--twist-base-m", "3", ("0", "must be > 0")),
+    ("export", "--chord", "--chord-m", "10", ("0", "must be > 0")),
+    ("export", "--gauge-rate-base", "--gauge-rate-base-m", "3", ("0", "must be > 0")),
+    ("tgms process", "--step", "--step-m", "0.5", ("5.1", "must be <= 5")),
+    ("project new", "--height", "--height-m", "50", ("-1001", "must be >= -1000")),
 ]
 
 
@@ -206,6 +268,7 @@ NUMERIC = [
 def stop_dir(tmp_path):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("not made by trolley\n")
+    (tmp_path / "afile").write_text("a file where a folder is needed\n")
     return tmp_path
 
 
@@ -216,11 +279,34 @@ def run_option(command: str, base: list[str], option: str, value: str):
     return r, " ".join(r.stderr.split())
 
 
-def test_the_table_holds_every_float_option_of_inservice_and_devices():
+def float_options(hidden: bool) -> set[tuple[str, str]]:
+    """(command, option) of every float option of every command of the app (typer's tree; typer
+    gives ``Optional[float]`` and ``float | None`` as float)."""
+    return {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS for p in cmd.params
+            if bool(p.hidden) == hidden and getattr(p, "type_descriptor", None) is not None
+            and p.type_descriptor.annotation is float}
+
+
+def test_the_table_holds_every_float_option_of_every_command():
     """A float option added later without its check_finite would be missing here."""
-    found = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS if path[:1] in (["inservice"], ["devices"])
-             for p in cmd.params if not p.hidden and p.type_descriptor.annotation is float}
-    assert found == {(c, o) for c, o, _, _ in NUMERIC}
+    assert float_options(hidden=False) == {(c, o) for c, o, _, _ in NUMERIC}
+
+
+def test_the_old_names_table_holds_every_hidden_float_option():
+    assert float_options(hidden=True) == {(c, o) for c, o, *_ in OLD_NAMES}
+
+
+@pytest.mark.parametrize("command, old, new, valid, bad", OLD_NAMES, ids=[f"{c} {o}" for c, o, *_ in OLD_NAMES])
+def test_an_old_option_name_gets_the_same_checks_naming_the_old_name(command, old, new, valid, bad, stop_dir):
+    make, code, says = STOP[command]
+    for value in ("nan", "inf", "-inf"):
+        r, err = run_option(command, make(stop_dir), old, value)
+        assert r.exit_code == 2 and err == f"error: {old}: must be a finite number, got {value}", err
+    value, message = bad
+    r, err = run_option(command, make(stop_dir), old, value)
+    assert r.exit_code == 2 and err.startswith(f"error: {old}: {message}, got "), err
+    r, err = run_option(command, make(stop_dir), old, valid)
+    assert r.exit_code == code and says in err, err
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
@@ -247,6 +333,42 @@ def test_a_float_option_out_of_its_range_is_refused_naming_it(command, option, b
     for value, says in bad:
         r, err = run_option(command, STOP[command][0](stop_dir), option, value)
         assert r.exit_code == 2 and err.startswith(f"error: {option}: {says}, got "), (value, err)
+
+
+def test_a_resume_refuses_a_stored_speedup_that_is_not_finite(tmp_path):
+    # a session started with --speedup inf before the option was checked holds inf in its start
+    # event; a resume without --speedup takes it from there
+    from survey.store import ProjectStore, SessionEvent
+
+    assert runner.invoke(app, ["project", "new", "p", "--root", str(tmp_path), "--no-toml"]).exit_code == 0
+    with ProjectStore.open_project(tmp_path, "p") as store:
+        rec = store.create_session("s")
+        store.add_event(rec.session_id, SessionEvent(0.0, "start", json.dumps(
+            {"simulate": True, "speedup": math.inf, "script": None, "devices": None, "out": "sessions/s"})))
+    r = runner.invoke(app, ["survey", "resume", "p", "--root", str(tmp_path), "--session", "s"])
+    assert r.exit_code == 2
+    assert "error: session s: its start event holds --speedup inf, not a finite number > 0" in r.stderr
+    assert "try: give --speedup" in r.stderr
+
+
+@pytest.mark.parametrize("kwargs, value, message", [
+    # %g would print 5.0000001 as 5: "must be <= 5, got 5" contradicts itself
+    ({"maximum": 5.0}, 5.0000001, "--x: must be <= 5, got 5.0000001"),
+    ({"minimum": -85.0}, -85.00001, "--x: must be >= -85, got -85.00001"),
+    ({"minimum": 2.0}, 1.5, "--x: must be >= 2, got 1.5"),
+    ({"positive": True}, 0.0, "--x: must be > 0, got 0"),
+    ({"maximum": 1e7}, 1e12, "--x: must be <= 1e+07, got 1e+12"),
+    ({"maximum": 85.0, "why": "no gyrocompassing near the poles"}, 86.0,
+     "--x: must be <= 85, got 86 (no gyrocompassing near the poles)"),
+    # the reason is for the range: the finite-number message stays the same on every option
+    ({"maximum": 85.0, "why": "no gyrocompassing near the poles"}, math.inf, "--x: must be a finite number, got inf"),
+])
+def test_check_finite_messages(kwargs, value, message):
+    from survey.limits import check_finite
+
+    with pytest.raises(ValueError) as exc:
+        check_finite(value, "--x", **kwargs)
+    assert str(exc.value) == message
 
 
 @pytest.mark.parametrize("option, value, bad", [("--station", "0,0,nan,1.5", "nan"),

@@ -117,7 +117,12 @@ def test_project_set_validates_and_show_lists(tmp_path):
     for key, value, msg in (("bogus", "x", "unknown key 'bogus'; the keys are: line, track"),
                             ("imu_calibrated", "14.03.2026", "not a date as YYYY-MM-DD"),
                             ("rail_temperature_c", "hot", "not a temperature"),
-                            ("rail_temperature_c", "150", "outside -60..90"),
+                            ("rail_temperature_c", "150", "error: rail_temperature_c: must be <= 90, got 150 (°C)"),
+                            ("rail_temperature_c", "-60.5",
+                             "error: rail_temperature_c: must be >= -60, got -60.5 (°C)"),
+                            # the finite-number message of every number on the command line
+                            *(("rail_temperature_c", v, f"error: rail_temperature_c: must be a finite number, got {v}")
+                              for v in ("nan", "inf", "-inf")),
                             ("rail_temperature_c", "1_0", "not a temperature"),
                             ("crew", "a\nb", "control characters")):
         r = runner.invoke(app, ["project", "set", key, value, "--project", "p", "--root", root])

@@ -37,18 +37,6 @@ def _num(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def _check_nonnegative(**values) -> None:
-    for name, x in values.items():
-        if x is not None and (not math.isfinite(x) or x < 0):
-            raise BudgetInputError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {x!r}")
-
-
-def _check_positive(**values) -> None:
-    for name, x in values.items():
-        if not math.isfinite(x) or x <= 0:
-            raise BudgetInputError(f"--{name.replace('_', '-')} must be a finite number > 0, got {x!r}")
-
-
 #: What the budget's error model holds for, per option (datasheet units): the model is linear in
 #: small angles (Jiang 2017 Eq. 6), and far outside these a value overflows or the sigmas turn NaN
 #: or even shrink as an error grows. The gyro and odometer ceilings are at or above the sizing
@@ -66,11 +54,15 @@ MAX_MONTE_CARLO_RUNS = 1_000_000
 
 
 def _check_ranges(**values) -> None:
+    """The shared messages of survey.limits.check_finite (nan, inf, then the range), None = not given."""
+    from survey.limits import check_finite
+
     for name, x in values.items():
         lo, hi = RANGES[name]
-        if x is not None and not lo <= x <= hi:
-            raise BudgetInputError(f"--{name.replace('_', '-')} must lie within {lo:g}..{hi:g} (the range of the "
-                                   f"error model), got {x!r}")
+        try:
+            check_finite(x, f"--{name.replace('_', '-')}", minimum=lo, maximum=hi, why="the range of the error model")
+        except ValueError as exc:
+            raise BudgetInputError(str(exc)) from None
 
 
 def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,
@@ -87,20 +79,18 @@ def sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_d
     from trolley.budget import SensorFigures
     from trolley.sensors import IMU_PRESETS
 
-    _check_nonnegative(gyro_bias_deg_h=gyro_bias_deg_h, gyro_bias_instability_deg_h=gyro_bias_instability_deg_h,
-                       gyro_arw_deg_sqrt_h=gyro_arw_deg_sqrt_h, heading_error_deg=heading_error_deg,
-                       level_error_deg=level_error_deg, odo_scale_noise=odo_scale_noise,
-                       odo_scale_error=odo_scale_error)
-    _check_positive(fix_spacing_m=fix_spacing_m, speed_m_s=speed_m_s, fix_sigma_mm=fix_sigma_mm)
+    from survey.limits import check_finite
+    from trolley.earth import MAX_LATITUDE_DEG
+
     _check_ranges(gyro_bias_deg_h=gyro_bias_deg_h, gyro_bias_instability_deg_h=gyro_bias_instability_deg_h,
                   gyro_arw_deg_sqrt_h=gyro_arw_deg_sqrt_h, heading_error_deg=heading_error_deg,
                   level_error_deg=level_error_deg, odo_scale_noise=odo_scale_noise, odo_scale_error=odo_scale_error,
                   fix_spacing_m=fix_spacing_m, speed_m_s=speed_m_s, fix_sigma_mm=fix_sigma_mm)
-    from trolley.earth import MAX_LATITUDE_DEG
-
-    if not math.isfinite(latitude_deg) or abs(latitude_deg) > MAX_LATITUDE_DEG:
-        raise BudgetInputError(f"--latitude-deg must lie within -{MAX_LATITUDE_DEG:g}..{MAX_LATITUDE_DEG:g} (no "
-                               f"gyrocompassing near the poles), got {latitude_deg!r}")
+    try:
+        check_finite(latitude_deg, "--latitude-deg", minimum=-MAX_LATITUDE_DEG, maximum=MAX_LATITUDE_DEG,
+                     why="no gyrocompassing near the poles")
+    except ValueError as exc:
+        raise BudgetInputError(str(exc)) from None
     if gyro_bias_deg_h is not None and gyro_bias_instability_deg_h is not None:
         raise BudgetInputError("give either --gyro-bias-deg-h (equivalent bias) or "
                                "--gyro-bias-instability-deg-h (datasheet), not both")
@@ -532,7 +522,9 @@ def budget_command(
                                    f"{100 / math.sqrt(2 * MAX_MONTE_CARLO_RUNS):.2f} % sampling error), got {monte_carlo}")
         if seed < 0:
             raise BudgetInputError(f"--seed must be an integer >= 0, got {seed}")
-        _check_positive(target_mm=target_mm)
+        from survey.limits import check_finite
+
+        check_finite(target_mm, "--target-mm", positive=True)
         imu_name, figs = sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,
                                         heading_error_deg, level_error_deg, odo_scale_noise, odo_scale_error,
                                         fix_spacing_m, speed_m_s, fix_sigma_mm, latitude_deg)

@@ -64,7 +64,10 @@ def demo(
     try:
         check_finite(speedup, "--speedup", positive=True)
     except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--speedup") from None
+        from survey.commands.engine import fail
+
+        # one line as on every command (a BadParameter put it under typer's usage text)
+        fail(str(exc))
     if seed is not None and seed < 0:
         raise typer.BadParameter(f"must be an integer >= 0, got {seed}", param_hint="--seed")
     if out is not None and out.exists() and not out.is_dir():

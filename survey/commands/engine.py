@@ -14,7 +14,7 @@ import typer
 from rich.console import Console
 
 from survey.commands.options import Smoother, old_name, renamed
-from survey.limits import check_allocation
+from survey.limits import check_allocation, check_finite
 
 err = Console(stderr=True)
 
@@ -49,7 +49,12 @@ def process(
     step_old: Annotated[Optional[float], typer.Option("--step", hidden=True, help=old_name("--step-m"))] = None,
 ) -> None:
     """Filter and smooth a raw stop-and-go session into track.csv (Jiang 2017)."""
+    step_option = "--step" if step_old is not None else "--step-m"
     step_m = renamed(step_m, step_old, "--step-m", "--step", 0.625)
+    try:
+        check_finite(step_m, step_option, positive=True)
+    except ValueError as exc:
+        fail(str(exc))
     result, session, written = run_process(session_dir, out, smoother, step_m, force_accept=tuple(accept_fix or ()),
                                            observability=observability)
     if json_output:
@@ -90,8 +95,10 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
 
     if smoother not in ("rts", "tfs", "none"):
         fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
-    if not (step > 0 and math.isfinite(step)):
-        fail(f"--step-m must be a positive finite number, not {step}")
+    try:
+        check_finite(step, "--step-m", positive=True)
+    except ValueError as exc:
+        fail(str(exc))
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
     design_notes: list[str] = []

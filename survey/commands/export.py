@@ -71,12 +71,16 @@ def export(
     from survey.track_reader import ExportInputError
     from trolley.tolerances import ToleranceError
 
+    # a bad value is named as it was typed, old name or new
+    typed = {new: old if old_value is not None else new for new, old, old_value in (
+        ("--twist-base-m", "--twist-base", twist_base_old), ("--chord-m", "--chord", chord_old),
+        ("--gauge-rate-base-m", "--gauge-rate-base", gauge_rate_base_old))}
     twist_base_m = renamed(twist_base_m, twist_base_old, "--twist-base-m", "--twist-base")
     chord_m = renamed(chord_m, chord_old, "--chord-m", "--chord")
     gauge_rate_base_m = renamed(gauge_rate_base_m, gauge_rate_base_old, "--gauge-rate-base-m", "--gauge-rate-base")
     console = Console(stderr=True)
-    for option, value in (("--twist-base-m", twist_base_m), ("--chord-m", chord_m),
-                          ("--gauge-rate-base-m", gauge_rate_base_m)):
+    for option, value in ((typed["--twist-base-m"], twist_base_m), (typed["--chord-m"], chord_m),
+                          (typed["--gauge-rate-base-m"], gauge_rate_base_m)):
         try:
             check_finite(value, option, positive=True)
         except ValueError as e:

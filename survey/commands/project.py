@@ -75,19 +75,27 @@ def new(
 
     import numpy as np
 
+    from survey.commands.simulate import SITE_HEIGHT_RANGE_M
     from survey.cpiii import CpiiiError, read_cpiii_file
+    from survey.limits import check_finite
     from survey.names import UnsafeNameError, check_name, inside
     from survey.store import ProjectSettings, ProjectStore, StoreError, alignment_record_from_text, project_path
     from trolley import units
+    from trolley.earth import MAX_LATITUDE_DEG
     from trolley.sensors import IMU_PRESETS
 
+    height_option = "--height" if height_old is not None else "--height-m"   # named as typed
+    height = renamed(height, height_old, "--height-m", "--height")
     try:
         check_name("project name", name)
-    except UnsafeNameError as e:
+        # the options before any file is read: a bad one is named whatever the folder holds
+        check_finite(latitude_deg, "--latitude-deg", minimum=-MAX_LATITUDE_DEG, maximum=MAX_LATITUDE_DEG,
+                     why="no north-seeking alignment near the poles")
+        check_finite(height, height_option, minimum=SITE_HEIGHT_RANGE_M[0], maximum=SITE_HEIGHT_RANGE_M[1])
+    except ValueError as e:       # UnsafeNameError is one
         fail(str(e))
     if Path(root).exists() and not Path(root).is_dir():
         fail(f"--root {root}: is a file, not a folder of projects")
-    height = renamed(height, height_old, "--height-m", "--height")
     tolerance_option = "--tolerance-set" if tolerance_set_old is not None else "--tolerances"
     tolerance_set = renamed(tolerance_set, tolerance_set_old, "--tolerances", "--tolerance-set", "default")
     settings = ProjectSettings()
@@ -125,17 +133,8 @@ def new(
     if imu is not None:
         settings = dataclasses.replace(settings, imu=IMU_PRESETS[imu])
     if latitude_deg is not None:
-        from trolley.earth import MAX_LATITUDE_DEG
-
-        if not -MAX_LATITUDE_DEG <= latitude_deg <= MAX_LATITUDE_DEG:
-            fail(f"--latitude-deg must be within -{MAX_LATITUDE_DEG:g}..{MAX_LATITUDE_DEG:g} (no north-seeking "
-                 f"alignment near the poles), not {latitude_deg}")
         settings = dataclasses.replace(settings, latitude_rad=units.deg_to_rad(latitude_deg))
     if height is not None:
-        from survey.commands.simulate import SITE_HEIGHT_RANGE_M
-
-        if not SITE_HEIGHT_RANGE_M[0] <= height <= SITE_HEIGHT_RANGE_M[1]:      # (nan fails too)
-            fail(f"--height-m must be within {SITE_HEIGHT_RANGE_M[0]:g}..{SITE_HEIGHT_RANGE_M[1]:g} m, not {height}")
         settings = dataclasses.replace(settings, height_m=height)
     from survey.session.interval import tolerance_set as load_tolerance_set
     from trolley.tolerances import ToleranceError

@@ -271,16 +271,15 @@ def register(app: typer.Typer) -> None:
             if value is not None:
                 kwargs[key] = value
         try:
-            for option, value in (("--length-m", length_m), ("--fix-spacing-m", fix_spacing_m),
-                                  ("--rate-hz", rate_hz), ("--truth-step-m", step_m)):
+            check_finite(length_m, "--length-m", minimum=MIN_SIMULATED_LENGTH_M, why="a track between two fixes")
+            for option, value in (("--fix-spacing-m", fix_spacing_m), ("--rate-hz", rate_hz),
+                                  ("--truth-step-m", step_m)):
                 check_finite(value, option, positive=True)
             check_finite(static_s, "--static-s", minimum=0.0)
             if seed is not None and seed < 0:
                 raise ValueError(f"--seed must be an integer >= 0, got {seed}")
-            check_finite(site_east_m, "--site-east-m")
-            if abs(site_east_m) > SITE_EAST_LIMIT_M:
-                # the session's grid coordinates must stay readable by `trolley process` (|E_m| <= 1e8)
-                raise ValueError(f"--site-east-m must be within +-{SITE_EAST_LIMIT_M:g} m, got {site_east_m:g}")
+            check_finite(site_east_m, "--site-east-m", minimum=-SITE_EAST_LIMIT_M, maximum=SITE_EAST_LIMIT_M,
+                         why="the session's grid coordinates must stay readable by `trolley process`")
             for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
                 check_finite(kwargs.get(key), f"{_file_or_option(key)}", positive=True)
             config = SimulationConfig(**kwargs)

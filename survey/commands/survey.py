@@ -6,6 +6,7 @@ naming the file, line or device, plus what to try, with exit code 2.
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -174,11 +175,14 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.session.script import ScriptError, read_script
     from survey.store import SessionEvent, StoreError
 
-    from survey.names import UnsafeNameError, check_name
+    from survey.limits import check_finite
+    from survey.names import check_name
 
     try:
         check_name("--session", session)
-    except UnsafeNameError as exc:
+        # before the store is opened: inf passed `> 0` and the session ran at an unbounded clock
+        check_finite(speedup, "--speedup", positive=True)
+    except ValueError as exc:      # UnsafeNameError is one
         fail(str(exc))
     store = open_store(project, root)
     lock = session_lock(store.path.parent, session)
@@ -216,8 +220,11 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             except ScriptError as exc:
                 fail(str(exc))
         speedup = float(speedup) if speedup is not None else 1.0
-        if not speedup > 0:
-            fail(f"--speedup must be positive, not {speedup}")
+        if not (speedup > 0 and math.isfinite(speedup)):
+            # a resume without --speedup takes the start's, which a version before the check
+            # above may have stored as inf
+            fail(f"session {session}: its start event holds --speedup {speedup}, not a finite number > 0",
+                 "give --speedup")
         out = out if out is not None else store.path.parent / "sessions" / session
         owner = f"survey session {session}"
         if not resume and not out_checked:

@@ -282,9 +282,10 @@ def process_cmd(
     from survey.commands.progress import progress_bar, share
     from trolley.tgms.pipeline import process
 
+    step_option = "--step" if step_old is not None else "--step-m"   # named as typed
     step = renamed(step, step_old, "--step-m", "--step", 0.25)
     try:
-        check_finite(step, "--step-m", minimum=0.01, maximum=5.0)
+        check_finite(step, step_option, minimum=0.01, maximum=5.0)
         bounds = parse_band(band, step)
         check_outputs([], inputs=[folder], folders=[("--out", out)])
     except ValueError as exc:
