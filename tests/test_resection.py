@@ -20,6 +20,7 @@ from trolley.resection import (
     resect,
     setup_covariance_at,
     suggest_point_to_drop,
+    variance_factor,
 )
 
 STATION = np.array([500123.456, 3100456.789, 45.678])
@@ -298,3 +299,64 @@ def test_setup_covariance_matches_a_monte_carlo_of_resected_fixes(model):
     # at 250 m the orientation's part dominates across the sight: more than the station's own sigma
     across = np.array([np.cos(heading), -np.sin(heading), 0.0])
     assert np.sqrt(across @ cov @ across) > 1.5 * np.sqrt(across @ res.covariance[:3, :3] @ across)
+
+
+def test_variance_factor_by_hand():
+    # sigma0 above 1 scales the a priori covariance by sigma0^2; at or below 1, or without redundancy, not
+    assert variance_factor(1.5, 20) == pytest.approx(2.25, rel=1e-15)
+    assert variance_factor(3.0, 5) == pytest.approx(9.0, rel=1e-15)
+    assert variance_factor(1.0, 20) == 1.0 and variance_factor(0.6, 20) == 1.0
+    assert variance_factor(float("nan"), 0) == 1.0 and variance_factor(2.0, 0) == 1.0
+
+
+def _expected_nees_scaled(ratio: float, dof: int) -> tuple[float, float]:
+    """Mean and variance of e' (f C)^-1 e with f = max(1, sigma0^2) when the noise is ``ratio`` times the
+    a priori: e' C^-1 e = ratio^2 chi2(4) and sigma0^2 = ratio^2 chi2(dof) / dof, independent in least
+    squares, so E = 4 ratio^2 E[g] and E[.^2] = 24 ratio^4 E[g^2], g = min(1, dof / (ratio^2 X))."""
+    from scipy import integrate
+
+    def moment(p):
+        return integrate.quad(lambda x: min(1.0, dof / (ratio**2 * x)) ** p * stats.chi2.pdf(x, dof), 0, np.inf,
+                              limit=200)[0]
+
+    mean = 4 * ratio**2 * moment(1)
+    return mean, 24 * ratio**4 * moment(2) - mean**2
+
+
+@pytest.mark.parametrize("ratio", [1.0, 2.0])
+def test_setup_covariance_scaled_by_sigma0_is_honest_when_the_instrument_is_noisier(ratio):
+    # 2000 resections on 8 CPIII with the readings' noise `ratio` times the a priori sigmas: at 2x the
+    # a priori covariance is 2x too small in sigma (e' C^-1 e averages 16, not 4), the one scaled by
+    # sigma0^2 follows the analytic law (Student-t: 4 dof / (dof - 2)); at 1x the scaling costs little
+    rng = np.random.default_rng(31)
+    sig = InstrumentSigmas()
+    noise = InstrumentSigmas(ratio * sig.direction_rad, ratio * sig.zenith_rad, ratio * sig.distance_m,
+                             ratio * sig.distance_scale)
+    ids, pts = cpiii_layout()
+    exact = observations_from_station(STATION, ORIENTATION, pts)
+    n = 2000
+    err, var_ap, var_sc, nees_ap, nees_sc = [], [], [], [], []
+    for _ in range(n):
+        res = resect(ids, pts, noisy(exact, noise, rng))
+        e = np.r_[res.station_enh_m - STATION, (res.orientation_rad - ORIENTATION + np.pi) % (2 * np.pi) - np.pi]
+        err.append(e)
+        var_ap.append(np.diag(res.covariance))
+        var_sc.append(np.diag(res.setup_covariance))
+        nees_ap.append(e @ np.linalg.solve(res.covariance, e))
+        nees_sc.append(e @ np.linalg.solve(res.setup_covariance, e))
+    dof = res.dof
+    assert dof == 20
+    err, var_ap, var_sc = map(np.array, (err, var_ap, var_sc))
+    # per component, RMS error against the RMS sigma: 1 for an honest covariance
+    honest = np.sqrt(np.mean(err**2, axis=0) / np.mean(var_sc, axis=0))
+    plain = np.sqrt(np.mean(err**2, axis=0) / np.mean(var_ap, axis=0))
+    if ratio == 2.0:
+        assert np.all(np.abs(honest - 1.0) < 0.07), honest
+        assert np.all(np.abs(plain - 2.0) < 0.14), plain  # the a priori covariance: half the true sigma
+    else:
+        assert np.all((honest > 0.90) & (honest < 1.02)), honest  # a little conservative, never optimistic
+        assert np.all(np.abs(plain - 1.0) < 0.07), plain
+    # the whole covariance against the analytic mean of e' (f C)^-1 e
+    mean, var = _expected_nees_scaled(ratio, dof)
+    assert abs(np.mean(nees_sc) - mean) < 4 * np.sqrt(var / n), (np.mean(nees_sc), mean)
+    assert abs(np.mean(nees_ap) - 4 * ratio**2) < 4 * np.sqrt(8 * ratio**4 / n)

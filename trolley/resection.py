@@ -197,6 +197,12 @@ class Resection:
         return self.covariance * (self.sigma0**2 if self.dof > 0 else 1.0)
 
     @property
+    def setup_covariance(self) -> np.ndarray:
+        """The covariance of (E, N, H, orientation) to carry to the points measured from this setup:
+        the a priori one scaled by :func:`variance_factor` (sigma0^2 when sigma0 > 1)."""
+        return self.covariance * variance_factor(self.sigma0, self.dof)
+
+    @property
     def station_sigma_m(self) -> np.ndarray:
         """(3,) a priori 1-sigma of E, N, H."""
         return np.sqrt(np.diag(self.covariance)[:3])
@@ -237,6 +243,27 @@ class OverlapCheck:
     def difference_enh_mm(self) -> np.ndarray:
         """The difference in mm (for display)."""
         return units.m_to_mm(self.difference_enh_m)
+
+
+def variance_factor(sigma0: float, dof: int) -> float:
+    """The factor the a priori covariance of a resection is scaled by before it is used: sigma0^2
+    when sigma0 > 1, else 1 (also without redundancy, dof <= 0, or a sigma0 that is not finite).
+
+    A sigma0 above 1 says the observations scatter more than the a priori sigmas allow (a noisier
+    instrument, CPIII coordinates off by their own network errors, a centring error): the a priori
+    covariance is then too small by sigma0^2, and the a posteriori one, sigma0^2 Q, is used
+    (Ghilani 2017, ch. 5 and 16). The global test of the variance factor (dof sigma0^2 against
+    chi-square on the redundancy) does not decide here: with 8 points (dof 20) it misses about half
+    of the setups whose noise is 1.3 times the a priori and keeps their covariance too small, while
+    scaling whenever sigma0 > 1 stays close to honest from 1.3 times up and costs a few per cent of
+    conservatism when the a priori sigmas are right (docs/field_session.md, "sigma0";
+    benchmarks/fix_sigma/sigma0_policy.py). A sigma0 below 1 does not shrink the covariance: the a
+    priori sigmas are the instrument's stated accuracy, which a few dozen residuals do not overrule.
+    """
+    s0 = float(sigma0)
+    if dof <= 0 or not np.isfinite(s0):
+        return 1.0
+    return max(1.0, s0 * s0)
 
 
 def wrap_to_pi(angle_rad: np.ndarray) -> np.ndarray:
