@@ -13,6 +13,7 @@ from trolley.resection import (
     PolarObservations,
     ResectionConfig,
     ResectionError,
+    fix_covariance,
     observation_jacobian,
     observations_from_station,
     overlap_check,
@@ -360,3 +361,14 @@ def test_setup_covariance_scaled_by_sigma0_is_honest_when_the_instrument_is_nois
     mean, var = _expected_nees_scaled(ratio, dof)
     assert abs(np.mean(nees_sc) - mean) < 4 * np.sqrt(var / n), (np.mean(nees_sc), mean)
     assert abs(np.mean(nees_ap) - 4 * ratio**2) < 4 * np.sqrt(8 * ratio**4 / n)
+
+
+def test_fix_covariance_by_hand():
+    # 0.6 mm of measurement per axis and 1" of orientation: a fix 200 m due north of the station has
+    # E sigma sqrt(0.6^2 + (200 m x 1")^2) = sqrt(0.36 + 0.9402) mm, N and H 0.6 mm
+    so = np.deg2rad(1.0 / 3600.0)
+    st_ = np.array([10.0, 20.0, 5.0])
+    cov = fix_covariance(0.0006, np.diag([0.0, 0.0, 0.0, so**2]), st_, st_ + [0.0, 200.0, 1.0])
+    assert cov.shape == (1, 3, 3)
+    np.testing.assert_allclose(cov[0], np.diag([0.0006**2 + (200 * so) ** 2, 0.0006**2, 0.0006**2]), rtol=1e-12)
+    assert np.sqrt(cov[0, 0, 0]) * 1e3 == pytest.approx(np.sqrt(0.36 + 0.94017), rel=1e-4)

@@ -528,6 +528,29 @@ def setup_covariance_at(setup_covariance: np.ndarray, station_enh_m: np.ndarray,
     return jac @ c @ np.swapaxes(jac, 1, 2)
 
 
+def fix_covariance(measurement_sigma_m: float, setup_covariance: np.ndarray, station_enh_m: np.ndarray,
+                   points_enh_m: np.ndarray) -> np.ndarray:
+    """Covariance of the grid E, N, H of prism fixes measured from a station setup: the measurement's
+    own sigma per axis plus the setup's error carried to each fix (:func:`setup_covariance_at`). The
+    two are independent: the setup's error comes from its CPIII pointings, the measurement's from the
+    pointing at the prism.
+
+    Parameters
+    ----------
+    measurement_sigma_m : 1-sigma of one prism measurement per axis (the project's ``fix_sigma_m``).
+    setup_covariance : (4, 4) covariance of E, N, H, orientation of the setup
+        (``Resection.setup_covariance``: scaled by sigma0^2 when sigma0 > 1).
+    station_enh_m : (3,) the station the instrument was given.
+    points_enh_m : (3,) or (n, 3) the fixes, grid E, N, H.
+
+    Returns
+    -------
+    (n, 3, 3) covariance per fix, m^2.
+    """
+    return float(measurement_sigma_m) ** 2 * np.eye(3) + setup_covariance_at(setup_covariance, station_enh_m,
+                                                                               points_enh_m)
+
+
 def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarray,
                   tolerance_m: float = 0.002) -> OverlapCheck:
     """Compare a point measured from two station setups.

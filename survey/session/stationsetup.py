@@ -32,7 +32,13 @@ class StationSetupSteps:
             self.setup_id = setups[-1].setup_id
             if self.world is not None:
                 self._restore_simulated_instrument()
-            self._give_station(setups[-1].station_enh_m, setups[-1].orientation_rad, setups[-1].covariance)
+            from trolley.resection import variance_factor
+
+            last = setups[-1]
+            # scaled as when it was accepted (Resection.setup_covariance), so the fixes after a resume
+            # carry the sigmas they would have had without the interruption
+            self._give_station(last.station_enh_m, last.orientation_rad,
+                               last.covariance * variance_factor(last.sigma0, last.dof))
             self.say(f"station setup {self.setup_id} restored from the store")
             return
         with self.crew_busy():
@@ -53,7 +59,7 @@ class StationSetupSteps:
     def new_station(self, title: str) -> None:
         """Measure the nearest CPIII points, resect, let the crew decide, store, give the station."""
         from survey.commands.project import resection_table
-        from trolley.resection import ResectionError, resect, suggest_point_to_drop
+        from trolley.resection import ResectionError, resect, suggest_point_to_drop, variance_factor
 
         self.screen.phase = "station setup"
         points = self._setup_points()
@@ -113,8 +119,13 @@ class StationSetupSteps:
             self.world.quiet_instrument()  # the setup pointings were noisy; fixes get their own noise
         setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
         self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
-        self._give_station(res.station_enh_m, res.orientation_rad, res.covariance)
+        self._give_station(res.station_enh_m, res.orientation_rad, res.setup_covariance)
         self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
+        factor = variance_factor(res.sigma0, res.dof)
+        if factor > 1.0:
+            # the crew should know the setup is weaker than the instrument's sigmas promise
+            self.say(f"sigma0 above 1: the setup's covariance is scaled by sigma0^2 = {factor:.2f} in the sigma of "
+                     "every fix from this station")
 
     def _setup_points(self):
         pts = self.store.cpiii_points()
@@ -219,24 +230,24 @@ class StationSetupSteps:
         """1-sigma of grid E, N, H of a prism fix at ``enh_m`` measured from the current setup.
 
         The measurement's own sigma (the session's ``fix_sigma_m`` per axis) and the setup's error
-        carried to the fix (:func:`trolley.resection.setup_covariance_at`: station position and
+        carried to the fix (:func:`trolley.resection.fix_covariance`: station position and
         orientation with their correlations, the orientation's part growing with the distance to
-        the instrument), added in quadrature per axis. The E-N covariance of the setup part is not
+        the instrument; the setup's covariance scaled by sigma0^2 when sigma0 > 1), added in
+        quadrature per axis. The E-N covariance of the setup part is not
         kept: fixes.csv has sigmas only (FORMATS.md section 1); on the demo the lateral error/sigma
         is the same with it (docs/field_session.md, "The fix sigma and the station setup").
 
         All fixes of one setup share its error, and the engine takes fixes as independent: these
         sigmas make each fix honest on its own, not the average of several fixes of one setup.
         """
-        from trolley.resection import setup_covariance_at
+        from trolley.resection import fix_covariance
 
         s = float(self.rec.meta.fix_sigma_m)
         cov = getattr(self, "_setup_covariance", None)
         station = getattr(self, "_station_enh_m", None)
         if cov is None or station is None:
             return s, s, s
-        var = np.diag(setup_covariance_at(cov, station, np.asarray(enh_m, dtype=float))[0])
-        e, n, h = np.sqrt(s * s + var)
+        e, n, h = np.sqrt(np.diag(fix_covariance(s, cov, station, np.asarray(enh_m, dtype=float))[0]))
         return float(e), float(n), float(h)
 
     def _give_station(self, station_enh_m, orientation_rad: float, covariance=None) -> None:
