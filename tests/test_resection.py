@@ -372,3 +372,65 @@ def test_fix_covariance_by_hand():
     assert cov.shape == (1, 3, 3)
     np.testing.assert_allclose(cov[0], np.diag([0.0006**2 + (200 * so) ** 2, 0.0006**2, 0.0006**2]), rtol=1e-12)
     assert np.sqrt(cov[0, 0, 0]) * 1e3 == pytest.approx(np.sqrt(0.36 + 0.94017), rel=1e-4)
+
+
+def test_overlap_check_sigma_by_hand():
+    # the demo's FIX013: E -0.28, N -1.07, H +2.19 mm; two positions of 0.6 mm per axis each: the
+    # difference has sigma sqrt(0.36 + 0.36) = 0.8485 mm per axis, H is 2.58 sigma: outside the
+    # 2 mm tolerance, within 3 sigma
+    c = np.eye(3) * 0.0006**2
+    chk = overlap_check("FIX012", [0.0, 0.0, 0.0], [-0.00028, -0.00107, 0.00219], 0.002, c, c)
+    np.testing.assert_allclose(chk.sigma_enh_m, np.full(3, np.sqrt(0.72) * 1e-3), rtol=1e-12)
+    np.testing.assert_allclose(chk.normalized, np.array([0.28, 1.07, 2.19]) / np.sqrt(0.72), rtol=1e-9)
+    assert not chk.within_tolerance and chk.consistent is True
+    assert chk.max_normalized == pytest.approx(2.19 / np.sqrt(0.72), rel=1e-9)
+    # 2.6 mm is 3.06 sigma: more than the setups explain
+    far = overlap_check("p", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0026], 0.002, c, c)
+    assert far.consistent is False and far.max_normalized == pytest.approx(2.6 / np.sqrt(0.72), rel=1e-9)
+    # the setup parts add: a first position with 1 mm in E from its setup
+    c1 = c + np.diag([1e-6, 0.0, 0.0])
+    assert overlap_check("p", np.zeros(3), np.zeros(3), 0.002, c1, c).sigma_enh_m[0] == pytest.approx(
+        np.sqrt(1.72) * 1e-3, rel=1e-12)
+    # without covariances: no sigma, no statistical verdict
+    plain = overlap_check("p", np.zeros(3), [0.0, 0.0, 0.0025])
+    assert np.all(np.isnan(plain.sigma_enh_m)) and plain.consistent is None and not plain.within_tolerance
+    with pytest.raises(ValueError, match="both positions or of neither"):
+        overlap_check("p", np.zeros(3), np.zeros(3), 0.002, c, None)
+
+
+def test_overlap_sigma_matches_a_monte_carlo_of_two_resected_stations():
+    # a prism 50 m from one free station and 90 m from the next, each on 8 noisy CPIII pointings, each
+    # position with 0.2 mm of its own measurement noise (small, so that the setups' part shows): the
+    # difference over 2000 trials follows the sigma overlap_check reports (chi-square bounds per axis),
+    # its whole covariance (e' C^-1 e averages 3), and |d| > 2 sigma on an axis 4.55 % of the time
+    rng = np.random.default_rng(12)
+    sig = InstrumentSigmas()
+    prism = STATION + [40.0, 30.0, 0.6]
+    bases = [STATION, STATION + [120 * np.sin(0.61), 120 * np.cos(0.61), 0.5]]
+    layouts = [cpiii_layout(station=b) for b in bases]
+    exact = [observations_from_station(b, 0.7 * k, layouts[k][1]) for k, b in enumerate(bases)]
+    prism_obs = [observations_from_station(b, 0.7 * k, prism) for k, b in enumerate(bases)]
+    s = 0.0002
+    n = 2000
+    z, maha = [], []
+    for _ in range(n):
+        pos, cov = [], []
+        for k in range(2):
+            res = resect(layouts[k][0], layouts[k][1], noisy(exact[k], sig, rng))
+            p = point_from_observation(res.station_enh_m, res.orientation_rad, prism_obs[k])[0]
+            pos.append(p + rng.normal(0.0, s, 3))
+            cov.append(fix_covariance(s, res.covariance, res.station_enh_m, p)[0])
+        chk = overlap_check("prism", pos[0], pos[1], 0.002, cov[0], cov[1])
+        z.append(chk.difference_enh_m / chk.sigma_enh_m)
+        maha.append(chk.difference_enh_m @ np.linalg.solve(cov[0] + cov[1], chk.difference_enh_m))
+    z = np.array(z)
+    lo, hi = np.sqrt(stats.chi2.ppf([0.0005, 0.9995], n) / n)
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((rms > lo) & (rms < hi)), rms
+    assert stats.chi2.ppf(0.0005, 3 * n) / n < np.mean(maha) < stats.chi2.ppf(0.9995, 3 * n) / n
+    p2 = 2 * stats.norm.sf(2.0)
+    k_lo, k_hi = stats.binom.ppf([0.0005, 0.9995], n, p2)
+    for j in range(3):
+        assert k_lo <= np.sum(np.abs(z[:, j]) > 2.0) <= k_hi
+    # the setups' part is not negligible in E and N: the measurements alone would claim 0.28 mm
+    assert np.all(chk.sigma_enh_m[:2] > 1.15 * np.sqrt(2) * s), chk.sigma_enh_m
