@@ -35,8 +35,9 @@ def overlap_kept(oc) -> bool:
     Only a difference both outside the project's tolerance and beyond ``oc.sigma_limit`` sigmas is
     refused: then it is more than the two setups and measurements explain, one of them is wrong, and
     the filter must not average the two positions. A difference outside the tolerance but within
-    the sigmas is a correct measurement (6.4 % of correct overlaps on the demo exceed 2 mm on some
-    axis): refusing the fix would not bring the setups within the tolerance, because every later fix
+    the sigmas is a correct measurement (6.16 % of correct overlaps on the demo exceed 2 mm on some
+    axis, benchmarks/fix_sigma/overlap_false_alarms.py): refusing the fix would not bring the setups
+    within the tolerance, because every later fix
     from the new setup carries the same setup error into the track; it would only take away the one
     fix that ties the two setups together. The tolerance verdict stays in the record and on the
     sheet (OUTSIDE, red) for the client, as the systems we know report their tolerance checks and use
