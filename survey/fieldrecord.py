@@ -7,10 +7,11 @@ record of them is written next to ``track.csv`` as ``field_record.json``
 (:func:`write_field_record`; FORMATS.md section 2, "field_record.json"); ``trolley export`` reads
 it when present (:func:`read_field_record`).
 
-Nothing is recomputed except the overlap checks' differences, which the session computed from
-the same two stored fixes (``trolley.resection.overlap_check``: new minus old station) and did not
-keep apart from the fix's reason; :func:`overlap_checks` pairs each overlap fix with the fix
-taken just before it from the previous station, exactly as the session did.
+Nothing is recomputed except the overlap checks' differences and their sigmas, which the session
+computed from the same two stored fixes (``trolley.resection.overlap_check``: new minus old station,
+each fix's stored sigma holding its measurement and its setup) and did not keep apart from the
+fix's reason; :func:`overlap_checks` pairs each overlap fix with the fix taken just before it from
+the previous station, exactly as the session did.
 
 No paper section: record keeping (DESIGN.md, "nothing lost").
 """
@@ -20,6 +21,8 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from survey.track_reader import ExportInputError
 
@@ -43,6 +46,9 @@ class RecordFix:
     station: int
     accepted: bool
     reason: str
+    sigma_E_m: float = math.nan  # as stored: the measurement and the setup carried to the fix
+    sigma_N_m: float = math.nan
+    sigma_H_m: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -81,7 +87,12 @@ class RecordSetup:
 
 @dataclass(frozen=True)
 class RecordOverlap:
-    """An overlap check: the trolley prism at one stop measured from the old and the new station."""
+    """An overlap check: the trolley prism at one stop measured from the old and the new station.
+
+    ``sigma_dE_m`` .. ``sigma_dH_m`` are the 1-sigma of the difference per axis (both fixes'
+    measurements and setups), ``max_d_over_sigma`` the largest |difference| / sigma, ``consistent``
+    whether that is within ``sigma_limit`` (None, and NaN sigmas, for fixes stored without sigmas).
+    """
 
     t_s: float
     old_point: str
@@ -95,6 +106,12 @@ class RecordOverlap:
     within: bool
     accepted: bool
     reason: str
+    sigma_dE_m: float = math.nan
+    sigma_dN_m: float = math.nan
+    sigma_dH_m: float = math.nan
+    max_d_over_sigma: float = math.nan
+    sigma_limit: float = math.nan
+    consistent: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -151,10 +168,16 @@ def overlap_checks(fixes: list[RecordFix], tolerance_m: float) -> list[RecordOve
         old = next((g for g in reversed(before) if g.accepted), before[-1] if before else None)
         if old is None:
             continue
-        oc = overlap_check(old.point, [old.E_m, old.N_m, old.H_m], [f.E_m, f.N_m, f.H_m], tolerance_m)
-        d = oc.difference_enh_m
+        s_old = np.array([old.sigma_E_m, old.sigma_N_m, old.sigma_H_m])
+        s_new = np.array([f.sigma_E_m, f.sigma_N_m, f.sigma_H_m])
+        covs = ((np.diag(s_old**2), np.diag(s_new**2)) if np.all(np.isfinite(s_old)) and np.all(np.isfinite(s_new))
+                else (None, None))
+        oc = overlap_check(old.point, [old.E_m, old.N_m, old.H_m], [f.E_m, f.N_m, f.H_m], tolerance_m, *covs)
+        d, sd = oc.difference_enh_m, oc.sigma_enh_m
         out.append(RecordOverlap(f.t_s, old.point, f.point, old.station, f.station, float(d[0]), float(d[1]),
-                                 float(d[2]), tolerance_m, oc.within_tolerance, f.accepted, f.reason))
+                                 float(d[2]), tolerance_m, oc.within_tolerance, f.accepted, f.reason,
+                                 float(sd[0]), float(sd[1]), float(sd[2]), oc.max_normalized,
+                                 oc.sigma_limit if oc.consistent is not None else math.nan, oc.consistent))
     return out
 
 
@@ -165,7 +188,8 @@ def field_record(store, session_name: str) -> FieldRecord:
     setups = store.station_setups(sid)
     number = {s.setup_id: k for k, s in enumerate(setups, start=1)}
     fixes = [RecordFix(float(f.t_s), f.point, float(f.e_m), float(f.n_m), float(f.h_m),
-                       number.get(f.setup_id, 0), bool(f.accepted), f.reason) for f in store.fixes(sid)]
+                       number.get(f.setup_id, 0), bool(f.accepted), f.reason, float(f.sigma_e_m),
+                       float(f.sigma_n_m), float(f.sigma_h_m)) for f in store.fixes(sid)]
     out_setups = []
     for k, s in enumerate(setups, start=1):
         pts = tuple(RecordPointing(o.point_id, o.used, o.across_m, o.along_m, o.height_m, o.residual_hz_rad,
@@ -260,8 +284,10 @@ def read_field_record(path: Path) -> FieldRecord:
         return out
 
     def fix(d) -> RecordFix:
+        # (older records: no sigmas)
         return RecordFix(num(d["t_s"]), str(d["point"]), num(d["E_m"]), num(d["N_m"]), num(d["H_m"]),
-                         int(d["station"]), bool(d["accepted"]), str(d["reason"]))
+                         int(d["station"]), bool(d["accepted"]), str(d["reason"]),
+                         *(num(d.get(k)) for k in ("sigma_E_m", "sigma_N_m", "sigma_H_m")))
 
     def pointing(d) -> RecordPointing:
         return RecordPointing(str(d["point"]), bool(d["used"]), *(num(d[k]) for k in (
@@ -274,9 +300,13 @@ def read_field_record(path: Path) -> FieldRecord:
                            tuple(str(x) for x in d["excluded"]), tuple(pointing(p) for p in d["pointings"]))
 
     def overlap(d) -> RecordOverlap:
+        consistent = d.get("consistent")  # (older records: no sigmas)
         return RecordOverlap(num(d["t_s"]), str(d["old_point"]), str(d["new_point"]), int(d["from_station"]),
                              int(d["to_station"]), num(d["dE_m"]), num(d["dN_m"]), num(d["dH_m"]),
-                             num(d["tolerance_m"]), bool(d["within"]), bool(d["accepted"]), str(d["reason"]))
+                             num(d["tolerance_m"]), bool(d["within"]), bool(d["accepted"]), str(d["reason"]),
+                             *(num(d.get(k)) for k in ("sigma_dE_m", "sigma_dN_m", "sigma_dH_m", "max_d_over_sigma",
+                                                       "sigma_limit")),
+                             None if consistent is None else bool(consistent))
 
     def stop(d) -> RecordStop:
         return RecordStop(num(d["t_start_s"]), num(d["t_end_s"]), str(d["label"]), num(d["chainage_m"]))

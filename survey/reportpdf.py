@@ -146,8 +146,11 @@ def _summary(fig, rep: SurveyReport) -> None:
     ]
     if rec is not None:
         bad = [o.new_point for o in rec.overlaps if not o.within]
+        held = [o for o in rec.overlaps if not o.within and o.consistent]
         lines.append(f"Station setups: {len(rec.setups)}; overlap checks: {len(rec.overlaps)}, "
-                     f"{len(bad)} outside the tolerance" + (f" ({', '.join(bad)})" if bad else ""))
+                     f"{len(bad)} outside the tolerance" + (f" ({', '.join(bad)})" if bad else "")
+                     + (f", of them within {held[0].sigma_limit:g} sigma of the setups' own uncertainty: "
+                        f"{', '.join(o.new_point for o in held)}" if held else ""))
     lines.append(f"Defects: {len(rep.defects)} against {rep.tolerances.name}")
     for i, t in enumerate(lines):
         fig.text(0.05, 0.92 - 0.03 * i, t, fontsize=9)
@@ -229,10 +232,10 @@ def _quality(fig, rep: SurveyReport) -> None:
 #: column headings of the free-station QA sections (each section has its own)
 QA_POINT_HEADS = ["Point", "Used", "Across [mm]", "Along [mm]", "Height [mm]", 'Hz ["]', 'Zenith ["]', "Dist [mm]",
                   "|w| max", "Reason"]
-QA_OVERLAP_HEADS = ["Old / new fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "", "",
+QA_OVERLAP_HEADS = ["Old / new fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "Sigma E/N/H", "|d|/sigma",
                     "Tol./axis [mm]", "Verdict", "Reason"]
 QA_FIX_HEADS = ["Point", "Time [s]", "", "", "", "", "", "", "", "Reason"]
-QA_WIDTHS = [0.13, 0.07, 0.07, 0.07, 0.07, 0.07, 0.06, 0.06, 0.08, 0.32]
+QA_WIDTHS = [0.11, 0.06, 0.07, 0.07, 0.07, 0.10, 0.06, 0.06, 0.07, 0.33]
 
 
 def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
@@ -258,12 +261,15 @@ def _qa_rows(rep: SurveyReport) -> list[tuple[str, list[str], bool]]:
                                   _fmt(p.height_m * 1e3), _fmt(p.hz_rad / arcsec, 1), _fmt(p.zenith_rad / arcsec, 1),
                                   _fmt(p.distance_m * 1e3), _fmt(p.max_standardized, 1),
                                   p.reason if (p.flagged or not p.used) else "ok"], p.flagged or not p.used))
-    out.append(("title", ["Overlap checks: the same CPIII point fixed from two stations; new minus old position "
-                          "in grid E, N and height, each within the tolerance"], False))
+    out.append(("title", ["Overlap checks: one stop fixed from two stations, new minus old per axis; tolerance, "
+                          "and sigma of the difference from both setups"], False))
     out.append(("head", QA_OVERLAP_HEADS, False))
     for o in rec.overlaps:
         out.append(("point", [f"{o.old_point} / {o.new_point}", f"{o.from_station}->{o.to_station}",
-                              _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3), "", "",
+                              _fmt(o.dE_m * 1e3), _fmt(o.dN_m * 1e3), _fmt(o.dH_m * 1e3),
+                              "/".join(_fmt(x * 1e3) for x in (o.sigma_dE_m, o.sigma_dN_m, o.sigma_dH_m))
+                              if math.isfinite(o.sigma_dE_m) else "",
+                              _fmt(o.max_d_over_sigma),
                               _fmt(o.tolerance_m * 1e3), "within" if o.within else "OUTSIDE", o.reason], not o.within))
     out.append(("title", ["Fixes rejected or undone"], False))
     out.append(("head", QA_FIX_HEADS, False))

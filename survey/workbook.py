@@ -141,8 +141,11 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
        if info.fixes_rejected is not None or rep.record is not None else NOT_GIVEN)
     if rep.record is not None:
         bad = [o for o in rep.record.overlaps if not o.within]
+        held = [o.new_point for o in bad if o.consistent]
         kv("Overlap checks", f"{len(rep.record.overlaps)} ({len(bad)} outside the tolerance"
-                             + (": " + ", ".join(o.new_point for o in bad) if bad else "") + "); see Free stations")
+                             + (": " + ", ".join(o.new_point for o in bad) if bad else "") + ")"
+                             + (f"; within {bad[0].sigma_limit:g} sigma of the setups' own uncertainty: "
+                                f"{', '.join(held)}" if held else "") + "; see Free stations")
     kv("RMS innovation [mm]", info.rms_innovation_mm, "0.00")
     kv("Max position sigma [mm]", info.max_sigma_mm, "0.00")
     if not info.present:
@@ -484,10 +487,14 @@ def _stations_sheet(ws, rep: SurveyReport) -> None:
             r += 1
         r += 1
     put_text(ws, r, 1, "Overlap checks: the trolley prism at one stop measured from the old and the new station "
-                       "(new minus old)").font = bold
+                       "(new minus old); the tolerance is the project's, the sigma of the difference what the two "
+                       "setups and measurements can hold").font = bold
     r += 1
     _header(ws, r, ["Old fix", "New fix", "Stations", "dE [mm]", "dN [mm]", "dH [mm]", "Tolerance [mm]",
-                    "Verdict", "Accepted", "Reason"])
+                    "Verdict", "Accepted", "Reason", "Sigma dE [mm]", "Sigma dN [mm]", "Sigma dH [mm]",
+                    "Max |d| / sigma", "Against the sigma"])
+    for j in range(11, 16):
+        ws.column_dimensions[_col_letter(j)].width = 14
     r += 1
     if not rec.overlaps:
         put_text(ws, r, 1, "no station change with an overlap check")
@@ -500,8 +507,13 @@ def _stations_sheet(ws, rep: SurveyReport) -> None:
         put_text(ws, r, 8, "within" if o.within else "OUTSIDE")
         put_text(ws, r, 9, "yes" if o.accepted else "no")
         put_text(ws, r, 10, o.reason)
+        for j, v in enumerate((o.sigma_dE_m, o.sigma_dN_m, o.sigma_dH_m), start=11):
+            _num(ws, r, j, v * 1e3, "0.00")
+        _num(ws, r, 14, o.max_d_over_sigma, "0.00")
+        put_text(ws, r, 15, "not known" if o.consistent is None else
+                 f"{'within' if o.consistent else 'BEYOND'} {o.sigma_limit:g} sigma")
         if not o.within:
-            for j in range(1, 11):
+            for j in range(1, 16):
                 ws.cell(row=r, column=j).fill = red
         r += 1
 

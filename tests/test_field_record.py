@@ -56,6 +56,11 @@ def test_field_record_round_trip_and_overlap_difference(tmp_path):
     (o,) = rec.overlaps
     assert (o.old_point, o.new_point, o.from_station, o.to_station) == ("FIX002", "FIX003", 1, 2)
     assert (o.dE_m, o.dN_m, o.dH_m) == pytest.approx((0.0005, 0.0, 0.003), abs=1e-9) and not o.within
+    # the difference's sigma from the two fixes' stored sigmas (0.6 mm each): sqrt(0.72) = 0.849 mm per
+    # axis, and 3 mm in H is 3.54 of them: beyond 3 sigma
+    assert (o.sigma_dE_m, o.sigma_dN_m, o.sigma_dH_m) == pytest.approx((np.sqrt(0.72e-6),) * 3, rel=1e-12)
+    assert o.max_d_over_sigma == pytest.approx(3.0 / np.sqrt(0.72), rel=1e-6)
+    assert o.consistent is False and o.sigma_limit == 3.0
     assert [s.excluded for s in rec.setups] == [(), ("CP9",)] and rec.header["line"] == "4711 Hannover-Würzburg"
     assert rec.start_utc <= rec.end_utc and rec.start_utc
     path = write_field_record(tmp_path, rec)
@@ -65,6 +70,34 @@ def test_field_record_round_trip_and_overlap_difference(tmp_path):
     doc = json.loads(path.read_text(encoding="utf-8"))
     assert doc["format"] == "trolley-field-record/1"
     assert doc["setups"][1]["pointings"][2]["across_m"] is None     # NaN written as null, valid JSON
+    assert doc["overlaps"][0]["consistent"] is False and doc["fixes"][0]["sigma_H_m"] == 6e-4
+    # a record written before the sigmas were kept still reads: no sigma, no statistical verdict
+    for f in doc["fixes"]:
+        for k in ("sigma_E_m", "sigma_N_m", "sigma_H_m"):
+            del f[k]
+    for k in ("sigma_dE_m", "sigma_dN_m", "sigma_dH_m", "max_d_over_sigma", "sigma_limit", "consistent"):
+        del doc["overlaps"][0][k]
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    old = read_field_record(path)
+    assert np.isnan(old.fixes[0].sigma_H_m) and old.overlaps[0].consistent is None
+    assert np.isnan(old.overlaps[0].sigma_dH_m) and old.overlaps[0].dH_m == pytest.approx(0.003, abs=1e-9)
+
+
+def test_overlap_checks_from_the_fixes_sigmas():
+    # 0.8 mm per axis on both fixes: the difference has sigma 1.131 mm, and H +2.19 mm is 1.94 of them:
+    # outside the 2 mm tolerance, within 3 sigma; fixes stored without sigmas give no statistical verdict
+    from survey.fieldrecord import RecordFix, overlap_checks
+
+    s = (8e-4,) * 3
+    fixes = [RecordFix(1.0, "FIX001", 10.0, 20.0, 30.0, 1, True, "accepted", *s),
+             RecordFix(2.0, "FIX002", 10.0, 20.0, 30.00219, 2, True, "overlap check from station 2: accepted", *s)]
+    (o,) = overlap_checks(fixes, 0.002)
+    assert not o.within and o.consistent is True
+    assert o.sigma_dH_m == pytest.approx(np.sqrt(2) * 8e-4, rel=1e-12)
+    assert o.max_d_over_sigma == pytest.approx(2.19 / (np.sqrt(2) * 0.8), rel=1e-6)
+    bare = [RecordFix(f.t_s, f.point, f.E_m, f.N_m, f.H_m, f.station, f.accepted, f.reason) for f in fixes]
+    (o,) = overlap_checks(bare, 0.002)
+    assert not o.within and o.consistent is None and np.isnan(o.sigma_dH_m)
 
 
 def test_sheet_lists_rejected_fixes_overlaps_setups_and_header(tmp_path):
@@ -102,6 +135,9 @@ def test_sheet_lists_rejected_fixes_overlaps_setups_and_header(tmp_path):
     assert len(flagged) == 2 and flagged[0][9] == "|w| 3.9 > 3.29" and flagged[0][8] == pytest.approx(3.9)
     (ov,) = [r for r in fs if r[0] == "FIX002"]
     assert ov[1] == "FIX003" and ov[7] == "OUTSIDE" and ov[5] == pytest.approx(3.0) and ov[6] == pytest.approx(2.0)
+    # its sigma per axis, the largest |d| / sigma and the verdict against 3 sigma
+    assert ov[10:13] == pytest.approx((np.sqrt(0.72),) * 3, rel=1e-12)
+    assert ov[13] == pytest.approx(3.0 / np.sqrt(0.72), rel=1e-6) and ov[14] == "BEYOND 3 sigma"
 
 
 def test_project_set_validates_and_show_lists(tmp_path):

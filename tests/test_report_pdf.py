@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
 import pytest
 
 from test_export_workbook import N, STEP, _write_outputs
@@ -161,6 +162,9 @@ def test_qa_sections_have_their_own_headings(report):
     o = res.report.record.overlaps[0]
     assert over[1][2:5] == [f"{x * 1e3:.2f}" for x in (o.dE_m, o.dN_m, o.dH_m)]
     assert over[1][7:9] == [f"{o.tolerance_m * 1e3:.2f}", "within" if o.within else "OUTSIDE"]
+    # the difference's sigma per axis (0.6 mm on each fix: 0.85 mm) and the largest |d| / sigma (3 mm in H)
+    assert rows[i + 1][1][5:7] == ["Sigma E/N/H", "|d|/sigma"]
+    assert over[1][5:7] == ["0.85/0.85/0.85", f"{3.0 / np.sqrt(0.72):.2f}"]
     j = next(j for j, (k, c, _) in enumerate(rows) if k == "title" and c[0] == "Fixes rejected or undone")
     assert rows[j + 1] == ("head", QA_FIX_HEADS, False)
     assert all(rows[k - 1][0] in ("head", "point") for k in range(len(rows)) if kinds[k] == "point")

@@ -13,6 +13,7 @@ from trolley.resection import (
     PolarObservations,
     ResectionConfig,
     ResectionError,
+    fix_covariance,
     observation_jacobian,
     observations_from_station,
     overlap_check,
@@ -20,6 +21,7 @@ from trolley.resection import (
     resect,
     setup_covariance_at,
     suggest_point_to_drop,
+    variance_factor,
 )
 
 STATION = np.array([500123.456, 3100456.789, 45.678])
@@ -298,3 +300,137 @@ def test_setup_covariance_matches_a_monte_carlo_of_resected_fixes(model):
     # at 250 m the orientation's part dominates across the sight: more than the station's own sigma
     across = np.array([np.cos(heading), -np.sin(heading), 0.0])
     assert np.sqrt(across @ cov @ across) > 1.5 * np.sqrt(across @ res.covariance[:3, :3] @ across)
+
+
+def test_variance_factor_by_hand():
+    # sigma0 above 1 scales the a priori covariance by sigma0^2; at or below 1, or without redundancy, not
+    assert variance_factor(1.5, 20) == pytest.approx(2.25, rel=1e-15)
+    assert variance_factor(3.0, 5) == pytest.approx(9.0, rel=1e-15)
+    assert variance_factor(1.0, 20) == 1.0 and variance_factor(0.6, 20) == 1.0
+    assert variance_factor(float("nan"), 0) == 1.0 and variance_factor(2.0, 0) == 1.0
+
+
+def _expected_nees_scaled(ratio: float, dof: int) -> tuple[float, float]:
+    """Mean and variance of e' (f C)^-1 e with f = max(1, sigma0^2) when the noise is ``ratio`` times the
+    a priori: e' C^-1 e = ratio^2 chi2(4) and sigma0^2 = ratio^2 chi2(dof) / dof, independent in least
+    squares, so E = 4 ratio^2 E[g] and E[.^2] = 24 ratio^4 E[g^2], g = min(1, dof / (ratio^2 X))."""
+    from scipy import integrate
+
+    def moment(p):
+        return integrate.quad(lambda x: min(1.0, dof / (ratio**2 * x)) ** p * stats.chi2.pdf(x, dof), 0, np.inf,
+                              limit=200)[0]
+
+    mean = 4 * ratio**2 * moment(1)
+    return mean, 24 * ratio**4 * moment(2) - mean**2
+
+
+@pytest.mark.parametrize("ratio", [1.0, 2.0])
+def test_setup_covariance_scaled_by_sigma0_is_honest_when_the_instrument_is_noisier(ratio):
+    # 2000 resections on 8 CPIII with the readings' noise `ratio` times the a priori sigmas: at 2x the
+    # a priori covariance is 2x too small in sigma (e' C^-1 e averages 16, not 4), the one scaled by
+    # sigma0^2 follows the analytic law (Student-t: 4 dof / (dof - 2)); at 1x the scaling costs little
+    rng = np.random.default_rng(31)
+    sig = InstrumentSigmas()
+    noise = InstrumentSigmas(ratio * sig.direction_rad, ratio * sig.zenith_rad, ratio * sig.distance_m,
+                             ratio * sig.distance_scale)
+    ids, pts = cpiii_layout()
+    exact = observations_from_station(STATION, ORIENTATION, pts)
+    n = 2000
+    err, var_ap, var_sc, nees_ap, nees_sc = [], [], [], [], []
+    for _ in range(n):
+        res = resect(ids, pts, noisy(exact, noise, rng))
+        e = np.r_[res.station_enh_m - STATION, (res.orientation_rad - ORIENTATION + np.pi) % (2 * np.pi) - np.pi]
+        err.append(e)
+        var_ap.append(np.diag(res.covariance))
+        var_sc.append(np.diag(res.setup_covariance))
+        nees_ap.append(e @ np.linalg.solve(res.covariance, e))
+        nees_sc.append(e @ np.linalg.solve(res.setup_covariance, e))
+    dof = res.dof
+    assert dof == 20
+    err, var_ap, var_sc = map(np.array, (err, var_ap, var_sc))
+    # per component, RMS error against the RMS sigma: 1 for an honest covariance
+    honest = np.sqrt(np.mean(err**2, axis=0) / np.mean(var_sc, axis=0))
+    plain = np.sqrt(np.mean(err**2, axis=0) / np.mean(var_ap, axis=0))
+    if ratio == 2.0:
+        assert np.all(np.abs(honest - 1.0) < 0.07), honest
+        assert np.all(np.abs(plain - 2.0) < 0.14), plain  # the a priori covariance: half the true sigma
+    else:
+        assert np.all((honest > 0.90) & (honest < 1.02)), honest  # a little conservative, never optimistic
+        assert np.all(np.abs(plain - 1.0) < 0.07), plain
+    # the whole covariance against the analytic mean of e' (f C)^-1 e
+    mean, var = _expected_nees_scaled(ratio, dof)
+    assert abs(np.mean(nees_sc) - mean) < 4 * np.sqrt(var / n), (np.mean(nees_sc), mean)
+    assert abs(np.mean(nees_ap) - 4 * ratio**2) < 4 * np.sqrt(8 * ratio**4 / n)
+
+
+def test_fix_covariance_by_hand():
+    # 0.6 mm of measurement per axis and 1" of orientation: a fix 200 m due north of the station has
+    # E sigma sqrt(0.6^2 + (200 m x 1")^2) = sqrt(0.36 + 0.9402) mm, N and H 0.6 mm
+    so = np.deg2rad(1.0 / 3600.0)
+    st_ = np.array([10.0, 20.0, 5.0])
+    cov = fix_covariance(0.0006, np.diag([0.0, 0.0, 0.0, so**2]), st_, st_ + [0.0, 200.0, 1.0])
+    assert cov.shape == (1, 3, 3)
+    np.testing.assert_allclose(cov[0], np.diag([0.0006**2 + (200 * so) ** 2, 0.0006**2, 0.0006**2]), rtol=1e-12)
+    assert np.sqrt(cov[0, 0, 0]) * 1e3 == pytest.approx(np.sqrt(0.36 + 0.94017), rel=1e-4)
+
+
+def test_overlap_check_sigma_by_hand():
+    # the demo's FIX013: E -0.28, N -1.07, H +2.19 mm; two positions of 0.6 mm per axis each: the
+    # difference has sigma sqrt(0.36 + 0.36) = 0.8485 mm per axis, H is 2.58 sigma: outside the
+    # 2 mm tolerance, within 3 sigma
+    c = np.eye(3) * 0.0006**2
+    chk = overlap_check("FIX012", [0.0, 0.0, 0.0], [-0.00028, -0.00107, 0.00219], 0.002, c, c)
+    np.testing.assert_allclose(chk.sigma_enh_m, np.full(3, np.sqrt(0.72) * 1e-3), rtol=1e-12)
+    np.testing.assert_allclose(chk.normalized, np.array([0.28, 1.07, 2.19]) / np.sqrt(0.72), rtol=1e-9)
+    assert not chk.within_tolerance and chk.consistent is True
+    assert chk.max_normalized == pytest.approx(2.19 / np.sqrt(0.72), rel=1e-9)
+    # 2.6 mm is 3.06 sigma: more than the setups explain
+    far = overlap_check("p", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0026], 0.002, c, c)
+    assert far.consistent is False and far.max_normalized == pytest.approx(2.6 / np.sqrt(0.72), rel=1e-9)
+    # the setup parts add: a first position with 1 mm in E from its setup
+    c1 = c + np.diag([1e-6, 0.0, 0.0])
+    assert overlap_check("p", np.zeros(3), np.zeros(3), 0.002, c1, c).sigma_enh_m[0] == pytest.approx(
+        np.sqrt(1.72) * 1e-3, rel=1e-12)
+    # without covariances: no sigma, no statistical verdict
+    plain = overlap_check("p", np.zeros(3), [0.0, 0.0, 0.0025])
+    assert np.all(np.isnan(plain.sigma_enh_m)) and plain.consistent is None and not plain.within_tolerance
+    with pytest.raises(ValueError, match="both positions or of neither"):
+        overlap_check("p", np.zeros(3), np.zeros(3), 0.002, c, None)
+
+
+def test_overlap_sigma_matches_a_monte_carlo_of_two_resected_stations():
+    # a prism 50 m from one free station and 90 m from the next, each on 8 noisy CPIII pointings, each
+    # position with 0.2 mm of its own measurement noise (small, so that the setups' part shows): the
+    # difference over 2000 trials follows the sigma overlap_check reports (chi-square bounds per axis),
+    # its whole covariance (e' C^-1 e averages 3), and |d| > 2 sigma on an axis 4.55 % of the time
+    rng = np.random.default_rng(12)
+    sig = InstrumentSigmas()
+    prism = STATION + [40.0, 30.0, 0.6]
+    bases = [STATION, STATION + [120 * np.sin(0.61), 120 * np.cos(0.61), 0.5]]
+    layouts = [cpiii_layout(station=b) for b in bases]
+    exact = [observations_from_station(b, 0.7 * k, layouts[k][1]) for k, b in enumerate(bases)]
+    prism_obs = [observations_from_station(b, 0.7 * k, prism) for k, b in enumerate(bases)]
+    s = 0.0002
+    n = 2000
+    z, maha = [], []
+    for _ in range(n):
+        pos, cov = [], []
+        for k in range(2):
+            res = resect(layouts[k][0], layouts[k][1], noisy(exact[k], sig, rng))
+            p = point_from_observation(res.station_enh_m, res.orientation_rad, prism_obs[k])[0]
+            pos.append(p + rng.normal(0.0, s, 3))
+            cov.append(fix_covariance(s, res.covariance, res.station_enh_m, p)[0])
+        chk = overlap_check("prism", pos[0], pos[1], 0.002, cov[0], cov[1])
+        z.append(chk.difference_enh_m / chk.sigma_enh_m)
+        maha.append(chk.difference_enh_m @ np.linalg.solve(cov[0] + cov[1], chk.difference_enh_m))
+    z = np.array(z)
+    lo, hi = np.sqrt(stats.chi2.ppf([0.0005, 0.9995], n) / n)
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((rms > lo) & (rms < hi)), rms
+    assert stats.chi2.ppf(0.0005, 3 * n) / n < np.mean(maha) < stats.chi2.ppf(0.9995, 3 * n) / n
+    p2 = 2 * stats.norm.sf(2.0)
+    k_lo, k_hi = stats.binom.ppf([0.0005, 0.9995], n, p2)
+    for j in range(3):
+        assert k_lo <= np.sum(np.abs(z[:, j]) > 2.0) <= k_hi
+    # the setups' part is not negligible in E and N: the measurements alone would claim 0.28 mm
+    assert np.all(chk.sigma_enh_m[:2] > 1.15 * np.sqrt(2) * s), chk.sigma_enh_m

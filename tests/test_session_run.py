@@ -150,7 +150,8 @@ def test_scripted_session_records_everything_and_processes(project):
 
 def test_each_fix_carries_its_station_setups_error_in_its_sigma(project):
     # sigma^2 = fix sigma^2 + the setup's station and orientation covariance carried to the fix,
-    # written out by hand here: E moves by dN and N by -dE per radian of orientation
+    # written out by hand here: E moves by dN and N by -dE per radian of orientation; the covariance
+    # is scaled by sigma0^2 when sigma0 > 1 (tests/test_session_overlap.py: sigma0 about 2)
     root, _ = project
     with store(root) as st:
         rec = st.session("ref")
@@ -159,7 +160,7 @@ def test_each_fix_carries_its_station_setups_error_in_its_sigma(project):
         fixes = st.fixes(rec.session_id)
         for fx in fixes:
             s = setups[fx.setup_id]
-            c = s.covariance
+            c = s.covariance * max(1.0, s.sigma0**2)
             de, dn = fx.e_m - s.station_enh_m[0], fx.n_m - s.station_enh_m[1]
             var_e = sig**2 + c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3]
             var_n = sig**2 + c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3]

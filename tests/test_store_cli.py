@@ -235,6 +235,12 @@ def test_resection_table_shows_mm_and_arcsec():
     assert "standardized residual" in row_b
     assert "sigma0" in text and "dof" in text
     assert "suggests dropping or re-measuring B" in text
+    # the blunder makes sigma0 > 1: the station's 1-sigmas shown are those the fixes carry, sigma0 times
+    # the a priori ones
+    assert res.sigma0 > 1.5
+    shown = " ".join(text.split())
+    e_sigma = np.sqrt(res.covariance[0, 0]) * res.sigma0 * 1e3
+    assert f"(1-sigma {e_sigma:.2f} / " in shown and "the 1-sigmas are scaled by sigma0" in shown
 
 
 def test_tolerance_set_is_checked_when_the_project_is_created(tmp_path):

@@ -197,6 +197,12 @@ class Resection:
         return self.covariance * (self.sigma0**2 if self.dof > 0 else 1.0)
 
     @property
+    def setup_covariance(self) -> np.ndarray:
+        """The covariance of (E, N, H, orientation) to carry to the points measured from this setup:
+        the a priori one scaled by :func:`variance_factor` (sigma0^2 when sigma0 > 1)."""
+        return self.covariance * variance_factor(self.sigma0, self.dof)
+
+    @property
     def station_sigma_m(self) -> np.ndarray:
         """(3,) a priori 1-sigma of E, N, H."""
         return np.sqrt(np.diag(self.covariance)[:3])
@@ -214,6 +220,12 @@ class Resection:
         return tuple(dict.fromkeys(r.point_id for r in bad))
 
 
+#: an overlap difference beyond this many of its own sigmas on some axis is more than the two setups
+#: and the two measurements explain (per axis, two-sided: 0.27 % of correct overlaps, about 0.8 % on
+#: one of three axes)
+OVERLAP_SIGMA_LIMIT = 3.0
+
+
 @dataclass(frozen=True)
 class OverlapCheck:
     """A point measured from two station setups.
@@ -225,6 +237,10 @@ class OverlapCheck:
     horizontal_m : horizontal length of the difference.
     within_tolerance : all of |dE|, |dN|, |dH| within the tolerance.
     tolerance_m : the tolerance used.
+    sigma_enh_m : (3,) 1-sigma of the difference per axis, from both positions' covariances (NaN
+        when they were not given).
+    sigma_limit : how many sigmas the difference may reach on each axis and still be explained by
+        the two setups and measurements.
     """
 
     point_id: str
@@ -232,11 +248,53 @@ class OverlapCheck:
     horizontal_m: float
     within_tolerance: bool
     tolerance_m: float
+    sigma_enh_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    sigma_limit: float = OVERLAP_SIGMA_LIMIT
 
     @property
     def difference_enh_mm(self) -> np.ndarray:
         """The difference in mm (for display)."""
         return units.m_to_mm(self.difference_enh_m)
+
+    @property
+    def normalized(self) -> np.ndarray:
+        """(3,) |difference| / its sigma per axis (NaN without sigmas)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.abs(self.difference_enh_m) / self.sigma_enh_m
+
+    @property
+    def max_normalized(self) -> float:
+        """The largest of :attr:`normalized` (NaN without sigmas)."""
+        z = self.normalized
+        return float(np.max(z)) if np.all(np.isfinite(z)) else float("nan")
+
+    @property
+    def consistent(self) -> bool | None:
+        """The difference is within :attr:`sigma_limit` sigmas on every axis: the two positions agree
+        as well as the setups and measurements allow (None without sigmas)."""
+        z = self.max_normalized
+        return None if not np.isfinite(z) else bool(z <= self.sigma_limit)
+
+
+def variance_factor(sigma0: float, dof: int) -> float:
+    """The factor the a priori covariance of a resection is scaled by before it is used: sigma0^2
+    when sigma0 > 1, else 1 (also without redundancy, dof <= 0, or a sigma0 that is not finite).
+
+    A sigma0 above 1 says the observations scatter more than the a priori sigmas allow (a noisier
+    instrument, CPIII coordinates off by their own network errors, a centring error): the a priori
+    covariance is then too small by sigma0^2, and the a posteriori one, sigma0^2 Q, is used
+    (Ghilani 2017, ch. 5 and 16). The global test of the variance factor (dof sigma0^2 against
+    chi-square on the redundancy) does not decide here: with 8 points (dof 20) it misses about half
+    of the setups whose noise is 1.3 times the a priori and keeps their covariance too small, while
+    scaling whenever sigma0 > 1 stays close to honest from 1.3 times up and costs a few per cent of
+    conservatism when the a priori sigmas are right (docs/field_session.md, "sigma0";
+    benchmarks/fix_sigma/sigma0_policy.py). A sigma0 below 1 does not shrink the covariance: the a
+    priori sigmas are the instrument's stated accuracy, which a few dozen residuals do not overrule.
+    """
+    s0 = float(sigma0)
+    if dof <= 0 or not np.isfinite(s0):
+        return 1.0
+    return max(1.0, s0 * s0)
 
 
 def wrap_to_pi(angle_rad: np.ndarray) -> np.ndarray:
@@ -501,20 +559,62 @@ def setup_covariance_at(setup_covariance: np.ndarray, station_enh_m: np.ndarray,
     return jac @ c @ np.swapaxes(jac, 1, 2)
 
 
+def fix_covariance(measurement_sigma_m: float, setup_covariance: np.ndarray, station_enh_m: np.ndarray,
+                   points_enh_m: np.ndarray) -> np.ndarray:
+    """Covariance of the grid E, N, H of prism fixes measured from a station setup: the measurement's
+    own sigma per axis plus the setup's error carried to each fix (:func:`setup_covariance_at`). The
+    two are independent: the setup's error comes from its CPIII pointings, the measurement's from the
+    pointing at the prism.
+
+    Parameters
+    ----------
+    measurement_sigma_m : 1-sigma of one prism measurement per axis (the project's ``fix_sigma_m``).
+    setup_covariance : (4, 4) covariance of E, N, H, orientation of the setup
+        (``Resection.setup_covariance``: scaled by sigma0^2 when sigma0 > 1).
+    station_enh_m : (3,) the station the instrument was given.
+    points_enh_m : (3,) or (n, 3) the fixes, grid E, N, H.
+
+    Returns
+    -------
+    (n, 3, 3) covariance per fix, m^2.
+    """
+    return float(measurement_sigma_m) ** 2 * np.eye(3) + setup_covariance_at(setup_covariance, station_enh_m,
+                                                                               points_enh_m)
+
+
 def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarray,
-                  tolerance_m: float = 0.002) -> OverlapCheck:
+                  tolerance_m: float = 0.002, first_covariance: np.ndarray | None = None,
+                  second_covariance: np.ndarray | None = None,
+                  sigma_limit: float = OVERLAP_SIGMA_LIMIT) -> OverlapCheck:
     """Compare a point measured from two station setups.
+
+    The tolerance is the project's requirement; the sigma says what the two setups can hold. The
+    two positions are independent (each setup's error comes from its own CPIII pointings, each
+    measurement's from its own pointing at the point), so the covariance of the difference is the
+    sum of theirs; per axis its sigma is sqrt(sigma_1^2 + sigma_2^2).
 
     Parameters
     ----------
     point_id : the point (e.g. a trolley stop or a CPIII point measured from both stations).
     first_enh_m, second_enh_m : (3,) its E, N, H from the first and the second setup.
     tolerance_m : largest acceptable difference per axis.
+    first_covariance, second_covariance : (3, 3) covariance of each position (the measurement and
+        its setup carried to the point: :func:`fix_covariance`), both or neither.
+    sigma_limit : sigmas per axis the difference may reach and still be explained by them.
 
     Returns
     -------
-    OverlapCheck with the difference second minus first.
+    OverlapCheck with the difference second minus first and its sigma.
     """
     d = np.asarray(second_enh_m, dtype=float).reshape(3) - np.asarray(first_enh_m, dtype=float).reshape(3)
+    if (first_covariance is None) != (second_covariance is None):
+        raise ValueError("overlap_check: give the covariance of both positions or of neither")
+    if first_covariance is None:
+        sigma = np.full(3, np.nan)
+    else:
+        cov = (np.asarray(first_covariance, dtype=float).reshape(3, 3)
+               + np.asarray(second_covariance, dtype=float).reshape(3, 3))
+        sigma = np.sqrt(np.diag(cov))
     return OverlapCheck(point_id=str(point_id), difference_enh_m=d, horizontal_m=float(np.hypot(d[0], d[1])),
-                        within_tolerance=bool(np.all(np.abs(d) <= tolerance_m)), tolerance_m=float(tolerance_m))
+                        within_tolerance=bool(np.all(np.abs(d) <= tolerance_m)), tolerance_m=float(tolerance_m),
+                        sigma_enh_m=sigma, sigma_limit=float(sigma_limit))

@@ -5,7 +5,8 @@ python benchmarks/fix_sigma/audit_c_engine.py DEMO_OUT [DEMO_OUT ...]
 Re-processes each demo's raw session (DEMO_OUT/session) with trolley.engine.process_session, the
 fixes.csv varied:
   recorded      the fixes as recorded, sigma = the project's fix sigma (0.6 mm; fixes.csv before fixsig24)
-  honest-diag   the fixes as recorded, sigma^2 = fix sigma^2 + diag(J C J^T) (setup propagated)
+  honest-diag   the fixes as recorded, sigma^2 = fix sigma^2 + diag(J C J^T) (setup propagated; C scaled
+                by sigma0^2 when sigma0 > 1, as the session does since overlap24)
   honest-full   the same with the E-N (and E-H, N-H) covariance of the setup part (engine patched)
   no-setup-err  the fixes with their setup error removed (truth + the reproduced twin noise), sigma 0.6 mm
 and prints RMS lateral / vertical / longitudinal (mm) and RMS error/sigma lateral / vertical, as the demo does.
@@ -21,6 +22,7 @@ import trolley.engine as engine
 from common import setups_of_demo
 from survey.session.simworld import prism_position_enh, stop_index_at
 from survey.sessionio import read_design, read_session
+from trolley.resection import variance_factor
 from trolley.session import Fixes
 from trolley.validation import track_errors
 
@@ -62,8 +64,10 @@ for out in map(Path, sys.argv[1:]):
         noise = np.random.default_rng([world.options.seed, k + 1, a]).standard_normal(3) * sig_fix
         if f.accepted:
             s = by_id[f.setup_id]
+            # the covariance the session carried to the fix: scaled by sigma0^2 when sigma0 > 1 (overlap24)
             info[(round(f.t_s, 6), f.point)] = (prism_position_enh(sim, f.t_s) + noise,
-                                     setup_cov_at(s.covariance, s.station_enh_m, [f.e_m, f.n_m, f.h_m]))
+                                     setup_cov_at(s.covariance * variance_factor(s.sigma0, s.dof), s.station_enh_m,
+                                                  [f.e_m, f.n_m, f.h_m]))
     session = read_session(out / "session")
     design = read_design(out / "session", session.meta, [])
     fx = session.fixes
@@ -72,7 +76,7 @@ for out in map(Path, sys.argv[1:]):
     clean = np.array([info[(round(t, 6), p)][0] for t, p in zip(fx.t_s, fx.point)])
     Cs = np.array([info[(round(t, 6), p)][1] for t, p in zip(fx.t_s, fx.point)])
     honest = np.sqrt(sig_fix ** 2 + np.diagonal(Cs, axis1=1, axis2=2))
-    if not np.allclose(fx.sigma_m, sig_fix):  # recorded with fixsig24: the sigmas must be these
+    if not np.allclose(fx.sigma_m, sig_fix):  # recorded with overlap24: the sigmas must be these
         assert np.allclose(fx.sigma_m, honest, rtol=1e-9), np.abs(fx.sigma_m / honest - 1).max()
     Rfull = np.zeros_like(Cs)
     P = [1, 0, 2]  # E, N, H -> the filter's N, E, D (D = -H: the E-H and N-H covariances change sign)

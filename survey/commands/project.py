@@ -604,13 +604,18 @@ def resection_table(result, title: str = "free station"):
     from rich.table import Table
 
     from trolley import units
+    from trolley.resection import variance_factor
 
     arcsec = units.arcsec_to_rad(1.0)
-    sig = units.m_to_mm(result.station_sigma_m)
+    # the sigmas the fixes will carry: scaled by sigma0 when it is above 1 (Resection.setup_covariance)
+    sig_all = np.sqrt(np.diag(result.setup_covariance))
+    sig = units.m_to_mm(sig_all[:3])
     e, n, h = result.station_enh_m
+    scaled = variance_factor(result.sigma0, result.dof) > 1.0
     caption = (f"station E {e:.4f} N {n:.4f} H {h:.4f} m (1-sigma {sig[0]:.2f} / {sig[1]:.2f} / {sig[2]:.2f} mm), "
                f"orientation {units.rad_to_deg(result.orientation_rad):.6f} deg "
-               f"(1-sigma {result.orientation_sigma_rad / arcsec:.2f}\"), sigma0 {result.sigma0:.2f} ({result.dof} dof)")
+               f"(1-sigma {sig_all[3] / arcsec:.2f}\"), sigma0 {result.sigma0:.2f} ({result.dof} dof)"
+               + ("; the 1-sigmas are scaled by sigma0" if scaled else ""))
     if result.excluded:
         caption += f"; dropped: {escape(', '.join(map(str, result.excluded)))}"
     t = Table(title=title, caption=caption)

@@ -1,0 +1,155 @@
+"""A scripted simulated session whose instrument is noisier than the project's a priori sigmas
+(sigma0 about 2): the fix sigmas carry the setups' covariance scaled by sigma0^2. Its two overlap
+checks are made to fall outside the 2 mm tolerance, one within 3 sigma of the two setups' own
+uncertainty (kept), one beyond (rejected)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from session_project import make_project
+
+SCRIPT = "fix\nmove\nfix\nstation\nmove\nfix\nstation\nmove\nfix\nend\n"
+#: the overlap measurement (second attempt) at stop 1 (60 m) 1.2 mm high: H +2.31 mm against the first
+#: station, 2.72 sigma; at stop 2 (120 m) 2.2 mm east: E +3.09 mm, 3.57 sigma (the fix noise is seeded, so
+#: these are the same in every run)
+BLUNDERS = ((1, 1, 0.0, 0.0, 0.0012), (2, 1, 0.0022, 0.0, 0.0))
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    from survey.commands.survey import simulated_world
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.session.script import parse_script
+    from survey.store import ProjectStore
+    from trolley.resection import InstrumentSigmas
+
+    root = tmp_path_factory.mktemp("overlap")
+    make_project(root, length_m="180.0")
+    console = Console(stderr=True, record=True, width=400)
+    with ProjectStore.open(root / "t1") as st:
+        # the a priori sigmas half the twin's noise (0.5", 0.6 mm): sigma0 about 2 in every setup
+        s = st.settings()
+        sig = s.instrument
+        st.set_settings(replace(s, instrument=InstrumentSigmas(sig.direction_rad / 2, sig.zenith_rad / 2,
+                                                               sig.distance_m / 2, sig.distance_scale / 2)))
+        world = simulated_world(st, 25.0)
+        world.options = replace(world.options, fix_blunders_m=BLUNDERS)
+        FieldSession(st, "noisy", SessionConfig(script=parse_script(SCRIPT), out_dir=root / "out"),
+                     world=world, console=console).run()
+    return root, " ".join(console.export_text().split())
+
+
+def test_fix_sigmas_carry_the_setup_covariance_scaled_by_sigma0(session):
+    # sigma^2 = fix sigma^2 + sigma0^2 x (the a priori setup covariance carried to the fix), by hand:
+    # E moves by dN and N by -dE per radian of orientation
+    from survey.store import ProjectStore
+
+    root, text = session
+    with ProjectStore.open(root / "t1") as st:
+        rec = st.session("noisy")
+        sig = rec.meta.fix_sigma_m
+        setups = {s.setup_id: s for s in st.station_setups(rec.session_id)}
+        fixes = st.fixes(rec.session_id)
+    assert len(setups) == 3 and len(fixes) >= 6
+    assert all(1.5 < s.sigma0 < 3.0 for s in setups.values())  # the instrument twice as noisy as its a priori
+    for fx in fixes:
+        s = setups[fx.setup_id]
+        c = s.covariance * s.sigma0**2
+        de, dn = fx.e_m - s.station_enh_m[0], fx.n_m - s.station_enh_m[1]
+        var_e = sig**2 + c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3]
+        var_n = sig**2 + c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3]
+        var_h = sig**2 + c[2, 2]
+        np.testing.assert_allclose([fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m], np.sqrt([var_e, var_n, var_h]),
+                                   rtol=1e-12)
+    # the crew is told
+    for s in setups.values():
+        assert f"scaled by sigma0^2 = {s.sigma0 ** 2:.2f}" in text
+
+
+class _Instrument:
+    """The total station as far as giving it a station goes (no port: the session is over)."""
+
+    def set_station(self, *args) -> None:
+        pass
+
+    def angle(self):
+        return 0.0, 1.5707963
+
+    def set_orientation(self, *args) -> None:
+        pass
+
+    def set_reflector_height(self, *args) -> None:
+        pass
+
+
+def test_a_resumed_session_restores_the_scaled_setup_covariance(session):
+    # on resume the setup comes from the store (a priori covariance, sigma0, dof): the next fix from
+    # it must carry the sigma an uninterrupted session gives it, the covariance scaled by sigma0^2
+    from survey.session.fieldsession import FieldSession, SessionConfig
+    from survey.store import ProjectStore
+
+    root, _ = session
+    with ProjectStore.open(root / "t1") as st:
+        fs = FieldSession(st, "noisy", SessionConfig(script=None, live=False), console=Console(file=None),
+                          resume=True)
+        fs.rec = st.session("noisy")
+        fs.ts = _Instrument()
+        fs.station_setup()
+        last = st.fixes(fs.rec.session_id)[-1]
+        assert last.setup_id == fs.setup_id
+        np.testing.assert_allclose(fs.fix_sigmas([last.e_m, last.n_m, last.h_m]),
+                                   [last.sigma_e_m, last.sigma_n_m, last.sigma_h_m], rtol=1e-12)
+
+
+def test_overlap_outside_the_tolerance_is_kept_within_3_sigma_and_rejected_beyond(session):
+    import json
+
+    from openpyxl import load_workbook
+
+    from survey.store import ProjectStore
+
+    root, text = session
+    with ProjectStore.open(root / "t1") as st:
+        fixes = st.fixes(st.session("noisy").session_id)
+    by = {f.point: f for f in fixes}
+    checks = [("FIX002", "FIX003", 2, True), ("FIX004", "FIX005", 3, False)]
+    record = json.loads(next((root / "out").rglob("processed/field_record.json")).read_text())
+    assert len(record["overlaps"]) == 2
+    ws = load_workbook(next((root / "out").glob("*.xlsx")))["Free stations"]
+    rows = {r[1]: r for r in ws.iter_rows(values_only=True) if r[0] in ("FIX002", "FIX004")}
+    for (old_id, new_id, station, kept), rec in zip(checks, record["overlaps"]):
+        old, new = by[old_id], by[new_id]
+        d = np.array([new.e_m - old.e_m, new.n_m - old.n_m, new.h_m - old.h_m])
+        # by hand: the two fixes are independent, each sigma holds its measurement and its setup
+        sigma = np.sqrt(np.array([old.sigma_e_m, old.sigma_n_m, old.sigma_h_m]) ** 2
+                        + np.array([new.sigma_e_m, new.sigma_n_m, new.sigma_h_m]) ** 2)
+        z = np.abs(d) / sigma
+        j = int(np.argmax(z))
+        assert np.max(np.abs(d)) > 0.002  # both outside the tolerance
+        assert bool(z.max() <= 3.0) is kept and new.accepted is kept
+        worst = f"{'ENH'[j]} {z[j]:.2f} sigma"
+        sig_text = "sigma " + " / ".join(f"{x:.2f}" for x in sigma * 1e3) + " mm"
+        assert f"overlap fix {new_id} {'accepted' if kept else 'rejected'} ({new.reason})" in text
+        if kept:
+            assert new.reason == f"overlap check from station {station}: accepted: outside the tolerance, within 3 " \
+                                 f"sigma ({worst})"
+            assert (f"OUTSIDE the tolerance of 2.0 mm but within 3 sigma of the setups' own uncertainty ({sig_text}; "
+                    f"{worst}): the tolerance is tighter than these setups can hold") in text
+        else:
+            assert new.reason == f"overlap check from station {station}: difference outside the tolerance and " \
+                                 f"beyond 3 sigma ({worst})"
+            assert (f"OUTSIDE the tolerance of 2.0 mm and beyond 3 sigma of the setups' own uncertainty ({sig_text}; "
+                    f"{worst}): a setup or a measurement is wrong") in text
+        # stored with the check: the field record and the sheet's Free stations
+        assert (rec["old_point"], rec["new_point"], rec["within"], rec["accepted"]) == (old_id, new_id, False, kept)
+        np.testing.assert_allclose([rec["sigma_dE_m"], rec["sigma_dN_m"], rec["sigma_dH_m"]], sigma, rtol=1e-12)
+        assert rec["max_d_over_sigma"] == pytest.approx(z.max(), rel=1e-12) and rec["consistent"] is kept
+        row = rows[new_id]
+        assert row[7] == "OUTSIDE" and row[8] == ("yes" if kept else "no")
+        np.testing.assert_allclose(row[10:13], sigma * 1e3, rtol=1e-12)
+        assert row[13] == pytest.approx(z.max(), rel=1e-12)
+        assert row[14] == ("within 3 sigma" if kept else "BEYOND 3 sigma")
