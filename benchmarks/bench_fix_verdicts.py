@@ -108,7 +108,8 @@ def main() -> None:
                     ang = rng.uniform(0, 2 * np.pi)
                     moved = list(range(start, start + n))
                     sim.session.fixes.enh_m[:] = clean
-                    sim.session.fixes.enh_m[moved] += np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.5, 0.5)]) * size
+                    direction = np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.5, 0.5)])
+                    sim.session.fixes.enh_m[moved] += direction * size
                     r = process_session(sim.session, design, ProcessConfig(), with_observability=False)
                     rejected = set(np.flatnonzero(~r.fixes.accepted).tolist())
                     total += 1

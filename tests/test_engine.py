@@ -332,5 +332,6 @@ def test_a_bad_setup_measuring_three_stops_is_rejected_and_the_right_fixes_after
     # sigma grown over three intervals), then rejected the right ones after it (RLG: 12 of 13)
     sim, r = _demo_settings_run(imu, 0, moved_m, (5, 6, 7))
     assert list(np.flatnonzero(~r.fixes.accepted)) == [5, 6, 7]
+    assert r.summary["fixes_readmitted"] >= 1  # the right ones the gate had rejected after the run
     lat, s_lat, dh, s_h = _errors(r, sim.truth)
     assert np.max(np.abs(lat / s_lat)) < 4.5 and np.max(np.abs(dh / s_h)) < 4.5

@@ -262,7 +262,8 @@ def test_summary_dict_names_and_equipment_reach_the_sheet(tmp_path):
     from survey.trackio import summary_dict
     session = SimpleNamespace(meta=_parse_meta(SESSION_TOML))     # summary_dict reads only .meta
     result = SimpleNamespace(
-        summary={"fixes_used": 3, "fixes_rejected": 1, "longest_rejected_run": 1, "fixes_readmitted": 0, "rms_innovation_m": 3e-4, "max_sigma_m": 6e-4,
+        summary={"fixes_used": 3, "fixes_rejected": 1, "longest_rejected_run": 1, "fixes_readmitted": 0,
+                 "fixes_snooped_out": 0, "rms_innovation_m": 3e-4, "max_sigma_m": 6e-4,
                  "heading_source": "gyrocompassing", "initial_heading_deg": 10.0, "heading_sigma_deg": 0.1},
         config=SimpleNamespace(smoother="rts", step_m=0.625), observability_ranks=None, node_count=10,
         stations=SimpleNamespace(chainage_m=np.zeros(40)))
