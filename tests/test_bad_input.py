@@ -383,6 +383,11 @@ PROBES: list[Probe] = [
             (f"{opt}: must be a finite number, got nan",)) for opt in ("--length-m", "--speed-m-s", "--camera-rate-hz")),
     Probe("tgms-simulate/length-below-60", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--length-m", "59"],
           ("--length-m: must be >= 60, got 59",)),
+    # (found 2026-11-26) 1e9 m allocated until the memory ran out; refused before anything is allocated
+    Probe("tgms-simulate/length-beyond-memory", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"),
+                                                               "--length-m", "1e9"],
+          ("--length-m 1e+09 at --speed-m-s 10 and --camera-rate-hz 100: asks for 1e+10 items",
+           "more than this machine can give")),
     Probe("tgms-simulate/speed-above-40", lambda t, i: ["tgms", "simulate", "--out", str(t / "n"), "--speed-m-s", "41"],
           ("--speed-m-s: must be <= 40, got 41",)),
     Probe("tgms-process/step-nan", tgms_process_probe(lambda r: None, "--step-m", "nan"),
