@@ -5,6 +5,8 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "projects" / "demo"
 
@@ -26,3 +28,15 @@ def make_project(root: Path, name: str = "t1", tolerance_set: str = "default", *
         shutil.copy(DEMO / f, folder / f)
     new(name, root=root, imu=None, latitude_deg=None, height=None, tolerance_set=tolerance_set, use_toml=True)
     return folder
+
+
+def fix_sigmas_by_hand(fix, setup, fix_sigma_m: float) -> np.ndarray:
+    """(3,) the E, N, H sigma a fix must carry, written out by hand: the measurement's sigma plus the
+    setup's station and orientation covariance (scaled by sigma0^2 when sigma0 > 1) carried to the
+    fix, where E moves by dN and N by -dE per radian of orientation."""
+    c = setup.covariance * max(1.0, setup.sigma0**2)
+    de, dn = fix.e_m - setup.station_enh_m[0], fix.n_m - setup.station_enh_m[1]
+    sig2 = fix_sigma_m**2
+    return np.sqrt([sig2 + c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3],
+                    sig2 + c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3],
+                    sig2 + c[2, 2]])

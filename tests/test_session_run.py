@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from session_project import make_project
+from polling import count_in_store
+from session_project import fix_sigmas_by_hand, make_project
 
 TROLLEY = [sys.executable, "-m", "survey.cli"]
 SPEEDUP = "25"
@@ -159,14 +160,8 @@ def test_each_fix_carries_its_station_setups_error_in_its_sigma(project):
         setups = {s.setup_id: s for s in st.station_setups(rec.session_id)}
         fixes = st.fixes(rec.session_id)
         for fx in fixes:
-            s = setups[fx.setup_id]
-            c = s.covariance * max(1.0, s.sigma0**2)
-            de, dn = fx.e_m - s.station_enh_m[0], fx.n_m - s.station_enh_m[1]
-            var_e = sig**2 + c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3]
-            var_n = sig**2 + c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3]
-            var_h = sig**2 + c[2, 2]
-            np.testing.assert_allclose([fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m], np.sqrt([var_e, var_n, var_h]),
-                                       rtol=1e-12)
+            np.testing.assert_allclose([fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m],
+                                       fix_sigmas_by_hand(fx, setups[fx.setup_id], sig), rtol=1e-12)
             assert min(fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m) > sig
     # the raw session handed to the engine carries them (fixes.csv, FORMATS.md section 1)
     import pandas as pd
@@ -279,7 +274,7 @@ def test_sigkill_before_an_interval_summary_is_stored_then_resume_summarises_it(
     step_3 = ("SELECT COUNT(*) FROM session_event e JOIN session s ON s.id = e.session_id "
               "WHERE s.name = 'cut' AND e.kind = 'script' AND e.detail LIKE '3 %'")
     deadline = time.monotonic() + 90
-    while not _count(db, step_3):
+    while not count_in_store(db, step_3):
         assert p.poll() is None and time.monotonic() < deadline
     os.kill(p.pid, signal.SIGKILL)
     p.wait()
@@ -289,17 +284,6 @@ def test_sigkill_before_an_interval_summary_is_stored_then_resume_summarises_it(
         ref, cut = _interval_summaries(st, "ref"), _interval_summaries(st, "cut")
     # as many summaries (events and runs) as the uninterrupted run, of the same intervals
     assert ref[:2] == (3, 3) and cut == ref, (cut, ref)
-
-
-def _count(db: Path, sql: str) -> int:
-    try:
-        c = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.2)
-        try:
-            return int(c.execute(sql).fetchone()[0])
-        finally:
-            c.close()
-    except sqlite3.Error:
-        return 0
 
 
 def _lose_odometer_rows(db: Path, name: str, where: str) -> None:

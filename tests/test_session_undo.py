@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -17,6 +16,7 @@ import time
 import pytest
 from rich.console import Console
 
+from polling import count_in_store
 from session_project import make_project
 
 TROLLEY = [sys.executable, "-m", "survey.cli"]
@@ -81,17 +81,6 @@ def test_an_undone_fix_takes_the_summary_of_its_interval_with_it(tmp_path, scrip
         assert st.interval_summaries(sid) == standing
 
 
-def _count(db, sql: str) -> int:
-    try:
-        c = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.2)
-        try:
-            return int(c.execute(sql).fetchone()[0])
-        finally:
-            c.close()
-    except sqlite3.Error:
-        return 0
-
-
 def _survey(*args: str) -> list[str]:
     return TROLLEY + ["survey", *args, "t1", "--root", "projects", "--speedup", "40"]
 
@@ -116,7 +105,7 @@ def test_killed_after_the_undo_and_the_fix_taken_again_the_resume_summarises_the
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     third = ("SELECT COUNT(*) FROM fix f JOIN session s ON s.id = f.session_id WHERE s.name = 'cut'")
     deadline = time.monotonic() + 90
-    while _count(db, third) < 3:
+    while count_in_store(db, third) < 3:
         assert p.poll() is None and time.monotonic() < deadline
     os.kill(p.pid, signal.SIGKILL)
     p.wait()

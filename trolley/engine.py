@@ -29,8 +29,8 @@ from trolley.projection import GridFactors, session_site
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
                                    quat_multiply, static_alignment, stop_levels, with_roll_levelled)
 from trolley.session import RawSession
-from trolley.smoothers import (SNOOP_OUT_PROBABILITY, Measurements, SmoothedResult, forward_filter, rts_smooth,
-                               snooped_verdicts, state_scale, two_filter_smooth)
+from trolley.smoothers import (SNOOP_OUT_PROBABILITY, Measurements, SmoothedResult, forward_filter, gate_threshold,
+                               rts_smooth, snooped_verdicts, state_scale, two_filter_smooth)
 from trolley.trackgeometry import TrackInput
 
 #: Passes the data snooping may add (each when it changed a verdict); the third run of the
@@ -693,10 +693,11 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
             res = snooped_verdicts(F, Q, np.zeros(8), P0, meas_all, gated.accepted, config.gate_probability,
                                    force_accept=forced, scale=scale, smoothed=SmoothedResult(xs, Ps))
             snoop_stat = res.statistic
-            if (res.removed | res.added).any() and snoop_passes < SNOOPING_PASSES:
+            moved = res.removed | res.added
+            if moved.any() and snoop_passes < SNOOPING_PASSES:
                 snooped = True
                 snoop_passes += 1
-                moved_stat[res.removed | res.added] = res.moved_statistic[res.removed | res.added]
+                moved_stat[moved] = res.moved_statistic[moved]
                 gated.accepted = res.accepted
                 passes = max(passes, it + 2)
         x_blocks = _interp_nodes(dr, nodes, xs)
@@ -732,7 +733,6 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     reasons = []
     thr = None
     if config.gate_probability is not None:
-        from trolley.smoothers import gate_threshold
         thr = gate_threshold(config.gate_probability, 3)
         out_thr = gate_threshold(SNOOP_OUT_PROBABILITY, 3)
     for j, (acc, nis_j, f) in enumerate(zip(fwd.accepted, fwd.nis, forced)):

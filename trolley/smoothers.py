@@ -181,12 +181,6 @@ def forward_filter(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarray,
 MIN_REDUNDANCY = 1e-3
 
 
-def _smoothed_cov_at(meas: Measurements, smoothed: SmoothedResult) -> np.ndarray:
-    """(M, m, m) covariance H P_s H^T of the smoothed estimate of each measured quantity."""
-    H = meas.H
-    return H @ smoothed.P[meas.node] @ np.swapaxes(H, -1, -2)
-
-
 def fix_statistics(meas: Measurements, accepted: np.ndarray, smoothed: SmoothedResult) -> np.ndarray:
     """Each measurement tested against the smoothed estimate from all the others (Baarda's data
     snooping, the leave-one-out form of the chi-square test).
@@ -213,7 +207,7 @@ def fix_statistics(meas: Measurements, accepted: np.ndarray, smoothed: SmoothedR
     accepted = np.asarray(accepted, dtype=bool)
     H, R = meas.H, meas.R
     v = meas.z - np.einsum("mij,mj->mi", H, smoothed.x[meas.node])
-    HPH = _smoothed_cov_at(meas, smoothed)
+    HPH = H @ smoothed.P[meas.node] @ np.swapaxes(H, -1, -2)
     C = np.where(accepted[:, None, None], R - HPH, R + HPH)
     T = np.einsum("mi,mi->m", v, np.linalg.solve(C, v[:, :, None])[:, :, 0])
     if accepted.any():

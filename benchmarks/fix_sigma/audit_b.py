@@ -17,14 +17,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from common import setups_of_demo
 from survey.session.simworld import prism_position_enh, stop_index_at
+from trolley.resection import setup_covariance_at
 
 
 def setup_cov_at(cov4, station, point):
-    d = np.asarray(point) - np.asarray(station)
-    J = np.zeros((3, 4))
-    J[:, :3] = np.eye(3)
-    J[0, 3], J[1, 3] = d[1], -d[0]
-    return J @ cov4 @ J.T
+    """The setup's covariance carried to one point (3, 3)."""
+    return setup_covariance_at(cov4, station, point)[0]
 
 
 rows = []

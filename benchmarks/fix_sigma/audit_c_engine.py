@@ -19,20 +19,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 import trolley.engine as engine
-from common import setups_of_demo
+from common import setups_of_demo, track_figures
 from survey.session.simworld import prism_position_enh, stop_index_at
 from survey.sessionio import read_design, read_session
-from trolley.resection import variance_factor
+from trolley.resection import setup_covariance_at, variance_factor
 from trolley.session import Fixes
-from trolley.validation import track_errors
 
 
 def setup_cov_at(cov4, station, point):
-    d = np.asarray(point) - np.asarray(station)
-    J = np.zeros((3, 4))
-    J[:, :3] = np.eye(3)
-    J[0, 3], J[1, 3] = d[1], -d[0]
-    return J @ cov4 @ J.T
+    """The setup's covariance carried to one point (3, 3)."""
+    return setup_covariance_at(cov4, station, point)[0]
 
 
 _orig_fix_cov = engine.fix_covariances
@@ -95,12 +91,7 @@ for out in map(Path, sys.argv[1:]):
         FULL.clear()
         if R is not None:
             FULL["R"] = R
-        res = engine.process_session(replace(session, fixes=f), design, engine.ProcessConfig())
-        tj = res.trajectory
-        e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth, cov_EN_m2=tj.cov_EN_m2)
-        rms = np.array(e.rms_m()) * 1e3
-        nr = e.normalised_rms()
-        s = res.summary
+        rms, nr, s = track_figures(session, design, f, truth)
         print(f"{out.name:18s} {name:13s} RMS lat {rms[0]:.3f} vert {rms[2]:.3f} lon {rms[1]:.3f} mm | "
               f"e/s lat {nr[0]:.2f} vert {nr[2]:.2f} | fixes used/rejected {s['fixes_used']}/{s['fixes_rejected']}",
               flush=True)

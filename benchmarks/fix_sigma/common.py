@@ -22,7 +22,6 @@ def setups_of_demo(out: Path):
     """[(setup record, physical station (3,), true circle orientation, point ids, points (n,3))]
     of a demo run, from its store (the simulated_instrument events give where the twin stood)."""
     from survey.commands.survey import simulated_world
-    from survey.session.simworld import SimOptions
 
     store = demo_store(out)
     sid = store.session("demo").session_id
@@ -78,3 +77,17 @@ def std_ratio_ci(err: np.ndarray, sigma: float, conf: float = 0.95):
     hi = math.sqrt(stats.chi2.ppf((1 + conf) / 2, n - 1) / (n - 1))
     r = s / sigma
     return r, r / hi, r / lo
+
+
+def track_figures(session, design, fixes, truth):
+    """The session processed with these fixes against the truth: RMS lateral, longitudinal,
+    vertical error in mm, their RMS error/sigma, and the engine's summary."""
+    from dataclasses import replace
+
+    from trolley.engine import ProcessConfig, process_session
+    from trolley.validation import track_errors
+
+    res = process_session(replace(session, fixes=fixes), design, ProcessConfig())
+    tj = res.trajectory
+    e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth, cov_EN_m2=tj.cov_EN_m2)
+    return np.array(e.rms_m()) * 1e3, e.normalised_rms(), res.summary

@@ -19,12 +19,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import setups_of_demo
+from common import setups_of_demo, track_figures
 from survey.sessionio import read_design, read_session
-from trolley.engine import ProcessConfig, process_session
 from trolley.resection import fix_covariance, overlap_check
 from trolley.session import Fixes
-from trolley.validation import track_errors
 
 for out in map(Path, sys.argv[1:]):
     store, sid, world, setups = setups_of_demo(out)
@@ -61,12 +59,7 @@ for out in map(Path, sys.argv[1:]):
           f"sigma0 of the setups {', '.join(f'{s.sigma0:.2f}' for s in by_id.values())}; the fix sigmas scaled "
           f"vs a priori: up to {np.max(fx.sigma_m / apriori):.4f}")
     for name, f in variants.items():
-        res = process_session(replace(session, fixes=f), design, ProcessConfig())
-        tj = res.trajectory
-        e = track_errors(tj.t_s, tj.distance_m, tj.enh_m, tj.sigma_enh_m, truth, cov_EN_m2=tj.cov_EN_m2)
-        rms = np.array(e.rms_m()) * 1e3
-        nr = e.normalised_rms()
-        s = res.summary
+        rms, nr, s = track_figures(session, design, f, truth)
         print(f"   {name:17s} RMS lateral {rms[0]:.3f} vertical {rms[2]:.3f} longitudinal {rms[1]:.3f} mm | "
               f"error/sigma lateral {nr[0]:.2f} vertical {nr[2]:.2f} | fixes used/rejected "
               f"{s['fixes_used']}/{s['fixes_rejected']}", flush=True)
