@@ -179,3 +179,29 @@ def test_stop_levels_equal_a_direct_per_stop_mean():
     # the tilt after the lift (70 s, inside the window 55-75 s) is not in the level: the roll is
     # the IMU's atan2(0.3, 9.8) less the 0.01 rad mounting roll, not the lifted -0.27 rad
     assert roll[2] == pytest.approx(np.arctan2(0.3, 9.8) - 0.01, abs=2e-3)
+
+
+def test_roll_levelled_at_a_stop_taken_during_the_static_alignment_holds_from_the_start():
+    # The first fix is taken while the trolley stands for the static alignment, before the dead
+    # reckoning starts; its level holds at the start. The gyro roll drifts from the start (t = 120
+    # s) at 1e-5 rad/s; the stops at 60 s (in the alignment) and 259 s level it. Pinned at 60 s,
+    # the linear removal took 60/199 of the drift at the start: 3.6e-4 rad, 0.5 mm of cant.
+    from trolley.deadreckoning import DeadReckoning, levelled_stop_times, with_roll_levelled
+    t = np.arange(120.0, 400.0, 0.5)
+    true_roll = 0.02
+    roll_dr = true_roll + 1e-5 * (t - 120.0)
+    att = Rotation.from_euler("ZYX", np.column_stack([np.full_like(t, 0.3), np.zeros_like(t), roll_dr]))
+    dr = DeadReckoning(t_s=t, distance_m=t - 120.0, trolley_to_nav=att, position_ned_m=np.zeros((t.size, 3)))
+    stops = np.array([60.0, 259.0])
+    levels = np.array([true_roll, true_roll])
+    out = with_roll_levelled(dr, stops, levels)
+    err = out.euler_rad()[:, 0] - true_roll
+    # linear drift between two levels is removed exactly; after the last stop it is held
+    inside = t <= 259.0
+    assert np.max(np.abs(err[inside])) < 1e-12
+    assert np.allclose(err[~inside], 1e-5 * (t[~inside] - 259.0), atol=1e-12)
+    assert np.array_equal(levelled_stop_times(dr, stops, levels), [120.0, 259.0])
+    # two levels at one pinned time (two fixes in the alignment) are averaged, a NaN level skipped
+    out2 = with_roll_levelled(dr, np.array([30.0, 60.0, 150.0, 259.0]),
+                              np.array([true_roll - 1e-4, true_roll + 1e-4, np.nan, true_roll]))
+    assert np.max(np.abs(out2.euler_rad()[inside, 0] - true_roll)) < 1e-12

@@ -75,3 +75,35 @@ def test_heading_error_and_equivalent_bias_hand_values():
     assert np.isclose(phi, b / (units.EARTH_RATE_RAD_S * 0.5))
     # the Earth-rate projection through that heading error adds exactly the bias again
     assert np.isclose(em.equivalent_gyro_bias(b, phi, lat), 2 * b)
+
+
+@given(seed=st.integers(0, 1000))
+@settings(max_examples=2, deadline=None)
+def test_levelled_roll_variance_matches_a_monte_carlo_of_the_gyro_drift(seed):
+    # Integrate white rate noise (ARW) and a bias (constant plus a random walk) over a survey with
+    # uneven stops, remove the error linearly between the stops (as the engine's levelling does)
+    # and hold it after the last one: the variance across paths is the formula's. The random walk
+    # starts at the last stop, so that the bias there has the sigma b the formula is given (a
+    # real bias instability is stationary; a walk from the start would have grown).
+    from trolley.error_models import levelled_roll_variance
+    rng = np.random.default_rng(seed)
+    dt, n_paths = 0.5, 3000
+    t = np.arange(0.0, 400.0 + dt / 2, dt)
+    stops = np.array([0.0, 90.0, 150.0, 300.0])
+    N, q, b = 4e-5, 2e-6, 1.5e-5  # rad/sqrt(s), PSD root of the bias walk, bias sigma
+    walk = np.cumsum(q * np.sqrt(dt) * rng.standard_normal((n_paths, t.size)), axis=1)
+    walk -= walk[:, [np.searchsorted(t, 300.0)]]
+    rate = b * rng.standard_normal((n_paths, 1)) + walk + N / np.sqrt(dt) * rng.standard_normal((n_paths, t.size))
+    e = np.concatenate([np.zeros((n_paths, 1)), np.cumsum(rate[:, :-1] * dt, axis=1)], axis=1)
+    at = np.searchsorted(t, stops)
+    err = e - np.array([np.interp(t, stops, row[at]) for row in e])
+    var_mc = err.var(axis=0)
+    var = levelled_roll_variance(t, stops, N, q, b)
+    away = np.abs(t[:, None] - stops).min(axis=1) > 5
+    # 3000 paths: a sample variance is within 3 x sqrt(2 / 3000) = 7.7 % of the true one
+    ratio = var_mc[away] / var[away]
+    assert np.all(np.abs(ratio - 1.0) < 0.09), (ratio.min(), ratio.max())
+    assert np.all(var[at] == 0.0)
+    # the hand value at the middle of the 60 s interval: N^2 T / 4 + q^2 T^3 / 48
+    assert np.isclose(levelled_roll_variance(np.array([120.0]), stops, N, q, b)[0],
+                      N**2 * 60 / 4 + q**2 * 60**3 / 48, rtol=1e-12)

@@ -475,16 +475,32 @@ def stop_levels(imu_t_s: np.ndarray, f_m_s2: np.ndarray, odo_t_s: np.ndarray, od
     return roll, pitch
 
 
+def levelled_stop_times(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_rad: np.ndarray) -> np.ndarray:
+    """The times at which :func:`with_roll_levelled` pins the roll: the stops with a level, a stop
+    outside the dead reckoning moved to its nearer end, sorted and without repeats.
+
+    The first fix is taken while the trolley stands for the static alignment, i.e. before the
+    dead reckoning starts at the alignment's end; the trolley has not moved since, so its level
+    holds at that end. Pinned at the fix's own time instead, the roll error the gyros gather
+    from the start to the next stop was removed as if it had been gathering since the fix: a
+    MEMS survey with the demo's 120 s alignment kept 0.76 mm of cant error at the start of the
+    first interval."""
+    ok = np.isfinite(stop_roll_rad)
+    return np.unique(np.clip(np.asarray(stop_times_s, dtype=float)[ok], dr.t_s[0], dr.t_s[-1]))
+
+
 def with_roll_levelled(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_rad: np.ndarray) -> DeadReckoning:
-    """The dead reckoning with its roll re-levelled at the stops (error interpolated in time)."""
+    """The dead reckoning with its roll re-levelled at the stops (error interpolated in time,
+    pinned at :func:`levelled_stop_times`; several levels at one pinned time are averaged)."""
     ok = np.isfinite(stop_roll_rad)
     if not ok.any():
         return dr
-    ts = stop_times_s[ok]
+    ts = np.clip(np.asarray(stop_times_s, dtype=float)[ok], dr.t_s[0], dr.t_s[-1])
     roll_dr = np.interp(ts, dr.t_s, dr.euler_rad()[:, 0])
-    err = np.angle(np.exp(1j * (roll_dr - stop_roll_rad[ok])))
-    order = np.argsort(ts)
-    err_t = np.interp(dr.t_s, ts[order], err[order])
+    err = np.angle(np.exp(1j * (roll_dr - np.asarray(stop_roll_rad)[ok])))
+    pinned, which = np.unique(ts, return_inverse=True)
+    err = np.bincount(which, weights=err) / np.bincount(which)
+    err_t = np.interp(dr.t_s, pinned, err)
     zeros = np.zeros_like(err_t)
     roll_fix = Rotation.from_rotvec(np.column_stack([-err_t, zeros, zeros])).as_quat()
     att = Rotation.from_quat(quat_multiply(dr.trolley_to_nav.as_quat(), roll_fix))

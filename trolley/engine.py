@@ -27,7 +27,8 @@ from scipy.linalg import block_diag
 from trolley import error_models as em
 from trolley.projection import GridFactors, session_site
 from trolley.deadreckoning import (DeadReckoning, StaticAlignment, dead_reckon, handling_blocks, mounting_rotation,
-                                   quat_multiply, static_alignment, stop_levels, with_roll_levelled)
+                                   levelled_stop_times, quat_multiply, static_alignment, stop_levels,
+                                   with_roll_levelled)
 from trolley.session import RawSession
 from trolley.smoothers import (SNOOP_OUT_PROBABILITY, Measurements, SmoothedResult, forward_filter, gate_threshold,
                                rts_smooth, snooped_verdicts, state_scale, two_filter_smooth)
@@ -148,6 +149,9 @@ class Trajectory:
     odometer_m: np.ndarray | None = None
     #: (K,) covariance of grid E and N, m^2 (None: not known, taken as 0)
     cov_EN_m2: np.ndarray | None = None
+    #: (K,) 1-sigma of the roll, rad: the stops' level and the gyro drift between levelled stops
+    #: (:func:`trolley.error_models.levelled_roll_variance`); None: not known
+    roll_sigma_rad: np.ndarray | None = None
 
 
 @dataclass
@@ -614,11 +618,15 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     if align.heading_source == "fixes":
         report("dead reckoning with the heading from the fixes", 0.2)
         align, dr = _heading_from_fixes(session, align, dr, fix_blocks, fix_ned, lever, misalign, config)
+    levelled_t, stop_roll = np.empty(0), None
     if config.level_at_stops:
         report("levelling at the stops", 0.22)
         stop_roll, _ = stop_levels(session.imu_t_s, session.imu_f_m_s2, session.odo_t_s,
                                    session.odo_distance_m, fix_t, misalign, w_rad_s=session.imu_w_rad_s)
         dr = with_roll_levelled(dr, fix_t, stop_roll)
+        levelled_t = levelled_stop_times(dr, fix_t, stop_roll)
+    if not config.level_at_stops or levelled_t.size == 0:
+        levelled_t = dr.t_s[:1]  # the static alignment's level, held from the start
 
     nodes = filter_nodes(dr, fix_blocks, config.node_spacing_m, config.max_node_dt_s)
     handling = handling_blocks(dr)
@@ -709,6 +717,11 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         if not snooped and (it >= passes - 1 or (worst_angle < config.relinearise_above_rad and worst_scale < 1e-3)):
             break  # the dead reckoning is close enough to the truth for the linear model
         dr_cur = corrected_dead_reckoning(dr, correction)
+        if stop_roll is not None:
+            # the correction turns the attitude about the pitch axis of the dead-reckoned heading;
+            # off the true one by the heading error, that turn tilts the roll the stops levelled
+            # (MEMS: 3.8 deg x 16.5 mrad, 0.55 mrad of roll, 0.8 mm of cant): level it again
+            dr_cur = with_roll_levelled(dr_cur, fix_t, stop_roll)
 
     # smoothed errors at every DR block, subtracted from the dead-reckoned trajectory
     Pdiag = np.diagonal(Ps, axis1=1, axis2=2)[:, _POS]
@@ -717,8 +730,10 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     vE, vN, cEN = horizontal_covariance_to_grid(var_blocks[:, 1], var_blocks[:, 0], var_blocks[:, 3], grid)
     sigma_enh = np.sqrt(np.maximum(np.column_stack([vE, vN, var_blocks[:, 2]]), 0.0))
     roll = dr_used.euler_rad()[:, 0]
+    roll_sigma = np.sqrt(level_sigma_rad(align, config) ** 2 + em.levelled_roll_variance(
+        dr.t_s, levelled_t, imu.gyro_arw_rad_sqrt_s, noise.gyro_bias_rw_rad_s_sqrt_s, imu.gyro_bias_sigma_rad_s))
     traj = Trajectory(dr.t_s, dr.travel_m, enh, sigma_enh, roll, x_blocks, odometer_m=dr.distance_m,
-                      cov_EN_m2=cEN)
+                      cov_EN_m2=cEN, roll_sigma_rad=roll_sigma)
 
     # innovation: the DR error the fix saw minus the error the filter predicted, in grid E, N, H
     # (of the first pass, the one that gated the fixes)
@@ -912,7 +927,8 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
                   level_sigma: float = float("nan")) -> Stations:
     """Resample the corrected trajectory on a fixed chainage step (FORMATS.md section 2).
 
-    ``level_sigma`` (rad, :func:`level_sigma_rad`) gives the cant's 1-sigma; NaN leaves it unknown.
+    The cant's 1-sigma comes from ``traj.roll_sigma_rad``, or, where the trajectory has none (the
+    live filter's), from ``level_sigma`` (rad, :func:`level_sigma_rad`); NaN leaves it unknown.
     """
     enh = traj.enh_m
     if design is not None:
@@ -966,8 +982,9 @@ def make_stations(traj: Trajectory, session: RawSession, design, config: Process
     rail = session.meta.trolley.rail_spacing_m
     cant = at(facing * rail * np.sin(traj.roll_rad))
     twist = cant - np.interp(s - config.twist_base_m, s, cant, left=np.nan)
-    # d(rail sin roll) = rail cos(roll) d(roll)
-    sigma_cant = rail * np.sqrt(np.clip(1.0 - (cant / rail) ** 2, 0.0, 1.0)) * level_sigma
+    # d(rail sin roll) = rail cos(roll) d(roll); the roll's sigma grows between the levelled stops
+    roll_sigma = at(traj.roll_sigma_rad) if traj.roll_sigma_rad is not None else level_sigma
+    sigma_cant = rail * np.sqrt(np.clip(1.0 - (cant / rail) ** 2, 0.0, 1.0)) * roll_sigma
     if session.gauge_t_s is not None and len(session.gauge_t_s) > 1:
         gt = np.asarray(session.gauge_t_s, dtype=float)
         gauge = np.interp(t, gt, session.gauge_m, left=np.nan, right=np.nan)

@@ -249,6 +249,51 @@ def equivalent_gyro_bias(gyro_bias_instability_rad_s, heading_error_rad, latitud
             + units.EARTH_RATE_RAD_S * np.cos(latitude_rad) * np.abs(heading_error_rad))
 
 
+def levelled_roll_variance(t_s, stop_t_s, gyro_arw_rad_sqrt_s: float, gyro_bias_rw_rad_s_sqrt_s: float,
+                           gyro_bias_rad_s: float) -> np.ndarray:
+    """Variance of the gyro-integrated roll between stops at which the accelerometers level it.
+
+    The roll is unobservable from the fixes (Jiang 2017 Sec. 4.1 drops it); the engine levels it
+    at every stop and removes the roll error linearly in time between two levelled stops
+    (``trolley.deadreckoning.with_roll_levelled``). What the linear removal leaves is a bridge
+    of the integrated gyro noise: the constant part of the x-gyro bias is removed exactly, the
+    angle random walk N leaves a Brownian bridge, ``N^2 T a (1 - a)`` at the fraction ``a`` of an
+    interval of T seconds, and a random walk of the bias with PSD q (the bias instability as in
+    :class:`ChannelNoise`) an integrated-Brownian bridge, ``q T^3 a^2 (1 - a)^2 / 3`` (the
+    covariance of the integral of a Wiener process, ``q (s^2 t / 2 - s^3 / 6)`` for s <= t,
+    interpolated linearly between its ends). Before the first and after the last levelled stop
+    the roll is held and drifts freely: ``N^2 d + b^2 d^2 + q d^3 / 3`` at d seconds from it, b the
+    whole bias sigma. The level error of the stops themselves (accelerometer bias, residual
+    mounting) is common to all of them and is not included.
+
+    Parameters
+    ----------
+    t_s : (K,) times at which the variance is wanted.
+    stop_t_s : (S,) times of the levelled stops (at least one).
+    gyro_arw_rad_sqrt_s : angle random walk of the x gyro, rad/sqrt(s).
+    gyro_bias_rw_rad_s_sqrt_s : PSD root of the bias random walk, rad/s/sqrt(s).
+    gyro_bias_rad_s : 1-sigma of the bias itself (what drifts the held roll beyond the ends).
+
+    Returns
+    -------
+    (K,) variance of the roll, rad^2.
+    """
+    t = np.asarray(t_s, dtype=float)
+    ts = np.unique(np.asarray(stop_t_s, dtype=float))
+    if ts.size == 0:
+        raise ValueError("levelled_roll_variance: no levelled stop")
+    n2, q, b2 = gyro_arw_rad_sqrt_s ** 2, gyro_bias_rw_rad_s_sqrt_s ** 2, gyro_bias_rad_s ** 2
+    j = np.clip(np.searchsorted(ts, t, side="right"), 1, max(ts.size - 1, 1))
+    ta, tb = ts[j - 1], ts[np.minimum(j, ts.size - 1)]
+    T = tb - ta
+    a = np.divide(t - ta, T, out=np.zeros_like(t), where=T > 0)
+    var = n2 * T * a * (1.0 - a) + q * T ** 3 * (a * (1.0 - a)) ** 2 / 3.0
+    d = np.where(t < ts[0], ts[0] - t, np.where(t > ts[-1], t - ts[-1], 0.0))
+    outside = d > 0
+    var[outside] = (n2 * d + b2 * d ** 2 + q * d ** 3 / 3.0)[outside]
+    return var
+
+
 def observability_ranks(speed_m_s: float = 1.0, heading_rad: float = 0.3) -> tuple[int, int]:
     """Ranks of the observability matrices of the vertical and level channels (Jiang 2017 Eq. 26).
 

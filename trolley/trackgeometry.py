@@ -106,10 +106,10 @@ class TrackInput:
     cov_EN_m2 : covariance of E and N, m^2 (with the sigmas the whole horizontal covariance; E
         and N errors are correlated, |rho| 0.29 median for the RLG, 0.71 for MEMS); None: not
         known, taken as 0 by the lateral sigma.
-    sigma_cant_m : 1-sigma of the cant, m (the engine's: the rail spacing times the level error
-        the alignment and the re-levelling at the stops leave, accelerometer bias / g and the
-        residual roll mounting; one error for the whole survey, so it cancels in twist; the
-        gyros' roll drift between stops is not in it). None: not known.
+    sigma_cant_m : 1-sigma of the cant, m (the engine's: the rail spacing times the roll sigma,
+        the level error the re-levelling at the stops leaves, accelerometer bias / g and the
+        residual roll mounting, one error for the whole survey that cancels in twist, and the
+        gyros' roll drift between the levelled stops, which does not). None: not known.
     """
 
     chainage_m: np.ndarray
