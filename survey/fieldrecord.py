@@ -7,10 +7,11 @@ record of them is written next to ``track.csv`` as ``field_record.json``
 (:func:`write_field_record`; FORMATS.md section 2, "field_record.json"); ``trolley export`` reads
 it when present (:func:`read_field_record`).
 
-Nothing is recomputed except the overlap checks' differences and their sigmas, which the session
-computed from the same two stored fixes (``trolley.resection.overlap_check``: new minus old station,
-each fix's stored sigma holding its measurement and its setup) and did not keep apart from the
-fix's reason; :func:`overlap_checks` pairs each overlap fix with the fix taken just before it from
+Nothing is recomputed except the overlap checks' differences and their covariances, which the
+session computed from the same two stored fixes and their stored setups
+(``trolley.resection.overlap_check``: new minus old station, each fix's covariance holding its
+measurement and its setup, on the sigmas it is stored with, :func:`stored_fix_covariance`) and did
+not keep apart from the fix's reason; :func:`overlap_checks` pairs each overlap fix with the fix taken just before it from
 the previous station, exactly as the session did.
 
 No paper section: record keeping (DESIGN.md, "nothing lost").
@@ -90,8 +91,11 @@ class RecordOverlap:
     """An overlap check: the trolley prism at one stop measured from the old and the new station.
 
     ``sigma_dE_m`` .. ``sigma_dH_m`` are the 1-sigma of the difference per axis (both fixes'
-    measurements and setups), ``max_d_over_sigma`` the largest |difference| / sigma, ``consistent``
-    whether that is within ``sigma_limit`` (None, and NaN sigmas, for fixes stored without sigmas).
+    measurements and setups), ``max_d_over_sigma`` the largest |difference| / sigma (for display),
+    ``mahalanobis`` the difference's length in its joint sigma sqrt(d' C^-1 d) (E-N-H correlations
+    included), ``consistent`` whether that is within ``sigma_limit`` (None, and NaN sigmas, for fixes
+    stored without sigmas; records before the joint test hold no ``mahalanobis`` and a per-axis
+    ``sigma_limit`` of 3).
     """
 
     t_s: float
@@ -112,6 +116,23 @@ class RecordOverlap:
     max_d_over_sigma: float = math.nan
     sigma_limit: float = math.nan
     consistent: bool | None = None
+    mahalanobis: float = math.nan
+
+    @property
+    def limit_text(self) -> str:
+        """The bound the difference was tested against: "3.44 joint sigma" (a record before the
+        joint test: "3 sigma", per axis)."""
+        return (f"{self.sigma_limit:.2f} joint sigma" if math.isfinite(self.mahalanobis)
+                else f"{self.sigma_limit:g} sigma")
+
+    @property
+    def sigma_verdict(self) -> str:
+        """The verdict against the sigma for the sheet and the report: "within 3.44 joint sigma
+        (2.71)", "BEYOND ...", or "not known" (fixes stored without sigmas)."""
+        if self.consistent is None:
+            return "not known"
+        joint = f" ({self.mahalanobis:.2f})" if math.isfinite(self.mahalanobis) else ""
+        return f"{'within' if self.consistent else 'BEYOND'} {self.limit_text}{joint}"
 
 
 @dataclass(frozen=True)
@@ -154,10 +175,42 @@ class FieldRecord:
         return [f for f in self.fixes if not f.accepted]
 
 
-def overlap_checks(fixes: list[RecordFix], tolerance_m: float) -> list[RecordOverlap]:
+def stored_fix_covariance(settings, enh_m, sigma_enh_m, setup=None) -> np.ndarray:
+    """(3, 3) covariance of a stored fix: its correlations computed again from its station setup
+    (``trolley.resection.fix_covariance`` with the project's instrument sigmas and polar model, the
+    setup's a priori covariance and variance factor) on the per-axis sigmas it is stored with
+    (``trolley.resection.covariance_with_sigmas``); diagonal without a setup.
+
+    Parameters
+    ----------
+    settings : ``survey.store.ProjectSettings`` (instrument sigmas, polar model).
+    enh_m : (3,) the fix, grid E, N, H.
+    sigma_enh_m : (3,) its stored 1-sigma.
+    setup : the ``survey.store.StationSetupRecord`` it was measured from, or None.
+
+    Returns
+    -------
+    (3, 3) covariance, m^2.
+    """
+    from trolley.resection import covariance_with_sigmas, fix_covariance, variance_factor
+
+    sigma = np.asarray(sigma_enh_m, dtype=float).reshape(3)
+    if setup is None:
+        return np.diag(sigma**2)
+    with np.errstate(all="ignore"):
+        full = fix_covariance(settings.instrument, setup.covariance, setup.station_enh_m,
+                              np.asarray(enh_m, dtype=float), settings.polar_model,
+                              variance_factor(setup.sigma0, setup.dof))[0]
+    if not np.all(np.isfinite(full)):
+        return np.diag(sigma**2)  # a fix on the station's own vertical has no line of sight to correlate by
+    return covariance_with_sigmas(full, sigma)
+
+
+def overlap_checks(fixes: list[RecordFix], tolerance_m: float, covariance=None) -> list[RecordOverlap]:
     """The overlap checks among ``fixes`` (time order): each fix whose reason starts with
     :data:`OVERLAP_PREFIX`, against the last fix before it from another station (preferably an
-    accepted one, as the session's ``last_fix`` was)."""
+    accepted one, as the session's ``last_fix`` was). ``covariance(fix)`` gives a fix's (3, 3)
+    covariance (:func:`stored_fix_covariance`); without it, the stored sigmas uncorrelated."""
     from trolley.resection import overlap_check
 
     out = []
@@ -170,14 +223,19 @@ def overlap_checks(fixes: list[RecordFix], tolerance_m: float) -> list[RecordOve
             continue
         s_old = np.array([old.sigma_E_m, old.sigma_N_m, old.sigma_H_m])
         s_new = np.array([f.sigma_E_m, f.sigma_N_m, f.sigma_H_m])
-        covs = ((np.diag(s_old**2), np.diag(s_new**2)) if np.all(np.isfinite(s_old)) and np.all(np.isfinite(s_new))
-                else (None, None))
+        if not (np.all(np.isfinite(s_old)) and np.all(np.isfinite(s_new))):
+            covs = (None, None)
+        elif covariance is None:
+            covs = (np.diag(s_old**2), np.diag(s_new**2))
+        else:
+            covs = (covariance(old), covariance(f))
         oc = overlap_check(old.point, [old.E_m, old.N_m, old.H_m], [f.E_m, f.N_m, f.H_m], tolerance_m, *covs)
         d, sd = oc.difference_enh_m, oc.sigma_enh_m
         out.append(RecordOverlap(f.t_s, old.point, f.point, old.station, f.station, float(d[0]), float(d[1]),
                                  float(d[2]), tolerance_m, oc.within_tolerance, f.accepted, f.reason,
                                  float(sd[0]), float(sd[1]), float(sd[2]), oc.max_normalized,
-                                 oc.sigma_limit if oc.consistent is not None else math.nan, oc.consistent))
+                                 oc.sigma_limit if oc.consistent is not None else math.nan, oc.consistent,
+                                 oc.mahalanobis))
     return out
 
 
@@ -199,10 +257,17 @@ def field_record(store, session_name: str) -> FieldRecord:
         out_setups.append(RecordSetup(k, float(s.t_s), e, n, h, float(s.orientation_rad), float(s.sigma0),
                                       int(s.dof), bool(s.accepted), tuple(s.excluded), pts))
     span = store.session_time_span_utc(sid)
+    settings = store.settings()
+
+    def covariance(f: RecordFix) -> np.ndarray:
+        # the fix's station number is its setup's place in ``setups`` (0: none)
+        return stored_fix_covariance(settings, [f.E_m, f.N_m, f.H_m], [f.sigma_E_m, f.sigma_N_m, f.sigma_H_m],
+                                     setups[f.station - 1] if f.station > 0 else None)
+
     return FieldRecord(
         project=store.info().name, session=session_name, header={**store.header(), **crs_header(store, rec)},
         start_utc=span[0] if span else "", end_utc=span[1] if span else "",
-        fixes=fixes, setups=out_setups, overlaps=overlap_checks(fixes, store.settings().overlap_tolerance_m),
+        fixes=fixes, setups=out_setups, overlaps=overlap_checks(fixes, settings.overlap_tolerance_m, covariance),
         stops=[RecordStop(float(p.t_start_s), float(p.t_end_s), p.label, float(p.chainage_m))
                for p in store.stops(sid)],
         notes=[RecordNote(float(n.t_s), float(n.chainage_m), n.text) for n in store.notes(sid)])
@@ -306,7 +371,7 @@ def read_field_record(path: Path) -> FieldRecord:
                              num(d["tolerance_m"]), bool(d["within"]), bool(d["accepted"]), str(d["reason"]),
                              *(num(d.get(k)) for k in ("sigma_dE_m", "sigma_dN_m", "sigma_dH_m", "max_d_over_sigma",
                                                        "sigma_limit")),
-                             None if consistent is None else bool(consistent))
+                             None if consistent is None else bool(consistent), num(d.get("mahalanobis")))
 
     def stop(d) -> RecordStop:
         return RecordStop(num(d["t_start_s"]), num(d["t_end_s"]), str(d["label"]), num(d["chainage_m"]))
@@ -325,4 +390,4 @@ def read_field_record(path: Path) -> FieldRecord:
 
 
 __all__ = ["FIELD_RECORD", "FORMAT", "FieldRecord", "RecordFix", "RecordSetup", "RecordPointing", "RecordOverlap",
-           "RecordStop", "RecordNote", "field_record", "overlap_checks", "read_field_record", "record_json", "write_field_record"]
+           "RecordStop", "RecordNote", "field_record", "overlap_checks", "stored_fix_covariance", "read_field_record", "record_json", "write_field_record"]

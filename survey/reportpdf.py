@@ -149,7 +149,7 @@ def _summary(fig, rep: SurveyReport) -> None:
         held = [o for o in rec.overlaps if not o.within and o.consistent]
         lines.append(f"Station setups: {len(rec.setups)}; overlap checks: {len(rec.overlaps)}, "
                      f"{len(bad)} outside the tolerance" + (f" ({', '.join(bad)})" if bad else "")
-                     + (f", of them within {held[0].sigma_limit:g} sigma of the setups' own uncertainty: "
+                     + (f", of them within {held[0].limit_text} of the setups' own uncertainty: "
                         f"{', '.join(o.new_point for o in held)}" if held else ""))
     lines.append(f"Defects: {len(rep.defects)} against {rep.tolerances.name}")
     for i, t in enumerate(lines):

@@ -144,7 +144,7 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
         held = [o.new_point for o in bad if o.consistent]
         kv("Overlap checks", f"{len(rep.record.overlaps)} ({len(bad)} outside the tolerance"
                              + (": " + ", ".join(o.new_point for o in bad) if bad else "") + ")"
-                             + (f"; within {bad[0].sigma_limit:g} sigma of the setups' own uncertainty: "
+                             + (f"; within {bad[0].limit_text} of the setups' own uncertainty: "
                                 f"{', '.join(held)}" if held else "") + "; see Free stations")
     kv("RMS innovation [mm]", info.rms_innovation_mm, "0.00")
     kv("Max position sigma [mm]", info.max_sigma_mm, "0.00")
@@ -510,8 +510,7 @@ def _stations_sheet(ws, rep: SurveyReport) -> None:
         for j, v in enumerate((o.sigma_dE_m, o.sigma_dN_m, o.sigma_dH_m), start=11):
             _num(ws, r, j, v * 1e3, "0.00")
         _num(ws, r, 14, o.max_d_over_sigma, "0.00")
-        put_text(ws, r, 15, "not known" if o.consistent is None else
-                 f"{'within' if o.consistent else 'BEYOND'} {o.sigma_limit:g} sigma")
+        put_text(ws, r, 15, o.sigma_verdict)
         if not o.within:
             for j in range(1, 16):
                 ws.cell(row=r, column=j).fill = red

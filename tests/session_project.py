@@ -30,13 +30,33 @@ def make_project(root: Path, name: str = "t1", tolerance_set: str = "default", *
     return folder
 
 
-def fix_sigmas_by_hand(fix, setup, fix_sigma_m: float) -> np.ndarray:
-    """(3,) the E, N, H sigma a fix must carry, written out by hand: the measurement's sigma plus the
-    setup's station and orientation covariance (scaled by sigma0^2 when sigma0 > 1) carried to the
-    fix, where E moves by dN and N by -dE per radian of orientation."""
-    c = setup.covariance * max(1.0, setup.sigma0**2)
-    de, dn = fix.e_m - setup.station_enh_m[0], fix.n_m - setup.station_enh_m[1]
-    sig2 = fix_sigma_m**2
-    return np.sqrt([sig2 + c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3],
-                    sig2 + c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3],
-                    sig2 + c[2, 2]])
+def fix_covariance_by_hand(fix, setup, instrument) -> np.ndarray:
+    """(3, 3) E, N, H covariance a fix must carry, written out by hand for the simulated sessions' flat
+    polar model (no curvature, grid scale 1): the polar measurement's part (across the line the
+    direction sigma x horizontal distance, along it and in height the zenith and distance sigmas
+    shared by sin z, cos z) plus the setup's station and orientation covariance carried to the fix
+    (E moves by dN and N by -dE per radian of orientation), all scaled by sigma0^2 when sigma0 > 1."""
+    c = setup.covariance
+    de, dn, dh = fix.e_m - setup.station_enh_m[0], fix.n_m - setup.station_enh_m[1], fix.h_m - setup.station_enh_m[2]
+    hd = np.hypot(de, dn)
+    sd = np.hypot(hd, dh)
+    sa, ca, sz, cz = de / hd, dn / hd, hd / sd, dh / sd
+    s_d = instrument.distance_m + instrument.distance_scale * sd
+    across2 = (instrument.direction_rad * hd) ** 2
+    along2 = (s_d * sz) ** 2 + (instrument.zenith_rad * sd * cz) ** 2
+    up2 = (s_d * cz) ** 2 + (instrument.zenith_rad * sd * sz) ** 2
+    along_up = sz * cz * (s_d**2 - (instrument.zenith_rad * sd) ** 2)
+    polar = np.array([[across2 * ca**2 + along2 * sa**2, (along2 - across2) * sa * ca, along_up * sa],
+                      [(along2 - across2) * sa * ca, across2 * sa**2 + along2 * ca**2, along_up * ca],
+                      [along_up * sa, along_up * ca, up2]])
+    setup_part = np.array([[c[0, 0] + 2 * dn * c[0, 3] + dn**2 * c[3, 3],
+                            c[0, 1] - de * c[0, 3] + dn * c[1, 3] - de * dn * c[3, 3], c[0, 2] + dn * c[2, 3]],
+                           [0.0, c[1, 1] - 2 * de * c[1, 3] + de**2 * c[3, 3], c[1, 2] - de * c[2, 3]],
+                           [0.0, 0.0, c[2, 2]]])
+    setup_part = np.triu(setup_part) + np.triu(setup_part, 1).T
+    return max(1.0, setup.sigma0**2) * (polar + setup_part)
+
+
+def fix_sigmas_by_hand(fix, setup, instrument) -> np.ndarray:
+    """(3,) the E, N, H sigma a fix must carry: the diagonal of :func:`fix_covariance_by_hand`."""
+    return np.sqrt(np.diag(fix_covariance_by_hand(fix, setup, instrument)))

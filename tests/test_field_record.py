@@ -57,10 +57,11 @@ def test_field_record_round_trip_and_overlap_difference(tmp_path):
     assert (o.old_point, o.new_point, o.from_station, o.to_station) == ("FIX002", "FIX003", 1, 2)
     assert (o.dE_m, o.dN_m, o.dH_m) == pytest.approx((0.0005, 0.0, 0.003), abs=1e-9) and not o.within
     # the difference's sigma from the two fixes' stored sigmas (0.6 mm each): sqrt(0.72) = 0.849 mm per
-    # axis, and 3 mm in H is 3.54 of them: beyond 3 sigma
+    # axis, and 3 mm in H is 3.54 of them; jointly (correlations from the setups) beyond 3.44
     assert (o.sigma_dE_m, o.sigma_dN_m, o.sigma_dH_m) == pytest.approx((np.sqrt(0.72e-6),) * 3, rel=1e-12)
     assert o.max_d_over_sigma == pytest.approx(3.0 / np.sqrt(0.72), rel=1e-6)
-    assert o.consistent is False and o.sigma_limit == 3.0
+    assert o.consistent is False and o.sigma_limit == pytest.approx(3.436, abs=1e-3)
+    assert o.mahalanobis > o.sigma_limit and o.sigma_verdict == f"BEYOND 3.44 joint sigma ({o.mahalanobis:.2f})"
     assert [s.excluded for s in rec.setups] == [(), ("CP9",)] and rec.header["line"] == "4711 Hannover-Würzburg"
     assert rec.start_utc <= rec.end_utc and rec.start_utc
     path = write_field_record(tmp_path, rec)
@@ -137,7 +138,7 @@ def test_sheet_lists_rejected_fixes_overlaps_setups_and_header(tmp_path):
     assert ov[1] == "FIX003" and ov[7] == "OUTSIDE" and ov[5] == pytest.approx(3.0) and ov[6] == pytest.approx(2.0)
     # its sigma per axis, the largest |d| / sigma and the verdict against 3 sigma
     assert ov[10:13] == pytest.approx((np.sqrt(0.72),) * 3, rel=1e-12)
-    assert ov[13] == pytest.approx(3.0 / np.sqrt(0.72), rel=1e-6) and ov[14] == "BEYOND 3 sigma"
+    assert ov[13] == pytest.approx(3.0 / np.sqrt(0.72), rel=1e-6) and ov[14].startswith("BEYOND 3.44 joint sigma (")
 
 
 def test_project_set_validates_and_show_lists(tmp_path):

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from trolley.resection import (
+    OVERLAP_SIGMA_LIMIT,
     InstrumentSigmas,
     PolarModel,
     PolarObservations,
@@ -18,6 +19,7 @@ from trolley.resection import (
     observations_from_station,
     overlap_check,
     point_from_observation,
+    polar_covariance,
     resect,
     setup_covariance_at,
     suggest_point_to_drop,
@@ -363,15 +365,84 @@ def test_setup_covariance_scaled_by_sigma0_is_honest_when_the_instrument_is_nois
     assert abs(np.mean(nees_ap) - 4 * ratio**2) < 4 * np.sqrt(8 * ratio**4 / n)
 
 
+#: 1" on both angles, 0.6 mm + 0 ppm: round figures for the hand computations below
+ROUND_SIGMAS = InstrumentSigmas(direction_rad=np.deg2rad(1.0 / 3600.0), zenith_rad=np.deg2rad(1.0 / 3600.0),
+                                distance_m=0.0006, distance_scale=0.0)
+FLAT = PolarModel(curvature_refraction=False)
+
+
 def test_fix_covariance_by_hand():
-    # 0.6 mm of measurement per axis and 1" of orientation: a fix 200 m due north of the station has
-    # E sigma sqrt(0.6^2 + (200 m x 1")^2) = sqrt(0.36 + 0.9402) mm, N and H 0.6 mm
+    # a horizontal line 200 m due north, 1" angles, 0.6 mm distance, and 1" of setup orientation:
+    # E (across) sqrt((200 m x 1")^2 + (200 m x 1")^2), N (along) 0.6 mm, H 200 m x 1"; the
+    # variance factor 2 doubles every variance
     so = np.deg2rad(1.0 / 3600.0)
     st_ = np.array([10.0, 20.0, 5.0])
-    cov = fix_covariance(0.0006, np.diag([0.0, 0.0, 0.0, so**2]), st_, st_ + [0.0, 200.0, 1.0])
+    cov = fix_covariance(ROUND_SIGMAS, np.diag([0.0, 0.0, 0.0, so**2]), st_, st_ + [0.0, 200.0, 0.0], FLAT)
     assert cov.shape == (1, 3, 3)
-    np.testing.assert_allclose(cov[0], np.diag([0.0006**2 + (200 * so) ** 2, 0.0006**2, 0.0006**2]), rtol=1e-12)
-    assert np.sqrt(cov[0, 0, 0]) * 1e3 == pytest.approx(np.sqrt(0.36 + 0.94017), rel=1e-4)
+    a = (200 * so) ** 2
+    np.testing.assert_allclose(cov[0], np.diag([2 * a, 0.0006**2, a]), rtol=1e-9, atol=1e-16)
+    assert np.sqrt(cov[0, 0, 0]) * 1e3 == pytest.approx(np.sqrt(2 * 0.94017), rel=1e-4)
+    twice = fix_covariance(ROUND_SIGMAS, np.diag([0.0, 0.0, 0.0, so**2]), st_, st_ + [0.0, 200.0, 0.0], FLAT, 2.0)
+    np.testing.assert_allclose(twice, 2 * cov, rtol=1e-12)
+
+
+def test_polar_covariance_by_hand_north_and_45_degrees():
+    # due north, horizontal, 260 m, 0.5" and 0.6 mm + 1 ppm: across = E = 0.5" x 260 m = 0.630 mm,
+    # along = N = 0.6 + 0.26 = 0.86 mm, H = 0.5" x 260 m, no correlation
+    sig = InstrumentSigmas()
+    c = polar_covariance(np.zeros(3), [0.0, 260.0, 0.0], sig, FLAT)[0]
+    across, along = sig.direction_rad * 260.0, 0.0006 + 1e-6 * 260.0
+    assert across * 1e3 == pytest.approx(0.6303, abs=1e-4)
+    np.testing.assert_allclose(c, np.diag([across**2, along**2, (sig.zenith_rad * 260.0) ** 2]),
+                               rtol=1e-9, atol=1e-18)
+    # the same line turned to azimuth 45 deg: the along and across variances share E and N, and the
+    # E-N covariance is (along^2 - across^2) / 2
+    p45 = 260.0 * np.array([np.sin(np.pi / 4), np.cos(np.pi / 4), 0.0])
+    c45 = polar_covariance(np.zeros(3), p45, sig, FLAT)[0]
+    half = 0.5 * (along**2 + across**2)
+    np.testing.assert_allclose(c45[:2, :2], [[half, 0.5 * (along**2 - across**2)],
+                                             [0.5 * (along**2 - across**2), half]], rtol=1e-9)
+    assert c45[0, 1] / half == pytest.approx((0.86**2 - 0.6303**2) / (0.86**2 + 0.6303**2), rel=1e-3)
+
+
+def test_polar_covariance_matches_a_monte_carlo_of_the_polar_model():
+    # readings drawn with the instrument sigmas, points computed by point_from_observation (the
+    # session's own computation, curvature included): their sample covariance is the propagated one;
+    # 20000 draws: each element within 5 of its own standard errors (Wishart: var(s_ij) = (c_ii c_jj
+    # + c_ij^2) / n)
+    rng = np.random.default_rng(5)
+    sig = InstrumentSigmas(distance_scale=20e-6)  # a large ppm part, so the distance's share shows
+    st_ = np.array([100.0, 200.0, 10.0])
+    target = st_ + [-150.0, 80.0, -12.0]
+    obs = observations_from_station(st_, 0.3, target)
+    n = 20000
+    draws = PolarObservations(np.full(n, obs.hz_rad[0]), np.full(n, obs.zenith_rad[0]),
+                              np.full(n, obs.slope_distance_m[0]))
+    pts = point_from_observation(st_, 0.3, noisy(draws, sig, rng))
+    c = polar_covariance(st_, target, sig)[0]
+    mc = np.cov(pts.T)
+    se = np.sqrt((np.outer(np.diag(c), np.diag(c)) + c**2) / n)
+    assert np.all(np.abs(mc - c) < 5 * se), (mc - c) / se
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.0, 2 * np.pi), st.floats(2.0, 400.0), st.floats(-30.0, 30.0), st.floats(0.0, 20e-6))
+def test_polar_covariance_is_the_numeric_jacobian_of_the_point_computation(az, hd, dh, ppm):
+    # property: for any line, J S J^T with J the central-difference derivative of point_from_observation
+    sig = InstrumentSigmas(distance_scale=ppm)
+    st_ = np.array([5.0, -7.0, 2.0])
+    target = st_ + [hd * np.sin(az), hd * np.cos(az), dh]
+    obs = observations_from_station(st_, 0.0, target).as_array()[0]
+    steps = np.array([1e-7, 1e-7, 1e-4])
+    jac = np.empty((3, 3))
+    for j in range(3):
+        up, down = obs.copy(), obs.copy()
+        up[j] += steps[j]
+        down[j] -= steps[j]
+        jac[:, j] = (point_from_observation(st_, 0.0, PolarObservations(*up))[0]
+                     - point_from_observation(st_, 0.0, PolarObservations(*down))[0]) / (2 * steps[j])
+    s = np.diag([sig.direction_rad**2, sig.zenith_rad**2, float(sig.distance_sigma_m(obs[2])) ** 2])
+    np.testing.assert_allclose(polar_covariance(st_, target, sig)[0], jac @ s @ jac.T, rtol=1e-5, atol=1e-15)
 
 
 def test_overlap_check_sigma_by_hand():
@@ -384,9 +455,13 @@ def test_overlap_check_sigma_by_hand():
     np.testing.assert_allclose(chk.normalized, np.array([0.28, 1.07, 2.19]) / np.sqrt(0.72), rtol=1e-9)
     assert not chk.within_tolerance and chk.consistent is True
     assert chk.max_normalized == pytest.approx(2.19 / np.sqrt(0.72), rel=1e-9)
-    # 2.6 mm is 3.06 sigma: more than the setups explain
-    far = overlap_check("p", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0026], 0.002, c, c)
-    assert far.consistent is False and far.max_normalized == pytest.approx(2.6 / np.sqrt(0.72), rel=1e-9)
+    # uncorrelated: the joint length is the root sum of squares, sqrt(0.28^2 + 1.07^2 + 2.19^2) / 0.8485
+    assert chk.mahalanobis == pytest.approx(np.sqrt(0.28**2 + 1.07**2 + 2.19**2) / np.sqrt(0.72), rel=1e-9)
+    # 3.0 mm is 3.54 sigma, beyond the 3.436 of chi-square (3 dof) at the old rule's 0.81 %
+    assert OVERLAP_SIGMA_LIMIT == pytest.approx(np.sqrt(stats.chi2.isf(1 - (1 - 2 * stats.norm.sf(3)) ** 3, 3)))
+    assert OVERLAP_SIGMA_LIMIT == pytest.approx(3.436, abs=1e-3)
+    far = overlap_check("p", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0030], 0.002, c, c)
+    assert far.consistent is False and far.max_normalized == pytest.approx(3.0 / np.sqrt(0.72), rel=1e-9)
     # the setup parts add: a first position with 1 mm in E from its setup
     c1 = c + np.diag([1e-6, 0.0, 0.0])
     assert overlap_check("p", np.zeros(3), np.zeros(3), 0.002, c1, c).sigma_enh_m[0] == pytest.approx(
@@ -394,15 +469,30 @@ def test_overlap_check_sigma_by_hand():
     # without covariances: no sigma, no statistical verdict
     plain = overlap_check("p", np.zeros(3), [0.0, 0.0, 0.0025])
     assert np.all(np.isnan(plain.sigma_enh_m)) and plain.consistent is None and not plain.within_tolerance
+    assert np.isnan(plain.mahalanobis)
     with pytest.raises(ValueError, match="both positions or of neither"):
         overlap_check("p", np.zeros(3), np.zeros(3), 0.002, c, None)
 
 
+def test_overlap_joint_test_follows_the_correlation():
+    # E and N correlated 0.9 (1 mm each, H 1 mm apart): a difference of 2.5 mm in E and -2.5 mm in N is
+    # 2.5 sigma on each axis, within the old per-axis 3 sigma, but it lies along the narrow diagonal
+    # (variance 0.1 mm^2): joint length sqrt(12.5 / 0.1) = 11.2, far beyond; 3.2 mm in both is beyond 3
+    # sigma per axis but along the wide diagonal (variance 1.9): sqrt(20.48 / 1.9) = 3.28, within
+    half = 0.5e-6 * np.array([[1.0, 0.9, 0.0], [0.9, 1.0, 0.0], [0.0, 0.0, 1.0]])  # each position's
+    across = overlap_check("p", np.zeros(3), [0.0025, -0.0025, 0.0], 0.002, half, half)
+    assert across.max_normalized == pytest.approx(2.5, rel=1e-9) and across.max_normalized < 3.0
+    assert across.mahalanobis == pytest.approx(np.sqrt(12.5 / 0.1), rel=1e-9) and across.consistent is False
+    along = overlap_check("p", np.zeros(3), [0.0032, 0.0032, 0.0], 0.002, half, half)
+    assert along.max_normalized == pytest.approx(3.2, rel=1e-9) and along.max_normalized > 3.0
+    assert along.mahalanobis == pytest.approx(np.sqrt(20.48 / 1.9), rel=1e-9) and along.consistent is True
+
+
 def test_overlap_sigma_matches_a_monte_carlo_of_two_resected_stations():
     # a prism 50 m from one free station and 90 m from the next, each on 8 noisy CPIII pointings, each
-    # position with 0.2 mm of its own measurement noise (small, so that the setups' part shows): the
-    # difference over 2000 trials follows the sigma overlap_check reports (chi-square bounds per axis),
-    # its whole covariance (e' C^-1 e averages 3), and |d| > 2 sigma on an axis 4.55 % of the time
+    # position measured with the instrument's noise on its own readings: the difference over 2000
+    # trials follows the covariance overlap_check reports (chi-square bounds per axis), its whole
+    # covariance (e' C^-1 e averages 3), and |d| > 2 sigma on an axis 4.55 % of the time
     rng = np.random.default_rng(12)
     sig = InstrumentSigmas()
     prism = STATION + [40.0, 30.0, 0.6]
@@ -410,19 +500,18 @@ def test_overlap_sigma_matches_a_monte_carlo_of_two_resected_stations():
     layouts = [cpiii_layout(station=b) for b in bases]
     exact = [observations_from_station(b, 0.7 * k, layouts[k][1]) for k, b in enumerate(bases)]
     prism_obs = [observations_from_station(b, 0.7 * k, prism) for k, b in enumerate(bases)]
-    s = 0.0002
     n = 2000
     z, maha = [], []
     for _ in range(n):
         pos, cov = [], []
         for k in range(2):
             res = resect(layouts[k][0], layouts[k][1], noisy(exact[k], sig, rng))
-            p = point_from_observation(res.station_enh_m, res.orientation_rad, prism_obs[k])[0]
-            pos.append(p + rng.normal(0.0, s, 3))
-            cov.append(fix_covariance(s, res.covariance, res.station_enh_m, p)[0])
+            p = point_from_observation(res.station_enh_m, res.orientation_rad, noisy(prism_obs[k], sig, rng))[0]
+            pos.append(p)
+            cov.append(fix_covariance(sig, res.covariance, res.station_enh_m, p)[0])
         chk = overlap_check("prism", pos[0], pos[1], 0.002, cov[0], cov[1])
         z.append(chk.difference_enh_m / chk.sigma_enh_m)
-        maha.append(chk.difference_enh_m @ np.linalg.solve(cov[0] + cov[1], chk.difference_enh_m))
+        maha.append(chk.mahalanobis ** 2)
     z = np.array(z)
     lo, hi = np.sqrt(stats.chi2.ppf([0.0005, 0.9995], n) / n)
     rms = np.sqrt(np.mean(z**2, axis=0))
@@ -432,5 +521,6 @@ def test_overlap_sigma_matches_a_monte_carlo_of_two_resected_stations():
     k_lo, k_hi = stats.binom.ppf([0.0005, 0.9995], n, p2)
     for j in range(3):
         assert k_lo <= np.sum(np.abs(z[:, j]) > 2.0) <= k_hi
-    # the setups' part is not negligible in E and N: the measurements alone would claim 0.28 mm
-    assert np.all(chk.sigma_enh_m[:2] > 1.15 * np.sqrt(2) * s), chk.sigma_enh_m
+    # the setups' part is in the sigma: the measurements alone would claim 3.5 % and 4.1 % less in E, N
+    alone = np.sqrt(np.diag(sum(polar_covariance(b, prism, sig)[0] for b in bases)))
+    assert np.all(chk.sigma_enh_m[:2] > 1.03 * alone[:2]), (chk.sigma_enh_m, alone)

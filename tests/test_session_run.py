@@ -150,19 +150,20 @@ def test_scripted_session_records_everything_and_processes(project):
 
 
 def test_each_fix_carries_its_station_setups_error_in_its_sigma(project):
-    # sigma^2 = fix sigma^2 + the setup's station and orientation covariance carried to the fix,
-    # written out by hand here: E moves by dN and N by -dE per radian of orientation; the covariance
-    # is scaled by sigma0^2 when sigma0 > 1 (tests/test_session_overlap.py: sigma0 about 2)
+    # sigma^2 = the polar measurement's variance from the instrument sigmas + the setup's station and
+    # orientation covariance carried to the fix, written out by hand (session_project); both scaled
+    # by sigma0^2 when sigma0 > 1 (tests/test_session_overlap.py: sigma0 about 2)
     root, _ = project
     with store(root) as st:
         rec = st.session("ref")
-        sig = rec.meta.fix_sigma_m
+        instrument = st.settings().instrument
         setups = {s.setup_id: s for s in st.station_setups(rec.session_id)}
         fixes = st.fixes(rec.session_id)
         for fx in fixes:
             np.testing.assert_allclose([fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m],
-                                       fix_sigmas_by_hand(fx, setups[fx.setup_id], sig), rtol=1e-12)
-            assert min(fx.sigma_e_m, fx.sigma_n_m, fx.sigma_h_m) > sig
+                                       fix_sigmas_by_hand(fx, setups[fx.setup_id], instrument), rtol=1e-9)
+            # the distance sigma lies along the line of sight, in E and N together
+            assert np.hypot(fx.sigma_e_m, fx.sigma_n_m) > instrument.distance_m
     # the raw session handed to the engine carries them (fixes.csv, FORMATS.md section 1)
     import pandas as pd
 

@@ -32,6 +32,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 from scipy.optimize import least_squares
 
 from trolley import units
@@ -220,10 +221,13 @@ class Resection:
         return tuple(dict.fromkeys(r.point_id for r in bad))
 
 
-#: an overlap difference beyond this many of its own sigmas on some axis is more than the two setups
-#: and the two measurements explain (per axis, two-sided: 0.27 % of correct overlaps, about 0.8 % on
-#: one of three axes)
-OVERLAP_SIGMA_LIMIT = 3.0
+#: false-alarm level of the overlap check: that of the rule it replaced, 3 sigma on each of three
+#: independent axes (1 - 0.9973^3 = 0.81 % of correct overlaps), now spent on one joint test
+OVERLAP_ALPHA = float(1.0 - (1.0 - 2.0 * stats.norm.sf(3.0)) ** 3)
+#: an overlap difference whose Mahalanobis length sqrt(d' C^-1 d) exceeds this is more than the two
+#: setups and the two measurements explain: sqrt of the chi-square (3 dof) quantile at OVERLAP_ALPHA,
+#: 3.436
+OVERLAP_SIGMA_LIMIT = float(np.sqrt(stats.chi2.isf(OVERLAP_ALPHA, 3)))
 
 
 @dataclass(frozen=True)
@@ -237,10 +241,10 @@ class OverlapCheck:
     horizontal_m : horizontal length of the difference.
     within_tolerance : all of |dE|, |dN|, |dH| within the tolerance.
     tolerance_m : the tolerance used.
-    sigma_enh_m : (3,) 1-sigma of the difference per axis, from both positions' covariances (NaN
-        when they were not given).
-    sigma_limit : how many sigmas the difference may reach on each axis and still be explained by
-        the two setups and measurements.
+    covariance_enh_m2 : (3, 3) covariance of the difference, the sum of both positions' (NaN when
+        they were not given).
+    sigma_limit : the Mahalanobis length the difference may reach and still be explained by the two
+        setups and measurements (:data:`OVERLAP_SIGMA_LIMIT`).
     """
 
     point_id: str
@@ -248,8 +252,13 @@ class OverlapCheck:
     horizontal_m: float
     within_tolerance: bool
     tolerance_m: float
-    sigma_enh_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    covariance_enh_m2: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
     sigma_limit: float = OVERLAP_SIGMA_LIMIT
+
+    @property
+    def sigma_enh_m(self) -> np.ndarray:
+        """(3,) 1-sigma of the difference per axis (NaN without covariances)."""
+        return np.sqrt(np.diag(self.covariance_enh_m2))
 
     @property
     def difference_enh_mm(self) -> np.ndarray:
@@ -258,7 +267,8 @@ class OverlapCheck:
 
     @property
     def normalized(self) -> np.ndarray:
-        """(3,) |difference| / its sigma per axis (NaN without sigmas)."""
+        """(3,) |difference| / its sigma per axis (NaN without sigmas), for display: the verdict is
+        :attr:`mahalanobis`."""
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.abs(self.difference_enh_m) / self.sigma_enh_m
 
@@ -269,11 +279,21 @@ class OverlapCheck:
         return float(np.max(z)) if np.all(np.isfinite(z)) else float("nan")
 
     @property
+    def mahalanobis(self) -> float:
+        """sqrt(d' C^-1 d), the difference measured in its own joint sigma, E-N-H correlations
+        included (NaN without covariances): chi-distributed with 3 dof for a correct overlap."""
+        c = self.covariance_enh_m2
+        if not np.all(np.isfinite(c)):
+            return float("nan")
+        d = self.difference_enh_m
+        return float(np.sqrt(d @ np.linalg.solve(c, d)))
+
+    @property
     def consistent(self) -> bool | None:
-        """The difference is within :attr:`sigma_limit` sigmas on every axis: the two positions agree
-        as well as the setups and measurements allow (None without sigmas)."""
-        z = self.max_normalized
-        return None if not np.isfinite(z) else bool(z <= self.sigma_limit)
+        """The difference's Mahalanobis length is within :attr:`sigma_limit`: the two positions agree
+        as well as the setups and measurements allow (None without covariances)."""
+        m = self.mahalanobis
+        return None if not np.isfinite(m) else bool(m <= self.sigma_limit)
 
 
 def variance_factor(sigma0: float, dof: int) -> float:
@@ -559,27 +579,94 @@ def setup_covariance_at(setup_covariance: np.ndarray, station_enh_m: np.ndarray,
     return jac @ c @ np.swapaxes(jac, 1, 2)
 
 
-def fix_covariance(measurement_sigma_m: float, setup_covariance: np.ndarray, station_enh_m: np.ndarray,
-                   points_enh_m: np.ndarray) -> np.ndarray:
-    """Covariance of the grid E, N, H of prism fixes measured from a station setup: the measurement's
-    own sigma per axis plus the setup's error carried to each fix (:func:`setup_covariance_at`). The
-    two are independent: the setup's error comes from its CPIII pointings, the measurement's from the
-    pointing at the prism.
+def polar_covariance(station_enh_m: np.ndarray, points_enh_m: np.ndarray, sigmas: InstrumentSigmas,
+                     model: PolarModel = PolarModel()) -> np.ndarray:
+    """Covariance of grid E, N, H of points computed from one polar measurement each (Hz, zenith,
+    slope distance), from the instrument's a priori sigmas: the measurement's own part of a fix.
+
+    The point is :func:`point_from_observation` of the readings; its Jacobian with respect to them
+    is the inverse of :func:`observation_jacobian` (the two are exact inverses), and the covariance
+    is ``J S J^T`` with S = diag(direction^2, zenith^2, distance^2) (the general law of propagation
+    of variances, Ghilani 2017, ch. 6), the distance sigma at the point's own distance (constant +
+    ppm). Horizontally the direction sigma times the horizontal distance lies across the line of
+    sight and the distance sigma along it, so the E-N covariance has a correlation set by the line's
+    azimuth; in height the zenith sigma times the slope distance. The orientation of the circle is
+    the setup's (:func:`setup_covariance_at`), not the measurement's.
 
     Parameters
     ----------
-    measurement_sigma_m : 1-sigma of one prism measurement per axis (the project's ``fix_sigma_m``).
-    setup_covariance : (4, 4) covariance of E, N, H, orientation of the setup
-        (``Resection.setup_covariance``: scaled by sigma0^2 when sigma0 > 1).
+    station_enh_m : (3,) the instrument's axis point, grid E, N, H, m.
+    points_enh_m : (3,) or (n, 3) the measured points, grid E, N, H, m.
+    sigmas : a priori sigmas of direction, zenith and distance.
+    model : the polar model the points are computed with (curvature, refraction, grid scale).
+
+    Returns
+    -------
+    (n, 3, 3) covariance of E, N, H per point, m^2.
+
+    References
+    ----------
+    Ghilani, C. D. (2017). Adjustment Computations, 6th ed., ch. 6 (propagation of errors).
+    """
+    station = np.asarray(station_enh_m, dtype=float).reshape(3)
+    points = np.atleast_2d(np.asarray(points_enh_m, dtype=float))
+    jac = np.linalg.inv(observation_jacobian(station, points, model))  # d(E, N, H) / d(hz, zenith, sd)
+    sd = observations_from_station(station, 0.0, points, model).slope_distance_m
+    var = np.column_stack([np.full(sd.shape, sigmas.direction_rad ** 2), np.full(sd.shape, sigmas.zenith_rad ** 2),
+                           sigmas.distance_sigma_m(sd) ** 2])
+    return (jac * var[:, None, :]) @ np.swapaxes(jac, 1, 2)
+
+
+def fix_covariance(sigmas: InstrumentSigmas, setup_covariance: np.ndarray, station_enh_m: np.ndarray,
+                   points_enh_m: np.ndarray, model: PolarModel = PolarModel(), factor: float = 1.0) -> np.ndarray:
+    """Covariance of the grid E, N, H of prism fixes measured from a station setup: the polar
+    measurement's own covariance (:func:`polar_covariance`) plus the setup's error carried to each
+    fix (:func:`setup_covariance_at`), both scaled by the setup's variance factor.
+
+    The two parts are independent: the setup's error comes from its CPIII pointings, the
+    measurement's from the pointing at the prism. Both rest on the same a priori instrument sigmas,
+    and the setup's sigma0 says how those fit the instrument on this day: a sigma0 above 1 scales
+    both (:func:`variance_factor`; docs/field_session.md, "The fix sigma and the station setup",
+    measures it).
+
+    Parameters
+    ----------
+    sigmas : a priori instrument sigmas (the resection's).
+    setup_covariance : (4, 4) a priori covariance of E, N, H, orientation of the setup
+        (``Resection.covariance``).
     station_enh_m : (3,) the station the instrument was given.
     points_enh_m : (3,) or (n, 3) the fixes, grid E, N, H.
+    model : the polar model the fixes are computed with.
+    factor : the setup's :func:`variance_factor` (1: the a priori sigmas as they are).
 
     Returns
     -------
     (n, 3, 3) covariance per fix, m^2.
     """
-    return float(measurement_sigma_m) ** 2 * np.eye(3) + setup_covariance_at(setup_covariance, station_enh_m,
-                                                                               points_enh_m)
+    return float(factor) * (polar_covariance(station_enh_m, points_enh_m, sigmas, model)
+                            + setup_covariance_at(setup_covariance, station_enh_m, points_enh_m))
+
+
+def covariance_with_sigmas(covariance: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """The covariance with the correlations of ``covariance`` and the 1-sigma ``sigma``: D R D.
+
+    A fix is stored with its per-axis sigmas only (FORMATS.md section 1); its correlations are
+    computed again from its setup, and this puts them on the stored sigmas, so that the overlap check
+    uses exactly the sigmas the crew and the record show.
+
+    Parameters
+    ----------
+    covariance : (3, 3) covariance whose correlations are taken.
+    sigma : (3,) the 1-sigma per axis.
+
+    Returns
+    -------
+    (3, 3) covariance, m^2.
+    """
+    c = np.asarray(covariance, dtype=float).reshape(3, 3)
+    d = np.sqrt(np.diag(c))
+    scale = np.asarray(sigma, dtype=float).reshape(3) / d
+    return c * np.outer(scale, scale)
 
 
 def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarray,
@@ -588,10 +675,13 @@ def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarr
                   sigma_limit: float = OVERLAP_SIGMA_LIMIT) -> OverlapCheck:
     """Compare a point measured from two station setups.
 
-    The tolerance is the project's requirement; the sigma says what the two setups can hold. The
-    two positions are independent (each setup's error comes from its own CPIII pointings, each
-    measurement's from its own pointing at the point), so the covariance of the difference is the
-    sum of theirs; per axis its sigma is sqrt(sigma_1^2 + sigma_2^2).
+    The tolerance is the project's requirement; the covariance says what the two setups can hold.
+    The two positions are independent (each setup's error comes from its own CPIII pointings, each
+    measurement's from its own pointing at the point), so the covariance C of the difference is the
+    sum of theirs. The difference d is tested jointly: d' C^-1 d follows chi-square with 3 dof for
+    a correct overlap, so its square root is compared with ``sigma_limit`` (the correlation of a
+    polar measurement's E and N, across and along its line of sight, makes a per-axis test blind
+    along one diagonal and too strict along the other).
 
     Parameters
     ----------
@@ -600,21 +690,20 @@ def overlap_check(point_id: str, first_enh_m: np.ndarray, second_enh_m: np.ndarr
     tolerance_m : largest acceptable difference per axis.
     first_covariance, second_covariance : (3, 3) covariance of each position (the measurement and
         its setup carried to the point: :func:`fix_covariance`), both or neither.
-    sigma_limit : sigmas per axis the difference may reach and still be explained by them.
+    sigma_limit : the Mahalanobis length the difference may reach and still be explained by them.
 
     Returns
     -------
-    OverlapCheck with the difference second minus first and its sigma.
+    OverlapCheck with the difference second minus first and its covariance.
     """
     d = np.asarray(second_enh_m, dtype=float).reshape(3) - np.asarray(first_enh_m, dtype=float).reshape(3)
     if (first_covariance is None) != (second_covariance is None):
         raise ValueError("overlap_check: give the covariance of both positions or of neither")
     if first_covariance is None:
-        sigma = np.full(3, np.nan)
+        cov = np.full((3, 3), np.nan)
     else:
         cov = (np.asarray(first_covariance, dtype=float).reshape(3, 3)
                + np.asarray(second_covariance, dtype=float).reshape(3, 3))
-        sigma = np.sqrt(np.diag(cov))
     return OverlapCheck(point_id=str(point_id), difference_enh_m=d, horizontal_m=float(np.hypot(d[0], d[1])),
                         within_tolerance=bool(np.all(np.abs(d) <= tolerance_m)), tolerance_m=float(tolerance_m),
-                        sigma_enh_m=sigma, sigma_limit=float(sigma_limit))
+                        covariance_enh_m2=cov, sigma_limit=float(sigma_limit))

@@ -27,7 +27,7 @@ from trolley.session import Fixes
 for out in map(Path, sys.argv[1:]):
     store, sid, world, setups = setups_of_demo(out)
     truth = world.sim.truth
-    sig = store.settings().fix_sigma_m
+    instrument = store.settings().instrument
     tol = store.settings().overlap_tolerance_m
     by_id = {s.setup_id: s for s, *_ in setups}
     stored = sorted(store.fixes(sid), key=lambda f: (f.t_s, f.fix_id))
@@ -46,7 +46,7 @@ for out in map(Path, sys.argv[1:]):
     order = np.argsort(fx.t_s, kind="stable")
     fx = Fixes(fx.t_s[order], np.asarray(fx.point, dtype=object)[order], fx.enh_m[order], fx.sigma_m[order])
     assert list(fx.point) == [f.point for f in acc]
-    apriori = np.array([np.sqrt(np.diag(fix_covariance(sig, by_id[f.setup_id].covariance,
+    apriori = np.array([np.sqrt(np.diag(fix_covariance(instrument, by_id[f.setup_id].covariance,
                                                        by_id[f.setup_id].station_enh_m, [f.e_m, f.n_m, f.h_m])[0]))
                         for f in acc])
     keep = np.array([p not in kept_outside for p in fx.point])

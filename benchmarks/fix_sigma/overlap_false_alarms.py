@@ -1,20 +1,22 @@
-"""The overlap check at a station change: how often a correct overlap is refused, before and after overlap24.
+"""The overlap check at a station change: how often a correct overlap is refused, per-axis against joint.
 
 python benchmarks/fix_sigma/overlap_false_alarms.py DEMO_OUT [N]   (DEMO_OUT: a `trolley demo --out` folder:
 the geometry of its station changes, the physical stations, circle orientations and the 8 CPIII each
 measured, and the trolley's prism at each overlap stop)
 
 For each of the demo's station changes, N times: both setups resected from the total-station twin's
-readings (its own noise code, as audit_a.py), the prism at the overlap stop carried through each setup's
-station and orientation errors, plus the twin's fix noise N(0, 0.6 mm) per axis on each measurement;
-the difference new minus old goes through trolley.resection.overlap_check with each fix's sigma as the
-session computes it (fix_covariance with Resection.setup_covariance, diagonal as stored) and through the
-session's decision (survey.session.stationsetup.overlap_kept). Counted:
-  before    refused when outside the tolerance (2 mm on some axis), as main did
-  after     refused only outside the tolerance and beyond 3 sigma on some axis (overlap_kept)
-and the rate of OUTSIDE verdicts, of differences beyond 3 sigma, and RMS d/sigma per axis (1 when the
-sigma is honest). Then the same with a blunder added to the new measurement (H, then E): the share of
-blunders each rule refuses. The live gate the session also applies is not modelled here.
+readings (its own noise code, as audit_a.py), and the prism at the overlap stop measured through the twin
+from each (its reading noise, the point computed from the readings with the resected station and
+orientation, as the session does); the difference new minus old. Two sigmas and rules:
+  per axis (fixcov25's before)  each fix's sigma sqrt(fix_sigma_m^2 + setup part scaled), the difference
+                                refused when outside the tolerance and beyond 3 sigma on some axis
+  joint (now)                   each fix's full covariance (trolley.resection.fix_covariance: the polar
+                                measurement and the setup, scaled by the variance factor) on the stored
+                                sigmas, through overlap_check and the session's decision
+                                (survey.session.stationsetup.overlap_kept): Mahalanobis > 3.436
+and the rate of OUTSIDE verdicts, RMS d/sigma per axis (1 when the sigma is honest) and the mean of
+d' C^-1 d (3). Then a blunder added to the new measurement (H, then E): the share each rule refuses.
+The live gate the session also applies is not modelled here.
 """
 import math
 import sys
@@ -29,7 +31,8 @@ from dataclasses import replace
 from common import TwinMeter, setups_of_demo
 from survey.session.simworld import prism_position_enh
 from survey.session.stationsetup import overlap_kept
-from trolley.resection import PolarObservations, fix_covariance, overlap_check, resect, wrap_to_pi
+from trolley.resection import (PolarObservations, fix_covariance, overlap_check, point_from_observation, resect,
+                               setup_covariance_at, variance_factor)
 
 out = Path(sys.argv[1])
 N = int(sys.argv[2]) if len(sys.argv) > 2 else 2000
@@ -53,25 +56,32 @@ BLUNDERS_MM = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0)
 
 
 def one_setup(k, trial, P):
-    """(position of P measured from a fresh resection of setup k, its 3x3 covariance as the session has it)."""
+    """(position of P measured from a fresh resection of setup k, its 3x3 covariance as the session has it,
+    its per-axis sigma as fixcov25's before had it)."""
     s, station, orient, ids, pts = setups[k]
     meter.place(station, orient)
     m = np.array([meter.measure(p, [trial, k, i, 11]) for i, p in enumerate(pts)])
     r = resect(ids, pts, PolarObservations(m[:, 0], m[:, 1], m[:, 2]), config)
-    dth = float(wrap_to_pi(r.orientation_rad - orient))
-    v = P - station
-    c, sn = math.cos(dth), math.sin(dth)
-    setup_err = (r.station_enh_m - station) + np.array([v[0] * c + v[1] * sn - v[0], -v[0] * sn + v[1] * c - v[1], 0])
-    fix = P + setup_err + rng.standard_normal(3) * sig
-    return fix, np.diag(np.diag(fix_covariance(sig, r.setup_covariance, r.station_enh_m, fix)[0])), r.sigma0
+    fix = point_from_observation(r.station_enh_m, r.orientation_rad,
+                                 PolarObservations(*meter.measure(P, [trial, k, 99, 11])), config.model)[0]
+    f = variance_factor(r.sigma0, r.dof)
+    cov = fix_covariance(settings.instrument, r.covariance, r.station_enh_m, fix, config.model, f)[0]
+    old = np.sqrt(sig**2 + f * np.diag(setup_covariance_at(r.covariance, r.station_enh_m, fix)[0]))
+    return fix, cov, old
+
+
+def refused_per_axis(d, s_a, s_b):
+    """(outside the tolerance, refused by the per-axis rule: outside and beyond 3 sigma on some axis)."""
+    outside = bool(np.any(np.abs(d) > tol))
+    return outside, outside and bool(np.any(np.abs(d) > 3.0 * np.hypot(s_a, s_b)))
 
 
 try:
     rows = []
     for label, k_old, k_new, P in pairs:
         for trial in range(N):
-            a, ca, s0a = one_setup(k_old, trial, P)
-            b, cb, s0b = one_setup(k_new, trial, P)
+            a, ca, sa = one_setup(k_old, trial, P)
+            b, cb, sb = one_setup(k_new, trial, P)
             oc = overlap_check(label, a, b, tol, ca, cb)
             blunder = {}
             for axis in (2, 0):
@@ -79,9 +89,10 @@ try:
                     bb = b.copy()
                     bb[axis] += mm * 1e-3 * (1 if rng.random() < 0.5 else -1)
                     ob = overlap_check(label, a, bb, tol, ca, cb)
-                    blunder[(axis, mm)] = (not ob.within_tolerance, not overlap_kept(ob))
+                    blunder[(axis, mm)] = (refused_per_axis(bb - a, sa, sb)[1], not overlap_kept(ob))
             rows.append((label, oc.difference_enh_m / oc.sigma_enh_m, not oc.within_tolerance, not overlap_kept(oc),
-                         oc.consistent is False, oc.sigma_enh_m, blunder))
+                         oc.consistent is False, oc.sigma_enh_m, blunder, refused_per_axis(oc.difference_enh_m, sa, sb)[1],
+                         oc.difference_enh_m / np.hypot(sa, sb), oc.mahalanobis ** 2))
 finally:
     meter.close()
 
@@ -95,24 +106,24 @@ def rate(x):
     return f"{100 * k / n:5.2f} % [{100 * lo:.2f}, {100 * hi:.2f}]"
 
 
-print(f"{N} trials per station change; fix noise {sig * 1e3:.2f} mm per axis; tolerance {tol * 1e3:.1f} mm; "
-      f"twin setup noise {o.angle_sigma_rad:.3g} rad, {o.distance_sigma_m * 1e3:.2f} mm")
+print(f"{N} trials per station change; tolerance {tol * 1e3:.1f} mm; twin reading noise {o.angle_sigma_rad:.3g} rad, "
+      f"{o.distance_sigma_m * 1e3:.2f} mm (setups and fixes); per-axis sigma with fix_sigma_m {sig * 1e3:.2f} mm")
 for label in [p[0] for p in pairs] + ["all"]:
     R = [r for r in rows if label in ("all", r[0])]
     z = np.array([r[1] for r in R])
+    z_old = np.array([r[8] for r in R])
     s = np.array([r[5] for r in R]) * 1e3
     print(f"\n{label} ({len(R)} correct overlaps): sigma of the difference E/N/H {s[:, 0].mean():.3f} / "
-          f"{s[:, 1].mean():.3f} / {s[:, 2].mean():.3f} mm; RMS d/sigma " +
-          " / ".join(f"{np.sqrt(np.mean(z[:, j] ** 2)):.3f}" for j in range(3)))
-    # analytic, the axes taken as independent (the E-N correlation of the orientation part is small here)
-    p_tol = 1 - np.prod(1 - 2 * stats.norm.sf(tol * 1e3 / s.mean(axis=0)))
-    p_3s = 1 - (1 - 2 * stats.norm.sf(3.0)) ** 3
-    print(f"   OUTSIDE the tolerance (both):      {rate([r[2] for r in R])}   analytic {100 * p_tol:.2f} %")
-    print(f"   beyond 3 sigma on some axis:       {rate([r[4] for r in R])}   analytic {100 * p_3s:.2f} %")
-    print(f"   fix refused, before (tolerance):   {rate([r[2] for r in R])}")
-    print(f"   fix refused, after (tol. and 3 sigma): {rate([r[3] for r in R])}")
-print("\nblunders on the new measurement (all station changes): share refused, before / after")
+          f"{s[:, 1].mean():.3f} / {s[:, 2].mean():.3f} mm; RMS d/sigma joint's " +
+          " / ".join(f"{np.sqrt(np.mean(z[:, j] ** 2)):.3f}" for j in range(3)) + ", per-axis's " +
+          " / ".join(f"{np.sqrt(np.mean(z_old[:, j] ** 2)):.3f}" for j in range(3)) +
+          f"; mean d' C^-1 d {np.mean([r[9] for r in R]):.3f} (3)")
+    print(f"   OUTSIDE the tolerance:                  {rate([r[2] for r in R])}")
+    print(f"   beyond the joint 3.436:                 {rate([r[4] for r in R])}   analytic 0.81 %")
+    print(f"   fix refused, per axis (tol. and 3 sigma, 0.6 mm): {rate([r[7] for r in R])}")
+    print(f"   fix refused, joint (tol. and 3.436 joint):        {rate([r[3] for r in R])}")
+print("\nblunders on the new measurement (all station changes): share refused, per axis / joint")
 for axis in (2, 0):
     for mm in BLUNDERS_MM:
         b = [r[6][(axis, mm)] for r in rows]
-        print(f"   {'ENH'[axis]} {mm:.1f} mm: before {rate([x[0] for x in b])}   after {rate([x[1] for x in b])}")
+        print(f"   {'ENH'[axis]} {mm:.1f} mm: per axis {rate([x[0] for x in b])}   joint {rate([x[1] for x in b])}")

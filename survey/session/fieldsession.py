@@ -471,12 +471,11 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             if self.config.script is None:
                 self.say("the trolley is moving: a fix is taken when it stands")
             return False
-        sigma = self.rec.meta.fix_sigma_m
         try:
             with self.crew_busy():
                 t = self.now()
                 if self.world is not None:
-                    self.world.aim_at_prism(t, sigma)
+                    self.world.aim_at_prism(t)
                 self.ts.fine_adjust()
                 m = self.ts.measure()
         except (GeoComError, DeviceError) as exc:

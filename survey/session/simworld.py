@@ -46,7 +46,9 @@ class SimOptions:
     Attributes
     ----------
     speedup : simulated seconds per wall-clock second.
-    angle_sigma_rad, distance_sigma_m : total-station noise during the station setup.
+    angle_sigma_rad, distance_sigma_m : the total-station twin's reading noise (Hz and V; slope
+        distance), for the station setup and the fixes alike: the truth the fix sigmas are checked
+        against, independent of the project's a priori sigmas.
     station_offset_m : the instrument stands this far to the left of the track, ``station_ahead_m``
         ahead of the first stop.
     orientation_rad : the instrument's unknown circle orientation.
@@ -331,24 +333,26 @@ class SimWorld:
             self.fix_attempts[k] = self.fix_attempts.get(k, 0) + 1
 
     def quiet_instrument(self) -> None:
-        """No reading noise from now on (the prism target carries the fix noise)."""
+        """No reading noise until the next pointing: the reading that orients the circle after a
+        setup is not a measurement (each fix turns the noise on again, :meth:`aim_at_prism`)."""
         ts = self.twins["totalstation"]
         ts.noise_angle_rad = 0.0
         ts.noise_dist_m = 0.0
 
-    def aim_at_prism(self, t_s: float, sigma_m: float) -> int:
-        """Aim at the trolley's prism at ``t_s`` (plus the fix noise, seeded per stop and attempt).
+    def aim_at_prism(self, t_s: float) -> int:
+        """Aim at the trolley's prism at ``t_s``; the twin's reading noise (Hz, V, slope distance, per
+        its own sigmas) is the fix noise, seeded per stop and attempt.
 
-        Returns the stop index (-1 if the trolley is moving: no noise seed, the prism where it is).
+        Returns the stop index (-1 if the trolley is moving: the prism where it is).
         """
         ts = self.twins["totalstation"]
-        ts.noise_angle_rad = 0.0
-        ts.noise_dist_m = 0.0
         k = stop_index_at(self.sim, t_s)
         attempt = self.fix_attempts.get(k, 0)
         self.fix_attempts[k] = attempt + 1
-        rng = np.random.default_rng([self.options.seed, k + 1, attempt])
+        ts.seed_noise([self.options.seed, k + 1, attempt])
+        ts.noise_angle_rad = self.options.angle_sigma_rad
+        ts.noise_dist_m = self.options.distance_sigma_m
         blunder = sum((np.array(b[2:], float) for b in self.options.fix_blunders_m if (b[0], b[1]) == (k, attempt)),
                       np.zeros(3))
-        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + rng.standard_normal(3) * sigma_m + blunder))
+        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + blunder))
         return k

@@ -23,17 +23,19 @@ SCRIPT_SIGMA0_LIMIT = 3.0
 
 
 def _worst_axis(oc) -> str:
-    """The axis of the largest |difference| / sigma, with that ratio: "H 2.58 sigma"."""
+    """The axis of the largest |difference| / sigma with that ratio, and the joint length that decides:
+    "H 2.58 sigma, joint 2.71"."""
     j = int(np.argmax(oc.normalized))
-    return f"{'ENH'[j]} {oc.normalized[j]:.2f} sigma"
+    return f"{'ENH'[j]} {oc.normalized[j]:.2f} sigma, joint {oc.mahalanobis:.2f}"
 
 
 def overlap_kept(oc) -> bool:
     """Whether the overlap check lets the fix from the new station into the track (the live gate
     still has its say).
 
-    Only a difference both outside the project's tolerance and beyond ``oc.sigma_limit`` sigmas is
-    refused: then it is more than the two setups and measurements explain, one of them is wrong, and
+    Only a difference both outside the project's tolerance and beyond ``oc.sigma_limit`` in its joint
+    sigma (the Mahalanobis length with the E-N-H covariance of the difference,
+    ``trolley.resection.overlap_check``) is refused: then it is more than the two setups and measurements explain, one of them is wrong, and
     the filter must not average the two positions. A difference outside the tolerance but within
     the sigmas is a correct measurement (6.16 % of correct overlaps on the demo exceed 2 mm on some
     axis, benchmarks/fix_sigma/overlap_false_alarms.py): refusing the fix would not bring the setups
@@ -57,7 +59,7 @@ def overlap_verdict(oc) -> tuple[bool, str]:
     if oc.consistent is None:
         return kept, f"{'within' if oc.within_tolerance else 'OUTSIDE'} {tol}"
     sig = "sigma " + " / ".join(f"{x:.2f}" for x in 1e3 * oc.sigma_enh_m) + " mm"
-    limit = f"{oc.sigma_limit:g} sigma of the setups' own uncertainty ({sig}; {_worst_axis(oc)})"
+    limit = f"{oc.sigma_limit:.2f} joint sigma of the setups' own uncertainty ({sig}; {_worst_axis(oc)})"
     if oc.within_tolerance and oc.consistent:
         return kept, f"within {tol}, within {limit}"
     if oc.within_tolerance:
@@ -74,7 +76,7 @@ def overlap_reason(oc) -> str:
     if oc.consistent is None:
         return "accepted" if oc.within_tolerance else "difference outside the tolerance"
     # short: the sheet's and the report's reason columns; the sigmas have their own columns there
-    within = f"{oc.sigma_limit:g} sigma ({_worst_axis(oc)})"
+    within = f"{oc.sigma_limit:.2f} joint sigma ({_worst_axis(oc)})"
     if oc.within_tolerance and oc.consistent:
         return "accepted"
     if oc.within_tolerance:
@@ -97,10 +99,10 @@ class StationSetupSteps:
             from trolley.resection import variance_factor
 
             last = setups[-1]
-            # scaled as when it was accepted (Resection.setup_covariance), so the fixes after a resume
-            # carry the sigmas they would have had without the interruption
-            self._give_station(last.station_enh_m, last.orientation_rad,
-                               last.covariance * variance_factor(last.sigma0, last.dof))
+            # scaled as when it was accepted, so the fixes after a resume carry the sigmas they would
+            # have had without the interruption
+            self._give_station(last.station_enh_m, last.orientation_rad, last.covariance,
+                               variance_factor(last.sigma0, last.dof))
             self.say(f"station setup {self.setup_id} restored from the store")
             return
         with self.crew_busy():
@@ -181,13 +183,13 @@ class StationSetupSteps:
             self.world.quiet_instrument()  # the setup pointings were noisy; fixes get their own noise
         setup, rows = setup_rows(res, ids, obs, self.now(), accepted=True)
         self.setup_id = self.store.add_station_setup(self.rec.session_id, setup, rows)
-        self._give_station(res.station_enh_m, res.orientation_rad, res.setup_covariance)
-        self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
         factor = variance_factor(res.sigma0, res.dof)
+        self._give_station(res.station_enh_m, res.orientation_rad, res.covariance, factor)
+        self.say(f"station accepted (sigma0 {res.sigma0:.2f}); the total station has its station and orientation")
         if factor > 1.0:
-            # the crew should know the setup is weaker than the instrument's sigmas promise
-            self.say(f"sigma0 above 1: the setup's covariance is scaled by sigma0^2 = {factor:.2f} in the sigma of "
-                     "every fix from this station")
+            # the crew should know the setup and the instrument are weaker than its sigmas promise
+            self.say(f"sigma0 above 1: the setup's covariance and the measurement's are scaled by sigma0^2 = "
+                     f"{factor:.2f} in the sigma of every fix from this station")
 
     def _setup_points(self):
         pts = self.store.cpiii_points()
@@ -288,35 +290,54 @@ class StationSetupSteps:
         e, n, h = point_from_observation(station, 0.0, obs, self.polar_model())[0]
         return float(e), float(n), float(h)
 
-    def fix_sigmas(self, enh_m) -> tuple[float, float, float]:
-        """1-sigma of grid E, N, H of a prism fix at ``enh_m`` measured from the current setup.
+    def fix_covariance(self, enh_m, setup=None) -> np.ndarray | None:
+        """(3, 3) covariance of grid E, N, H of a prism fix at ``enh_m`` measured from the current
+        setup (or from ``setup``, a stored ``StationSetupRecord``), or None before a setup.
 
-        The measurement's own sigma (the session's ``fix_sigma_m`` per axis) and the setup's error
-        carried to the fix (:func:`trolley.resection.fix_covariance`: station position and
-        orientation with their correlations, the orientation's part growing with the distance to
-        the instrument; the setup's covariance scaled by sigma0^2 when sigma0 > 1), added in
-        quadrature per axis. The E-N covariance of the setup part is not
-        kept: fixes.csv has sigmas only (FORMATS.md section 1); on the demo the lateral error/sigma
-        is the same with it (docs/field_session.md, "The fix sigma and the station setup").
+        The polar measurement's own covariance from the project's instrument sigmas (across the line
+        of sight the direction sigma times the distance, along it the distance sigma, in height the
+        zenith sigma times the distance) plus the setup's error carried to the fix (station position
+        and orientation with their correlations), both scaled by the setup's variance factor
+        (:func:`trolley.resection.fix_covariance`; docs/field_session.md, "The fix sigma and the
+        station setup"). ``fix_sigma_m`` is not in it: it is the sigma of a fix whose instrument
+        geometry is not known (fixes.csv's default, the planning budget).
+        """
+        from trolley.resection import fix_covariance, variance_factor
+
+        if setup is not None:
+            cov, station = setup.covariance, setup.station_enh_m
+            factor = variance_factor(setup.sigma0, setup.dof)
+        else:
+            cov = getattr(self, "_setup_covariance", None)
+            station = getattr(self, "_station_enh_m", None)
+            factor = getattr(self, "_setup_factor", 1.0)
+        if cov is None or station is None:
+            return None
+        return fix_covariance(self.settings.instrument, cov, station, np.asarray(enh_m, dtype=float),
+                              self.polar_model(), factor)[0]
+
+    def fix_sigmas(self, enh_m) -> tuple[float, float, float]:
+        """1-sigma of grid E, N, H of a prism fix at ``enh_m`` from the current setup: the diagonal of
+        :meth:`fix_covariance` (fixes.csv has sigmas only, FORMATS.md section 1); the session's
+        ``fix_sigma_m`` per axis before a setup.
 
         All fixes of one setup share its error, and the engine takes fixes as independent: these
         sigmas make each fix honest on its own, not the average of several fixes of one setup.
         """
-        from trolley.resection import fix_covariance
-
-        s = float(self.rec.meta.fix_sigma_m)
-        cov = getattr(self, "_setup_covariance", None)
-        station = getattr(self, "_station_enh_m", None)
-        if cov is None or station is None:
+        cov = self.fix_covariance(enh_m)
+        if cov is None:
+            s = float(self.rec.meta.fix_sigma_m)
             return s, s, s
-        e, n, h = np.sqrt(np.diag(fix_covariance(s, cov, station, np.asarray(enh_m, dtype=float))[0]))
+        e, n, h = np.sqrt(np.diag(cov))
         return float(e), float(n), float(h)
 
-    def _give_station(self, station_enh_m, orientation_rad: float, covariance=None) -> None:
-        """TMC_SetStation, then orient the circle so that it reads grid azimuths; ``covariance``,
-        the setup's (E, N, H, orientation) covariance, goes into the sigma of every fix from it."""
+    def _give_station(self, station_enh_m, orientation_rad: float, covariance=None, factor: float = 1.0) -> None:
+        """TMC_SetStation, then orient the circle so that it reads grid azimuths; ``covariance``, the
+        setup's a priori (E, N, H, orientation) covariance, and ``factor``, its variance factor, go
+        into the sigma of every fix from it."""
         self._station_enh_m = np.asarray(station_enh_m, dtype=float).copy()
         self._setup_covariance = None if covariance is None else np.asarray(covariance, dtype=float).copy()
+        self._setup_factor = float(factor)
         e, n, h = (float(x) for x in station_enh_m)
         self.ts.set_station(e, n, h, 0.0)
         hz, _ = self.ts.angle()
@@ -341,6 +362,7 @@ class StationSetupSteps:
     def _station_change(self, dist: float) -> bool:
         from drivers.geocom import GeoComError
         from drivers.serialport import DeviceError
+        from survey.fieldrecord import stored_fix_covariance
         from trolley.resection import overlap_check
 
         import json
@@ -370,7 +392,7 @@ class StationSetupSteps:
             return True  # measured (and decided) before the interruption
         t = self.now()
         if self.world is not None:
-            self.world.aim_at_prism(t, self.rec.meta.fix_sigma_m)
+            self.world.aim_at_prism(t)
         try:
             self.ts.fine_adjust()
             m = self.ts.measure()
@@ -379,12 +401,14 @@ class StationSetupSteps:
             return True
         here = self.grid_coordinates(m)
         sig_new = self.fix_sigmas(here)
-        # each position's sigma holds its measurement and its own setup carried to the stop (fix_sigmas);
-        # the old one is the sigma the old fix was stored with, so the field record recomputes the same
-        sig_old = (first.sigma_e_m, first.sigma_n_m, first.sigma_h_m)
-        oc = overlap_check(first.point, [first.e_m, first.n_m, first.h_m], list(here),
-                           self.settings.overlap_tolerance_m, np.diag(np.square(sig_old)),
-                           np.diag(np.square(sig_new)))
+        # each position's covariance holds its measurement and its own setup carried to the stop, with
+        # the sigmas it is stored with (the old fix's as stored), so the field record recomputes the same
+        setup_of = {s.setup_id: s for s in self.store.station_setups(sid)}
+        old = [first.e_m, first.n_m, first.h_m]
+        oc = overlap_check(first.point, old, list(here), self.settings.overlap_tolerance_m,
+                           stored_fix_covariance(self.settings, old, (first.sigma_e_m, first.sigma_n_m, first.sigma_h_m),
+                                                 setup_of.get(first.setup_id)),
+                           stored_fix_covariance(self.settings, here, sig_new, setup_of.get(self.setup_id)))
         d = oc.difference_enh_mm
         kept, verdict = overlap_verdict(oc)
         self.say(f"overlap check at {first.point}: new - old station E {d[0]:+.2f} N {d[1]:+.2f} H {d[2]:+.2f} mm, "
