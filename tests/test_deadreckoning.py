@@ -139,13 +139,20 @@ def test_handling_blocks_finds_lifts_and_turns_of_a_standing_trolley():
     roll[14:17] = 0.3
     yaw[33:] += np.pi
     yaw[52:] += np.linspace(0.0, 2 * np.pi, 8)
-    R = Rotation.from_euler("ZYX", np.column_stack([yaw, np.zeros(n), roll]))
+    # on grades of 8, -5 and 3 mrad at the three stops (a turned trolley faces down the grade)
+    pitch = np.full(n, 0.008)
+    pitch[29:] = -0.005  # from the block at which it arrives
+    pitch[33:] = 0.005
+    pitch[49:] = 0.003
+    R = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
     dr = DeadReckoning(t_s=np.arange(n, dtype=float), distance_m=d, trolley_to_nav=R,
                        position_ned_m=np.zeros((n, 3)))
-    blocks, turned, heading = handling_blocks(dr)
+    blocks, turned, heading, grade = handling_blocks(dr)
     np.testing.assert_array_equal(blocks, [14, 33, 53])
     np.testing.assert_array_equal(turned, [False, True, False])
     np.testing.assert_allclose(np.angle(np.exp(1j * (heading - [0.2, 0.2, 0.2 + np.pi]))), 0.0, atol=1e-12)
+    # the pitch where each standstill began, not the tilted or turned one
+    np.testing.assert_allclose(grade, [0.008, -0.005, 0.003], atol=1e-12)
 
 
 def test_stop_levels_equal_a_direct_per_stop_mean():

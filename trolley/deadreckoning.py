@@ -121,7 +121,7 @@ def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + lo[which], which
 
 
-def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """DR blocks at which the crew handled the trolley while it stood, and whether it was turned.
 
     Handling is an attitude change of more than ``HANDLING_DETECTION_RAD`` while the odometer
@@ -135,9 +135,10 @@ def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarr
     blocks : (k,) int, sorted.
     turned : (k,) bool.
     heading_rad : (k,) the trolley's heading when it stopped, before the crew handled it.
+    pitch_rad : (k,) its pitch then (the grade it stood on).
     """
     d = np.asarray(dr.distance_m, dtype=float)
-    none = np.zeros(0, dtype=int), np.zeros(0, dtype=bool), np.zeros(0)
+    none = np.zeros(0, dtype=int), np.zeros(0, dtype=bool), np.zeros(0), np.zeros(0)
     if d.size < 2:
         return none
     standing = np.diff(d) == 0.0  # step k -> k+1
@@ -155,16 +156,17 @@ def handling_blocks(dr: DeadReckoning) -> tuple[np.ndarray, np.ndarray, np.ndarr
     first = np.searchsorted(run[over], handled)  # the first block beyond the threshold, per run
     blocks = at[over][first]
     a, b = starts[handled], ends[handled]
-    yaw_a = R[a].as_euler("ZYX")[:, 0]
+    euler_a = R[a].as_euler("ZYX")
+    yaw_a = euler_a[:, 0]
     yaw_b = R[b].as_euler("ZYX")[:, 0]
     # which way it faces at the end of the standstill (a full 360 deg is not a turn)
     turned = np.abs(np.angle(np.exp(1j * (yaw_b - yaw_a)))) > TURN_DETECTION_RAD
-    return blocks.astype(int), turned, yaw_a
+    return blocks.astype(int), turned, yaw_a, euler_a[:, 1]
 
 
 def turn_blocks(dr: DeadReckoning) -> np.ndarray:
     """DR blocks at which the trolley was turned around (:func:`handling_blocks`)."""
-    blocks, turned, _ = handling_blocks(dr)
+    blocks, turned, _, _ = handling_blocks(dr)
     return blocks[turned]
 
 
