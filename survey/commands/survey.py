@@ -96,7 +96,10 @@ def simulated_world(store, speedup: float):
     # the total station's noise follows the simulation's seed, so that surveys of other seeds
     # are other realisations of the fixes too (it was 7 for every seed: an audit averaging demo
     # seeds saw one fixed set of fix errors); seed 0, the default, keeps the 7 it always had
-    return SimWorld(sim, SimOptions(speedup=speedup, seed=SimOptions.seed + int(kwargs.get("seed", 0))))
+    # the simulated site's prisms are the ones the project states
+    return SimWorld(sim, SimOptions(speedup=speedup, seed=SimOptions.seed + int(kwargs.get("seed", 0)),
+                                    cpiii_prism_constant_m=settings.cpiii_prism_constant_m,
+                                    trolley_prism_constant_m=settings.trolley_prism_constant_m))
 
 
 class session_lock:
