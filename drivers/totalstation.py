@@ -18,6 +18,7 @@ from drivers import geocom as gc
 from drivers.lineparser import ChecksumError, LineParser
 from drivers.serialport import DeviceError, SerialLink
 from drivers.stats import Stats
+from trolley import units
 
 DEFAULT_BAUD = 19200
 #: largest difference between the prism constant asked for and the one read back, m: GeoCOM sends
@@ -93,8 +94,9 @@ class PrismConstantError(RuntimeError):
         self.set_error = set_error
         why = (f"TMC_SetPrismCorr was refused ({set_error})" if set_error is not None
                else "read back after TMC_SetPrismCorr")
-        super().__init__(f"total station {device}: prism constant {self.read_m * 1e3:+.1f} mm on the instrument, "
-                         f"{self.expected_m * 1e3:+.1f} mm expected ({why})")
+        # two decimals: a difference just over the 0.05 mm tolerance must show in the message
+        super().__init__(f"total station {device}: prism constant {units.m_to_mm(self.read_m):+.2f} mm on the "
+                         f"instrument, {units.m_to_mm(self.expected_m):+.2f} mm expected ({why})")
 
 
 class GeoComReplyParser(LineParser):

@@ -97,9 +97,9 @@ def test_an_ignored_or_refused_set_is_caught_by_the_read_back():
         ts.close()
         twin.stop()
     text = str(ignored.value)
-    assert twin.port in text and "+0.0 mm on the instrument, +23.1 mm expected" in text
+    assert twin.port in text and "+0.00 mm on the instrument, +23.10 mm expected" in text
     assert ignored.value.set_error is None and held == pytest.approx(GRZ4)
     assert refused.value.set_error is not None and refused.value.set_error.code == 3081
-    assert "+23.1 mm on the instrument, +0.0 mm expected" in str(refused.value) and "3081" in str(refused.value)
+    assert "+23.10 mm on the instrument, +0.00 mm expected" in str(refused.value) and "3081" in str(refused.value)
     assert ts.verified_prism_constant_m is None  # not trusted after a mismatch: the next call asks again
     assert np.isfinite(held)

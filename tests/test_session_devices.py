@@ -312,8 +312,8 @@ def test_an_instrument_that_keeps_another_prism_constant_stops_the_session_befor
     finally:
         ts.close()
         twin.stop()
-    assert str(stopped.value) == (f"total station {twin.port}: prism constant +0.0 mm on the instrument, +23.1 mm "
-                                  "expected (read back after TMC_SetPrismCorr), for the trolley prism")
+    assert str(stopped.value) == (f"total station {twin.port}: prism constant +0.00 mm on the instrument, +23.10 "
+                                  "mm expected (read back after TMC_SetPrismCorr), for the trolley prism")
     assert "+23.1 mm by hand" in stopped.value.hint and "trolley_prism_constant_mm" in stopped.value.hint
     assert session.events == [("prism_constant", {"prism": "cpiii", "constant_mm": 0.0}),
                               ("prism_constant_mismatch", {"prism": "trolley", "expected_mm": pytest.approx(23.1),

@@ -111,6 +111,7 @@ class StationSetupSteps:
         import json
 
         from drivers.totalstation import PRISM_CONSTANT_TOLERANCE_M, PrismConstantError
+        from trolley import units
 
         label, key = PRISMS[which]
         constant = float(getattr(self.settings, key))
@@ -118,14 +119,15 @@ class StationSetupSteps:
         try:
             read = self.ts.ensure_prism_constant(constant)
         except PrismConstantError as exc:
-            self._event("prism_constant_mismatch", json.dumps({"prism": which, "expected_mm": 1e3 * exc.expected_m,
-                                                               "read_mm": 1e3 * exc.read_m}))
+            self._event("prism_constant_mismatch", json.dumps({"prism": which,
+                                                               "expected_mm": units.m_to_mm(exc.expected_m),
+                                                               "read_mm": units.m_to_mm(exc.read_m)}))
             raise SessionAbort(f"{exc}, for the {label}",
-                               f"set the instrument's prism constant to {1e3 * constant:+.1f} mm by hand, or correct "
+                               f"set the instrument's prism constant to {units.m_to_mm(constant):+.1f} mm by hand, or correct "
                                f"the project's ({key[:-2]}_mm, `trolley project set`), then resume the session") from None
         if before is None or abs(before - read) > PRISM_CONSTANT_TOLERANCE_M:
-            self._event("prism_constant", json.dumps({"prism": which, "constant_mm": 1e3 * read}))
-            self.say(f"total station: prism constant {1e3 * read:+.1f} mm for the {label} (set and read back)")
+            self._event("prism_constant", json.dumps({"prism": which, "constant_mm": units.m_to_mm(read)}))
+            self.say(f"total station: prism constant {units.m_to_mm(read):+.1f} mm for the {label} (set and read back)")
 
     def station_setup(self) -> None:
         """Free station on the nearest CPIII points: measure, resect, show, accept / drop / re-measure."""
