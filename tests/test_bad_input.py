@@ -447,8 +447,8 @@ PROBES: list[Probe] = [
           ["project", "new", "p", "--root", str(t / "r")], ("r",)),
     # a prism constant the session cannot set: nothing created, the file and key named
     Probe("project-new/prism-constant-inf", lambda t, i: (t / "r").mkdir() or shutil.copytree(DEMO, t / "r" / "p") and
-          (t / "r" / "p" / "project.toml").open("a").write("[totalstation]\ntrolley_prism_constant_mm = inf\n") and
-          ["project", "new", "p", "--root", str(t / "r")],
+          edit_text(t / "r" / "p" / "project.toml", "trolley_prism_constant_mm = 0.0", "trolley_prism_constant_mm = inf")
+          or ["project", "new", "p", "--root", str(t / "r")],
           ("project.toml: key totalstation.trolley_prism_constant_mm: must be a finite number, got inf",)),
     Probe("project-set/prism-constant-out-of-range", lambda t, i: new_project(t / "r") or
           ["project", "set", "cpiii_prism_constant_mm", "344", "--project", "p", "--root", str(t / "r")],

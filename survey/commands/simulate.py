@@ -96,6 +96,17 @@ def prism_constant_m(value_mm: float, where: str) -> float:
     return float(units.mm_to_m(value_mm))
 
 
+def simulation_kwargs(kwargs: dict) -> dict:
+    """The SimulationConfig keyword arguments among :func:`project_settings`' (the project-only
+    settings, such as the prism constants, left out)."""
+    from dataclasses import fields
+
+    from trolley.truthsim import SimulationConfig
+
+    names = {f.name for f in fields(SimulationConfig)}
+    return {k: v for k, v in kwargs.items() if k in names}
+
+
 def project_settings(project: Path):
     """Simulation settings and design text of a project folder.
 
@@ -106,7 +117,8 @@ def project_settings(project: Path):
     Returns
     -------
     (dict, str, str)
-        SimulationConfig keyword arguments (SI), the IMU preset name, the LandXML text.
+        SimulationConfig and ProjectSettings keyword arguments (SI; :func:`simulation_kwargs` keeps
+        the former), the IMU preset name, the LandXML text.
 
     Raises
     ------
@@ -296,6 +308,7 @@ def register(app: typer.Typer) -> None:
             kwargs, preset, xml = project_settings(proj)
         except ProjectFileError as exc:
             fail(str(exc))
+        kwargs = simulation_kwargs(kwargs)
         preset = imu or preset
         if preset not in IMU_PRESETS:
             fail(f"--imu: unknown IMU preset {preset!r} (choose {', '.join(IMU_PRESETS)})")
