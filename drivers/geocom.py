@@ -55,6 +55,30 @@ MOT_READLOCKSTATUS = 6021
 TMC_STOP, TMC_DEF_DIST, TMC_TRK_DIST, TMC_CLEAR, TMC_RTRK_DIST = 0, 1, 2, 3, 8
 TMC_MEA_INC, TMC_AUTO_INC, TMC_PLANE_INC = 0, 1, 2
 BAP_NO_MEAS, BAP_NO_DIST, BAP_DEF_DIST = 0, 1, 2
+#: BAP_PRISMTYPE (dmpack ``dm_geocom_type.f90``, GeoComPy ``gcdata.py``; protocols.md 1.5)
+BAP_PRISM_ROUND, BAP_PRISM_MINI, BAP_PRISM_TAPE, BAP_PRISM_360 = 0, 1, 2, 3
+BAP_PRISM_360_MINI, BAP_PRISM_MINI_ZERO = 7, 8
+
+# ------------------------------------------------------------------ prism constants
+#: Leica's additive prism constants (the "Leica constant", relative to the round prism, which is
+#: 0.0 mm by definition), m, of the prism types BAP_SetPrismType selects. The instrument adds the
+#: constant to the distance its EDM measured, so a prism whose reflection point lies further behind
+#: its reference point than the round prism's gets a positive constant. The absolute constant
+#: (other makers' convention, a correction from the prism's optical reversal point to its centre)
+#: is the Leica constant - 34.4 mm: round -34.4, 360° -11.3 mm.
+#: Sources (secondary; not read in a Leica manual): Bohnenstingl, "Prism constants" (round 0.0 by
+#: definition, 360° GRZ121 +23.1 mm, absolute = Leica - 34.4 mm; scribd.com/document/375880904);
+#: surveyorinsider.com/leica-prism-constants (round GPR1 0.0, mini GMP101 +17.5, tape +34.4,
+#: 360° GRZ4/GRZ122 +23.1, mini 360° GRZ101 +17.5, mini 0 0.0 mm). The user types 4-6 and 9 (user
+#: defined) and the newer types 10-12 have no constant listed there and are left out.
+LEICA_PRISM_CONSTANT_M: dict[int, float] = {
+    BAP_PRISM_ROUND: 0.0,
+    BAP_PRISM_MINI: 0.0175,
+    BAP_PRISM_TAPE: 0.0344,
+    BAP_PRISM_360: 0.0231,
+    BAP_PRISM_360_MINI: 0.0175,
+    BAP_PRISM_MINI_ZERO: 0.0,
+}
 
 # ------------------------------------------------------------------ return codes (section 1.4)
 GRC_OK = 0

@@ -3,7 +3,8 @@
 The survey calls (protocols.md section 1.5/1.6): COM_NullProc, COM_GetSWVersion, AUT_FineAdjust,
 TMC_DoMeasure, TMC_GetSimpleMea, TMC_GetCoordinate, TMC_GetAngle, BAP_MeasDistanceAngle,
 TMC_SetStation / GetStation / SetOrientation / SetHeight and AUT_MakePositioning (what a
-free-station setup on CPIII points needs). Transient failures (timeouts, no target, ATR not
+free-station setup on CPIII points needs), and TMC_SetPrismCorr / TMC_GetPrismCorr (the prism
+constant, switched between the CPIII prisms and the trolley prism and always read back). Transient failures (timeouts, no target, ATR not
 locked, busy, checksum) are retried with exponential back-off, bounded in count and time;
 everything else raises the typed :class:`drivers.geocom.GeoComError` at once.
 """
@@ -17,8 +18,18 @@ from drivers import geocom as gc
 from drivers.lineparser import ChecksumError, LineParser
 from drivers.serialport import DeviceError, SerialLink
 from drivers.stats import Stats
+from trolley import units
 
 DEFAULT_BAUD = 19200
+#: largest difference between the prism constant asked for and the one read back, m: GeoCOM sends
+#: doubles with enough digits to read back exactly (COM_GetDoublePrecision), so anything beyond
+#: rounding means the instrument holds another constant
+PRISM_CONSTANT_TOLERANCE_M = 0.05e-3
+#: return codes of a TMC_SetPrismCorr the instrument cannot carry out (unknown RPC on this firmware,
+#: not implemented): the constant may still be right, set on the instrument's keyboard; the
+#: read-back decides. One GeoCOM client (JGeoCOM, applied-geodesy.org) marks TMC_SetPrismCorr as
+#: dropped from GeoCOM 1.5 on; TMC_GetPrismCorr is in every reference we have (protocols.md 1.5).
+PRISM_SET_UNAVAILABLE = frozenset({5, 3081})
 
 
 @dataclass(frozen=True)
@@ -62,6 +73,30 @@ class BadReply:
 
     kind: str
     t_host_s: float
+
+
+class PrismConstantError(RuntimeError):
+    """The instrument holds another prism constant than the one asked for (read back after
+    TMC_SetPrismCorr).
+
+    Attributes
+    ----------
+    device : the instrument's port.
+    expected_m, read_m : the constant asked for and the one read back, m (Leica's convention).
+    set_error : the GeoCOM error of a TMC_SetPrismCorr the instrument refused, or None.
+    """
+
+    def __init__(self, device: str, expected_m: float, read_m: float,
+                 set_error: gc.GeoComError | None = None) -> None:
+        self.device = device
+        self.expected_m = float(expected_m)
+        self.read_m = float(read_m)
+        self.set_error = set_error
+        why = (f"TMC_SetPrismCorr was refused ({set_error})" if set_error is not None
+               else "read back after TMC_SetPrismCorr")
+        # two decimals: a difference just over the 0.05 mm tolerance must show in the message
+        super().__init__(f"total station {device}: prism constant {units.m_to_mm(self.read_m):+.2f} mm on the "
+                         f"instrument, {units.m_to_mm(self.expected_m):+.2f} mm expected ({why})")
 
 
 class GeoComReplyParser(LineParser):
@@ -114,12 +149,15 @@ class TotalStation:
         self.long_timeout_s = long_timeout_s
         self.retry = retry
         self._trid = 0
+        #: the prism constant last set and read back (m); None: not verified since connecting
+        self.verified_prism_constant_m: float | None = None
 
     # ------------------------------------------------------------------ link
     def connect(self, open_timeout_s: float = 5.0) -> "TotalStation":
         """Open the port, clear the instrument's buffer with a LF and check with COM_NullProc."""
         self.link.start(open_timeout_s)
         self.link.write(gc.CLEAR_BUFFER)
+        self.verified_prism_constant_m = None  # another instrument may answer now
         self.null_proc()
         return self
 
@@ -285,6 +323,50 @@ class TotalStation:
     def set_reflector_height(self, height_m: float) -> None:
         """TMC_SetHeight: reflector height above the measured point."""
         self.call(gc.TMC_SETHEIGHT, (float(height_m),))
+
+    def set_prism_constant(self, constant_m: float) -> None:
+        """TMC_SetPrismCorr: the additive constant (m, Leica's convention: relative to the round
+        prism, 360° +0.0231) the instrument adds to every distance it measures from now on."""
+        self.verified_prism_constant_m = None
+        self.call(gc.TMC_SETPRISMCORR, (float(constant_m),))
+
+    def prism_constant(self) -> float:
+        """TMC_GetPrismCorr: the prism constant the instrument applies now, m."""
+        return float(self.call(gc.TMC_GETPRISMCORR).params[0])
+
+    def ensure_prism_constant(self, constant_m: float) -> float:
+        """Make the instrument apply ``constant_m`` (m) and prove it by reading it back.
+
+        Nothing is sent when this client set and read back the same constant last (a serial
+        round trip saved per measurement); the first call after :meth:`connect` always sets and
+        reads back. A TMC_SetPrismCorr the firmware does not offer (:data:`PRISM_SET_UNAVAILABLE`)
+        is not an error by itself: the read-back decides.
+
+        Returns
+        -------
+        float : the constant read back, m.
+
+        Raises
+        ------
+        PrismConstantError : the read-back differs by more than :data:`PRISM_CONSTANT_TOLERANCE_M`.
+        GeoComError subclass : a call failed after its retries.
+        """
+        constant_m = float(constant_m)
+        known = self.verified_prism_constant_m
+        if known is not None and abs(known - constant_m) <= PRISM_CONSTANT_TOLERANCE_M:
+            return known
+        refused = None
+        try:
+            self.set_prism_constant(constant_m)
+        except gc.GeoComError as e:
+            if e.code not in PRISM_SET_UNAVAILABLE:
+                raise
+            refused = e
+        read = self.prism_constant()
+        if abs(read - constant_m) > PRISM_CONSTANT_TOLERANCE_M:
+            raise PrismConstantError(self.link.port, constant_m, read, refused)
+        self.verified_prism_constant_m = read
+        return read
 
     def measure(self, wait_ms: int = 3000) -> Measurement:
         """One static prism measurement: DoMeasure(single), GetSimpleMea, GetCoordinate."""

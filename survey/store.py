@@ -92,6 +92,10 @@ class ProjectSettings:
         combined scale at the CPIII centroid instead (:meth:`ProjectStore.site_grid`).
     crs : coordinate reference system of the grid (EPSG code or PROJ string), or None.
     vertical_datum : name of the height datum, or None.
+    cpiii_prism_constant_m, trolley_prism_constant_m : additive constant of the CPIII prisms and of
+        the trolley prism, m, in Leica's convention (relative to the round prism: round 0.0, 360°
+        +0.0231); the session sets the total station to each before measuring that prism and reads
+        it back (docs/field_session.md, "Prism constants").
     """
 
     latitude_rad: float = 0.4886921905584123  # 28 deg
@@ -110,6 +114,8 @@ class ProjectSettings:
     polar_model: PolarModel = field(default_factory=PolarModel)
     crs: str | None = None
     vertical_datum: str | None = None
+    cpiii_prism_constant_m: float = 0.0
+    trolley_prism_constant_m: float = 0.0
 
     def resection_config(self, grid_scale: float | None = None) -> ResectionConfig:
         """Resection weights and tolerances of this project (``grid_scale``: the CRS's combined

@@ -445,6 +445,15 @@ PROBES: list[Probe] = [
           ("name",)),
     Probe("project-new/root-a-file", lambda t, i: (t / "r").write_text("x") and
           ["project", "new", "p", "--root", str(t / "r")], ("r",)),
+    # a prism constant the session cannot set: nothing created, the file and key named
+    Probe("project-new/prism-constant-inf", lambda t, i: (t / "r").mkdir() or shutil.copytree(DEMO, t / "r" / "p") and
+          edit_text(t / "r" / "p" / "project.toml", "trolley_prism_constant_mm = 0.0", "trolley_prism_constant_mm = inf")
+          or ["project", "new", "p", "--root", str(t / "r")],
+          ("project.toml: key totalstation.trolley_prism_constant_mm: must be a finite number, got inf",)),
+    Probe("project-set/prism-constant-out-of-range", lambda t, i: new_project(t / "r") or
+          ["project", "set", "cpiii_prism_constant_mm", "344", "--project", "p", "--root", str(t / "r")],
+          ("cpiii_prism_constant_mm: must be <= 100, got 344 (mm, Leica's convention: round prism 0.0, 360° prism "
+           "+23.1)",)),
     Probe("project-show/foreign-sqlite", lambda t, i: _foreign_sqlite(t / "r") or
           ["project", "show", "p", "--root", str(t / "r")], ("project.sqlite",)),
     Probe("project-new/foreign-sqlite", lambda t, i: _foreign_sqlite(t / "r") or

@@ -8,6 +8,7 @@ import json
 import time
 
 import numpy as np
+import pytest
 from rich.console import Console
 
 from session_project import make_project
@@ -31,11 +32,14 @@ def _setup_points(tmp_path, n=6):
         return pts
 
 
-def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0, seen=None, noise=True):
+def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0, seen=None, noise=True, constants=(0.0, 0.0),
+           instrument_constant_m=0.0):
     """IMU, odometer, gauge and a crew-aimed total station, each started on its own like an instrument.
 
     ``seen`` maps a grid point to where the instrument sees it (ground distances, refraction); the
-    default is the point itself. ``noise=False``: readings without noise."""
+    default is the point itself. ``noise=False``: readings without noise. ``constants``: Leica
+    constants (m) of the physical CPIII prisms and trolley prism; ``instrument_constant_m``: the
+    instrument's prism constant before the session sets it."""
     from drivers import geocom as gc
     from drivers.twins.gauge import GaugeTwin
     from drivers.twins.imu import ImuTwin
@@ -60,11 +64,12 @@ def _twins(tmp_path, pts, station, prism, seconds=12.0, t0=0.0, seen=None, noise
 
         def handle(self, req):
             if req.rpc == gc.AUT_FINEADJUST:
+                self.target_constant_m = constants[0] if targets else constants[1]
                 self.target = targets.pop(0) if targets else prism_seen
             return super().handle(req)
 
     ts = CrewAimedStation(station=(*station, 0.0), link_path=tmp_path / "ts", noise_angle_rad=2e-6 if noise else 0.0,
-                          noise_dist_m=3e-4 if noise else 0.0, seed=3)
+                          noise_dist_m=3e-4 if noise else 0.0, seed=3, prism_corr_m=instrument_constant_m)
     return imu, odo, gauge, ts
 
 
@@ -122,7 +127,12 @@ def test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature(tmp_p
     """The fix is computed with the polar model of the station setup: the project's grid scale
     (here 1.00004 without a CRS) and Earth curvature and refraction. The instrument sees the prism
     250 m away at the ground distance (grid / 1.00004) and lowered by (1 - 0.13) hd^2 / 2R (4.3 mm);
-    its own coordinates (TMC_GetCoordinate) hold neither. The fix must be the prism's grid point."""
+    its own coordinates (TMC_GetCoordinate) hold neither. The fix must be the prism's grid point.
+
+    The CPIII carry mini prisms (+17.5 mm), the trolley a 360° prism (+23.1 mm), and the instrument
+    starts at +34.4 mm (tape): the session sets each constant before its prism is measured; the
+    CPIII's constant left for the trolley prism puts the fix 5.6 mm short, the instrument's own 11.3 mm
+    long, and the station is off by millimetres unless the CPIII constant is set."""
     import dataclasses
 
     from survey.commands.survey import read_devices
@@ -134,7 +144,8 @@ def test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature(tmp_p
     k = 1.00004
     make_project(tmp_path, static_s="2.0")
     with ProjectStore.open(tmp_path / "t1") as st:
-        st.set_settings(dataclasses.replace(st.settings(), polar_model=PolarModel(grid_scale=k)))
+        st.set_settings(dataclasses.replace(st.settings(), polar_model=PolarModel(grid_scale=k),
+                                            cpiii_prism_constant_m=0.0175, trolley_prism_constant_m=0.0231))
         drop = st.settings().polar_model.height_drop_per_m2
     pts = _setup_points(tmp_path)
     station = np.array([pts[0].e_m + 10.0, pts[0].n_m + 5.0, pts[0].h_m + 1.5])
@@ -145,7 +156,8 @@ def test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature(tmp_p
         hd = np.hypot(d[0], d[1]) / k
         return station + np.array([d[0] / k, d[1] / k, d[2] - drop * hd**2])
 
-    twins = _twins(tmp_path, pts, station, prism, seen=seen, noise=False)
+    twins = _twins(tmp_path, pts, station, prism, seen=seen, noise=False, constants=(0.0175, 0.0231),
+                   instrument_constant_m=0.0344)
     (tmp_path / "ports.json").write_text(json.dumps({"imu": str(tmp_path / "imu"), "odometer": str(tmp_path / "odo"),
                                                      "gauge": str(tmp_path / "gauge"),
                                                      "totalstation": str(tmp_path / "ts"), "imu_type": 26}))
@@ -160,9 +172,14 @@ def test_a_fix_on_real_devices_follows_the_setups_grid_scale_and_curvature(tmp_p
             fs.run()
             fixes = st.fixes(fs.rec.session_id)
             setup = st.station_setups(fs.rec.session_id)[0]
+            switches = [json.loads(e.detail) for e in st.events(fs.rec.session_id) if e.kind == "prism_constant"]
     finally:
         for twin in twins:
             twin.stop()
+    # one switch to the CPIII prisms before the setup, one to the trolley prism before the fix
+    assert switches == [{"prism": "cpiii", "constant_mm": pytest.approx(17.5)},
+                        {"prism": "trolley", "constant_mm": pytest.approx(23.1)}]
+    assert sum(r.rpc == 2024 for r in twins[3].requests) == 2
     assert np.max(np.abs(setup.station_enh_m - station)) < 1e-6
     assert len(fixes) == 1
     # from the instrument's coordinates the fix was 250 m x 4e-5 = 10 mm short horizontally (E -5.0,
@@ -252,3 +269,54 @@ def test_resume_after_a_host_restart_starts_a_new_time_segment(tmp_path):
     assert TimeBase.from_json(json.loads([e for e in events if e.kind == "clock"][-1].detail)).host_t0 < \
         clock["host_t0"] + 1e6 - 1e5  # the new base is stored
     assert "the host restarted since the last data" in " ".join(console.export_text().split())
+
+
+def test_an_instrument_that_keeps_another_prism_constant_stops_the_session_before_the_prism_is_measured():
+    """The read-back after TMC_SetPrismCorr is what the session trusts: an instrument that answers OK
+    and keeps its constant (here the round prism's 0.0 while the trolley carries a 360° prism) stops
+    the session with the instrument, the constant expected and the one read, before any fix."""
+    from drivers import geocom as gc
+    from drivers.totalstation import TotalStation
+    from drivers.twins.totalstation import TotalStationTwin
+    from survey.session.errors import SessionAbort
+    from survey.session.stationsetup import StationSetupSteps
+    from survey.store import ProjectSettings
+
+    class KeepsItsConstant(TotalStationTwin):
+        def handle(self, req):
+            return (0, ()) if req.rpc == gc.TMC_SETPRISMCORR else super().handle(req)
+
+    class Session(StationSetupSteps):
+        settings = ProjectSettings(trolley_prism_constant_m=0.0231)
+
+        def __init__(self, ts):
+            self.ts, self.events, self.said = ts, [], []
+
+        def _event(self, kind, detail=""):
+            self.events.append((kind, json.loads(detail)))
+
+        def say(self, text):
+            self.said.append(text)
+
+    twin = KeepsItsConstant((0.0, 0.0, 0.0, 0.0), (10.0, 10.0, 0.0))
+    ts = TotalStation(twin.port, timeout_s=2.0, long_timeout_s=2.0)
+    ts.link.open()
+    twin.start()
+    try:
+        ts.connect()
+        session = Session(ts)
+        session.use_prism("cpiii")  # 0.0 asked, 0.0 held: fine
+        session.use_prism("cpiii")  # nothing sent again
+        with pytest.raises(SessionAbort) as stopped:
+            session.use_prism("trolley")
+    finally:
+        ts.close()
+        twin.stop()
+    assert str(stopped.value) == (f"total station {twin.port}: prism constant +0.00 mm on the instrument, +23.10 "
+                                  "mm expected (read back after TMC_SetPrismCorr), for the trolley prism")
+    assert "+23.1 mm by hand" in stopped.value.hint and "trolley_prism_constant_mm" in stopped.value.hint
+    assert session.events == [("prism_constant", {"prism": "cpiii", "constant_mm": 0.0}),
+                              ("prism_constant_mismatch", {"prism": "trolley", "expected_mm": pytest.approx(23.1),
+                                                           "read_mm": 0.0})]
+    assert session.said == ["total station: prism constant +0.0 mm for the CPIII prisms (set and read back)"]
+    assert sum(r.rpc == gc.TMC_SETPRISMCORR for r in twin.requests) == 2

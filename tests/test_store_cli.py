@@ -159,7 +159,8 @@ def test_new_from_project_toml(tmp_path):
     (folder / "project.toml").write_text(
         'name = "line9"\n[site]\nlatitude_deg = 40.0\nheight_m = 12.0\n[imu]\npreset = "mems"\n'
         '[trolley]\nprism_lever_arm_m = [0.1, 0.0, -0.7]\nrail_spacing_m = 1.507\n'
-        '[simulation]\nstatic_s = 120.0\n[design]\nalignment = "alignment.xml"\ncpiii = "cp.csv"\n',
+        '[simulation]\nstatic_s = 120.0\n[design]\nalignment = "alignment.xml"\ncpiii = "cp.csv"\n'
+        '[totalstation]\ncpiii_prism_constant_mm = -2.5\ntrolley_prism_constant_mm = 23.1\n',
         encoding="utf-8")
     res = run("project", "new", "line9", "--root", str(tmp_path), "--height", "13.5")
     assert "2 CPIII points" in res.stderr and "5 elements" in res.stderr
@@ -170,6 +171,19 @@ def test_new_from_project_toml(tmp_path):
         np.testing.assert_array_equal(st.trolley.prism_lever_arm_m, [0.1, 0.0, -0.7])
         assert st.trolley.rail_spacing_m == 1.507
         assert len(s.cpiii_points()) == 2 and s.alignment().name == "up-line"
+        # mm in the file, m in the store
+        assert (st.cpiii_prism_constant_m, st.trolley_prism_constant_m) == pytest.approx((-0.0025, 0.0231), abs=1e-15)
+    # the crew changes the trolley prism later; a value the session cannot use changes nothing
+    run("project", "set", "trolley_prism_constant_mm", "17.5", "--project", "line9", "--root", str(tmp_path))
+    for value, message in (("nan", "must be a finite number, got nan"), ("0.0231", None),
+                           ("-100.5", "must be >= -100, got -100.5"), ("23,1", "must be a number in mm, got '23,1'")):
+        if message is not None:
+            res = run("project", "set", "cpiii_prism_constant_mm", value, "--project", "line9", "--root", str(tmp_path),
+                      code=2)
+            assert f"error: cpiii_prism_constant_mm: {message}" in res.stderr
+    with ProjectStore.open_project(tmp_path, "line9") as s:
+        st = s.settings()
+    assert (st.cpiii_prism_constant_m, st.trolley_prism_constant_m) == pytest.approx((-0.0025, 0.0175), abs=1e-15)
     # a bad CPIII file named by project.toml: an error and no project at all
     other = tmp_path / "line10"
     other.mkdir()
@@ -190,6 +204,16 @@ def test_new_from_project_toml(tmp_path):
     (("static_s = 120.0", "static_s = 120.0\nfixes_per_stop = 0"), "key simulation.fixes_per_stop: must be > 0"),
     (("rail_spacing_m = 1.507", "rail_spacing_m = 0.0"), "key trolley.rail_spacing_m: must be > 0"),
     (("[0.1, 0.0, -0.7]", "[0.1, nan, -0.7]"), "key trolley.prism_lever_arm_m: must be 3 finite numbers"),
+    # a prism constant typed in tenths of a mm, in m, as text, or under a key the session never reads
+    (("static_s = 120.0", "static_s = 120.0\n[totalstation]\ntrolley_prism_constant_mm = 231"),
+     "key totalstation.trolley_prism_constant_mm: must be <= 100, got 231 (mm, Leica's convention"),
+    (("static_s = 120.0", "static_s = 120.0\n[totalstation]\ncpiii_prism_constant_mm = nan"),
+     "key totalstation.cpiii_prism_constant_mm: must be a finite number, got nan"),
+    (("static_s = 120.0", "static_s = 120.0\n[totalstation]\ncpiii_prism_constant_mm = '23.1'"),
+     "key totalstation.cpiii_prism_constant_mm: must be a finite number, got '23.1'"),
+    (("static_s = 120.0", "static_s = 120.0\n[totalstation]\nprism_constant_mm = 23.1"),
+     "key totalstation.prism_constant_mm: unknown setting (the keys are cpiii_prism_constant_mm, "
+     "trolley_prism_constant_mm)"),
 ])
 def test_settings_a_session_cannot_use_are_refused_when_the_project_is_made(tmp_path, edit, message):
     # (they were stored, and the crew's recorded session then failed at its end: no track, no sheet)

@@ -9,6 +9,17 @@ Hz); zenith angle ``V = atan2(horizontal distance, dH)``; slope distance is the 
 Coordinates returned by TMC_GetCoordinate are computed back from the (noisy) readings and the
 station: ``E = E0 + SD sin V sin Hz``, ``N = N0 + SD sin V cos Hz``,
 ``H = H0 + Hi + SD cos V - reflector height``.
+
+Prism constant (Leica's convention, :data:`drivers.geocom.LEICA_PRISM_CONSTANT_M`): the prism the
+twin is aimed at has its own additive constant ``target_constant_m`` (round 0.0, 360° +23.1 mm);
+the instrument holds a configured correction ``prism_corr_m`` (TMC_SetPrismCorr / TMC_GetPrismCorr,
+or the constant of the type BAP_SetPrismType selects, which overwrites it), and adds it to what its
+EDM measured. The EDM alone reads the prism's reference point ``target_constant_m`` short (a 360°
+prism's reflection lies 23.1 mm less far behind it than the round prism's, for which the EDM is
+calibrated), so every slope distance it reports (TMC_GetSimpleMea, BAP_MeasDistanceAngle, and the
+coordinates of TMC_GetCoordinate computed from it) is
+``geometric distance + prism_corr_m - target_constant_m``: right when the instrument is set to the
+prism it is aimed at, off by the difference otherwise.
 """
 from __future__ import annotations
 
@@ -31,6 +42,9 @@ class TotalStationTwin(PtyTwin):
     station : (E0, N0, H0, instrument height) where the instrument physically stands; also its
         initial TMC station setting.
     target : (E, N, H) of the prism it is aimed at, or None (no prism: ATR finds nothing).
+    target_constant_m : Leica additive constant of that prism (0.0 round, 0.0231 for a 360°).
+    prism_corr_m : the instrument's configured prism correction at power-on (Leica's factory
+        setting is the round prism, 0.0).
     noise_angle_rad, noise_dist_m : 1-sigma noise of angle and distance readings.
     sw_version : (release, version, subversion) for COM_GetSWVersion.
     atr_time_s, edm_time_s : how long ATR pointing (FineAdjust, positioning) and a distance
@@ -50,7 +64,7 @@ class TotalStationTwin(PtyTwin):
     def __init__(self, station=(0.0, 0.0, 0.0, 0.0), target=None, noise_angle_rad: float = 0.0,
                  noise_dist_m: float = 0.0, sw_version=(1, 50, 0), faults: Faults | None = None,
                  link_path=None, seed: int = 0, atr_time_s: float = 0.0, edm_time_s: float = 0.0,
-                 echo_trid: bool = True) -> None:
+                 echo_trid: bool = True, target_constant_m: float = 0.0, prism_corr_m: float = 0.0) -> None:
         self.echo_trid = echo_trid
         self.missing: list[int] = []
         self.delayed: list[int] = []
@@ -60,6 +74,8 @@ class TotalStationTwin(PtyTwin):
         e0, n0, h0, hi = self.station
         self.position = (e0, n0, h0 + hi)  # physical axis point; TMC_SetStation does not move it
         self.target = None if target is None else tuple(float(x) for x in target)
+        self.target_constant_m = float(target_constant_m)
+        self.prism_corr_m = float(prism_corr_m)
         self.noise_angle_rad = noise_angle_rad
         self.noise_dist_m = noise_dist_m
         self.sw_version = tuple(sw_version)
@@ -77,10 +93,12 @@ class TotalStationTwin(PtyTwin):
         super().__init__(faults, link_path)
 
     # ------------------------------------------------------------------ settable state
-    def set_target(self, target) -> None:
-        """Aim at a prism at (E, N, H), or None for no prism."""
+    def set_target(self, target, constant_m: float = 0.0) -> None:
+        """Aim at a prism at (E, N, H) whose Leica additive constant is ``constant_m``, or None for
+        no prism."""
         with self._lock:
             self.target = None if target is None else tuple(float(x) for x in target)
+            self.target_constant_m = float(constant_m)
             self.atr_locked = False
             self.distance = None
 
@@ -144,7 +162,22 @@ class TotalStationTwin(PtyTwin):
                 return 0, (15,)
             if rpc == gc.CSV_GETINSTRUMENTNAME:
                 return 0, ("TS-TWIN",)
-            if rpc in (gc.AUS_SETUSERATRSTATE, gc.AUS_SETUSERLOCKSTATE, gc.BAP_SETPRISMTYPE):
+            if rpc in (gc.AUS_SETUSERATRSTATE, gc.AUS_SETUSERLOCKSTATE):
+                return 0, ()
+            if rpc == gc.TMC_SETPRISMCORR:
+                if not p or not isinstance(p[0], (int, float)) or not math.isfinite(p[0]):
+                    return 2, ()  # GRC_IVPARAM
+                self.prism_corr_m = float(p[0])
+                return 0, ()
+            if rpc == gc.TMC_GETPRISMCORR:
+                return 0, (self.prism_corr_m,)
+            if rpc == gc.BAP_SETPRISMTYPE:
+                # the type's constant overwrites TMC_SetPrismCorr's; a type whose constant this
+                # software has no source for (user types, HDS target, ...) is refused, not guessed
+                kind = p[0] if p else None
+                if kind not in gc.LEICA_PRISM_CONSTANT_M:
+                    return 2, ()  # GRC_IVPARAM
+                self.prism_corr_m = gc.LEICA_PRISM_CONSTANT_M[kind]
                 return 0, ()
             if rpc == gc.AUT_FINEADJUST:
                 if self.target is None:
@@ -230,6 +263,7 @@ class TotalStationTwin(PtyTwin):
         self.pointing = (az, v)
         hz, v_r = self._read_angles()
         nd = self.noise_dist_m
+        sd += self.prism_corr_m - self.target_constant_m  # module docstring: Leica's convention
         self.distance = (hz, v_r, sd + (self._rng.normal(0, nd) if nd else 0.0))
 
     # ------------------------------------------------------------------ worker

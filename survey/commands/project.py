@@ -68,7 +68,7 @@ def new(
     """Create a project store <root>/<name>/project.sqlite.
 
     When the folder already holds a project.toml (as projects/demo does), its [site], [imu] preset,
-    [trolley] and [simulation] static_s / fix_sigma_m become the settings, and the design
+    [trolley], [totalstation] prism constants and [simulation] static_s / fix_sigma_m become the settings, and the design
     alignment and CPIII file named in [design] are imported. Options override the file.
     """
     import dataclasses
@@ -447,14 +447,21 @@ def set_field(
     key: Annotated[str, typer.Argument(metavar="KEY", help=(
         "header field: line, track, client, crew, totalstation, totalstation_serial, totalstation_calibrated, "
         "imu, imu_serial, imu_calibrated, trolley, trolley_serial, trolley_calibrated, rail_temperature_c "
-        "(checked by the store, which holds the one list; the CRS: `project set-crs`)"))],
-    value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C); "
-                                              "\"\" clears the field")],
+        "(checked by the store, which holds the one list; the CRS: `project set-crs`); or a prism constant: "
+        "cpiii_prism_constant_mm, trolley_prism_constant_mm"))],
+    value: Annotated[str, typer.Argument(help="the value (dates as YYYY-MM-DD, temperature in °C, prism constants "
+                                              "in mm, Leica's convention); \"\" clears a header field")],
     project: ProjectOption = ...,
     root: RootOption = Path("projects"),
     json_output: JsonFlag = False,
 ) -> None:
-    """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them)."""
+    """Set a survey header field shown on every sheet and on the PDF report (`trolley project show` lists them),
+    or the prism constant the session sets the total station to for the CPIII prisms or the trolley prism."""
+    from survey.commands.simulate import PRISM_CONSTANT_KEYS
+
+    if key in PRISM_CONSTANT_KEYS:
+        _set_prism_constant(key, value, project, root, json_output)
+        return
     from survey.surveyheader import HEADER_FIELDS
 
     with _open(root, project) as store:
@@ -466,6 +473,30 @@ def set_field(
     say(f"{label}: {text}" if text else f"{label}: cleared (not given)")
     if json_output:
         jsonout.echo({"project": project, "key": key, "label": label, "value": text or None})
+
+
+def _set_prism_constant(key: str, value: str, project: str, root: Path, json_output: bool) -> None:
+    """``project set cpiii_prism_constant_mm|trolley_prism_constant_mm VALUE``: checked as project.toml's
+    [totalstation] keys are; the sessions started from now on use it (one already running keeps its own)."""
+    import dataclasses
+
+    from survey.commands.simulate import PRISM_CONSTANT_KEYS, prism_constant_m
+    from trolley import units
+
+    try:
+        value_mm = float(value)
+    except ValueError:
+        fail(f"{key}: must be a number in mm, got {value!r}")
+    try:
+        constant_m = prism_constant_m(value_mm, key)
+    except ValueError as e:
+        fail(str(e))
+    with _open(root, project) as store:
+        store.set_settings(dataclasses.replace(store.settings(), **{PRISM_CONSTANT_KEYS[key]: constant_m}))
+    say(f"{key}: {units.m_to_mm(constant_m):+.1f} mm (the total station is set to it before each measurement "
+        "of that prism and read back)")
+    if json_output:
+        jsonout.echo({"project": project, "key": key, "value_mm": units.m_to_mm(constant_m)})
 
 
 @project_app.command("show")
@@ -553,7 +584,9 @@ def show(
     t.add_row("total station", f"direction {s.instrument.direction_rad / arcsec:.2g}\", zenith "
                                f"{s.instrument.zenith_rad / arcsec:.2g}\", distance "
                                f"{units.m_to_mm(s.instrument.distance_m):.2g} mm + {s.instrument.distance_scale * 1e6:.2g} ppm; "
-                               f"fix sigma {units.m_to_mm(s.fix_sigma_m):.2g} mm")
+                               f"fix sigma {units.m_to_mm(s.fix_sigma_m):.2g} mm; prism constant CPIII "
+                               f"{units.m_to_mm(s.cpiii_prism_constant_m):+.1f} mm, trolley "
+                               f"{units.m_to_mm(s.trolley_prism_constant_m):+.1f} mm")
     pm = s.polar_model
     t.add_row("polar model", (f"curvature and refraction k = {pm.refraction_k:g}" if pm.curvature_refraction
                               else "no curvature/refraction") + f", grid scale {pm.grid_scale:.8f}")

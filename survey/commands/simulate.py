@@ -46,6 +46,12 @@ _SIM_NON_NEGATIVE = frozenset({"stop_s", "static_s", "fix_sigma_m", "gauge_sigma
 MIN_SIMULATED_LENGTH_M = 1.0
 #: plausible site heights, m (ellipsoidal or orthometric: the Dead Sea shore to above any railway)
 SITE_HEIGHT_RANGE_M = (-1000.0, 10000.0)
+#: prism constants a project may give, mm (Leica's convention): the prisms in use lie within
+#: -34.4..+34.4 (docs/field_session.md, "Prism constants"); beyond 100 mm it is a typo or metres
+PRISM_CONSTANT_RANGE_MM = (-100.0, 100.0)
+#: [totalstation] keys of project.toml -> ProjectSettings fields (SI)
+PRISM_CONSTANT_KEYS = {"cpiii_prism_constant_mm": "cpiii_prism_constant_m",
+                       "trolley_prism_constant_mm": "trolley_prism_constant_m"}
 
 
 def _number(data: dict, table: str, key: str, fname: str, integer: bool = False):
@@ -74,6 +80,33 @@ def _number(data: dict, table: str, key: str, fname: str, integer: bool = False)
     return int(v) if integer else float(v)
 
 
+def prism_constant_m(value_mm: float, where: str) -> float:
+    """A prism constant given in mm (project.toml, ``project set``), checked, in m.
+
+    Raises
+    ------
+    ValueError
+        naming ``where``: not finite, or outside :data:`PRISM_CONSTANT_RANGE_MM`.
+    """
+    from survey.limits import check_finite
+    from trolley import units
+
+    check_finite(value_mm, where, minimum=PRISM_CONSTANT_RANGE_MM[0], maximum=PRISM_CONSTANT_RANGE_MM[1],
+                 why="mm, Leica's convention: round prism 0.0, 360° prism +23.1")
+    return float(units.mm_to_m(value_mm))
+
+
+def simulation_kwargs(kwargs: dict) -> dict:
+    """The SimulationConfig keyword arguments among :func:`project_settings`' (the project-only
+    settings, such as the prism constants, left out)."""
+    from dataclasses import fields
+
+    from trolley.truthsim import SimulationConfig
+
+    names = {f.name for f in fields(SimulationConfig)}
+    return {k: v for k, v in kwargs.items() if k in names}
+
+
 def project_settings(project: Path):
     """Simulation settings and design text of a project folder.
 
@@ -84,7 +117,8 @@ def project_settings(project: Path):
     Returns
     -------
     (dict, str, str)
-        SimulationConfig keyword arguments (SI), the IMU preset name, the LandXML text.
+        SimulationConfig and ProjectSettings keyword arguments (SI; :func:`simulation_kwargs` keeps
+        the former), the IMU preset name, the LandXML text.
 
     Raises
     ------
@@ -117,6 +151,18 @@ def project_settings(project: Path):
         if not isinstance(site["crs"], str):
             raise ProjectFileError(f"{fname}: key site.crs: must be a string, got {site['crs']!r}")
         kwargs["crs"] = site["crs"]
+    ts = data.get("totalstation", {})
+    if not isinstance(ts, dict):
+        raise ProjectFileError(f"{fname}: key totalstation: must be a table ([totalstation])")
+    for key in ts:
+        if key not in PRISM_CONSTANT_KEYS:
+            raise ProjectFileError(f"{fname}: key totalstation.{key}: unknown setting (the keys are "
+                                   f"{', '.join(PRISM_CONSTANT_KEYS)})")
+        try:
+            kwargs[PRISM_CONSTANT_KEYS[key]] = prism_constant_m(_number(ts, "totalstation", key, fname),
+                                                                f"{fname}: key totalstation.{key}")
+        except ValueError as exc:
+            raise ProjectFileError(str(exc)) from None
     sim = data.get("simulation", {})
     for key in sim:
         if key in _SIM_KEYS:
@@ -262,6 +308,7 @@ def register(app: typer.Typer) -> None:
             kwargs, preset, xml = project_settings(proj)
         except ProjectFileError as exc:
             fail(str(exc))
+        kwargs = simulation_kwargs(kwargs)
         preset = imu or preset
         if preset not in IMU_PRESETS:
             fail(f"--imu: unknown IMU preset {preset!r} (choose {', '.join(IMU_PRESETS)})")

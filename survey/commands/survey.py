@@ -63,9 +63,7 @@ def open_store(project: str, root: Path):
 
 def simulated_world(store, speedup: float):
     """The simulated site of a project: its [simulation] settings (project.toml) or the defaults."""
-    from dataclasses import fields
-
-    from survey.commands.simulate import ProjectFileError, project_settings
+    from survey.commands.simulate import ProjectFileError, project_settings, simulation_kwargs
     from survey.session.simworld import SimOptions, SimWorld
     from trolley.sensors import IMU_PRESETS
     from trolley.truthsim import SimulationConfig, simulate_survey
@@ -83,8 +81,7 @@ def simulated_world(store, speedup: float):
         except ProjectFileError as exc:
             fail(str(exc))
         kwargs["imu"] = IMU_PRESETS.get(preset, settings.imu)
-    names = {f.name for f in fields(SimulationConfig)}
-    kwargs = {k: v for k, v in kwargs.items() if k in names}
+    kwargs = simulation_kwargs(kwargs)
     kwargs.setdefault("imu", settings.imu)
     kwargs.update(latitude_rad=settings.latitude_rad, height_m=settings.height_m, trolley=settings.trolley,
                   fix_sigma_m=settings.fix_sigma_m, crs=settings.crs)
@@ -96,7 +93,10 @@ def simulated_world(store, speedup: float):
     # the total station's noise follows the simulation's seed, so that surveys of other seeds
     # are other realisations of the fixes too (it was 7 for every seed: an audit averaging demo
     # seeds saw one fixed set of fix errors); seed 0, the default, keeps the 7 it always had
-    return SimWorld(sim, SimOptions(speedup=speedup, seed=SimOptions.seed + int(kwargs.get("seed", 0))))
+    # the simulated site's prisms are the ones the project states
+    return SimWorld(sim, SimOptions(speedup=speedup, seed=SimOptions.seed + int(kwargs.get("seed", 0)),
+                                    cpiii_prism_constant_m=settings.cpiii_prism_constant_m,
+                                    trolley_prism_constant_m=settings.trolley_prism_constant_m))
 
 
 class session_lock:

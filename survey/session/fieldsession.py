@@ -366,6 +366,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         from drivers import encoder
         from drivers.geocom import GeoComError
         from drivers.serialport import DeviceError
+        from trolley import units
 
         table = Table(title="device check")
         for col in ("device", "port", "status"):
@@ -376,7 +377,12 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self.ts.link.write(b"\n")
             self.ts.null_proc()
             rel, ver, sub = self.ts.sw_version()
-            table.add_row("totalstation", self.ports["totalstation"], f"[green]ok[/] GeoCOM {rel}.{ver}.{sub}")
+            # what the instrument holds before the session sets it (StationSetupSteps.use_prism)
+            held = f"{units.m_to_mm(self.ts.prism_constant()):+.1f} mm"
+            table.add_row("totalstation", self.ports["totalstation"],
+                          f"[green]ok[/] GeoCOM {rel}.{ver}.{sub}, prism constant {held} (project: CPIII "
+                          f"{units.m_to_mm(self.settings.cpiii_prism_constant_m):+.1f}, trolley "
+                          f"{units.m_to_mm(self.settings.trolley_prism_constant_m):+.1f} mm)")
         except (GeoComError, DeviceError) as exc:
             table.add_row("totalstation", escape(str(self.ports["totalstation"])), f"[red]{escape(str(exc))}[/]")
             problems.append(("totalstation", str(exc), "switch the instrument on, check GeoCOM on the serial port "
@@ -476,6 +482,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 t = self.now()
                 if self.world is not None:
                     self.world.aim_at_prism(t)
+                self.use_prism("trolley")
                 self.ts.fine_adjust()
                 m = self.ts.measure()
         except (GeoComError, DeviceError) as exc:

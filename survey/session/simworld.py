@@ -55,6 +55,9 @@ class SimOptions:
     seed : noise seed of the total station (fix noise is seeded per stop and attempt).
     fix_blunders_m : ``(stop, attempt, dE, dN, dH)`` rows: that attempt at a fix at that stop
         (0-based, as seeded) is off by (dE, dN, dH) m, a blunder for the innovation test.
+    cpiii_prism_constant_m, trolley_prism_constant_m : Leica additive constants of the site's
+        physical CPIII prisms and trolley prism (the project's settings, unless a test gives the
+        site other prisms than the project states).
     """
 
     speedup: float = 1.0
@@ -65,6 +68,8 @@ class SimOptions:
     orientation_rad: float = 1.2345
     seed: int = 7
     fix_blunders_m: tuple[tuple[int, int, float, float, float], ...] = ()
+    cpiii_prism_constant_m: float = 0.0
+    trolley_prism_constant_m: float = 0.0
 
 
 class SimClock:
@@ -300,7 +305,7 @@ class SimWorld:
         attempt = self.setup_attempts.get(key, 0)
         self.setup_attempts[key] = attempt + 1
         ts.seed_noise([self.options.seed, 1000, *key, attempt])
-        ts.set_target(target)
+        ts.set_target(target, self.options.cpiii_prism_constant_m)
 
     def move_instrument(self, k: int, chainage_m: float) -> None:
         """Station change: the instrument is set up anew beside the track near ``chainage_m``
@@ -354,5 +359,5 @@ class SimWorld:
         ts.noise_dist_m = self.options.distance_sigma_m
         blunder = sum((np.array(b[2:], float) for b in self.options.fix_blunders_m if (b[0], b[1]) == (k, attempt)),
                       np.zeros(3))
-        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + blunder))
+        ts.set_target(tuple(prism_position_enh(self.sim, t_s) + blunder), self.options.trolley_prism_constant_m)
         return k

@@ -86,8 +86,50 @@ def overlap_reason(oc) -> str:
     return f"difference outside the tolerance and beyond {within}"
 
 
+#: what each prism of a session is called in the crew's messages, and its ProjectSettings field
+PRISMS = {"cpiii": ("CPIII prisms", "cpiii_prism_constant_m"),
+          "trolley": ("trolley prism", "trolley_prism_constant_m")}
+
+
 class StationSetupSteps:
     """Free station, station change and overlap check (mixin of ``FieldSession``)."""
+
+    def use_prism(self, which: str) -> None:
+        """Set the total station to the prism constant of ``which`` ("cpiii" or "trolley", the
+        project's ``cpiii_prism_constant_m`` / ``trolley_prism_constant_m``) and read it back, before
+        that prism is measured (:meth:`drivers.totalstation.TotalStation.ensure_prism_constant`:
+        nothing is sent when the instrument already holds it, as set by this session).
+
+        The two may differ (round prisms on the CPIII, a 360° prism on the trolley): measured with
+        the other's constant every distance is off by the difference, 23.1 mm between those two.
+        Each switch is stored as a ``prism_constant`` event.
+
+        Raises
+        ------
+        SessionAbort : the instrument holds another constant after the set (it refused or ignored
+            it); the message names the instrument, the constant expected and the one read.
+        GeoComError, DeviceError : a call failed after its retries (the caller's handling).
+        """
+        import json
+
+        from drivers.totalstation import PRISM_CONSTANT_TOLERANCE_M, PrismConstantError
+        from trolley import units
+
+        label, key = PRISMS[which]
+        constant = float(getattr(self.settings, key))
+        before = self.ts.verified_prism_constant_m
+        try:
+            read = self.ts.ensure_prism_constant(constant)
+        except PrismConstantError as exc:
+            self._event("prism_constant_mismatch", json.dumps({"prism": which,
+                                                               "expected_mm": units.m_to_mm(exc.expected_m),
+                                                               "read_mm": units.m_to_mm(exc.read_m)}))
+            raise SessionAbort(f"{exc}, for the {label}",
+                               f"set the instrument's prism constant to {units.m_to_mm(constant):+.1f} mm by hand, or correct "
+                               f"the project's ({key[:-2]}_mm, `trolley project set`), then resume the session") from None
+        if before is None or abs(before - read) > PRISM_CONSTANT_TOLERANCE_M:
+            self._event("prism_constant", json.dumps({"prism": which, "constant_mm": units.m_to_mm(read)}))
+            self.say(f"total station: prism constant {units.m_to_mm(read):+.1f} mm for the {label} (set and read back)")
 
     def station_setup(self) -> None:
         """Free station on the nearest CPIII points: measure, resect, show, accept / drop / re-measure."""
@@ -225,6 +267,7 @@ class StationSetupSteps:
                 elif self.config.script is None:
                     self._ask_key(f"aim at {p.point_id} and press Enter", "\r\n")
                 try:
+                    self.use_prism("cpiii")
                     self.ts.fine_adjust()
                     m = self.ts.measure()
                 except (GeoComError, DeviceError) as exc:
@@ -394,6 +437,7 @@ class StationSetupSteps:
         if self.world is not None:
             self.world.aim_at_prism(t)
         try:
+            self.use_prism("trolley")
             self.ts.fine_adjust()
             m = self.ts.measure()
         except (GeoComError, DeviceError) as exc:
