@@ -616,8 +616,11 @@ def test_demo_out_is_refused_in_one_line_unless_empty_new_or_the_demos_own(tmp_p
     (mine / "session").mkdir(parents=True)
     (mine / "survey.xlsx").write_text("the user's sheet")
     (mine / "session" / "notes.txt").write_text("the user's notes")
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "notes.txt").write_text("the user's notes")
     for out, says in ((tmp_path / "afile", "exists and is not a folder"),
-                      (mine, "exists, is not empty and was not made by `trolley demo`")):
+                      (mine, f"{mine / 'session'} exists and was not made by `trolley demo`"),
+                      (tmp_path / "notes", "exists, is not empty and was not made by `trolley demo`")):
         r = runner.invoke(app, ["demo", "--out", str(out)])
         assert r.exit_code == 2 and r.stderr.startswith(f"error: --out {out}: {says}"), r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and "Usage" not in r.stderr, r.stderr

@@ -63,9 +63,18 @@ def _guard_demo_out(out: Path) -> None:
         _guard_demo_store(out / "project")      # (its own message for a project folder of yours)
         if (out / "project").is_dir() or made_by(out / "session", "demo"):
             return
+        _guard_demo_session(out)
     raise OutputError(f"--out {out}: exists, is not empty and was not made by `trolley demo` (no {MARKER_NAME}); "
                       "the demo writes project/, session/, processed/, plots/ and survey.xlsx there and never "
                       "writes over a folder it did not make: choose an empty or new folder")
+
+
+def _guard_demo_session(out: Path) -> None:
+    """Refuse OUT/session unless the demo made it: a raw session is recorded data."""
+    session_dir = out / "session"
+    if session_dir.is_dir() and any(session_dir.iterdir()) and not made_by(session_dir, "demo"):
+        raise OutputError(f"--out {out}: {session_dir} exists and was not made by `trolley demo` (no {MARKER_NAME}); "
+                          "the demo never replaces a raw session it did not make: choose another --out")
 
 
 def _demo_project() -> Path:
@@ -98,8 +107,8 @@ def demo(
     try:
         # never into a raw session or recording, never over a folder or a project store the demo
         # did not make; marked as the demo's before anything is written into it
-        _guard_demo_out(out)
         check_outputs([], folders=[("--out", out)])
+        _guard_demo_out(out)
         if not direct:
             _guard_demo_store(out / "project")
         claim_folder(out, "demo")
@@ -205,10 +214,10 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     err = Console(stderr=True)
     t_start = time.perf_counter()
     session_dir = out / "session"
-    if session_dir.is_dir() and any(session_dir.iterdir()) and not made_by(session_dir, "demo"):
-        # a raw session is recorded data: only the demo's own is replaced
-        fail(f"--out {out}: {session_dir} exists and was not made by `trolley demo` (no {MARKER_NAME}); the demo "
-             "never replaces a raw session it did not make: choose another --out")
+    try:
+        _guard_demo_session(out)    # (the command checked it already; other callers of this function too)
+    except OutputError as exc:
+        fail(str(exc))
     try:
         kwargs, preset, xml = project_settings(project)
     except ProjectFileError as exc:
