@@ -76,3 +76,26 @@ def check_finite(value: float | None, option: str, *, positive: bool = False, mi
         raise ValueError(f"{option}: must be >= {minimum:g}, got {shown(value)}{reason}")
     if maximum is not None and value > maximum:
         raise ValueError(f"{option}: must be <= {maximum:g}, got {shown(value)}{reason}")
+
+
+#: The largest seed: a TOML integer (project.toml, session.toml hold the seed) and an SQLite
+#: INTEGER are 64-bit signed; a larger one was taken by numpy and then written where no TOML
+#: reader or project store could read it back.
+MAX_SEED = 2**63 - 1
+
+
+def check_seed(value: int | None, option: str = "--seed") -> None:
+    """Refuse a negative seed or one above :data:`MAX_SEED`, with the messages of
+    :func:`check_finite` (``--seed: must be >= 0, got -3``).
+
+    Raises
+    ------
+    ValueError
+    """
+    if value is None:
+        return
+    if value < 0:
+        raise ValueError(f"{option}: must be >= 0, got {value}")
+    if value > MAX_SEED:
+        raise ValueError(f"{option}: must be <= {MAX_SEED}, got {value} (a seed is a 64-bit integer in "
+                         "project.toml, session.toml and the project store)")

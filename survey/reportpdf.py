@@ -26,7 +26,7 @@ import numpy as np
 from survey.atomicwrite import write_bytes_atomic
 from survey.plots import draw_panel, km_axis, km_label, panel_marks
 from survey.surveyheader import header_rows
-from survey.track_table import SurveyReport, limit_in_display
+from survey.track_table import SurveyReport, limit_in_column, limit_text
 
 #: A4 landscape, inches
 PAGE_SIZE_IN = (11.69, 8.27)
@@ -165,11 +165,15 @@ def _summary(fig, rep: SurveyReport) -> None:
         st = rep.stats[col.key]
         conv = lambda v: float(col.display(np.array([v]))[0])  # noqa: E731
         lim = limits.get(col.key)
-        lo, hi = (limit_in_display(lim)[:2] if lim is not None else (math.nan, math.nan))
+        lo, hi = limit_in_column(lim, col) if lim is not None else (-math.inf, math.inf)
         if n_def.get(col.key):
             red.add(len(rows))
-        rows.append([col.header, col.unit, str(st.count), _fmt(conv(st.mean)), _fmt(conv(st.std)),
-                     _fmt(conv(st.minimum)), _fmt(conv(st.maximum)), _fmt(lo), _fmt(hi),
+        # the sheet's digits; a min or max just beyond its limit and the limits with the digits
+        # they are checked on (a red row must not read "max 1.00, limit 1.00")
+        rows.append([col.header, col.unit, str(st.count), col.text(conv(st.mean)), col.text(conv(st.std)),
+                     col.text(conv(st.minimum), lo, hi), col.text(conv(st.maximum), lo, hi),
+                     limit_text(lo, col.shown_digits, col.kept_digits),
+                     limit_text(hi, col.shown_digits, col.kept_digits),
                      str(n_def.get(col.key, 0)) if lim is not None else ""])
         if len(rows) >= 40:
             break

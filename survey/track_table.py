@@ -72,6 +72,40 @@ class SheetColumn:
         are checked on, so a value the sheet shows as 1.0000 mm is never a defect against 1 mm."""
         return np.asarray(FROM_DISPLAY[self.unit](self.display(values)), dtype=float)
 
+    @property
+    def shown_digits(self) -> int:
+        """Decimals the sheet shows (its :attr:`number_format`)."""
+        return self.number_format.rpartition(".")[2].count("0")
+
+    @property
+    def close_format(self) -> str:
+        """Excel number format of a value beyond its limit by less than half the last shown digit
+        (:meth:`close_to_limit`): the shown digits, and up to :attr:`kept_digits` where they are
+        not zero (1.004 mm against 1 mm reads "1.004", not a red "1.00"). Also the limits' format:
+        a limit of 0.6667 mm/m reads "0.6667", not "0.667"."""
+        return self.number_format + "#" * max(self.kept_digits - self.shown_digits, 0)
+
+    def close_to_limit(self, values: np.ndarray, lower: float, upper: float) -> np.ndarray:
+        """Mask of the display ``values`` beyond [lower, upper] (in the column's unit, as
+        :func:`limit_in_column` gives it) by at most half the last shown digit: rounded to the
+        shown digits they could read as the limit itself, so they are shown with
+        :attr:`close_format`. (The verdict is taken on the kept digits, as the CSV holds them;
+        only how the sheet shows the value changes.)"""
+        v = np.asarray(values, dtype=float)
+        half = 0.5 * 10.0 ** -self.shown_digits * (1 + 1e-9)
+        with np.errstate(invalid="ignore"):
+            return ((v > upper) & (v - upper <= half)) | ((v < lower) & (lower - v <= half))
+
+    def text(self, value: float, lower: float = -np.inf, upper: float = np.inf) -> str:
+        """``value`` (display unit) as the sheet shows it, for the PDF: the shown digits, or up to
+        the kept digits where :meth:`close_to_limit` (trailing zeros beyond the shown digits
+        dropped, as :attr:`close_format` does in Excel). "" when not finite."""
+        if not np.isfinite(value):
+            return ""
+        if not self.close_to_limit(np.array([value]), lower, upper)[0]:
+            return f"{value:.{self.shown_digits}f}"
+        return limit_text(value, self.shown_digits, self.kept_digits)
+
 
 def _g(x: float) -> str:
     return f"{x:g}"
@@ -177,18 +211,37 @@ def column_values(col: SheetColumn, geometry: TrackGeometry, station_m: np.ndarr
     return col.display(geometry.columns[col.key])
 
 
+def limit_text(value: float, shown_digits: int, kept_digits: int) -> str:
+    """A limit (or a value next to one) with at least ``shown_digits`` decimals and up to
+    ``kept_digits`` where they are not zero: 1 -> "1.00", 0.6667 -> "0.6667" (Excel's
+    ``0.00##``)."""
+    if not np.isfinite(value):
+        return ""
+    text = f"{value:.{kept_digits}f}"
+    cut = len(text) - (kept_digits - shown_digits)
+    return text[:cut] + text[cut:].rstrip("0")
+
+
+def _as_written(x: float) -> float:
+    """A limit converted back from SI to the unit it was written in, to 12 significant digits:
+    18 mm is 0.018 m and back 18.000000000000004 mm, and the red cells of a value of exactly 18
+    would depend on that last bit (the defects compare the SI values, where 18 == 18)."""
+    return float(f"{x:.12g}") if np.isfinite(x) else float(x)
+
+
 def limit_in_display(limit: Limit) -> tuple[float, float, str]:
     """(lower, upper, unit) of a limit in its display unit (inf stays inf)."""
     if limit.unit == "mm_per_m":
-        return (units.ratio_to_mm_per_m(limit.lower), units.ratio_to_mm_per_m(limit.upper), "mm/m")
-    return (units.m_to_mm(limit.lower), units.m_to_mm(limit.upper), "mm")
+        return (_as_written(units.ratio_to_mm_per_m(limit.lower)), _as_written(units.ratio_to_mm_per_m(limit.upper)),
+                "mm/m")
+    return (_as_written(units.m_to_mm(limit.lower)), _as_written(units.m_to_mm(limit.upper)), "mm")
 
 
 def limit_in_column(limit: Limit, column: SheetColumn) -> tuple[float, float]:
     """(lower, upper) of a limit in the unit of the column's cells (inf stays inf): a limit given
     in mm on a column shown in m (a tolerance on E_m, say) is compared and shown in m."""
     conv = UNIT_FORMATS[column.unit][0]
-    return float(conv(limit.lower)), float(conv(limit.upper))
+    return _as_written(float(conv(limit.lower))), _as_written(float(conv(limit.upper)))
 
 
 @dataclass

@@ -517,7 +517,7 @@ PROBES: list[Probe] = [
     Probe("devices-probe/timeout-negative", lambda t, i: ["devices", "probe", "--totalstation-port", str(t / "nodev"),
                                                             "--timeout-s", "-1"], ("--timeout-s",)),
     Probe("simulate/seed-negative", lambda t, i: ["simulate", "--seed", "-1", "--out", str(t / "s")],
-          ("--seed must be an integer >= 0",)),
+          ("--seed: must be >= 0, got -1",)),
     Probe("simulate/site-east-beyond-the-grid", lambda t, i: ["simulate", "--site-east-m", "1e12", "--length-m", "100",
                                                               "--out", str(t / "s")],
           ("--site-east-m: must be <= 1e+07, got 1e+12",)),

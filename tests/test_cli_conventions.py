@@ -199,31 +199,35 @@ NUMERIC = [
     ("inservice calibrate", "--filter-rate-hz", ["20", "5000"], [("19", "must be >= 20"),
                                                                   ("5001", "must be <= 5000")]),
     ("devices probe", "--timeout-s", ["0.5", "600"], [("0", "must be > 0"), ("601", "must be <= 600")]),
-    ("devices record", "--seconds", ["0", "5"], [("-1", "must be >= 0")]),
-    ("devices record", "--imu-rate-hz", ["200"], []),
-    ("devices record", "--wheel-diameter-m", ["0.1"], []),
-    ("devices record", "--odometer-scale", ["1.0001"], []),
-    ("devices record", "--odometer-rate-hz", ["100", "1000"], [("99", "must be >= 100")]),
-    ("devices simulate", "--seconds", ["0", "1"], [("-1", "must be >= 0")]),
-    ("devices simulate", "--imu-rate-hz", ["1", "400"], [("0.5", "must be >= 1")]),
-    ("devices simulate", "--gauge-rate-hz", ["1", "100"], [("0.5", "must be >= 1")]),
-    ("devices simulate", "--speed-m-s", ["-1", "2"], []),
-    ("devices simulate", "--noise-angle-rad", ["0", "1e-5"], [("-1e-5", "must be >= 0")]),
-    ("devices simulate", "--noise-dist-m", ["0", "0.001"], [("-0.001", "must be >= 0")]),
+    ("devices record", "--seconds", ["0", "5", "86400"], [("-1", "must be >= 0"), ("86401", "must be <= 86400")]),
+    ("devices record", "--imu-rate-hz", ["200", "2000"], [("0", "must be > 0"), ("2001", "must be <= 2000")]),
+    ("devices record", "--wheel-diameter-m", ["0.1", "2"], [("0", "must be > 0"), ("2.1", "must be <= 2")]),
+    ("devices record", "--odometer-scale", ["1.0001", "0.5", "2"], [("0.4", "must be >= 0.5"),
+                                                                   ("2.1", "must be <= 2")]),
+    ("devices record", "--odometer-rate-hz", ["100", "1000"], [("99", "must be >= 100"), ("1001", "must be <= 1000")]),
+    ("devices simulate", "--seconds", ["0", "1"], [("-1", "must be >= 0"), ("86401", "must be <= 86400")]),
+    ("devices simulate", "--imu-rate-hz", ["1", "400"], [("0.5", "must be >= 1"), ("2001", "must be <= 2000")]),
+    ("devices simulate", "--gauge-rate-hz", ["1", "100"], [("0.5", "must be >= 1"), ("1001", "must be <= 1000")]),
+    ("devices simulate", "--speed-m-s", ["-1", "2", "30"], [("-30.1", "must be >= -30"), ("30.1", "must be <= 30")]),
+    ("devices simulate", "--noise-angle-rad", ["0", "1e-5"], [("-1e-5", "must be >= 0"), ("0.011", "must be <= 0.01")]),
+    ("devices simulate", "--noise-dist-m", ["0", "0.001"], [("-0.001", "must be >= 0"), ("1.1", "must be <= 1")]),
     *(("devices simulate", opt, ["0", "1"], [("-0.1", "must be >= 0"), ("1.1", "must be <= 1")])
       for opt in ("--corrupt-rate", "--drop-rate", "--garbage-rate", "--delay-rate", "--missing-rate")),
-    ("devices simulate", "--delay-s", ["0", "2"], [("-0.5", "must be >= 0")]),
-    ("process", "--step-m", ["0.001", "0.625", "100"], [("0", "must be > 0"), ("-0.625", "must be > 0")]),
-    *(("export", opt, ["0.5", "3", "100"], [("0", "must be > 0"), ("-3", "must be > 0")])
+    ("devices simulate", "--delay-s", ["0", "2", "600"], [("-0.5", "must be >= 0"), ("601", "must be <= 600")]),
+    ("process", "--step-m", ["0.001", "0.625", "100"], [("0", "must be > 0"), ("-0.625", "must be > 0"),
+                                                         ("100.1", "must be <= 100"), ("1e300", "must be <= 100")]),
+    *(("export", opt, ["0.5", "3", "100", "1000"], [("0", "must be > 0"), ("-3", "must be > 0"),
+                                                    ("1000.1", "must be <= 1000")])
       for opt in ("--twist-base-m", "--chord-m", "--gauge-rate-base-m")),
     ("simulate", "--length-m", ["1", "200"], [("0.99", "must be >= 1"), ("0", "must be >= 1")]),
-    ("simulate", "--fix-spacing-m", ["10", "60", "1e4"], [("0", "must be > 0")]),
+    ("simulate", "--fix-spacing-m", ["10", "60", "1e4"], [("0", "must be > 0"), ("10001", "must be <= 10000")]),
     ("simulate", "--static-s", ["10", "120"], [("-1", "must be >= 0")]),
     ("simulate", "--rate-hz", ["50", "400"], [("0", "must be > 0")]),
-    ("simulate", "--truth-step-m", ["0.01", "0.1", "5"], [("0", "must be > 0")]),
+    ("simulate", "--truth-step-m", ["0.01", "0.1", "5"], [("0", "must be > 0"), ("5.1", "must be <= 5")]),
     ("simulate", "--site-east-m", ["-1e7", "0", "200000", "1e7"], [("-1.0000001e7", "must be >= -1e+07"),
                                                                     ("1e12", "must be <= 1e+07")]),
-    ("demo", "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")]),
+    ("demo", "--speedup", ["0.5", "40", "1000"], [("0", "must be > 0"), ("-1", "must be > 0"),
+                                                  ("1000.1", "must be <= 1000"), ("1e300", "must be <= 1000")]),
     # budget: the ranges of its error model (survey.commands.budget.RANGES)
     ("budget", "--gyro-bias-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"), ("1000.1", "must be <= 1000")]),
     ("budget", "--gyro-bias-instability-deg-h", ["0", "1000"], [("-0.1", "must be >= 0"),
@@ -237,7 +241,8 @@ NUMERIC = [
     ("budget", "--speed-m-s", ["0.01", "30"], [("0", "must be >= 0.01"), ("30.1", "must be <= 30")]),
     ("budget", "--fix-sigma-mm", ["0.001", "1000"], [("0", "must be >= 0.001"), ("1001", "must be <= 1000")]),
     ("budget", "--latitude-deg", ["-85", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
-    ("budget", "--target-mm", ["0.01", "1e6"], [("0", "must be > 0"), ("-1", "must be > 0")]),
+    ("budget", "--target-mm", ["0.01", "1000"], [("0", "must be > 0"), ("-1", "must be > 0"),
+                                                 ("1000.1", "must be <= 1000")]),
     # the sites project.toml takes (survey.commands.simulate: MAX_LATITUDE_DEG, SITE_HEIGHT_RANGE_M)
     ("project new", "--latitude-deg", ["-85", "0", "85"], [("-85.1", "must be >= -85"), ("85.1", "must be <= 85")]),
     ("project new", "--height-m", ["-1000", "10000"], [("-1000.1", "must be >= -1000"),
@@ -247,7 +252,8 @@ NUMERIC = [
     ("tgms simulate", "--camera-rate-hz", ["5", "500"], [("4.9", "must be >= 5"), ("500.1", "must be <= 500")]),
     ("tgms process", "--step-m", ["0.01", "0.25", "5"], [("0.009", "must be >= 0.01"), ("5.1", "must be <= 5")]),
     # inf passed `> 0` and the session ran at an unbounded clock
-    *((c, "--speedup", ["0.5", "40"], [("0", "must be > 0"), ("-1", "must be > 0")])
+    *((c, "--speedup", ["0.5", "40", "1000"], [("0", "must be > 0"), ("-1", "must be > 0"),
+                                                ("1000.1", "must be <= 1000")])
       for c in ("survey start", "survey resume")),
 ]
 
@@ -579,3 +585,54 @@ def test_control_is_imported_only_for_observability(session, tmp_path, extra, im
                         "--json", *extra], capture_output=True, text=True, cwd=REPO)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip().splitlines()[-1] == imported
+
+
+# ------------------------------------------------------------------- integer ranges, demo --out
+
+#: integer options with a range: (command, option, values refused with their message). A seed
+#: is written into project.toml / session.toml and the project store, 64-bit integers all.
+INTEGERS = [
+    (c, "--seed", [("-3", "must be >= 0"), (str(2**63), f"must be <= {2**63 - 1}")]) for c in ("simulate", "demo")
+]
+
+
+@pytest.mark.parametrize("command, option, bad", INTEGERS, ids=[f"{c} {o}" for c, o, _ in INTEGERS])
+def test_an_integer_option_out_of_its_range_is_one_line_naming_it(command, option, bad, stop_dir):
+    # demo --seed -3 printed typer's usage text above the error (a BadParameter)
+    for value, says in bad:
+        r, _ = run_option(command, STOP[command][0](stop_dir), option, value)
+        assert r.exit_code == 2 and r.stderr.startswith(f"error: {option}: {says}, got {value}"), r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and "Usage" not in r.stderr, r.stderr
+
+
+def test_demo_out_is_refused_in_one_line_unless_empty_new_or_the_demos_own(tmp_path, monkeypatch):
+    import survey.commands.demo as demo_cmd
+
+    calls = []
+    monkeypatch.setattr(demo_cmd, "demo_session", lambda project, out, imu, seed, *a, **k: calls.append((out, seed)) or {})
+    # a file, and a folder of the user's with a survey.xlsx and a session/ the demo would have replaced
+    (tmp_path / "afile").write_text("x")
+    mine = tmp_path / "mine"
+    (mine / "session").mkdir(parents=True)
+    (mine / "survey.xlsx").write_text("the user's sheet")
+    (mine / "session" / "notes.txt").write_text("the user's notes")
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "notes.txt").write_text("the user's notes")
+    for out, says in ((tmp_path / "afile", "exists and is not a folder"),
+                      (mine, f"{mine / 'session'} exists and was not made by `trolley demo`"),
+                      (tmp_path / "notes", "exists, is not empty and was not made by `trolley demo`")):
+        r = runner.invoke(app, ["demo", "--out", str(out)])
+        assert r.exit_code == 2 and r.stderr.startswith(f"error: --out {out}: {says}"), r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and "Usage" not in r.stderr, r.stderr
+    assert sorted(p.name for p in mine.rglob("*")) == ["notes.txt", "session", "survey.xlsx"] and not calls
+    # a new folder and a demo output from before the marker on OUT (its marked project store) are the demo's:
+    # marked before the run, default seed None (the project's: the demo stays deterministic)
+    old = tmp_path / "old"
+    (old / "project" / "demo").mkdir(parents=True)
+    (old / "project" / ".made-by-trolley").write_text("demo\n")
+    (old / "survey.xlsx").write_text("an old demo's sheet")
+    for out in (tmp_path / "new", old, tmp_path / "new"):
+        r = runner.invoke(app, ["demo", "--out", str(out)])
+        assert r.exit_code == 0, r.stderr
+        assert (out / ".made-by-trolley").read_text() == "demo\n"
+    assert calls == [(tmp_path / "new", None), (old, None), (tmp_path / "new", None)]

@@ -292,3 +292,71 @@ def test_summary_json_bad_equipment_is_a_clear_error(tmp_path):
     with pytest.raises(ExportInputError, match=r"summary.json: key equipment.accel_bias_ug: expected a number"):
         export_outputs(out, tmp_path / "s.xlsx", None, None)
     assert not (tmp_path / "s.xlsx").exists()
+
+
+def _excel_text(value: float, fmt: str) -> str:
+    """What Excel shows for ``value`` in a number format ``0.00`` / ``0.00##`` (decimals: the
+    zeros always, the hashes where not zero)."""
+    decimals = fmt.rpartition(".")[2]
+    fixed, optional = decimals.count("0"), decimals.count("#")
+    text = f"{value:.{fixed + optional}f}"
+    return text[:len(text) - optional] + text[len(text) - optional:].rstrip("0")
+
+
+def test_a_red_value_never_reads_as_its_limit_on_the_sheet(tmp_path):
+    # gauge dev against max_abs 1 mm, the sheet showing mm to 2 decimals: exactly 1.00 (at the
+    # limit: not red), 1.004 and -1.004 (beyond by less than half the last digit: red, and shown
+    # with the digits they are checked on, not as "1.00"), 1.5 (clearly beyond: red, "1.50").
+    # The red cells are as many as the Summary's stations beyond, whose min and limits read the same way.
+    import re
+
+    from openpyxl import load_workbook
+
+    from track_sheet import track_table
+
+    path = _track(tmp_path / "t" / "track.csv", n=40)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    for k, gauge in ((11, "1436.0"), (21, "1436.004"), (26, "1433.996"), (31, "1436.5")):
+        lines[k] = lines[k].replace(",1435.2,", f",{gauge},")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tol = tmp_path / "tol.toml"
+    tol.write_text('format = "trolley-tolerances/1"\nname = "g"\ntitle = "G"\ndescription = "d"\n'
+                   '[limits.gauge_dev]\nmax_abs_mm = 1.0\nsource = "test"\n', encoding="utf-8")
+    res = export_outputs(path, tmp_path / "g.xlsx", None, None, tolerances=str(tol))
+    wb = load_workbook(tmp_path / "g.xlsx")
+    ws = wb["Track"]
+    head_row, heads = track_table(ws)
+    j = heads.index("Gauge dev [mm] (nominal 1435)") + 1
+    (rule,) = [r.rules[0].formula[0] for r in ws.conditional_formatting]
+    lo, hi = (float(x) for x in re.search(r"<(-?[\d.]+),\w+\d+>(-?[\d.]+)\)", rule).groups())
+    cells = {k: ws.cell(head_row + 1 + k, j) for k in (10, 20, 25, 30, 5)}   # station k
+    shown = {k: (c.value, lo <= c.value <= hi, _excel_text(c.value, c.number_format)) for k, c in cells.items()}
+    assert shown == {10: (1.0, True, "1.00"), 20: (1.004, False, "1.004"), 25: (-1.004, False, "-1.004"),
+                     30: (1.5, False, "1.50"), 5: (pytest.approx(0.2), True, "0.20")}
+    red = sum(1 for (c,) in ws.iter_rows(min_row=head_row + 1, min_col=j, max_col=j)
+              if c.value is not None and not lo <= c.value <= hi)
+    summary = {r[0].value: r for r in wb["Summary"].iter_rows(min_row=1, max_col=13) if r[0].value}
+    row = summary["Gauge dev [mm] (nominal 1435)"]
+    assert red == 3 == row[10].value == sum(d.stations for d in res.report.defects)
+    # min -1.004 beside a lower limit shown "-1.00"; max 1.5 is far enough to keep 2 decimals
+    assert [_excel_text(c.value, c.number_format) for c in row[5:7] + row[8:10]] == ["-1.004", "1.50", "-1.00", "1.00"]
+
+
+def test_the_pdf_and_the_limits_read_as_the_sheet():
+    # the PDF's statistics use SheetColumn.text: a value just beyond its limit gets the checked
+    # digits; a limit of 1/1500 mm/m written 0.6667 is shown so, not "0.667"; a limit converted
+    # to SI and back is the value the file wrote (18 mm was 18.000000000000004: a value of
+    # exactly 18 would have been red or not depending on the last bit)
+    from survey.track_table import limit_in_column, limit_text, sheet_columns
+    from trolley.tolerances import Limit
+    from trolley.trackgeometry import GeometryConfig
+
+    cols = {c.key: c for c in sheet_columns(GeometryConfig())}
+    gauge, twist_rate = cols["gauge_dev_m"], cols["twist_rate_m_per_m"]
+    assert [gauge.text(v, -1.0, 1.0) for v in (1.0, 1.004, -1.005, 1.006, 0.3)] == \
+        ["1.00", "1.004", "-1.005", "1.01", "0.30"]
+    assert twist_rate.text(0.6668, -0.6667, 0.6667) == "0.6668" and twist_rate.close_format == "0.000##"
+    assert limit_text(0.6667, 3, 5) == "0.6667" and limit_text(1.0, 2, 4) == "1.00" and limit_text(np.inf, 2, 4) == ""
+    for mm in (18.0, 0.2443, 0.9):
+        lim = Limit("gauge_dev", "gauge_dev_m", -mm * 1e-3, mm * 1e-3, "mm", source="t")
+        assert limit_in_column(lim, gauge) == (-mm, mm)

@@ -524,7 +524,8 @@ def budget_command(
             raise BudgetInputError(f"--seed must be an integer >= 0, got {seed}")
         from survey.limits import check_finite
 
-        check_finite(target_mm, "--target-mm", positive=True)
+        check_finite(target_mm, "--target-mm", positive=True, maximum=RANGES["fix_sigma_mm"][1],
+                     why="the range of the fix sigma: a looser target sizes nothing")
         imu_name, figs = sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,
                                         heading_error_deg, level_error_deg, odo_scale_noise, odo_scale_error,
                                         fix_spacing_m, speed_m_s, fix_sigma_mm, latitude_deg)

@@ -21,9 +21,9 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 
-from survey.atomicwrite import MARKER_NAME, OutputError, check_outputs, made_by, write_marker
+from survey.atomicwrite import MARKER_NAME, OutputError, check_outputs, claim_folder, made_by, write_marker
 from survey.commands.options import ImuPreset
-from survey.commands.survey import session_outcome_dict
+from survey.commands.survey import MAX_SPEEDUP, SPEEDUP_WHY, session_outcome_dict
 
 _REPO_DEMO = Path(__file__).resolve().parents[2] / "projects" / "demo"
 
@@ -43,6 +43,40 @@ def _guard_demo_store(root: Path) -> None:
                       "OUT/project on every run and never deletes a folder it did not make: choose another --out")
 
 
+#: what the demo writes into its --out folder (the field session and --direct together)
+DEMO_ENTRIES = frozenset({"project", "session", "processed", "plots", "survey.xlsx", "crew_script.txt", MARKER_NAME})
+
+
+def _guard_demo_out(out: Path) -> None:
+    """Refuse an --out folder that holds anything the demo did not make: the demo replaces its
+    session/, processed/, plots/, survey.xlsx there (a user's folder of that name was deleted).
+    Its own folder carries the marker; a demo output from before the marker holds only the
+    demo's names and its marked project store or raw session."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise OutputError(f"--out {out}: exists and is not a folder")
+    entries = {p.name for p in out.iterdir()}
+    if not entries or made_by(out, "demo"):
+        return
+    if entries <= DEMO_ENTRIES:
+        _guard_demo_store(out / "project")      # (its own message for a project folder of yours)
+        if (out / "project").is_dir() or made_by(out / "session", "demo"):
+            return
+        _guard_demo_session(out)
+    raise OutputError(f"--out {out}: exists, is not empty and was not made by `trolley demo` (no {MARKER_NAME}); "
+                      "the demo writes project/, session/, processed/, plots/ and survey.xlsx there and never "
+                      "writes over a folder it did not make: choose an empty or new folder")
+
+
+def _guard_demo_session(out: Path) -> None:
+    """Refuse OUT/session unless the demo made it: a raw session is recorded data."""
+    session_dir = out / "session"
+    if session_dir.is_dir() and any(session_dir.iterdir()) and not made_by(session_dir, "demo"):
+        raise OutputError(f"--out {out}: {session_dir} exists and was not made by `trolley demo` (no {MARKER_NAME}); "
+                          "the demo never replaces a raw session it did not make: choose another --out")
+
+
 def _demo_project() -> Path:
     project = Path("projects/demo")
     return project if (project / "project.toml").exists() else _REPO_DEMO
@@ -59,29 +93,26 @@ def demo(
 ) -> None:
     """Survey the demo project end to end (field session with simulated devices); print where the results are."""
     from survey import jsonout
-    from survey.limits import check_finite
+    from survey.commands.engine import fail
+    from survey.limits import check_finite, check_seed
 
     try:
-        check_finite(speedup, "--speedup", positive=True)
+        check_finite(speedup, "--speedup", positive=True, maximum=MAX_SPEEDUP, why=SPEEDUP_WHY)
+        check_seed(seed)
     except ValueError as exc:
-        from survey.commands.engine import fail
-
         # one line as on every command (a BadParameter put it under typer's usage text)
         fail(str(exc))
-    if seed is not None and seed < 0:
-        raise typer.BadParameter(f"must be an integer >= 0, got {seed}", param_hint="--seed")
-    if out is not None and out.exists() and not out.is_dir():
-        raise typer.BadParameter(f"{out}: exists and is not a folder", param_hint="--out")
     project = _demo_project()
     out = out if out is not None else project / "out"
     try:
-        # never into a raw session or recording, and never over a project store the demo did not make
+        # never into a raw session or recording, never over a folder or a project store the demo
+        # did not make; marked as the demo's before anything is written into it
         check_outputs([], folders=[("--out", out)])
+        _guard_demo_out(out)
         if not direct:
             _guard_demo_store(out / "project")
+        claim_folder(out, "demo")
     except OutputError as exc:
-        from survey.commands.engine import fail
-
         fail(str(exc))
     con = Console(stderr=True) if json_output else Console()
     if direct:
@@ -183,10 +214,10 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
     err = Console(stderr=True)
     t_start = time.perf_counter()
     session_dir = out / "session"
-    if session_dir.is_dir() and any(session_dir.iterdir()) and not made_by(session_dir, "demo"):
-        # a raw session is recorded data: only the demo's own is replaced
-        fail(f"--out {out}: {session_dir} exists and was not made by `trolley demo` (no {MARKER_NAME}); the demo "
-             "never replaces a raw session it did not make: choose another --out")
+    try:
+        _guard_demo_session(out)    # (the command checked it already; other callers of this function too)
+    except OutputError as exc:
+        fail(str(exc))
     try:
         kwargs, preset, xml = project_settings(project)
     except ProjectFileError as exc:

@@ -23,6 +23,18 @@ devices_app = typer.Typer(help="Check, record and simulate the trolley's serial 
                           no_args_is_help=True, rich_markup_mode=None)
 
 
+#: the longest recording or twin run, s: a day (a longer survey is several recordings);
+#: --seconds 1e300 reached threading's wait() and overflowed its timeout after the ports were opened
+MAX_SECONDS = 86400.0
+#: the fastest IMU data rate, Hz: ten times the fastest type of the scale table (200 Hz);
+#: --imu-rate-hz 1e9 on the twins allocated until the memory ran out
+MAX_IMU_RATE_HZ = 2000.0
+#: the fastest gauge sensor and odometer polling rates, Hz (--gauge-rate-hz 1e9 as the IMU's)
+MAX_SENSOR_RATE_HZ = 1000.0
+#: the fastest synthetic trolley, m/s (the accuracy budget's range)
+MAX_SPEED_M_S = 30.0
+
+
 def _err(msg: str) -> None:
     typer.echo("error: " + " ".join(str(msg).split()), err=True)
 
@@ -129,11 +141,13 @@ def record_cmd(
 ) -> None:
     """Record imu.csv, odometer.csv, gauge.csv (FORMATS.md section 1), raw logs and stats.json."""
     with _option_values():
-        check_finite(seconds, "--seconds", minimum=0.0)
-        check_finite(imu_rate_hz, "--imu-rate-hz")
-        check_finite(wheel_diameter_m, "--wheel-diameter-m")
-        check_finite(odometer_scale, "--odometer-scale")
-        check_finite(odometer_rate_hz, "--odometer-rate-hz", minimum=100.0)
+        check_finite(seconds, "--seconds", minimum=0.0, maximum=MAX_SECONDS, why="a day")
+        check_finite(imu_rate_hz, "--imu-rate-hz", positive=True, maximum=MAX_IMU_RATE_HZ)
+        check_finite(wheel_diameter_m, "--wheel-diameter-m", positive=True, maximum=2.0,
+                     why="a measuring wheel")
+        check_finite(odometer_scale, "--odometer-scale", minimum=0.5, maximum=2.0,
+                     why="a calibrated scale factor is close to 1")
+        check_finite(odometer_rate_hz, "--odometer-rate-hz", minimum=100.0, maximum=MAX_SENSOR_RATE_HZ)
     imu = renamed(imu, imu_old, "--imu-port", "--imu")
     odometer = renamed(odometer, odometer_old, "--odometer-port", "--odometer")
     gauge = renamed(gauge, gauge_old, "--gauge-port", "--gauge")
@@ -282,17 +296,20 @@ def simulate(
     """Start the device twins on pseudo-terminals, write which port each listens on, run until
     interrupted (SIGINT/SIGTERM: ptys closed, the devices file removed, exit code 0)."""
     with _option_values():
-        check_finite(seconds, "--seconds", minimum=0.0)
-        check_finite(imu_rate_hz, "--imu-rate-hz", minimum=1.0)
-        check_finite(gauge_rate_hz, "--gauge-rate-hz", minimum=1.0)
-        check_finite(speed_m_s, "--speed-m-s")
-        check_finite(noise_angle_rad, "--noise-angle-rad", minimum=0.0)
-        check_finite(noise_dist_m, "--noise-dist-m", minimum=0.0)
+        check_finite(seconds, "--seconds", minimum=0.0, maximum=MAX_SECONDS, why="a day; leave it out to run "
+                                                                                "until interrupted")
+        check_finite(imu_rate_hz, "--imu-rate-hz", minimum=1.0, maximum=MAX_IMU_RATE_HZ)
+        check_finite(gauge_rate_hz, "--gauge-rate-hz", minimum=1.0, maximum=MAX_SENSOR_RATE_HZ)
+        check_finite(speed_m_s, "--speed-m-s", minimum=-MAX_SPEED_M_S, maximum=MAX_SPEED_M_S)
+        # a 1-sigma noise of a total station: beyond these a reading is no measurement
+        check_finite(noise_angle_rad, "--noise-angle-rad", minimum=0.0, maximum=0.01)
+        check_finite(noise_dist_m, "--noise-dist-m", minimum=0.0, maximum=1.0)
         for value, option in ((corrupt_rate, "--corrupt-rate"), (drop_rate, "--drop-rate"),
                               (garbage_rate, "--garbage-rate"), (delay_rate, "--delay-rate"),
                               (missing_rate, "--missing-rate")):
             check_finite(value, option, minimum=0.0, maximum=1.0)
-        check_finite(delay_s, "--delay-s", minimum=0.0)
+        check_finite(delay_s, "--delay-s", minimum=0.0, maximum=600.0,
+                     why="the longest reply timeout; a reply never sent is --missing-rate")
     import signal
     import threading
 

@@ -23,6 +23,11 @@ err = Console(stderr=True)
 REJECTED_RUN_WARNING = 3
 
 
+#: the longest station step of track.csv: --step-m 1e6 wrote a track of one station
+MAX_STEP_M = 100.0
+STEP_WHY = "the track is given at least every 100 m"
+
+
 def fail(message: str, code: int = 2) -> None:
     """Print a one-line error to stderr (literally: no markup from the data) and exit non-zero."""
     from rich.text import Text
@@ -52,7 +57,7 @@ def process(
     step_option = "--step" if step_old is not None else "--step-m"
     step_m = renamed(step_m, step_old, "--step-m", "--step", 0.625)
     try:
-        check_finite(step_m, step_option, positive=True)
+        check_finite(step_m, step_option, positive=True, maximum=MAX_STEP_M, why=STEP_WHY)
     except ValueError as exc:
         fail(str(exc))
     result, session, written = run_process(session_dir, out, smoother, step_m, force_accept=tuple(accept_fix or ()),
@@ -96,7 +101,7 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
     if smoother not in ("rts", "tfs", "none"):
         fail(f"--smoother must be rts, tfs or none, not {smoother!r}")
     try:
-        check_finite(step, "--step-m", positive=True)
+        check_finite(step, "--step-m", positive=True, maximum=MAX_STEP_M, why=STEP_WHY)
     except ValueError as exc:
         fail(str(exc))
     if not session_dir.is_dir():

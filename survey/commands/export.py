@@ -15,6 +15,11 @@ from rich.markup import escape
 from survey.commands.options import JsonAlways, old_name, renamed
 
 
+#: the longest twist base, versine chord or gauge-rate base, m: 1e300 gave a sheet whose columns
+#: of that base were all empty
+MAX_BASE_M = 1000.0
+
+
 class LateralSign(str, Enum):
     right = "right"
     left = "left"
@@ -82,7 +87,8 @@ def export(
     for option, value in ((typed["--twist-base-m"], twist_base_m), (typed["--chord-m"], chord_m),
                           (typed["--gauge-rate-base-m"], gauge_rate_base_m)):
         try:
-            check_finite(value, option, positive=True)
+            check_finite(value, option, positive=True, maximum=MAX_BASE_M,
+                         why="the longest chord of the track standards is 300 m")
         except ValueError as e:
             typer.echo(f"error: {e}", err=True)
             raise typer.Exit(code=2)

@@ -16,7 +16,7 @@ from typing import Annotated, Optional
 import typer
 
 from survey.commands.options import ImuPreset, JsonAlways
-from survey.limits import check_allocation
+from survey.limits import check_allocation, check_seed
 from survey.names import inside
 from rich.markup import escape
 
@@ -44,6 +44,11 @@ _SIM_NON_NEGATIVE = frozenset({"stop_s", "static_s", "fix_sigma_m", "gauge_sigma
                                "imu_residual_misalignment_rad", "lift_tilt_rad", "seed"})
 #: shortest simulated survey, m
 MIN_SIMULATED_LENGTH_M = 1.0
+#: longest fix spacing, m: the accuracy budget's range (survey.commands.budget.RANGES); 1e300
+#: simulated a survey with a fix at either end only
+MAX_FIX_SPACING_M = 10000.0
+#: coarsest truth.csv step, m
+MAX_TRUTH_STEP_M = 5.0
 #: plausible site heights, m (ellipsoidal or orthometric: the Dead Sea shore to above any railway)
 SITE_HEIGHT_RANGE_M = (-1000.0, 10000.0)
 #: prism constants a project may give, mm (Leica's convention): the prisms in use lie within
@@ -319,12 +324,13 @@ def register(app: typer.Typer) -> None:
                 kwargs[key] = value
         try:
             check_finite(length_m, "--length-m", minimum=MIN_SIMULATED_LENGTH_M, why="a track between two fixes")
-            for option, value in (("--fix-spacing-m", fix_spacing_m), ("--rate-hz", rate_hz),
-                                  ("--truth-step-m", step_m)):
-                check_finite(value, option, positive=True)
+            check_finite(fix_spacing_m, "--fix-spacing-m", positive=True, maximum=MAX_FIX_SPACING_M,
+                         why="the longest fix spacing the accuracy budget covers")
+            check_finite(rate_hz, "--rate-hz", positive=True)      # (its size is checked below)
+            check_finite(step_m, "--truth-step-m", positive=True, maximum=MAX_TRUTH_STEP_M,
+                         why="truth.csv samples the track; 1e300 wrote a truth of two rows")
             check_finite(static_s, "--static-s", minimum=0.0)
-            if seed is not None and seed < 0:
-                raise ValueError(f"--seed must be an integer >= 0, got {seed}")
+            check_seed(seed)
             check_finite(site_east_m, "--site-east-m", minimum=-SITE_EAST_LIMIT_M, maximum=SITE_EAST_LIMIT_M,
                          why="the session's grid coordinates must stay readable by `trolley process`")
             for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
