@@ -203,7 +203,7 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
 
     from survey.commands.engine import fail, print_summary, run_process
     from survey.commands.progress import progress_bar
-    from survey.commands.simulate import ProjectFileError, project_settings, simulation_kwargs
+    from survey.commands.simulate import ProjectFileError, project_settings
     from survey.export import export_outputs
     from survey.sessionio import write_session, write_truth_csv
     from trolley.landxml import parse_landxml
@@ -222,7 +222,6 @@ def demo_direct(project: Path, out: Path, imu: Optional[str], seed: Optional[int
         kwargs, preset, xml = project_settings(project)
     except ProjectFileError as exc:
         fail(str(exc))
-    kwargs = simulation_kwargs(kwargs)
     preset = imu or preset
     if preset not in IMU_PRESETS:
         fail(f"--imu: unknown IMU preset {preset!r} (choose {', '.join(IMU_PRESETS)})")

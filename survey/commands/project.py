@@ -110,7 +110,7 @@ def new(
         from survey.commands.simulate import ProjectFileError, project_settings
 
         try:
-            kwargs, preset, xml = project_settings(folder)
+            kwargs, preset, xml = project_settings(folder, project_keys=True)
             data = tomllib.loads((folder / "project.toml").read_text(encoding="utf-8-sig"))
         except (ProjectFileError, tomllib.TOMLDecodeError) as e:
             fail(str(e))

@@ -102,8 +102,8 @@ def prism_constant_m(value_mm: float, where: str) -> float:
 
 
 def simulation_kwargs(kwargs: dict) -> dict:
-    """The SimulationConfig keyword arguments among :func:`project_settings`' (the project-only
-    settings, such as the prism constants, left out)."""
+    """The SimulationConfig keyword arguments among ``kwargs`` (the project-only settings, such as
+    the prism constants, left out)."""
     from dataclasses import fields
 
     from trolley.truthsim import SimulationConfig
@@ -112,18 +112,20 @@ def simulation_kwargs(kwargs: dict) -> dict:
     return {k: v for k, v in kwargs.items() if k in names}
 
 
-def project_settings(project: Path):
+def project_settings(project: Path, project_keys: bool = False):
     """Simulation settings and design text of a project folder.
 
     Parameters
     ----------
     project : folder with ``project.toml`` and the design it names.
+    project_keys : also return the settings of the project that the simulation does not take (the
+        prism constants of ``[totalstation]``; ``project new`` stores them).
 
     Returns
     -------
     (dict, str, str)
-        SimulationConfig and ProjectSettings keyword arguments (SI; :func:`simulation_kwargs` keeps
-        the former), the IMU preset name, the LandXML text.
+        SimulationConfig keyword arguments (SI; with ``project_keys`` the ProjectSettings ones
+        too), the IMU preset name, the LandXML text.
 
     Raises
     ------
@@ -222,7 +224,7 @@ def project_settings(project: Path):
         raise ProjectFileError(f"{fname}: key design.alignment: {project / design}: {exc}") from None
     except ValueError as exc:
         raise ProjectFileError(str(exc)) from None
-    return kwargs, preset, xml
+    return (kwargs if project_keys else simulation_kwargs(kwargs)), preset, xml
 
 
 def _file_or_option(key: str) -> str:
@@ -313,7 +315,6 @@ def register(app: typer.Typer) -> None:
             kwargs, preset, xml = project_settings(proj)
         except ProjectFileError as exc:
             fail(str(exc))
-        kwargs = simulation_kwargs(kwargs)
         preset = imu or preset
         if preset not in IMU_PRESETS:
             fail(f"--imu: unknown IMU preset {preset!r} (choose {', '.join(IMU_PRESETS)})")

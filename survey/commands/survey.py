@@ -68,7 +68,7 @@ def open_store(project: str, root: Path):
 
 def simulated_world(store, speedup: float):
     """The simulated site of a project: its [simulation] settings (project.toml) or the defaults."""
-    from survey.commands.simulate import ProjectFileError, project_settings, simulation_kwargs
+    from survey.commands.simulate import ProjectFileError, project_settings
     from survey.session.simworld import SimOptions, SimWorld
     from trolley.sensors import IMU_PRESETS
     from trolley.truthsim import SimulationConfig, simulate_survey
@@ -86,7 +86,6 @@ def simulated_world(store, speedup: float):
         except ProjectFileError as exc:
             fail(str(exc))
         kwargs["imu"] = IMU_PRESETS.get(preset, settings.imu)
-    kwargs = simulation_kwargs(kwargs)
     kwargs.setdefault("imu", settings.imu)
     kwargs.update(latitude_rad=settings.latitude_rad, height_m=settings.height_m, trolley=settings.trolley,
                   fix_sigma_m=settings.fix_sigma_m, crs=settings.crs)
