@@ -54,6 +54,9 @@ IMU_COLUMNS = ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", 
 ODOMETER_COLUMNS = ["t_s", "distance_m"]
 FIXES_COLUMNS = ["t_s", "point", "E_m", "N_m", "H_m"]
 FIXES_SIGMA_COLUMNS = ["sigma_E_m", "sigma_N_m", "sigma_H_m"]
+#: optional covariances between a fix's axes (docs/formats_extensions.md): a polar measurement's E and N
+#: are correlated by its line of sight; written by the field session, 0 when absent
+FIXES_COV_COLUMNS = ["cov_EN_m2", "cov_EH_m2", "cov_NH_m2"]
 GAUGE_COLUMNS = ["t_s", "gauge_m"]
 TRUTH_COLUMNS = ["chainage_m", "E_m", "N_m", "H_m", "roll_rad", "pitch_rad", "yaw_rad",
                  "gauge_m", "cant_mm", "lateral_mm", "vertical_mm"]
@@ -736,7 +739,8 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
     header = _header(path)
     names = _require(path, header, FIXES_COLUMNS)
     sig = [c for c in FIXES_SIGMA_COLUMNS if c in names]
-    use = FIXES_COLUMNS + sig
+    covs = [c for c in FIXES_COV_COLUMNS if c in names]
+    use = FIXES_COLUMNS + sig + covs
     try:
         # small file: read as text (keeps point labels such as "NA") and convert per column
         raw = pd.read_csv(path, dtype=str,
@@ -756,14 +760,16 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
         raise SessionFormatError(f"{path}: row 2: no data rows")
     num = ["t_s", "E_m", "N_m", "H_m"]
     vals = {}
-    for c in num + sig:
+    for c in num + sig + covs:
         s = raw[names[c]].str.strip()
         v = pd.to_numeric(s, errors="coerce").to_numpy(dtype=float, copy=True)
         if c in sig:  # an empty sigma cell means "the default"
             v[(s == "").to_numpy()] = default_sigma
+        if c in covs:  # and an empty covariance cell "uncorrelated"
+            v[(s == "").to_numpy()] = 0.0
         vals[c] = v
     first = None
-    for c in num + sig:
+    for c in num + sig + covs:
         bad = ~np.isfinite(vals[c]) | (np.abs(vals[c]) > PLAUSIBLE_ABS.get(c, np.inf))
         if c in sig:
             bad |= ~((vals[c] >= SIGMA_RANGE_M[0]) & (vals[c] <= SIGMA_RANGE_M[1]))
@@ -792,10 +798,35 @@ def _read_fixes(path: Path, default_sigma: float) -> Fixes:
     for j, c in enumerate(FIXES_SIGMA_COLUMNS):
         if c in vals:
             sigma[:, j] = vals[c]
+    cov = None
+    if covs:
+        cov = np.column_stack([vals.get(c, np.zeros(n)) for c in FIXES_COV_COLUMNS])
+        _check_fix_covariances(path, file_rows, sigma, cov)
     points = np.array([str(p).strip() for p in points], dtype=object)
     return Fixes(t_s=t, point=points,
                  enh_m=np.column_stack([vals["E_m"], vals["N_m"], vals["H_m"]]),
-                 sigma_m=sigma)
+                 sigma_m=sigma, cov_m2=cov)
+
+
+def _check_fix_covariances(path: Path, file_rows: np.ndarray, sigma: np.ndarray, cov: np.ndarray) -> None:
+    """Each fix's covariance must be one: positive semi-definite with its sigmas (every
+    correlation within +-1, and the three together consistent). The first row that is not is
+    named with the column that breaks it."""
+    fx = Fixes(np.zeros(len(sigma)), np.zeros(len(sigma), dtype=object), np.zeros((len(sigma), 3)), sigma, cov)
+    c = fx.covariance_enh_m2()
+    d = np.sqrt(np.diagonal(c, axis1=1, axis2=2))
+    corr = c / (d[:, :, None] * d[:, None, :])
+    rho = np.column_stack([corr[:, 0, 1], corr[:, 0, 2], corr[:, 1, 2]])
+    # a correlation matrix is PSD when its smallest eigenvalue is >= 0 (to rounding)
+    bad = np.linalg.eigvalsh(corr)[:, 0] < -1e-9
+    if not np.any(bad):
+        return
+    i = int(np.argmax(bad))
+    j = int(np.argmax(np.abs(rho[i])))
+    pair = ("sigma_E_m and sigma_N_m", "sigma_E_m and sigma_H_m", "sigma_N_m and sigma_H_m")[j]
+    raise SessionFormatError(f"{path}: row {_row(int(file_rows[i]))}, column {FIXES_COV_COLUMNS[j]}: with {pair} "
+                             f"it is no covariance (correlation {rho[i, j]:+.3f}; the three correlations "
+                             f"{', '.join(f'{r:+.3f}' for r in rho[i])} must make a positive semi-definite matrix)")
 
 
 def read_session(folder: Path) -> RawSession:
@@ -985,13 +1016,14 @@ def _write_session_files(tmp: Path, session: RawSession, design_xml: str | None,
     fx = session.fixes
     enh = np.asarray(fx.enh_m, dtype=float)
     sig = np.asarray(fx.sigma_m, dtype=float)
-    for col, x in zip(["t_s", "E_m", "N_m", "H_m"] + FIXES_SIGMA_COLUMNS,
-                      [fx.t_s, *enh.T, *sig.T]):
+    cov_cols, cov = ([], []) if fx.cov_m2 is None else (FIXES_COV_COLUMNS, list(np.asarray(fx.cov_m2, dtype=float).T))
+    for col, x in zip(["t_s", "E_m", "N_m", "H_m"] + FIXES_SIGMA_COLUMNS + cov_cols,
+                      [fx.t_s, *enh.T, *sig.T, *cov]):
         _check_finite("fixes.csv", col, x)
     labels = [_csv_label(p) for p in fx.point]
-    write_csv_columns(tmp / "fixes.csv", FIXES_COLUMNS + FIXES_SIGMA_COLUMNS,
-               [np.asarray(fx.t_s, float), labels, *enh.T, *sig.T],
-               [_EXACT, "%s"] + [_EXACT] * 6)
+    write_csv_columns(tmp / "fixes.csv", FIXES_COLUMNS + FIXES_SIGMA_COLUMNS + cov_cols,
+               [np.asarray(fx.t_s, float), labels, *enh.T, *sig.T, *cov],
+               [_EXACT, "%s"] + [_EXACT] * (6 + len(cov_cols)))
     if session.gauge_t_s is not None:
         _check_finite("gauge.csv", "t_s", session.gauge_t_s)
         _check_finite("gauge.csv", "gauge_m", session.gauge_m)

@@ -953,6 +953,24 @@ class ProjectStore:
                  for o in observations])
         return setup_id
 
+    def fix_covariances(self, session_id: int, fixes) -> np.ndarray:
+        """(n, 3) covariances E-N, E-H, N-H of stored fixes (``Fixes.cov_m2``), m^2: each fix's
+        correlations computed again from its station setup, on the sigmas it is stored with
+        (:func:`survey.fieldrecord.stored_fix_covariance`; 0 for a fix without a setup). Without them
+        the engine took a polar fix's E and N as independent: its lateral sigma was 2.5 x the error
+        on the demo, whose instrument looks along the track."""
+        from survey.fieldrecord import stored_fix_covariance
+        from trolley.session import off_diagonal
+
+        if not fixes:
+            return np.zeros((0, 3))
+        settings = self.settings()
+        setups = {s.setup_id: s for s in self.station_setups(session_id)}
+        # one per stop: a few dozen per session
+        cov = [stored_fix_covariance(settings, (f.e_m, f.n_m, f.h_m), (f.sigma_e_m, f.sigma_n_m, f.sigma_h_m),
+                                     setups.get(f.setup_id)) for f in fixes]
+        return off_diagonal(np.array(cov))
+
     def station_setups(self, session_id: int) -> list[StationSetupRecord]:
         """A session's setups, oldest first."""
         rows = self._conn.execute(
@@ -1262,7 +1280,8 @@ class ProjectStore:
         fx = Fixes(t_s=np.array([x.t_s for x in fixes], dtype=float),
                    point=np.array([x.point for x in fixes], dtype=object),
                    enh_m=np.array([[x.e_m, x.n_m, x.h_m] for x in fixes], dtype=float).reshape(-1, 3),
-                   sigma_m=np.array([[x.sigma_e_m, x.sigma_n_m, x.sigma_h_m] for x in fixes], dtype=float).reshape(-1, 3))
+                   sigma_m=np.array([[x.sigma_e_m, x.sigma_n_m, x.sigma_h_m] for x in fixes], dtype=float).reshape(-1, 3),
+                   cov_m2=self.fix_covariances(sid, fixes))
         has_gauge = gt.shape[0] > 0
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)

@@ -358,3 +358,25 @@ def test_a_bad_setup_measuring_three_stops_is_rejected_and_the_right_fixes_after
     assert r.summary["fixes_readmitted"] >= 1  # the right ones the gate had rejected after the run
     lat, s_lat, dh, s_h = _errors(r, sim.truth)
     assert np.max(np.abs(lat / s_lat)) < 4.5 and np.max(np.abs(dh / s_h)) < 4.5
+
+
+def test_fix_covariances_turn_with_the_grid():
+    # a fix's E, N, H covariance in the filter's N, E, D frame: without a grid the axes swap (the
+    # E-N covariance stays, the H-rows change sign with D); with a projected grid the E-N part is
+    # turned by the convergence and scaled, as the positions are
+    from trolley.engine import fix_covariances
+    from trolley.projection import GridFactors
+
+    c = np.array([[4.0, 1.5, 0.2], [1.5, 1.0, -0.1], [0.2, -0.1, 0.25]]) * 1e-8
+    r = fix_covariances(c)[0]
+    np.testing.assert_allclose(r, [[1.0e-8, 1.5e-8, 0.1e-8], [1.5e-8, 4.0e-8, -0.2e-8], [0.1e-8, -0.2e-8, 0.25e-8]])
+    from trolley.engine import grid_to_ned
+    g = GridFactors(latitude_rad=0.5, longitude_rad=0.2, convergence_rad=0.02, point_scale=1.0004, height_m=50.0,
+                    radius_m=6.37e6)
+    L = np.column_stack([grid_to_ned(e[None], np.zeros(3), g)[0] for e in np.eye(3)])
+    np.testing.assert_allclose(fix_covariances(c, g)[0], L @ c @ L.T, rtol=1e-12)
+    # the horizontal variance is kept but for the scale (a turn keeps the trace), and the turn moves
+    # the correlation
+    rg = fix_covariances(c, g)[0]
+    assert np.isclose(np.trace(rg[:2, :2]), np.trace(c[:2, :2]) * abs(np.linalg.det(L[:2, :2])), rtol=1e-9, atol=0.0)
+    assert not np.isclose(rg[0, 1], r[0, 1], rtol=1e-2, atol=0.0)

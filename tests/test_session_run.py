@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from polling import count_in_store
-from session_project import fix_sigmas_by_hand, make_project
+from session_project import fix_covariance_by_hand, fix_sigmas_by_hand, make_project
 
 TROLLEY = [sys.executable, "-m", "survey.cli"]
 SPEEDUP = "25"
@@ -170,6 +170,14 @@ def test_each_fix_carries_its_station_setups_error_in_its_sigma(project):
     csv = pd.read_csv(root / "projects/t1/sessions/ref/session/fixes.csv")
     stored = np.array([[f.sigma_e_m, f.sigma_n_m, f.sigma_h_m] for f in fixes if f.accepted])
     np.testing.assert_allclose(csv[["sigma_E_m", "sigma_N_m", "sigma_H_m"]].to_numpy(), stored, rtol=1e-15)
+    # and their correlations (a polar fix's E and N are correlated by its line of sight; as
+    # independent axes the demo's lateral sigma was 2.5 x its error), computed again at the export
+    # with the project's polar model (curvature and refraction: 1e-4 of the E-H and N-H terms here;
+    # the hand computation is flat)
+    by_hand = np.array([fix_covariance_by_hand(f, setups[f.setup_id], instrument) for f in fixes if f.accepted])
+    np.testing.assert_allclose(csv[["cov_EN_m2", "cov_EH_m2", "cov_NH_m2"]].to_numpy(),
+                               by_hand[:, [0, 0, 1], [1, 2, 2]], rtol=1e-3, atol=1e-16)
+    assert np.all(np.abs(csv["cov_EN_m2"]) > 0.1 * csv["sigma_E_m"] * csv["sigma_N_m"])
 
 
 def test_live_summaries_and_the_sheet_use_the_projects_tolerance_set(project):

@@ -235,3 +235,32 @@ def test_exact_mode_is_bit_exact_for_any_double(tmp_path):
     np.testing.assert_array_equal(r.imu_t_s, t)
     np.testing.assert_array_equal(r.imu_w_rad_s, w)
     np.testing.assert_array_equal(r.imu_f_m_s2, f)
+
+
+def test_fix_covariances_round_trip_and_a_non_covariance_is_refused(tmp_path):
+    # the optional cov_EN_m2, cov_EH_m2, cov_NH_m2 columns of fixes.csv: written when the fixes have
+    # them, read bit for bit; a file without them reads as uncorrelated; three correlations that
+    # are no covariance (each within +-1, together not positive semi-definite) name the row
+    from dataclasses import replace
+
+    from survey.sessionio import SessionFormatError
+    s = tiny_session()
+    n = len(s.fixes)
+    sig = np.asarray(s.fixes.sigma_m)
+    cov = np.column_stack([0.6 * sig[:, 0] * sig[:, 1], -0.1 * sig[:, 0] * sig[:, 2], 0.05 * sig[:, 1] * sig[:, 2]])
+    write_session(tmp_path / "s", replace(s, fixes=replace(s.fixes, cov_m2=cov)), exact=True)
+    r = read_session(tmp_path / "s")
+    np.testing.assert_array_equal(r.fixes.cov_m2, cov)
+    c = r.fixes.covariance_enh_m2()
+    assert c.shape == (n, 3, 3) and c[0, 1, 0] == cov[0, 0] and c[0, 2, 2] == sig[0, 2] ** 2
+    assert read_session_without_cov(tmp_path, s).fixes.cov_m2 is None
+    bad = cov.copy()
+    bad[-1] = [0.9 * sig[-1, 0] * sig[-1, 1], 0.9 * sig[-1, 0] * sig[-1, 2], -0.9 * sig[-1, 1] * sig[-1, 2]]
+    write_session(tmp_path / "b", replace(s, fixes=replace(s.fixes, cov_m2=bad)), exact=True)
+    with pytest.raises(SessionFormatError, match=rf"fixes.csv: row {n + 1}, column cov_\w\w_m2: .*no covariance"):
+        read_session(tmp_path / "b")
+
+
+def read_session_without_cov(tmp_path, s):
+    write_session(tmp_path / "plain", s, exact=True)
+    return read_session(tmp_path / "plain")

@@ -386,14 +386,15 @@ def longest_run(flags: np.ndarray) -> int:
     return int(np.max(edges[1::2] - edges[::2])) if edges.size else 0
 
 
-def fix_covariances(sigma_enh_m: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) noise covariances of fixes in the filter's N, E, D order from E, N, H sigmas."""
-    sig = np.atleast_2d(sigma_enh_m)
-    R = np.zeros((sig.shape[0], 3, 3))
-    R[:, 0, 0] = sig[:, 1] ** 2
-    R[:, 1, 1] = sig[:, 0] ** 2
-    R[:, 2, 2] = sig[:, 2] ** 2
-    return R
+def fix_covariances(covariance_enh_m2: np.ndarray, grid: GridFactors | None = None) -> np.ndarray:
+    """(n, 3, 3) noise covariances of fixes in the filter's N, E, D frame from their grid E, N, H
+    covariances (``Fixes.covariance_enh_m2``): ``L C L^T`` with L the linear part of
+    :func:`grid_to_ned` (with a projected grid, turned by the convergence and scaled; without, the
+    axes swapped), so that a fix's correlations turn with it."""
+    origin = np.zeros((1, 3))
+    L = np.column_stack([grid_to_ned(e[None], origin[0], grid)[0] for e in np.eye(3)])
+    c = np.asarray(covariance_enh_m2, dtype=float).reshape(-1, 3, 3)
+    return L @ c @ L.T
 
 
 def filter_nodes(dr: DeadReckoning, fix_blocks: np.ndarray, node_spacing_m: float,
@@ -610,7 +611,6 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     fix_t = session.fixes.t_s[order]
     fix_pt = np.asarray(session.fixes.point, dtype=object)[order]
     fix_enh = session.fixes.enh_m[order]
-    fix_sig = session.fixes.sigma_m[order]
     origin = fix_enh[0].copy()
     # the filter works in a local true-north ground frame (the dead reckoning's); a projected
     # grid is turned by its convergence and scaled by its combined scale factor about the first fix
@@ -636,7 +636,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     noise = filter_noise(session.meta, config)
     P0, heading_sigma = initial_covariance(session.meta, align, align.t_end_s - session.imu_t_s[0], config)
     scale = state_scale(P0)
-    R = fix_covariances(fix_sig)
+    R = fix_covariances(session.fixes.covariance_enh_m2()[order], grid)
     forced = np.array([p in set(config.force_accept) for p in fix_pt], dtype=bool)
     if config.smoother not in ("rts", "tfs", "none"):
         raise ValueError(f"unknown smoother {config.smoother!r}: use rts, tfs or none")

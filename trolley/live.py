@@ -196,10 +196,15 @@ class LiveProcessor:
         return float(np.angle(np.exp(1j * (roll_dr - roll[0]))))
 
     # --- fixes ------------------------------------------------------------------------------
-    def add_fix(self, t_s: float, point: str, enh_m, sigma_m=None, force_accept: bool = False) -> FixVerdict:
-        """Gate one prism fix against the prediction; an accepted fix closes an interval."""
+    def add_fix(self, t_s: float, point: str, enh_m, sigma_m=None, force_accept: bool = False,
+                cov_m2=None) -> FixVerdict:
+        """Gate one prism fix against the prediction; an accepted fix closes an interval.
+
+        ``sigma_m`` (3,) its grid E, N, H 1-sigma (None: the session's ``fix_sigma_m``); ``cov_m2``
+        (3,) the covariances E-N, E-H, N-H (``Fixes.cov_m2``; None: 0)."""
         enh = np.asarray(enh_m, dtype=float)
         sig = np.full(3, self.meta.fix_sigma_m) if sigma_m is None else np.asarray(sigma_m, dtype=float)
+        cov = np.zeros(3) if cov_m2 is None else np.asarray(cov_m2, dtype=float).reshape(3)
         dr = self._dead_reckon()
         block = int(np.clip(np.searchsorted(dr.t_s, t_s), 0, dr.t_s.size - 1))
         roll_err = self._roll_error_at(t_s)
@@ -224,7 +229,9 @@ class LiveProcessor:
             nodes, F, Q = np.array([0]), np.zeros((0, 8, 8)), np.zeros((0, 8, 8))
         prior_P = P_prev
         H = fix_matrices(lever_ned[None], np.array([att.as_euler("ZYX")[0]]))
-        meas = Measurements(np.array([len(nodes) - 1]), z[None], H, fix_covariances(sig[None]))
+        R = fix_covariances(Fixes(np.zeros(1), np.array([point], dtype=object), enh[None], sig[None],
+                                  cov[None]).covariance_enh_m2(), self._grid)
+        meas = Measurements(np.array([len(nodes) - 1]), z[None], H, R)
         if self._fixes and block == b_prev:
             prior_P = P_prev  # a repeated fix at the same stop: no motion in between
         fwd = forward_filter(F, Q, x_prev, prior_P, meas, gate_probability=self.config.gate_probability,
@@ -238,7 +245,7 @@ class LiveProcessor:
         if accepted:
             reason = "accepted by the crew despite the gate" if fwd.nis[0] > thr else ""
             self._undo.append((list(self._fixes), list(self._accepted)))
-            self._accepted.append((float(t_s), str(point), enh, sig))
+            self._accepted.append((float(t_s), str(point), enh, sig, cov))
             state = _FixState(float(t_s), str(point), enh, sig, block, fwd.x_post[-1], fwd.P_post[-1],
                               roll_err, fwd if self._fixes else None, F, Q, nodes, b_prev)
             prev = self._fixes[-1] if self._fixes else None
@@ -276,7 +283,8 @@ class LiveProcessor:
         """The accepted fixes so far."""
         a = self._accepted
         return Fixes(np.array([x[0] for x in a]), np.array([x[1] for x in a], dtype=object),
-                     np.array([x[2] for x in a]).reshape(-1, 3), np.array([x[3] for x in a]).reshape(-1, 3))
+                     np.array([x[2] for x in a]).reshape(-1, 3), np.array([x[3] for x in a]).reshape(-1, 3),
+                     np.array([x[4] for x in a]).reshape(-1, 3))
 
     # --- results ----------------------------------------------------------------------------
     def smooth_last_interval(self) -> IntervalResult:

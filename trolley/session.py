@@ -67,15 +67,41 @@ class SessionMeta:
 
 @dataclass
 class Fixes:
-    """Total-station prism fixes: one row per measurement (grid E, N, H; sigmas per axis)."""
+    """Total-station prism fixes: one row per measurement (grid E, N, H; sigmas per axis and, when
+    known, the covariances between the axes).
+
+    A polar measurement's error is not the same along every axis: across the line of sight it is
+    the direction sigma times the distance, along it the distance sigma, so E and N are correlated
+    by the line's azimuth (``trolley.resection.polar_covariance``). Without ``cov_m2`` the axes
+    are taken as independent.
+    """
 
     t_s: np.ndarray
     point: np.ndarray  # labels (object array of str)
     enh_m: np.ndarray  # (n, 3) E, N, H
     sigma_m: np.ndarray  # (n, 3)
+    #: (n, 3) covariances E-N, E-H, N-H, m^2 (fixes.csv ``cov_EN_m2, cov_EH_m2, cov_NH_m2``); None: 0
+    cov_m2: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
+
+    def covariance_enh_m2(self) -> np.ndarray:
+        """(n, 3, 3) covariance of each fix's grid E, N, H, m^2."""
+        sig = np.atleast_2d(np.asarray(self.sigma_m, dtype=float))
+        c = np.zeros((sig.shape[0], 3, 3))
+        c[:, [0, 1, 2], [0, 1, 2]] = sig ** 2
+        if self.cov_m2 is not None:
+            cov = np.atleast_2d(np.asarray(self.cov_m2, dtype=float))
+            for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2))):
+                c[:, i, j] = c[:, j, i] = cov[:, k]
+        return c
+
+
+def off_diagonal(covariance_m2: np.ndarray) -> np.ndarray:
+    """(n, 3) covariances E-N, E-H, N-H of (n, 3, 3) E, N, H covariances (``Fixes.cov_m2``)."""
+    c = np.asarray(covariance_m2, dtype=float).reshape(-1, 3, 3)
+    return np.column_stack([c[:, 0, 1], c[:, 0, 2], c[:, 1, 2]])
 
 
 @dataclass

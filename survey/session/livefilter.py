@@ -43,8 +43,14 @@ class LiveFiltering:
             for f in self.accepted_fixes:  # fixes taken during the static alignment
                 if f.t_s <= self._live_fed_t:
                     self._live.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
-                                       np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
+                                       np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True,
+                                       cov_m2=self._fix_cov(f))
         return self._live
+
+    def _fix_cov(self, fix: FixRecord) -> np.ndarray:
+        """(3,) covariances E-N, E-H, N-H of a stored fix (``ProjectStore.fix_covariances``): the live
+        gate sees the fix as the final processing does."""
+        return self.store.fix_covariances(self.rec.session_id, [fix])[0]
 
     def _feed_live(self, t_until: float) -> None:
         lp = self._live
@@ -87,7 +93,7 @@ class LiveFiltering:
                 return None
             self._feed_live(fix.t_s)
             return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
-                              np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]))
+                              np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), cov_m2=self._fix_cov(fix))
         except Exception as exc:  # never stop the survey for the live view
             self.console.print(f"[yellow]live processing unavailable: {escape(str(exc))}[/]", highlight=False)
             self._live = False
@@ -185,7 +191,8 @@ class LiveFiltering:
                     self._live_thread.join()   # the processor is not changed under a smoothing
                 self._feed_live(f.t_s)
                 lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
-                           np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True)
+                           np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True,
+                                       cov_m2=self._fix_cov(f))
                 times = lp.fixes.t_s
                 if times.size >= 2 and _interval_key(times[-2], f.t_s) not in self._summarised:
                     # here, not on the interval thread: the next replayed fix changes the processor
