@@ -82,7 +82,7 @@ def per_sample_filterpy_seconds(session, result, slice_n: int) -> tuple[float, i
     interval = np.clip(np.searchsorted(t_nodes, t, side="right") - 1, 0, len(dt_n) - 1)
     y = result.fixes.innovation_enh_m
     z_all = np.column_stack([y[:, 1], y[:, 0], -y[:, 2]])
-    R_all = fix_covariances(session.fixes.sigma_m[np.argsort(session.fixes.t_s, kind="stable")])
+    R_all = fix_covariances(session.fixes.covariance_enh_m2()[np.argsort(session.fixes.t_s, kind="stable")])
     fix_sample = np.searchsorted(t, result.fixes.t_s)
     kf = KalmanFilter(dim_x=8, dim_z=3)
     kf.P = P0.copy()

@@ -7,7 +7,8 @@ fixes.csv varied:
   recorded      the fixes as recorded, sigma = the project's fix sigma (0.6 mm; fixes.csv before fixsig24)
   honest-diag   the fixes as recorded, sigma^2 = fix sigma^2 + diag(J C J^T) (setup propagated; C scaled
                 by sigma0^2 when sigma0 > 1, as the session does since overlap24)
-  honest-full   the same with the E-N (and E-H, N-H) covariance of the setup part (engine patched)
+  honest-full   the same with the E-N (and E-H, N-H) covariance of the setup part (engine patched; the
+                engine takes a fix's whole covariance itself since 2026-11-26, fixes.csv cov_*_m2)
   no-setup-err  the fixes with their setup error removed (truth + the reproduced twin noise), sigma 0.6 mm
 and prints RMS lateral / vertical / longitudinal (mm) and RMS error/sigma lateral / vertical, as the demo does.
 """
@@ -35,8 +36,8 @@ _orig_fix_cov = engine.fix_covariances
 FULL = {}
 
 
-def patched_fix_covariances(sig):
-    R = _orig_fix_cov(sig)
+def patched_fix_covariances(cov, grid=None):
+    R = _orig_fix_cov(cov, grid)
     if "R" in FULL:
         assert FULL["R"].shape == R.shape
         return FULL["R"]
