@@ -1281,7 +1281,8 @@ class ProjectStore:
                    point=np.array([x.point for x in fixes], dtype=object),
                    enh_m=np.array([[x.e_m, x.n_m, x.h_m] for x in fixes], dtype=float).reshape(-1, 3),
                    sigma_m=np.array([[x.sigma_e_m, x.sigma_n_m, x.sigma_h_m] for x in fixes], dtype=float).reshape(-1, 3),
-                   cov_m2=self.fix_covariances(sid, fixes))
+                   # fixes imported from a session folder have no setup: their file is given back as it was
+                   cov_m2=self.fix_covariances(sid, fixes) if any(x.setup_id is not None for x in fixes) else None)
         has_gauge = gt.shape[0] > 0
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)
