@@ -391,8 +391,7 @@ def fix_covariances(covariance_enh_m2: np.ndarray, grid: GridFactors | None = No
     covariances (``Fixes.covariance_enh_m2``): ``L C L^T`` with L the linear part of
     :func:`grid_to_ned` (with a projected grid, turned by the convergence and scaled; without, the
     axes swapped), so that a fix's correlations turn with it."""
-    origin = np.zeros((1, 3))
-    L = np.column_stack([grid_to_ned(e[None], origin[0], grid)[0] for e in np.eye(3)])
+    L = grid_to_ned(np.eye(3), np.zeros(3), grid).T  # column j: the image of the grid's unit axis j
     c = np.asarray(covariance_enh_m2, dtype=float).reshape(-1, 3, 3)
     return L @ c @ L.T
 

@@ -42,15 +42,15 @@ class LiveFiltering:
             self._live_fed_t = float(imu[sel, 0][-1])
             for f in self.accepted_fixes:  # fixes taken during the static alignment
                 if f.t_s <= self._live_fed_t:
-                    self._live.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
-                                       np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True,
-                                       cov_m2=self._fix_cov(f))
+                    self._add_fix(self._live, f, force_accept=True)
         return self._live
 
-    def _fix_cov(self, fix: FixRecord) -> np.ndarray:
-        """(3,) covariances E-N, E-H, N-H of a stored fix (``ProjectStore.fix_covariances``): the live
-        gate sees the fix as the final processing does."""
-        return self.store.fix_covariances(self.rec.session_id, [fix])[0]
+    def _add_fix(self, lp, fix: FixRecord, force_accept: bool = False):
+        """Hand a stored fix to the live processor with its sigmas and the covariances between its
+        axes (``ProjectStore.fix_covariances``): the live gate sees it as the final processing does."""
+        return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
+                          np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), force_accept=force_accept,
+                          cov_m2=self.store.fix_covariances(self.rec.session_id, [fix])[0])
 
     def _feed_live(self, t_until: float) -> None:
         lp = self._live
@@ -92,8 +92,7 @@ class LiveFiltering:
             if self._live is False:
                 return None
             self._feed_live(fix.t_s)
-            return lp.add_fix(fix.t_s, fix.point, np.array([fix.e_m, fix.n_m, fix.h_m]),
-                              np.array([fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m]), cov_m2=self._fix_cov(fix))
+            return self._add_fix(lp, fix)
         except Exception as exc:  # never stop the survey for the live view
             self.console.print(f"[yellow]live processing unavailable: {escape(str(exc))}[/]", highlight=False)
             self._live = False
@@ -190,9 +189,7 @@ class LiveFiltering:
                 if self._live_thread is not None:
                     self._live_thread.join()   # the processor is not changed under a smoothing
                 self._feed_live(f.t_s)
-                lp.add_fix(f.t_s, f.point, np.array([f.e_m, f.n_m, f.h_m]),
-                           np.array([f.sigma_e_m, f.sigma_n_m, f.sigma_h_m]), force_accept=True,
-                                       cov_m2=self._fix_cov(f))
+                self._add_fix(lp, f, force_accept=True)
                 times = lp.fixes.t_s
                 if times.size >= 2 and _interval_key(times[-2], f.t_s) not in self._summarised:
                     # here, not on the interval thread: the next replayed fix changes the processor
