@@ -361,8 +361,9 @@ class StationSetupSteps:
 
     def fix_sigmas(self, enh_m) -> tuple[float, float, float]:
         """1-sigma of grid E, N, H of a prism fix at ``enh_m`` from the current setup: the diagonal of
-        :meth:`fix_covariance` (fixes.csv has sigmas only, FORMATS.md section 1); the session's
-        ``fix_sigma_m`` per axis before a setup.
+        :meth:`fix_covariance`, stored with the fix (the covariances between the axes are computed
+        again from its setup when the session is exported, ``ProjectStore.fix_covariances``); the
+        session's ``fix_sigma_m`` per axis before a setup.
 
         All fixes of one setup share its error, and the engine takes fixes as independent: these
         sigmas make each fix honest on its own, not the average of several fixes of one setup.
