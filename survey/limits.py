@@ -98,4 +98,4 @@ def check_seed(value: int | None, option: str = "--seed") -> None:
         raise ValueError(f"{option}: must be >= 0, got {value}")
     if value > MAX_SEED:
         raise ValueError(f"{option}: must be <= {MAX_SEED}, got {value} (a seed is a 64-bit integer in "
-                         "project.toml, session.toml and the project store)")
+                         "project.toml, session.toml, the project store and the simulators' summaries)")

@@ -83,7 +83,7 @@ def test_table_output_has_verdicts_and_limits():
     (["--latitude-deg", "90"], "--latitude-deg"),
     (["--monte-carlo", "-3"], "--monte-carlo"),
     (["--odo-scale-noise", "nan"], "--odo-scale-noise: must be a finite number, got nan"),
-    (["--monte-carlo", "10", "--seed", "-1"], "--seed must be"),
+    (["--monte-carlo", "10", "--seed", "-1"], "--seed: must be >= 0"),
 ])
 def test_bad_input_exits_2_with_one_line_and_no_output(args, message):
     res = _run(*args, "--json")
@@ -217,7 +217,7 @@ def test_odometer_defaults_come_from_one_place():
 def test_seed_must_be_non_negative():
     res = _run("--monte-carlo", "10", "--seed", "-1", "--json")
     assert res.exit_code == 2 and res.stdout == ""
-    assert "--seed must be an integer >= 0" in res.stderr
+    assert "--seed: must be >= 0, got -1" in res.stderr
 
 
 def test_out_of_memory_is_a_clear_exit_2(monkeypatch):

@@ -590,9 +590,13 @@ def test_control_is_imported_only_for_observability(session, tmp_path, extra, im
 # ------------------------------------------------------------------- integer ranges, demo --out
 
 #: integer options with a range: (command, option, values refused with their message). A seed
-#: is written into project.toml / session.toml and the project store, 64-bit integers all.
+#: is written into project.toml / session.toml, the project store and the simulators' JSON
+#: summaries, 64-bit integers all (inservice, tgms and devices answered -1 with numpy's "expected
+#: non-negative integer", naming no option, and took 10^24).
 INTEGERS = [
-    (c, "--seed", [("-3", "must be >= 0"), (str(2**63), f"must be <= {2**63 - 1}")]) for c in ("simulate", "demo")
+    (c, "--seed", [("-3", "must be >= 0"), (str(2**63), f"must be <= {2**63 - 1}")])
+    for c in ("simulate", "demo", "budget", "inservice simulate", "inservice calibrate", "tgms simulate",
+              "devices simulate")
 ]
 
 

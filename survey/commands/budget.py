@@ -520,10 +520,9 @@ def budget_command(
         if monte_carlo > MAX_MONTE_CARLO_RUNS:
             raise BudgetInputError(f"--monte-carlo must be at most {MAX_MONTE_CARLO_RUNS} (their RMS then has a "
                                    f"{100 / math.sqrt(2 * MAX_MONTE_CARLO_RUNS):.2f} % sampling error), got {monte_carlo}")
-        if seed < 0:
-            raise BudgetInputError(f"--seed must be an integer >= 0, got {seed}")
-        from survey.limits import check_finite
+        from survey.limits import check_finite, check_seed
 
+        check_seed(seed)
         check_finite(target_mm, "--target-mm", positive=True, maximum=RANGES["fix_sigma_mm"][1],
                      why="the range of the fix sigma: a looser target sizes nothing")
         imu_name, figs = sensor_figures(imu, gyro_bias_deg_h, gyro_bias_instability_deg_h, gyro_arw_deg_sqrt_h,

@@ -17,7 +17,7 @@ import typer
 from survey import jsonout
 from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite, write_marker, write_text_atomic
 from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
-from survey.limits import check_finite
+from survey.limits import check_finite, check_seed
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
                           no_args_is_help=True, rich_markup_mode=None)
@@ -310,6 +310,7 @@ def simulate(
             check_finite(value, option, minimum=0.0, maximum=1.0)
         check_finite(delay_s, "--delay-s", minimum=0.0, maximum=600.0,
                      why="the longest reply timeout; a reply never sent is --missing-rate")
+        check_seed(seed)
     import signal
     import threading
 

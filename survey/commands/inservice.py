@@ -34,7 +34,7 @@ from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
-from survey.limits import check_finite
+from survey.limits import check_finite, check_seed
 
 console = Console(stderr=True)
 
@@ -457,6 +457,7 @@ def calibrate_cmd(
         check_finite(length_m, "--length-m", minimum=MIN_CALIBRATION_LENGTH_M, maximum=5000.0)
         check_finite(rate_hz, "--rate-hz", minimum=20.0, maximum=2000.0)
         check_finite(filter_rate_hz, "--filter-rate-hz", minimum=20.0, maximum=5000.0)
+        check_seed(seed)
     except ValueError as exc:
         _fail(str(exc))
     try:

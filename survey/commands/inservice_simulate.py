@@ -22,7 +22,7 @@ from rich.console import Console
 from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, guard_overwrite, write_marker
 from survey.commands.options import JsonAlways
-from survey.limits import check_finite
+from survey.limits import check_finite, check_seed
 
 console = Console(stderr=True)
 
@@ -143,6 +143,7 @@ def simulate_cmd(
         # the ranges here, not as typer min/max: nan got "Input should be less than or equal to 60"
         check_finite(speed_m_s, "--speed-m-s", minimum=2.0, maximum=60.0)
         check_finite(length_m, "--length-m", minimum=10.0, maximum=20000.0)
+        check_seed(seed)
         check_finite(curvature_1_m, "--curvature-1-m", minimum=-0.01, maximum=0.01)
         check_finite(conicity_factor, "--conicity-factor", minimum=0.1, maximum=5.0)
         check_finite(creep_factor, "--creep-factor", minimum=0.05, maximum=5.0)

@@ -20,7 +20,7 @@ from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guar
                                 write_text_atomic, write_with)
 from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
-from survey.limits import check_allocation, check_finite
+from survey.limits import check_allocation, check_finite, check_seed
 
 console = Console(stderr=True)
 
@@ -205,6 +205,7 @@ def simulate_cmd(
         check_finite(length_m, "--length-m", minimum=60.0)
         check_finite(speed_m_s, "--speed-m-s", minimum=1.0, maximum=40.0)
         check_finite(camera_rate_hz, "--camera-rate-hz", minimum=5.0, maximum=500.0)
+        check_seed(seed)
         # before anything is allocated: --length-m 1e9 allocated until the memory ran out
         check_allocation(length_m / speed_m_s * camera_rate_hz, _FRAME_BYTES,
                          f"--length-m {length_m:g} at --speed-m-s {speed_m_s:g} and --camera-rate-hz {camera_rate_hz:g}")
