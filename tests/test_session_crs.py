@@ -16,6 +16,14 @@ TROLLEY = [sys.executable, "-m", "survey.cli"]
 EAST_M = 200000.0
 
 
+
+def _survey(tmp_path, session: str) -> None:
+    """``trolley survey start`` of project t1 with the simulated devices and the crew script crew.txt."""
+    r = subprocess.run(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", session, "--simulate",
+                                  "--speedup", "25", "--script", "crew.txt"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+
 def test_field_session_off_the_central_meridian(tmp_path):
     from survey.commands.project import new
     from survey.store import ProjectStore
@@ -37,10 +45,7 @@ def test_field_session_off_the_central_meridian(tmp_path):
     new("t1", root=tmp_path / "projects", imu=None, latitude_deg=None, height=None, tolerance_set="default",
         use_toml=True)
     (tmp_path / "crew.txt").write_text("fix\nmove\nfix\nmove\nfix\nend\n")
-    r = subprocess.run(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", "ref", "--simulate",
-                                  "--speedup", "25", "--script", "crew.txt"], cwd=tmp_path, capture_output=True,
-                       text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    _survey(tmp_path, "ref")
     with ProjectStore.open(folder / "project.sqlite") as st:
         rec = st.session("ref")
         grid = st.site_grid()
@@ -78,10 +83,7 @@ def test_a_simulated_session_measures_grid_distances_whatever_the_projects_grid_
     with ProjectStore.open(folder / "project.sqlite") as st:
         st.set_settings(dataclasses.replace(st.settings(), polar_model=PolarModel(grid_scale=1.00004)))
     (tmp_path / "crew.txt").write_text("fix\nmove\nfix\nend\n")
-    r = subprocess.run(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", "k", "--simulate",
-                                  "--speedup", "25", "--script", "crew.txt"], cwd=tmp_path, capture_output=True,
-                       text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    _survey(tmp_path, "k")
     with ProjectStore.open(folder / "project.sqlite") as st:
         rec = st.session("k")
         setup = st.station_setups(rec.session_id)[0]

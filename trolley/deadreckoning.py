@@ -487,8 +487,13 @@ def levelled_stop_times(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_r
     from the start to the next stop was removed as if it had been gathering since the fix: a
     MEMS survey with the demo's 120 s alignment kept 0.76 mm of cant error at the start of the
     first interval."""
+    return np.unique(_pinned_times(dr, stop_times_s, stop_roll_rad))
+
+
+def _pinned_times(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_rad: np.ndarray) -> np.ndarray:
+    """The times of the stops with a level, moved into the dead reckoning's span, one per level."""
     ok = np.isfinite(stop_roll_rad)
-    return np.unique(np.clip(np.asarray(stop_times_s, dtype=float)[ok], dr.t_s[0], dr.t_s[-1]))
+    return np.clip(np.asarray(stop_times_s, dtype=float)[ok], dr.t_s[0], dr.t_s[-1])
 
 
 def with_roll_levelled(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_rad: np.ndarray) -> DeadReckoning:
@@ -497,7 +502,7 @@ def with_roll_levelled(dr: DeadReckoning, stop_times_s: np.ndarray, stop_roll_ra
     ok = np.isfinite(stop_roll_rad)
     if not ok.any():
         return dr
-    ts = np.clip(np.asarray(stop_times_s, dtype=float)[ok], dr.t_s[0], dr.t_s[-1])
+    ts = _pinned_times(dr, stop_times_s, stop_roll_rad)
     roll_dr = np.interp(ts, dr.t_s, dr.euler_rad()[:, 0])
     err = np.angle(np.exp(1j * (roll_dr - np.asarray(stop_roll_rad)[ok])))
     pinned, which = np.unique(ts, return_inverse=True)

@@ -307,17 +307,13 @@ def snooped_verdicts(F: np.ndarray, Q: np.ndarray, x0: np.ndarray, P0: np.ndarra
         testable = acc & ~forced & ~moved_out & np.isfinite(T)
         out = testable & (T > out_threshold)
         back = ~acc & ~moved_in & (T <= threshold)
-        if out.any():
-            j = int(np.flatnonzero(out)[np.argmax(T[out])])
-            acc[j] = False
-            moved_out[j] = True
-            moved_T[j] = T[j]
-            sm = smoothed_for(acc)
-            continue
-        if back.any():
-            j = int(np.flatnonzero(back)[np.argmin(T[back])])
-            acc[j] = True
-            moved_in[j] = True
+        if out.any() or back.any():
+            # the worst used fix out first; else the best rejected one back
+            use = not out.any()
+            j = (int(np.flatnonzero(back)[np.argmin(T[back])]) if use
+                 else int(np.flatnonzero(out)[np.argmax(T[out])]))
+            acc[j] = use
+            (moved_in if use else moved_out)[j] = True
             moved_T[j] = T[j]
             sm = smoothed_for(acc)
             continue
