@@ -149,6 +149,9 @@ class SimulationConfig:
         ``crs_in_session`` is False (a crew that forgot to give it).
     crs_in_session : write the CRS to the session metadata.
     seed : seed of ``np.random.default_rng``.
+    track_seed : seed of the track irregularities alone, or None to draw them with ``seed``. Two
+        surveys with one ``track_seed`` and two ``seed``s are two surveys of one track (a repeat
+        run: the same rails, their own sensor errors, fixes and station setups).
     """
 
     length_m: float = 1200.0
@@ -182,6 +185,7 @@ class SimulationConfig:
     crs: str | None = None
     crs_in_session: bool = True
     seed: int = 0
+    track_seed: int | None = None
 
 
 # ------------------------------------------------------------------------------------------
@@ -774,8 +778,9 @@ def simulate_survey(alignment, config: SimulationConfig = SimulationConfig(),
         stops = alignment.evaluate(np.arange(s0, s0 + cfg.length_m + 1e-9, cfg.fix_spacing_m))
         grid = site_factors(cfg.crs, np.column_stack([stops.E_m, stops.N_m, stops.H_m]))
         cfg = replace(cfg, latitude_rad=grid.latitude_rad)
+    track_rng = rng if cfg.track_seed is None else np.random.default_rng(cfg.track_seed)
     geo = truth_geometry(alignment, s0, cfg.length_m, cfg.irregularity_rms_m,
-                         cfg.trolley.rail_spacing_m, cfg.trolley.nominal_gauge_m, rng, grid=grid)
+                         cfg.trolley.rail_spacing_m, cfg.trolley.nominal_gauge_m, track_rng, grid=grid)
     motion = motion_profile(s0, cfg.length_m, cfg.fix_spacing_m, cfg.static_s, cfg.stop_s,
                             cfg.speed_m_s, cfg.accel_time_s, cfg.turn_at_stops, cfg.turn_s,
                             cfg.lift_at_stops, cfg.lift_tilt_rad, cfg.placement_offset_m)

@@ -267,6 +267,10 @@ def register(app: typer.Typer) -> None:
         length_m: Annotated[Optional[float], typer.Option("--length-m", help="surveyed length, m")] = None,
         imu: Annotated[Optional[ImuPreset], typer.Option(help="IMU grade (default: the project's)")] = None,
         seed: Annotated[Optional[int], typer.Option(help="random seed")] = None,
+        track_seed: Annotated[Optional[int], typer.Option(
+            "--track-seed", help="seed of the track's irregularities alone (default: drawn with --seed); one "
+                                 "--track-seed with two --seed values is a repeat survey of one track "
+                                 "(`trolley compare`)")] = None,
         fix_spacing_m: Annotated[Optional[float], typer.Option("--fix-spacing-m",
                                                                help="stop spacing, m")] = None,
         static_s: Annotated[Optional[float], typer.Option("--static-s",
@@ -332,6 +336,7 @@ def register(app: typer.Typer) -> None:
                          why="truth.csv samples the track; 1e300 wrote a truth of two rows")
             check_finite(static_s, "--static-s", minimum=0.0)
             check_seed(seed)
+            check_seed(track_seed, "--track-seed")
             check_finite(site_east_m, "--site-east-m", minimum=-SITE_EAST_LIMIT_M, maximum=SITE_EAST_LIMIT_M,
                          why="the session's grid coordinates must stay readable by `trolley process`")
             for key in ("length_m", "fix_spacing_m", "imu_rate_hz"):  # from project.toml when not given
@@ -376,6 +381,8 @@ def register(app: typer.Typer) -> None:
             except CrsError as exc:
                 fail(f"--crs: {exc}")
         kwargs["crs_in_session"] = crs_in_session
+        if track_seed is not None:
+            kwargs["track_seed"] = track_seed
         if site_east_m:
             from trolley.landxml import landxml_text
 
@@ -413,6 +420,7 @@ def register(app: typer.Typer) -> None:
             "fixes": int(len(session.fixes)),
             "stops": int(sim.truth.motion.stop_chainage_m.size),
             "seed": config.seed,
+            "track_seed": config.track_seed,
             "crs": config.crs,
             "site_east_m": site_east_m,
             "simulate_s": round(t1 - t0, 3),
