@@ -686,3 +686,31 @@ def test_demo_out_is_refused_in_one_line_unless_empty_new_or_the_demos_own(tmp_p
         assert r.exit_code == 0, r.stderr
         assert (out / ".made-by-trolley").read_text() == "demo\n"
     assert calls == [(tmp_path / "new", None), (old, None), (tmp_path / "new", None)]
+
+
+# ---------------------------------------------------------------------- click's usage errors
+# a value typer cannot read, an unknown option, a missing argument or option printed click's usage
+# block and "Error: Invalid value for '--seed': Input should be a valid integer, unable to parse
+# string as an integer", naming no value; now one line as every bad input (survey.errors)
+
+@pytest.mark.parametrize("args, line", [
+    (["budget", "--seed", "abc"], "error: --seed: must be an integer, got 'abc'"),
+    (["budget", "--json", "--speed-m-s", "fast"], "error: --speed-m-s: must be a number, got 'fast'"),
+    (["budget", "--sed", "3"], "error: --sed: no such option (possible options: --seed, --speed-m-s)"),
+    (["project", "set"], "error: KEY: required argument not given"),
+    (["process", "nowhere", "--json"], "error: --out: required option not given"),
+    # typer's own min=/max= got pydantic's "Input should be greater than or equal to 10"
+    (["tgms", "tune", "nowhere", "--out", "x.toml", "--evaluations", "5"],
+     "error: --evaluations: must be >= 10, got 5"),
+], ids=["int", "float-json", "unknown-option", "missing-argument", "missing-option", "typer-min"])
+def test_a_click_usage_error_is_one_line_naming_the_option(args, line):
+    r = runner.invoke(app, args)
+    assert r.exit_code == 2 and r.stderr == line + "\n", r.stderr
+    assert r.stdout == "" and "Usage" not in r.output and "Traceback" not in r.output
+
+
+def test_help_is_still_click_help():
+    r = runner.invoke(app, ["budget", "--help"])
+    assert r.exit_code == 0 and r.stdout.startswith("Usage: trolley budget [OPTIONS]") and "--seed" in r.stdout
+    r = runner.invoke(app, [])          # no command: the command list, as before (click: exit code 2)
+    assert r.exit_code == 2 and "Commands:" in r.output and "budget" in r.output and "error" not in r.output
