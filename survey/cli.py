@@ -12,7 +12,7 @@ from typing import Annotated
 
 import typer
 
-from survey.errors import guard_app
+from survey.errors import OneLineUsageErrors, guard_app
 
 app = typer.Typer(
     name="trolley",
@@ -20,6 +20,7 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
+    cls=OneLineUsageErrors,     # click's usage errors as one line `error: ...`, exit 2
 )
 
 

@@ -84,9 +84,12 @@ def check_finite(value: float | None, option: str, *, positive: bool = False, mi
 MAX_SEED = 2**63 - 1
 
 
-def check_seed(value: int | None, option: str = "--seed") -> None:
-    """Refuse a negative seed or one above :data:`MAX_SEED`, with the messages of
-    :func:`check_finite` (``--seed: must be >= 0, got -3``).
+def check_integer(value: int | None, option: str, *, minimum: int | None = None, maximum: int | None = None,
+                  why: str = "") -> None:
+    """Refuse an integer option value below ``minimum`` or above ``maximum``, with the messages of
+    :func:`check_finite` and every number with all its digits (``--odometer-ppr: must be <=
+    1000000, got 1000000000000 (...)``; ``%g`` would print 1e+12, and an integer beyond a float's
+    range, 10**400, is compared as it is).
 
     Raises
     ------
@@ -94,8 +97,21 @@ def check_seed(value: int | None, option: str = "--seed") -> None:
     """
     if value is None:
         return
-    if value < 0:
-        raise ValueError(f"{option}: must be >= 0, got {value}")
-    if value > MAX_SEED:
-        raise ValueError(f"{option}: must be <= {MAX_SEED}, got {value} (a seed is a 64-bit integer in "
-                         "project.toml, session.toml, the project store and the simulators' summaries)")
+    reason = f" ({why})" if why else ""
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{option}: must be >= {minimum}, got {value}{reason}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{option}: must be <= {maximum}, got {value}{reason}")
+
+
+def check_seed(value: int | None, option: str = "--seed") -> None:
+    """Refuse a negative seed or one above :data:`MAX_SEED`, with the messages of
+    :func:`check_integer` (``--seed: must be >= 0, got -3``).
+
+    Raises
+    ------
+    ValueError
+    """
+    check_integer(value, option, minimum=0)
+    check_integer(value, option, maximum=MAX_SEED, why="a seed is a 64-bit integer in project.toml, session.toml, "
+                                                       "the project store and the simulators' summaries")

@@ -377,6 +377,21 @@ def test_check_finite_messages(kwargs, value, message):
     assert str(exc.value) == message
 
 
+@pytest.mark.parametrize("kwargs, value, message", [
+    # every digit, not %g's 1e+12; an integer beyond a float's range is compared as it is
+    ({"maximum": 1_000_000}, 10**12, "--x: must be <= 1000000, got 1000000000000"),
+    ({"maximum": 5}, 10**400, f"--x: must be <= 5, got {10**400}"),
+    ({"minimum": 50, "maximum": 4_000_000, "why": "a reason"}, 0, "--x: must be >= 50, got 0 (a reason)"),
+])
+def test_check_integer_messages(kwargs, value, message):
+    from survey.limits import check_integer
+
+    with pytest.raises(ValueError) as exc:
+        check_integer(value, "--x", **kwargs)
+    assert str(exc.value) == message
+    check_integer(kwargs.get("minimum", 0), "--x", **kwargs)       # the limits themselves pass
+
+
 @pytest.mark.parametrize("option, value, bad", [("--station", "0,0,nan,1.5", "nan"),
                                                 ("--target", "10,inf,0.5", "inf"), ("--target", "-inf,20,0.5", "-inf")])
 def test_a_coordinate_that_is_not_finite_gets_the_finite_number_message(option, value, bad):
@@ -589,24 +604,55 @@ def test_control_is_imported_only_for_observability(session, tmp_path, extra, im
 
 # ------------------------------------------------------------------- integer ranges, demo --out
 
-#: integer options with a range: (command, option, values refused with their message). A seed
-#: is written into project.toml / session.toml, the project store and the simulators' JSON
-#: summaries, 64-bit integers all (inservice, tgms and devices answered -1 with numpy's "expected
-#: non-negative integer", naming no option, and took 10^24).
+#: integer options with a range: (command, option, values that must pass, values refused with
+#: their message). A seed is written into project.toml / session.toml, the project store and the
+#: simulators' JSON summaries, 64-bit integers all (inservice, tgms and devices answered -1 with
+#: numpy's "expected non-negative integer", naming no option, and took 10^24). A line speed or
+#: an encoder's pulses per revolution had no bound at all (--baud 0 is termios' B0, which hangs
+#: the line up; --baud 10^12 overflowed pyserial's ioctl; --odometer-ppr 10^12 was taken).
+SEED_LIMIT = [("-3", "must be >= 0"), (str(2**63), f"must be <= {2**63 - 1}")]
+BAUD_WHY = "(the serial line speeds are 50 to 4000000 baud)"
 INTEGERS = [
-    (c, "--seed", [("-3", "must be >= 0"), (str(2**63), f"must be <= {2**63 - 1}")])
-    for c in ("simulate", "demo", "budget", "inservice simulate", "inservice calibrate", "tgms simulate",
-              "devices simulate")
+    *((c, "--seed", [], SEED_LIMIT)
+      for c in ("simulate", "demo", "budget", "inservice simulate", "tgms simulate", "devices simulate")),
+    # its --extra-runs (3) take the seeds up to SEED+3 into the summary
+    ("inservice calibrate", "--seed", [str(2**63 - 4)], [*SEED_LIMIT, (str(2**63 - 3), f"must be <= {2**63 - 4}")]),
+    ("devices probe", "--baud", ["4000000"], [("0", "must be >= 50"), (str(10**12), "must be <= 4000000")]),
+    ("devices record", "--imu-baud", ["4000000"], [("4000001", "must be <= 4000000")]),
+    ("devices record", "--odometer-baud", [], [("49", "must be >= 50")]),
+    ("devices record", "--gauge-baud", [], [("0", "must be >= 50")]),
+    ("devices record", "--odometer-ppr", ["1000000"], [("0", "must be >= 1"), (str(10**12), "must be <= 1000000")]),
+    ("devices record", "--odometer-decode", [], [("3", "must be 1, 2 or 4")]),
+    ("devices record", "--odometer-bits", [], [("12", "must be 8, 16, 24 or 32")]),
 ]
 
+#: integer options whose range is checked elsewhere: typer's min=/max= (an integer is never nan),
+#: budget's own --monte-carlo check, the IMU types of NovAtel's scale table (a one-line error
+#: listing the known types)
+INTEGERS_ELSEWHERE = {("budget", "--monte-carlo"), ("devices record", "--imu-type"), ("devices simulate", "--imu-type"),
+                      ("tgms tune", "--evaluations"), ("tgms tune", "--seed"), ("inservice calibrate", "--extra-runs")}
 
-@pytest.mark.parametrize("command, option, bad", INTEGERS, ids=[f"{c} {o}" for c, o, _ in INTEGERS])
-def test_an_integer_option_out_of_its_range_is_one_line_naming_it(command, option, bad, stop_dir):
+
+def test_the_integer_tables_hold_every_integer_option():
+    """An integer option added later without its range would be missing here."""
+    ints = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS for p in cmd.params
+            if getattr(p, "type_descriptor", None) is not None and p.type_descriptor.annotation is int}
+    assert ints == {(c, o) for c, o, _, _ in INTEGERS} | INTEGERS_ELSEWHERE
+
+
+@pytest.mark.parametrize("command, option, valid, bad", INTEGERS, ids=[f"{c} {o}" for c, o, *_ in INTEGERS])
+def test_an_integer_option_out_of_its_range_is_one_line_naming_it(command, option, valid, bad, stop_dir):
     # demo --seed -3 printed typer's usage text above the error (a BadParameter)
-    for value, says in bad:
-        r, _ = run_option(command, STOP[command][0](stop_dir), option, value)
-        assert r.exit_code == 2 and r.stderr.startswith(f"error: {option}: {says}, got {value}"), r.stderr
+    make, code, says = STOP[command]
+    for value, message in bad:
+        r, _ = run_option(command, make(stop_dir), option, value)
+        assert r.exit_code == 2 and r.stderr.startswith(f"error: {option}: {message}, got {value}"), r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and "Usage" not in r.stderr, r.stderr
+        assert "baud" not in option or r.stderr.rstrip().endswith(BAUD_WHY), r.stderr
+    # the largest values pass the option checks and the command stops at its later check
+    for value in valid:
+        r, err = run_option(command, make(stop_dir), option, value)
+        assert r.exit_code == code and says in err and f"{option}:" not in err, (value, err)
 
 
 def test_demo_out_is_refused_in_one_line_unless_empty_new_or_the_demos_own(tmp_path, monkeypatch):
@@ -640,3 +686,31 @@ def test_demo_out_is_refused_in_one_line_unless_empty_new_or_the_demos_own(tmp_p
         assert r.exit_code == 0, r.stderr
         assert (out / ".made-by-trolley").read_text() == "demo\n"
     assert calls == [(tmp_path / "new", None), (old, None), (tmp_path / "new", None)]
+
+
+# ---------------------------------------------------------------------- click's usage errors
+# a value typer cannot read, an unknown option, a missing argument or option printed click's usage
+# block and "Error: Invalid value for '--seed': Input should be a valid integer, unable to parse
+# string as an integer", naming no value; now one line as every bad input (survey.errors)
+
+@pytest.mark.parametrize("args, line", [
+    (["budget", "--seed", "abc"], "error: --seed: must be an integer, got 'abc'"),
+    (["budget", "--json", "--speed-m-s", "fast"], "error: --speed-m-s: must be a number, got 'fast'"),
+    (["budget", "--sed", "3"], "error: --sed: no such option (possible options: --seed, --speed-m-s)"),
+    (["project", "set"], "error: KEY: required argument not given"),
+    (["process", "nowhere", "--json"], "error: --out: required option not given"),
+    # typer's own min=/max= got pydantic's "Input should be greater than or equal to 10"
+    (["tgms", "tune", "nowhere", "--out", "x.toml", "--evaluations", "5"],
+     "error: --evaluations: must be >= 10, got 5"),
+], ids=["int", "float-json", "unknown-option", "missing-argument", "missing-option", "typer-min"])
+def test_a_click_usage_error_is_one_line_naming_the_option(args, line):
+    r = runner.invoke(app, args)
+    assert r.exit_code == 2 and r.stderr == line + "\n", r.stderr
+    assert r.stdout == "" and "Usage" not in r.output and "Traceback" not in r.output
+
+
+def test_help_is_still_click_help():
+    r = runner.invoke(app, ["budget", "--help"])
+    assert r.exit_code == 0 and r.stdout.startswith("Usage: trolley budget [OPTIONS]") and "--seed" in r.stdout
+    r = runner.invoke(app, [])          # no command: the command list, as before (click: exit code 2)
+    assert r.exit_code == 2 and "Commands:" in r.output and "budget" in r.output and "error" not in r.output

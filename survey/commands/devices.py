@@ -17,7 +17,7 @@ import typer
 from survey import jsonout
 from survey.atomicwrite import MARKER_NAME, OutputError, guard_overwrite, write_marker, write_text_atomic
 from survey.commands.options import Device, JsonAlways, JsonFlag, old_name, renamed
-from survey.limits import check_finite, check_seed
+from survey.limits import check_finite, check_integer, check_seed
 
 devices_app = typer.Typer(help="Check, record and simulate the trolley's serial instruments.",
                           no_args_is_help=True, rich_markup_mode=None)
@@ -33,6 +33,15 @@ MAX_IMU_RATE_HZ = 2000.0
 MAX_SENSOR_RATE_HZ = 1000.0
 #: the fastest synthetic trolley, m/s (the accuracy budget's range)
 MAX_SPEED_M_S = 30.0
+#: the line speeds of a serial port, baud: pyserial's standard rates (serial.SerialBase.BAUDRATES)
+#: and Linux's termios span 50 to 4,000,000; 0 is termios' B0, which hangs the line up, and --baud
+#: 10^12 reached pyserial's ioctl and overflowed it ("signed integer is greater than maximum")
+MIN_BAUD = 50
+MAX_BAUD = 4_000_000
+BAUD_WHY = f"the serial line speeds are {MIN_BAUD} to {MAX_BAUD} baud"
+#: the finest rotary encoders count about 10^5 to 10^6 pulses per revolution; --odometer-ppr 10^12
+#: was taken, a count then 8e-14 m of the 0.1 m wheel, and a 32-bit counter wrapped every 0.34 mm
+MAX_ODOMETER_PPR = 1_000_000
 
 
 def _err(msg: str) -> None:
@@ -66,7 +75,8 @@ def _csv(header: list[str], cols: list) -> str:
 def probe(
     totalstation: str | None = typer.Option(None, "--totalstation-port", help="Serial port of the total station "
                                                                           "(required)."),
-    baud: int = typer.Option(19200, "--baud", help="Baud rate (9600 and 19200 are both common)."),
+    baud: int = typer.Option(19200, "--baud", help=f"Baud rate (9600 and 19200 are both common; "
+                                                    f"{MIN_BAUD}-{MAX_BAUD})."),
     crc: bool | None = typer.Option(None, "--crc/--no-crc",
                                     help="GeoCOM CRC-16 field on/off (default: on if the instrument answers with it)."),
     timeout_s: float = typer.Option(3.0, "--timeout-s", help="Reply timeout of quick calls, s (> 0, up to 600)."),
@@ -77,6 +87,7 @@ def probe(
     """Connection check, software version, ATR fine-adjust and one measurement."""
     with _option_values():
         check_finite(timeout_s, "--timeout-s", positive=True, maximum=600.0)
+        check_integer(baud, "--baud", minimum=MIN_BAUD, maximum=MAX_BAUD, why=BAUD_WHY)
     totalstation = renamed(totalstation, totalstation_old, "--totalstation-port", "--totalstation")
     if totalstation is None:
         raise typer.BadParameter("the serial port of the total station is required",
@@ -125,21 +136,25 @@ def record_cmd(
     imu_axes: str = typer.Option("x,y,z", "--imu-axes", help="IMU axes to trolley FRD, e.g. 'x,-y,-z'."),
     imu_type: int | None = typer.Option(None, "--imu-type", help="IMU type for the scale table (default: from the frames)."),
     imu_rate_hz: float | None = typer.Option(None, "--imu-rate-hz", help="IMU data rate (default: inferred from the first 21 frames; the IMU type's with fewer)."),
-    odometer_ppr: int = typer.Option(1024, "--odometer-ppr", help="Encoder pulses per revolution."),
+    odometer_ppr: int = typer.Option(1024, "--odometer-ppr", help=f"Encoder pulses per revolution "
+                                                                  f"(1-{MAX_ODOMETER_PPR})."),
     odometer_decode: int = typer.Option(4, "--odometer-decode", help="Quadrature decode 1, 2 or 4."),
     wheel_diameter_m: float = typer.Option(0.1, "--wheel-diameter-m", help="Measuring wheel diameter."),
     odometer_scale: float = typer.Option(1.0, "--odometer-scale", help="Calibrated scale factor."),
     odometer_bits: int = typer.Option(32, "--odometer-bits", help="Counter width (8, 16, 24, 32)."),
     odometer_rate_hz: float = typer.Option(100.0, "--odometer-rate-hz", help="Polling rate (>= 100 Hz)."),
-    imu_baud: int = typer.Option(460800, "--imu-baud", min=1, help="IMU line speed."),
-    odometer_baud: int = typer.Option(115200, "--odometer-baud", min=1, help="Counter module line speed."),
-    gauge_baud: int = typer.Option(115200, "--gauge-baud", min=1, help="Gauge sensor line speed."),
+    imu_baud: int = typer.Option(460800, "--imu-baud", help=f"IMU line speed ({MIN_BAUD}-{MAX_BAUD})."),
+    odometer_baud: int = typer.Option(115200, "--odometer-baud", help=f"Counter module line speed "
+                                                                     f"({MIN_BAUD}-{MAX_BAUD})."),
+    gauge_baud: int = typer.Option(115200, "--gauge-baud", help=f"Gauge sensor line speed ({MIN_BAUD}-{MAX_BAUD})."),
     as_json: JsonFlag = False,
     imu_old: str | None = typer.Option(None, "--imu", hidden=True, help=old_name("--imu-port")),
     odometer_old: str | None = typer.Option(None, "--odometer", hidden=True, help=old_name("--odometer-port")),
     gauge_old: str | None = typer.Option(None, "--gauge", hidden=True, help=old_name("--gauge-port")),
 ) -> None:
     """Record imu.csv, odometer.csv, gauge.csv (FORMATS.md section 1), raw logs and stats.json."""
+    from drivers.encoder import FIELD_WIDTH
+
     with _option_values():
         check_finite(seconds, "--seconds", minimum=0.0, maximum=MAX_SECONDS, why="a day")
         check_finite(imu_rate_hz, "--imu-rate-hz", positive=True, maximum=MAX_IMU_RATE_HZ)
@@ -148,6 +163,17 @@ def record_cmd(
         check_finite(odometer_scale, "--odometer-scale", minimum=0.5, maximum=2.0,
                      why="a calibrated scale factor is close to 1")
         check_finite(odometer_rate_hz, "--odometer-rate-hz", minimum=100.0, maximum=MAX_SENSOR_RATE_HZ)
+        check_integer(odometer_ppr, "--odometer-ppr", minimum=1, maximum=MAX_ODOMETER_PPR,
+                      why="the finest rotary encoders count about 10^6 pulses per revolution")
+        # drivers.encoder.OdometerConfig refuses these too, but naming no option
+        if odometer_decode not in (1, 2, 4):
+            raise ValueError(f"--odometer-decode: must be 1, 2 or 4, got {odometer_decode}")
+        if odometer_bits not in FIELD_WIDTH:
+            *widths, last = sorted(FIELD_WIDTH)
+            raise ValueError(f"--odometer-bits: must be {', '.join(map(str, widths))} or {last}, got {odometer_bits}")
+        for value, option in ((imu_baud, "--imu-baud"), (odometer_baud, "--odometer-baud"),
+                              (gauge_baud, "--gauge-baud")):
+            check_integer(value, option, minimum=MIN_BAUD, maximum=MAX_BAUD, why=BAUD_WHY)
     imu = renamed(imu, imu_old, "--imu-port", "--imu")
     odometer = renamed(odometer, odometer_old, "--odometer-port", "--odometer")
     gauge = renamed(gauge, gauge_old, "--gauge-port", "--gauge")

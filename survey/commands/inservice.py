@@ -34,7 +34,7 @@ from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
-from survey.limits import check_finite, check_seed
+from survey.limits import MAX_SEED, check_finite, check_integer, check_seed
 
 console = Console(stderr=True)
 
@@ -458,6 +458,9 @@ def calibrate_cmd(
         check_finite(rate_hz, "--rate-hz", minimum=20.0, maximum=2000.0)
         check_finite(filter_rate_hz, "--filter-rate-hz", minimum=20.0, maximum=5000.0)
         check_seed(seed)
+        # the further runs' seeds SEED+1 ... go to the summary's extra_seeds: 64-bit integers too
+        check_integer(seed, "--seed", maximum=MAX_SEED - extra_runs,
+                      why=f"--extra-runs {extra_runs} takes the seeds up to SEED+{extra_runs}, 64-bit integers")
     except ValueError as exc:
         _fail(str(exc))
     try:
