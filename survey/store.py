@@ -1303,8 +1303,7 @@ def crop_session(raw: RawSession, t0_s: float | None) -> RawSession:
     o = raw.odo_t_s >= t0_s
     g = None if raw.gauge_t_s is None else raw.gauge_t_s >= t0_s
     f = raw.fixes.t_s >= t0_s
-    fx = replace(raw.fixes, t_s=raw.fixes.t_s[f], point=raw.fixes.point[f], enh_m=raw.fixes.enh_m[f],
-                 sigma_m=raw.fixes.sigma_m[f])
+    fx = raw.fixes.take(f)
     return replace(raw, imu_t_s=raw.imu_t_s[i], imu_w_rad_s=raw.imu_w_rad_s[i], imu_f_m_s2=raw.imu_f_m_s2[i],
                    odo_t_s=raw.odo_t_s[o], odo_distance_m=raw.odo_distance_m[o], fixes=fx,
                    gauge_t_s=None if g is None else raw.gauge_t_s[g], gauge_m=None if g is None else raw.gauge_m[g])
