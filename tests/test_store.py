@@ -366,6 +366,18 @@ def test_a_crop_keeps_the_fix_covariances_with_their_fixes():
     np.testing.assert_array_equal(cropped.cov_m2, raw.fixes.cov_m2[1:])
 
 
+def test_imported_fixes_keep_their_covariances(store):
+    # a session folder whose fixes.csv has the cov_EN_m2, cov_EH_m2, cov_NH_m2 columns (a field
+    # session's, exported) was imported without them: exported again, its fixes were uncorrelated
+    # and the processed lateral sigma 2.5 x the error
+    raw = _raw_with_fix_covariances()
+    store.import_raw_session("imp", raw)
+    np.testing.assert_array_equal(store.raw_session("imp")[0].fixes.cov_m2, raw.fixes.cov_m2)
+    # without the columns the file is given back as it was: no covariances
+    store.import_raw_session("plain", replace(raw, fixes=replace(raw.fixes, cov_m2=None)))
+    assert store.raw_session("plain")[0].fixes.cov_m2 is None
+
+
 def test_resection_rows_round_trip(store):
     from trolley.resection import observations_from_station, resect
 
