@@ -151,13 +151,15 @@ class TotalStation:
         self._trid = 0
         #: the prism constant last set and read back (m); None: not verified since connecting
         self.verified_prism_constant_m: float | None = None
+        #: the link's reconnect count when it was verified
+        self._verified_reconnects = 0
 
     # ------------------------------------------------------------------ link
     def connect(self, open_timeout_s: float = 5.0) -> "TotalStation":
         """Open the port, clear the instrument's buffer with a LF and check with COM_NullProc."""
         self.link.start(open_timeout_s)
         self.link.write(gc.CLEAR_BUFFER)
-        self.verified_prism_constant_m = None  # another instrument may answer now
+        self.forget_prism_constant()
         self.null_proc()
         return self
 
@@ -330,6 +332,13 @@ class TotalStation:
         self.verified_prism_constant_m = None
         self.call(gc.TMC_SETPRISMCORR, (float(constant_m),))
 
+    def forget_prism_constant(self) -> None:
+        """Take the prism constant as not verified: the next :meth:`ensure_prism_constant` sets it
+        and reads it back. For when another instrument may answer now, or this one may have
+        restarted (a connect, the port back after it vanished, the instrument answering again
+        after a fault: a battery changed)."""
+        self.verified_prism_constant_m = None
+
     def prism_constant(self) -> float:
         """TMC_GetPrismCorr: the prism constant the instrument applies now, m."""
         return float(self.call(gc.TMC_GETPRISMCORR).params[0])
@@ -338,8 +347,9 @@ class TotalStation:
         """Make the instrument apply ``constant_m`` (m) and prove it by reading it back.
 
         Nothing is sent when this client set and read back the same constant last (a serial
-        round trip saved per measurement); the first call after :meth:`connect` always sets and
-        reads back. A TMC_SetPrismCorr the firmware does not offer (:data:`PRISM_SET_UNAVAILABLE`)
+        round trip saved per measurement); the first call after :meth:`connect`, after the port
+        came back from a reconnect, or after :meth:`forget_prism_constant` always sets and reads
+        back. A TMC_SetPrismCorr the firmware does not offer (:data:`PRISM_SET_UNAVAILABLE`)
         is not an error by itself: the read-back decides.
 
         Returns
@@ -352,6 +362,8 @@ class TotalStation:
         GeoComError subclass : a call failed after its retries.
         """
         constant_m = float(constant_m)
+        if self.link.stats.reconnects != self._verified_reconnects:
+            self.forget_prism_constant()  # the port vanished and came back since it was verified
         known = self.verified_prism_constant_m
         if known is not None and abs(known - constant_m) <= PRISM_CONSTANT_TOLERANCE_M:
             return known
@@ -366,6 +378,7 @@ class TotalStation:
         if abs(read - constant_m) > PRISM_CONSTANT_TOLERANCE_M:
             raise PrismConstantError(self.link.port, constant_m, read, refused)
         self.verified_prism_constant_m = read
+        self._verified_reconnects = self.link.stats.reconnects
         return read
 
     def measure(self, wait_ms: int = 3000) -> Measurement:

@@ -54,7 +54,7 @@ IMU_COLUMNS = ["t_s", "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", 
 ODOMETER_COLUMNS = ["t_s", "distance_m"]
 FIXES_COLUMNS = ["t_s", "point", "E_m", "N_m", "H_m"]
 FIXES_SIGMA_COLUMNS = ["sigma_E_m", "sigma_N_m", "sigma_H_m"]
-#: optional covariances between a fix's axes (docs/formats_extensions.md): a polar measurement's E and N
+#: optional covariances between a fix's axes (docs/engine.md, step 6): a polar measurement's E and N
 #: are correlated by its line of sight; written by the field session, 0 when absent
 FIXES_COV_COLUMNS = ["cov_EN_m2", "cov_EH_m2", "cov_NH_m2"]
 GAUGE_COLUMNS = ["t_s", "gauge_m"]

@@ -261,6 +261,9 @@ class FixRecord:
     accepted: bool = True
     reason: str = ""
     fix_id: int | None = None
+    #: covariances E-N, E-H, N-H (m^2) an imported fix came with (fixes.csv's optional columns);
+    #: None: a field fix, whose covariances come from its setup (``ProjectStore.fix_covariances``)
+    cov_m2: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -555,8 +558,15 @@ def _migration_2(conn: sqlite3.Connection) -> None:
     _append_only(conn, "session_event")
 
 
+def _migration_3(conn: sqlite3.Connection) -> None:
+    """The covariances between an imported fix's axes (fixes.csv ``cov_EN_m2, cov_EH_m2, cov_NH_m2``):
+    NULL for a field fix, whose covariances are computed from its station setup."""
+    for col in ("cov_en_m2", "cov_eh_m2", "cov_nh_m2"):
+        conn.execute(f"ALTER TABLE fix ADD COLUMN {col} REAL")
+
+
 #: Ordered migrations; migration i (1-based) brings user_version from i-1 to i. Append only.
-MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [_migration_1, _migration_2]
+MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [_migration_1, _migration_2, _migration_3]
 #: Schema version this code writes.
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -954,9 +964,10 @@ class ProjectStore:
         return setup_id
 
     def fix_covariances(self, session_id: int, fixes) -> np.ndarray:
-        """(n, 3) covariances E-N, E-H, N-H of stored fixes (``Fixes.cov_m2``), m^2: each fix's
-        correlations computed again from its station setup, on the sigmas it is stored with
-        (:func:`survey.fieldrecord.stored_fix_covariance`; 0 for a fix without a setup). Without them
+        """(n, 3) covariances E-N, E-H, N-H of stored fixes (``Fixes.cov_m2``), m^2: those an imported
+        fix came with, else each fix's correlations computed again from its station setup, on the
+        sigmas it is stored with (:func:`survey.fieldrecord.stored_fix_covariance`; 0 for a fix
+        without either). Without them
         the engine took a polar fix's E and N as independent: its lateral sigma was 2.5 x the error
         on the demo, whose instrument looks along the track."""
         from survey.fieldrecord import stored_fix_covariance
@@ -969,7 +980,11 @@ class ProjectStore:
         # one per stop: a few dozen per session
         cov = [stored_fix_covariance(settings, (f.e_m, f.n_m, f.h_m), (f.sigma_e_m, f.sigma_n_m, f.sigma_h_m),
                                      setups.get(f.setup_id)) for f in fixes]
-        return off_diagonal(np.array(cov))
+        out = off_diagonal(np.array(cov))
+        for i, f in enumerate(fixes):
+            if f.cov_m2 is not None:
+                out[i] = f.cov_m2
+        return out
 
     def station_setups(self, session_id: int) -> list[StationSetupRecord]:
         """A session's setups, oldest first."""
@@ -1027,10 +1042,11 @@ class ProjectStore:
         """A session's fixes in time order, each with its newest decision."""
         rows = self._conn.execute(
             "SELECT f.t_s, f.point, f.e_m, f.n_m, f.h_m, f.sigma_e_m, f.sigma_n_m, f.sigma_h_m, f.setup_id, "
-            "d.accepted, d.reason, f.id FROM fix f JOIN fix_decision d ON d.id = "
+            "d.accepted, d.reason, f.id, f.cov_en_m2, f.cov_eh_m2, f.cov_nh_m2 FROM fix f JOIN fix_decision d ON d.id = "
             "(SELECT MAX(id) FROM fix_decision WHERE fix_id = f.id) WHERE f.session_id = ? ORDER BY f.t_s, f.id",
             (session_id,))
-        out = [FixRecord(*r[:9], accepted=bool(r[9]), reason=r[10], fix_id=r[11]) for r in rows]
+        out = [FixRecord(*r[:9], accepted=bool(r[9]), reason=r[10], fix_id=r[11],
+                         cov_m2=None if r[12] is None else tuple(r[12:15])) for r in rows]
         return [f for f in out if f.accepted] if accepted_only else out
 
     # -- stops, notes, events --------------------------------------------------------------------
@@ -1253,7 +1269,8 @@ class ProjectStore:
             fx = raw.fixes
             for i in range(len(fx)):
                 _insert_fix(c, sid, FixRecord(float(fx.t_s[i]), str(fx.point[i]), *map(float, fx.enh_m[i]),
-                                              *map(float, fx.sigma_m[i]), accepted=True, reason="imported"))
+                                              *map(float, fx.sigma_m[i]), accepted=True, reason="imported",
+                                              cov_m2=None if fx.cov_m2 is None else tuple(map(float, fx.cov_m2[i]))))
         return self.session(name)
 
     def survey_start_s(self, session_id: int) -> float | None:
@@ -1281,8 +1298,10 @@ class ProjectStore:
                    point=np.array([x.point for x in fixes], dtype=object),
                    enh_m=np.array([[x.e_m, x.n_m, x.h_m] for x in fixes], dtype=float).reshape(-1, 3),
                    sigma_m=np.array([[x.sigma_e_m, x.sigma_n_m, x.sigma_h_m] for x in fixes], dtype=float).reshape(-1, 3),
-                   # fixes imported from a session folder have no setup: their file is given back as it was
-                   cov_m2=self.fix_covariances(sid, fixes) if any(x.setup_id is not None for x in fixes) else None)
+                   # fixes imported from a session folder have no setup: their file is given back as it was,
+                   # with the covariance columns if it had them
+                   cov_m2=self.fix_covariances(sid, fixes)
+                   if any(x.setup_id is not None or x.cov_m2 is not None for x in fixes) else None)
         has_gauge = gt.shape[0] > 0
         raw = RawSession(meta=rec.meta, imu_t_s=t, imu_w_rad_s=w, imu_f_m_s2=f, odo_t_s=ot, odo_distance_m=od,
                          fixes=fx, gauge_t_s=gt if has_gauge else None, gauge_m=gm if has_gauge else None)
@@ -1303,8 +1322,7 @@ def crop_session(raw: RawSession, t0_s: float | None) -> RawSession:
     o = raw.odo_t_s >= t0_s
     g = None if raw.gauge_t_s is None else raw.gauge_t_s >= t0_s
     f = raw.fixes.t_s >= t0_s
-    fx = replace(raw.fixes, t_s=raw.fixes.t_s[f], point=raw.fixes.point[f], enh_m=raw.fixes.enh_m[f],
-                 sigma_m=raw.fixes.sigma_m[f])
+    fx = raw.fixes.take(f)
     return replace(raw, imu_t_s=raw.imu_t_s[i], imu_w_rad_s=raw.imu_w_rad_s[i], imu_f_m_s2=raw.imu_f_m_s2[i],
                    odo_t_s=raw.odo_t_s[o], odo_distance_m=raw.odo_distance_m[o], fixes=fx,
                    gauge_t_s=None if g is None else raw.gauge_t_s[g], gauge_m=None if g is None else raw.gauge_m[g])
@@ -1350,10 +1368,10 @@ def alignment_record_from_text(file_name: str, text: str, rail_spacing_m: float 
 
 def _insert_fix(c: sqlite3.Connection, session_id: int, fix: FixRecord) -> int:
     fix_id = int(c.execute(
-        "INSERT INTO fix (session_id, t_s, point, e_m, n_m, h_m, sigma_e_m, sigma_n_m, sigma_h_m, setup_id) "
-        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO fix (session_id, t_s, point, e_m, n_m, h_m, sigma_e_m, sigma_n_m, sigma_h_m, setup_id, "
+        "cov_en_m2, cov_eh_m2, cov_nh_m2) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
         (session_id, fix.t_s, fix.point, fix.e_m, fix.n_m, fix.h_m, fix.sigma_e_m, fix.sigma_n_m, fix.sigma_h_m,
-         fix.setup_id)).lastrowid)
+         fix.setup_id, *(fix.cov_m2 if fix.cov_m2 is not None else (None, None, None)))).lastrowid)
     c.execute("INSERT INTO fix_decision (fix_id, accepted, reason, created_utc) VALUES (?, ?, ?, ?)",
               (fix_id, int(fix.accepted), fix.reason, utc_now()))
     return fix_id

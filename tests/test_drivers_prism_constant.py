@@ -103,3 +103,36 @@ def test_an_ignored_or_refused_set_is_caught_by_the_read_back():
     assert "+23.10 mm on the instrument, +0.00 mm expected" in str(refused.value) and "3081" in str(refused.value)
     assert ts.verified_prism_constant_m is None  # not trusted after a mismatch: the next call asks again
     assert np.isfinite(held)
+
+
+class RestartingStation(TotalStationTwin):
+    """An instrument that comes back from a power cycle with its factory constant (the round prism)."""
+
+    def power_up(self) -> None:
+        self.prism_corr_m = 0.0
+
+
+def test_the_constant_is_set_again_after_the_instrument_came_back():
+    # the port vanished and came back (a battery changed, a cable pulled): the client trusted the
+    # constant it had set before and measured the 360° prism 23.1 mm short
+    twin = RestartingStation(STATION, TARGET, target_constant_m=GRZ4)
+    ts = _pair(twin)
+    try:
+        ts.ensure_prism_constant(GRZ4)
+        twin.disappear(0.2, power_cycle=True)
+        ts.null_proc()   # answers again (retried until the port is back)
+        assert ts.stats.reconnects == 1
+        ts.ensure_prism_constant(GRZ4)
+        ts.fine_adjust()
+        after_reconnect = ts.measure().slope_m
+        # the session's "total station answers again" after a fault (an RS-232 port that never vanished)
+        twin.power_up()
+        ts.forget_prism_constant()
+        ts.ensure_prism_constant(GRZ4)
+        after_fault = ts.measure().slope_m
+    finally:
+        ts.close()
+        twin.stop()
+    assert after_reconnect == pytest.approx(_geometric(), abs=1e-9)
+    assert after_fault == pytest.approx(_geometric(), abs=1e-9)
+    assert _sent(twin, gc.TMC_SETPRISMCORR) == 3

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -339,6 +340,42 @@ def test_raw_session_round_trip_arrays(store):
     assert counts["imu_sample"] == n and counts["fix"] == 2
     with pytest.raises(StoreError, match="already exists"):
         store.import_raw_session("imp", raw)
+
+
+def _raw_with_fix_covariances():
+    n = 100
+    cov = np.array([[1.1e-7, 2e-9, -3e-9], [-1.2e-7, 4e-9, 5e-9], [0.9e-7, -6e-9, 7e-9]])
+    return RawSession(
+        meta=ProjectSettings().session_meta(),
+        imu_t_s=np.arange(n) * 0.1, imu_w_rad_s=np.zeros((n, 3)), imu_f_m_s2=np.zeros((n, 3)),
+        odo_t_s=np.arange(n) * 0.1, odo_distance_m=np.arange(n) * 0.01,
+        fixes=Fixes(np.array([0.0, 4.0, 8.0]), np.array(["S1", "S2", "S3"], dtype=object),
+                    np.array([[1e5, 2e5, 50.0]] * 3), np.full((3, 3), 6e-4), cov),
+        gauge_t_s=None, gauge_m=None)
+
+
+def test_a_crop_keeps_the_fix_covariances_with_their_fixes():
+    # a session whose alignment restarted after a fix: the crop kept the covariances of the fix it
+    # dropped, each fix took the one before's, and the session's end refused its own fixes.csv
+    # ("row 2, column cov_EN_m2: ... it is no covariance") or processed with wrong correlations
+    from survey.store import crop_session
+
+    raw = _raw_with_fix_covariances()
+    cropped = crop_session(raw, 2.0).fixes
+    assert list(cropped.point) == ["S2", "S3"]
+    np.testing.assert_array_equal(cropped.cov_m2, raw.fixes.cov_m2[1:])
+
+
+def test_imported_fixes_keep_their_covariances(store):
+    # a session folder whose fixes.csv has the cov_EN_m2, cov_EH_m2, cov_NH_m2 columns (a field
+    # session's, exported) was imported without them: exported again, its fixes were uncorrelated
+    # and the processed lateral sigma 2.5 x the error
+    raw = _raw_with_fix_covariances()
+    store.import_raw_session("imp", raw)
+    np.testing.assert_array_equal(store.raw_session("imp")[0].fixes.cov_m2, raw.fixes.cov_m2)
+    # without the columns the file is given back as it was: no covariances
+    store.import_raw_session("plain", replace(raw, fixes=replace(raw.fixes, cov_m2=None)))
+    assert store.raw_session("plain")[0].fixes.cov_m2 is None
 
 
 def test_resection_rows_round_trip(store):

@@ -86,6 +86,13 @@ class Fixes:
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
 
+    def take(self, index) -> "Fixes":
+        """The fixes at ``index`` (a boolean mask or integer indices), every per-fix array with
+        them: the covariances too, which would otherwise belong to other fixes."""
+        return Fixes(t_s=np.asarray(self.t_s)[index], point=np.asarray(self.point, dtype=object)[index],
+                     enh_m=np.asarray(self.enh_m)[index], sigma_m=np.asarray(self.sigma_m)[index],
+                     cov_m2=None if self.cov_m2 is None else np.asarray(self.cov_m2)[index])
+
     def covariance_enh_m2(self) -> np.ndarray:
         """(n, 3, 3) covariance of each fix's grid E, N, H, m^2."""
         sig = np.atleast_2d(np.asarray(self.sigma_m, dtype=float))

@@ -633,6 +633,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self.ts.null_proc()
         except (GeoComError, DeviceError):
             return False
+        # it may have restarted (a battery changed) or be another instrument: its prism constant
+        # is set and read back again before the next measurement
+        self.ts.forget_prism_constant()
         self._event("device_back", self.device_pause)
         self.say("total station answers again; the session continues")
         self.device_pause = ""
