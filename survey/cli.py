@@ -45,6 +45,7 @@ COMMAND_MODULES: list[str] = [
     "devices",
     "project",
     "export",
+    "compare",
     "simulate",
     "demo",
     "budget",
@@ -66,6 +67,7 @@ guard_app(app)
 SHORT_HELP: dict[str, str] = {
     "process": "Filter and smooth a raw session into track.csv.",
     "export": "Track geometry, tolerances, survey sheet, plots, PDF.",
+    "compare": "Two surveys of one track against their sigmas.",
     "simulate": "Simulate a stop-and-go survey and its truth.",
     "demo": "Survey the demo project end to end.",
     "budget": "Accuracy budget and IMU/odometer sizing.",

@@ -169,6 +169,7 @@ STOP = {
                          "does not exist"),
     "process": (lambda t: [str(t / "nosession"), "--out", str(t / "o")], 2, "no such session folder"),
     "export": (lambda t: [str(t / "notrack"), "--csv", str(t / "o.csv")], 2, "no such file or folder"),
+    "compare": (lambda t: [str(t / "notrack"), str(t / "notrack")], 2, "no such file or folder"),
     "simulate": (lambda t: ["--out", str(t / "mine"), "--project", str(DEMO)], 2, "already exists and is not empty"),
     "demo": (lambda t: ["--out", str(t / "afile")], 2, "exists and is not a folder"),
     "budget": (lambda t: ["--imu", "custom"], 2, "--imu custom needs --gyro-arw-deg-sqrt-h"),
@@ -219,6 +220,8 @@ NUMERIC = [
     *(("export", opt, ["0.5", "3", "100", "1000"], [("0", "must be > 0"), ("-3", "must be > 0"),
                                                     ("1000.1", "must be <= 1000")])
       for opt in ("--twist-base-m", "--chord-m", "--gauge-rate-base-m")),
+    ("compare", "--limit", ["0.5", "4", "100"], [("0", "must be > 0"), ("100.1", "must be <= 100")]),
+    ("compare", "--max-offset-m", ["0.01", "10"], [("0", "must be > 0"), ("10.1", "must be <= 10")]),
     ("simulate", "--length-m", ["1", "200"], [("0.99", "must be >= 1"), ("0", "must be >= 1")]),
     ("simulate", "--fix-spacing-m", ["10", "60", "1e4"], [("0", "must be > 0"), ("10001", "must be <= 10000")]),
     ("simulate", "--static-s", ["10", "120"], [("-1", "must be >= 0")]),
@@ -615,6 +618,7 @@ BAUD_WHY = "(the serial line speeds are 50 to 4000000 baud)"
 INTEGERS = [
     *((c, "--seed", [], SEED_LIMIT)
       for c in ("simulate", "demo", "budget", "inservice simulate", "tgms simulate", "devices simulate")),
+    ("simulate", "--track-seed", [], SEED_LIMIT),
     # its --extra-runs (3) take the seeds up to SEED+3 into the summary
     ("inservice calibrate", "--seed", [str(2**63 - 4)], [*SEED_LIMIT, (str(2**63 - 3), f"must be <= {2**63 - 4}")]),
     ("devices probe", "--baud", ["4000000"], [("0", "must be >= 50"), (str(10**12), "must be <= 4000000")]),
