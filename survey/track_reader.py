@@ -293,6 +293,24 @@ def _check_plausible_track(path: Path, cols: dict[str, np.ndarray]) -> None:
             i = int(np.argmax(far))
             raise ExportInputError(f"{path}: row {i + 2}, column {name}: {float(v[i]):g} is not a plausible value "
                                    f"(|{name}| <= {limit:g})")
+    for name in ("sigma_E_mm", "sigma_N_mm", "sigma_H_mm", "sigma_cant_mm"):
+        v = cols.get(name)
+        if v is not None and np.any(v < 0):       # NaN (an empty optional cell) compares False
+            i = int(np.argmax(v < 0))
+            raise ExportInputError(f"{path}: row {i + 2}, column {name}: {float(v[i]):g} is negative; a 1-sigma is "
+                                   ">= 0")
+    if "cov_EN_mm2" in cols:
+        # |cov| <= sigma_E sigma_N, to the rounding of the six decimals the three are written with
+        sE, sN, cov = cols["sigma_E_mm"], cols["sigma_N_mm"], cols["cov_EN_mm2"]
+        with np.errstate(invalid="ignore"):
+            bad = np.abs(cov) > sE * sN + 1e-6 * (1.0 + sE + sN)
+        if bad.any():
+            i = int(np.argmax(bad))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rho = cov[i] / (sE[i] * sN[i])
+            raise ExportInputError(f"{path}: row {i + 2}, column cov_EN_mm2: {float(cov[i]):g} with sigma_E_mm "
+                                   f"{float(sE[i]):g} and sigma_N_mm {float(sN[i]):g} is no covariance (correlation "
+                                   f"{float(rho):+.3f}, must be within +-1)")
 
 
 def stationing_of_track(distance_m: np.ndarray, chainage_m: np.ndarray, tol_m: float = 1e-5) -> Stationing | None:

@@ -314,6 +314,14 @@ PROBES: list[Probe] = [
                                            "{t}/o.csv"), ("track.csv", "6", "gauge_mm")),
     Probe("export/track-1e308", export_probe(lambda p: set_cell(p / "track.csv", 6, "H_m", "1e308"), "--csv",
                                              "{t}/o.csv"), ("track.csv", "6", "H_m")),
+    # a negative sigma reached the sheet as a negative sigma, a covariance beyond its sigmas as an
+    # empty lateral sigma (its variance negative)
+    Probe("export/track-negative-sigma-cant", export_probe(lambda p: set_cell(p / "track.csv", 7, "sigma_cant_mm",
+                                                                              "-0.1"), "--csv", "{t}/o.csv"),
+          ("track.csv", "row 7", "sigma_cant_mm", "negative")),
+    Probe("export/track-covariance-beyond-its-sigmas",
+          export_probe(lambda p: set_cell(p / "track.csv", 8, "cov_EN_mm2", "40"), "--csv", "{t}/o.csv"),
+          ("track.csv", "row 8", "cov_EN_mm2", "no covariance")),
     Probe("export/track-zero-stations", export_probe(lambda p: keep_rows(p / "track.csv", 0), "--csv", "{t}/o.csv"),
           ("track.csv",)),
     Probe("export/track-is-a-folder", lambda t, i: (t / "x" / "track.csv").mkdir(parents=True) or
