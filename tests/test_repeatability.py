@@ -127,11 +127,13 @@ def test_a_local_lift_is_one_stretch_beyond_three_sigma_where_it_exceeds_them():
     assert np.isnan(c.band_rms_m["vertical"]["D3"])
 
 
-def _write_track(path, t: TrackInput) -> None:
-    pd.DataFrame({"chainage_m": t.chainage_m, "E_m": t.E_m, "N_m": t.N_m, "H_m": t.H_m,
-                  "sigma_E_mm": 1e3 * t.sigma_E_m, "sigma_N_mm": 1e3 * t.sigma_N_m, "sigma_H_mm": 1e3 * t.sigma_H_m,
-                  "lateral_dev_mm": "", "vertical_dev_mm": "", "gauge_mm": 1435.0, "cant_mm": "",
-                  "twist_mm": ""}).to_csv(path, index=False, float_format="%.6f")
+def _write_track(path, t: TrackInput, distance_m=None) -> None:
+    cols = {"chainage_m": t.chainage_m, "E_m": t.E_m, "N_m": t.N_m, "H_m": t.H_m,
+            "sigma_E_mm": 1e3 * t.sigma_E_m, "sigma_N_mm": 1e3 * t.sigma_N_m, "sigma_H_mm": 1e3 * t.sigma_H_m,
+            "lateral_dev_mm": "", "vertical_dev_mm": "", "gauge_mm": 1435.0, "cant_mm": "", "twist_mm": ""}
+    if distance_m is not None:
+        cols["distance_m"] = distance_m
+    pd.DataFrame(cols).to_csv(path, index=False, float_format="%.6f")
 
 
 def test_compare_cli_writes_the_table_and_plot_and_fails_on_request(tmp_path):
@@ -198,3 +200,31 @@ def test_two_simulated_surveys_of_one_track_agree_within_their_sigmas():
     for q in ("lateral", "vertical"):
         assert 0.5 < c.rms_z[q] < 1.6, (q, c.rms_z)
     assert c.band_rms_m["lateral"]["D1"] < 0.05e-3 and c.band_rms_m["vertical"]["D1"] < 0.05e-3
+
+
+def test_compare_gives_the_drawing_chainage_across_a_station_equation_and_reads_tracks_of_old_versions(tmp_path):
+    """Track A's file has a station equation at 100 m (chainage 1100 is followed by 1150:
+    ``chainage_m`` jumps, ``distance_m`` runs on) and neither ``cov_EN_mm2`` nor ``sigma_cant_mm``
+    (a track.csv of before 2026-11-26): the difference table and the stretch carry A's drawing
+    chainage, and what the files do not hold is null, not invented."""
+    from survey.cli import app
+
+    n = 480
+    s = STEP * np.arange(n)
+    drawing = np.where(s < 100.0, 1000.0 + s, 1050.0 + s)
+    E, N, H = line(0.5, n)
+    lift = np.where(np.abs(s - 200.0) < 8.0, 1.5e-3 * (1 + np.cos(np.pi * (s - 200.0) / 8.0)), 0.0)
+    _write_track(tmp_path / "a.csv", track(E, N, H, chainage=drawing), distance_m=s)
+    _write_track(tmp_path / "b.csv", track(E, N, H + lift, chainage=drawing), distance_m=s)
+    r = CliRunner().invoke(app, ["compare", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--csv",
+                                 str(tmp_path / "d.csv")])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    (stretch,) = out["stretches_beyond"]
+    assert stretch["quantity"] == "vertical" and stretch["at_chainage_m"] == pytest.approx(1250.0)
+    assert 1242.0 < stretch["from_chainage_m"] < 1250.0 < stretch["to_chainage_m"] < 1258.0
+    assert out["rms_z"]["cant"] is None and out["sigma_median_mm"]["cant"] is None
+    table = pd.read_csv(tmp_path / "d.csv")
+    np.testing.assert_allclose(table["chainage_m"], drawing, atol=1e-4)
+    np.testing.assert_allclose(table["distance_m"], s, atol=1e-4)
+    assert table["cant_diff_mm"].isna().all()
