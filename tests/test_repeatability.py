@@ -228,3 +228,24 @@ def test_compare_gives_the_drawing_chainage_across_a_station_equation_and_reads_
     np.testing.assert_allclose(table["chainage_m"], drawing, atol=1e-4)
     np.testing.assert_allclose(table["distance_m"], s, atol=1e-4)
     assert table["cant_diff_mm"].isna().all()
+
+
+def test_stations_of_a_across_a_gap_in_b_are_not_compared():
+    """B: A's circle (a 300 m curve) with 100 stations (62.5 m) deleted in the middle. Before,
+    A's stations there were compared with B's chord across the gap (1.6 m of sag: out of
+    --max-offset-m in its middle, 0.06-0.48 m and hundreds of sigma near its ends); now they are not
+    beside B, nor is anything interpolated across it. One missing station is bridged, as the
+    survey sheet does (trackgeometry.GAP_STEPS)."""
+    R = 300.0
+    th = np.arange(640) * STEP / R
+    E, N, H = R * np.sin(th), R * np.cos(th), np.zeros_like(th)
+    a = track(E, N, H)
+    keep = np.r_[0:300, 400:640]
+    c = compare_tracks(a, track(E[keep], N[keep], H[keep], chainage=STEP * keep))
+    assert c.agree and c.beyond["lateral"] == 0
+    np.testing.assert_array_equal(c.difference.beside, np.isin(np.arange(640), keep))
+    assert c.common_m == pytest.approx(STEP * (639 - 101))
+    one = np.r_[0:300, 301:640]
+    c = compare_tracks(a, track(E[one], N[one], H[one], chainage=STEP * one))
+    assert c.difference.beside.all() and abs(c.difference.lateral_m[300]) < STEP**2 / (2 * R)
+

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from trolley.bands import BANDS, band
-from trolley.trackgeometry import TrackInput, heading_from_positions, lateral_sigma
+from trolley.trackgeometry import GAP_STEPS, TrackInput, _gap_intervals, heading_from_positions, lateral_sigma
 
 #: |difference| / sigma beyond which a station is reported. Not 3: a 1.2 km track holds a few dozen
 #: independent stretches in each of three quantities, and 3 sigma was passed somewhere in 15 of
@@ -75,8 +75,8 @@ class TrackDifference:
     Attributes
     ----------
     station_m : track A's stations (its ``chainage_m``, the internal station), m.
-    beside : True where B runs beside the station (the foot of the perpendicular lies on B and is
-        within ``max_offset_m``).
+    beside : True where B runs beside the station (the foot of the perpendicular lies on B, not
+        inside a gap of B's stations, and is within ``max_offset_m``).
     lateral_m : horizontal difference across A's direction, + when B is to the right, m.
     vertical_m : height difference, + when B is higher, m.
     sigma_lateral_m, sigma_vertical_m : 1-sigma of the differences, sqrt(sigma_A^2 + sigma_B^2), m.
@@ -189,9 +189,11 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     -------
     TrackDifference. B's values are interpolated linearly along its polyline at the foot of the
     perpendicular from A's station (the chord's sag at 0.625 m stations on a 300 m radius is
-    0.16 um); B's variances likewise. The lateral sigma of each track is its horizontal
-    covariance projected on A's right normal (``trackgeometry.lateral_sigma``; a track without
-    ``cov_EN_m2`` takes it as 0).
+    0.16 um); B's variances likewise. Nothing is interpolated across a gap of B's stations (an
+    interval longer than ``trackgeometry.GAP_STEPS`` of its median step, as the survey sheet):
+    a station of A whose foot falls inside one is not beside B. The lateral sigma of each track is
+    its horizontal covariance projected on A's right normal (``trackgeometry.lateral_sigma``; a
+    track without ``cov_EN_m2`` takes it as 0).
     """
     if b.E_m.size < 2:
         raise ValueError("track B needs at least two stations")
@@ -200,7 +202,9 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     c, s = np.cos(psi), np.sin(psi)
     dE = _at_foot(b.E_m, k, t) - a.E_m
     dN = _at_foot(b.N_m, k, t) - a.N_m
-    beside = ~outside & (np.hypot(dE, dN) <= max_offset_m)
+    sb = np.asarray(b.chainage_m, dtype=float)
+    gap = _gap_intervals(sb, float(np.median(np.diff(sb))), GAP_STEPS)[k] & (t > 1e-9) & (t < 1.0 - 1e-9)
+    beside = ~outside & ~gap & (np.hypot(dE, dN) <= max_offset_m)
 
     def var_b(sigma):
         return _at_foot(np.asarray(sigma, dtype=float) ** 2, k, t)
