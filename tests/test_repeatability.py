@@ -249,3 +249,17 @@ def test_stations_of_a_across_a_gap_in_b_are_not_compared():
     c = compare_tracks(a, track(E[one], N[one], H[one], chainage=STEP * one))
     assert c.difference.beside.all() and abs(c.difference.lateral_m[300]) < STEP**2 / (2 * R)
 
+
+def test_a_backward_run_has_its_cant_turned_to_as_direction():
+    """B runs the other way along A (its stations increase against A's): its left rail is A's
+    right one, so its cant is -A's (FORMATS.md: + when the left rail is higher facing increasing
+    chainage). Before, the cant difference was -2 x A's cant (240 mm in a 120 mm curve)."""
+    n = 200
+    E, N, H = line(0.7, n)
+    cant = np.linspace(0.0, 0.12, n)
+    a = track(E, N, H, cant=cant, sigma_cant=1e-4)
+    b = track(E[::-1], N[::-1], H[::-1], cant=-cant[::-1], sigma_cant=1e-4)
+    c = compare_tracks(a, b)
+    np.testing.assert_allclose(c.difference.cant_m, 0.0, atol=1e-12)
+    assert c.agree
+

@@ -191,9 +191,11 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     perpendicular from A's station (the chord's sag at 0.625 m stations on a 300 m radius is
     0.16 um); B's variances likewise. Nothing is interpolated across a gap of B's stations (an
     interval longer than ``trackgeometry.GAP_STEPS`` of its median step, as the survey sheet):
-    a station of A whose foot falls inside one is not beside B. The lateral sigma of each track is
-    its horizontal covariance projected on A's right normal (``trackgeometry.lateral_sigma``; a
-    track without ``cov_EN_m2`` takes it as 0).
+    a station of A whose foot falls inside one is not beside B. Where B runs the other way
+    (its increasing station against A's), B's cant is turned to A's direction (FORMATS.md: + when
+    the left rail is higher facing increasing chainage). The lateral sigma of each track is its
+    horizontal covariance projected on A's right normal (``trackgeometry.lateral_sigma``; a track
+    without ``cov_EN_m2`` takes it as 0).
     """
     if b.E_m.size < 2:
         raise ValueError("track B needs at least two stations")
@@ -205,6 +207,8 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     sb = np.asarray(b.chainage_m, dtype=float)
     gap = _gap_intervals(sb, float(np.median(np.diff(sb))), GAP_STEPS)[k] & (t > 1e-9) & (t < 1.0 - 1e-9)
     beside = ~outside & ~gap & (np.hypot(dE, dN) <= max_offset_m)
+    # +1 where B's segment at the foot runs along A's direction (psi is a bearing: forward (sin, cos))
+    along = np.where(s * (b.E_m[k + 1] - b.E_m[k]) + c * (b.N_m[k + 1] - b.N_m[k]) < 0.0, -1.0, 1.0)
 
     def var_b(sigma):
         return _at_foot(np.asarray(sigma, dtype=float) ** 2, k, t)
@@ -224,7 +228,7 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
         vertical_m=only_beside(_at_foot(b.H_m, k, t) - a.H_m),
         sigma_lateral_m=only_beside(np.hypot(sig_lat_a, sig_lat_b)),
         sigma_vertical_m=only_beside(np.sqrt(np.asarray(a.sigma_H_m) ** 2 + var_b(b.sigma_H_m))),
-        cant_m=only_beside(_at_foot(b.cant_m, k, t) - a.cant_m),
+        cant_m=only_beside(along * _at_foot(b.cant_m, k, t) - a.cant_m),
         sigma_cant_m=only_beside(np.sqrt(cant_var_a + cant_var_b)),
         gauge_m=only_beside(_at_foot(b.gauge_m, k, t) - a.gauge_m))
 
