@@ -263,3 +263,22 @@ def test_a_backward_run_has_its_cant_turned_to_as_direction():
     np.testing.assert_allclose(c.difference.cant_m, 0.0, atol=1e-12)
     assert c.agree
 
+
+def test_a_difference_against_a_zero_sigma_is_not_agreement(tmp_path):
+    """Both files give sigma 0 and B is 50 mm higher: no ratio can be formed, and before the
+    command said "the surveys agree within their sigmas", JSON agree true, exit 0 with
+    --fail-on-disagreement. Identical files with zero sigmas still agree."""
+    from survey.cli import app
+
+    E, N, H = line(0.2, 100)
+    _write_track(tmp_path / "a.csv", track(E, N, H, sigma_m=(0.0, 0.0, 0.0)))
+    _write_track(tmp_path / "b.csv", track(E, N, H + 0.05, sigma_m=(0.0, 0.0, 0.0)))
+    r = CliRunner().invoke(app, ["compare", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"),
+                                 "--fail-on-disagreement"])
+    assert r.exit_code == 1, r.output
+    out = json.loads(r.stdout)
+    assert out["agree"] is False and out["stations_zero_sigma"] == {"lateral": 0, "vertical": 100, "cant": 0}
+    assert "agree" not in r.stderr and "zero sigma" in r.stderr
+    r = CliRunner().invoke(app, ["compare", str(tmp_path / "a.csv"), str(tmp_path / "a.csv"),
+                                 "--fail-on-disagreement"])
+    assert r.exit_code == 0 and json.loads(r.stdout)["agree"] is True

@@ -117,6 +117,8 @@ class Comparison:
     sigma_median_m, sigma_max_m : median and largest sigma of the difference per quantity, m:
         surveys agree within a large sigma too, and a survey whose fixes were rejected has one.
     beyond : number of stations beyond the limit per quantity.
+    zero_sigma : number of stations per quantity whose difference is not zero but whose sigma is
+        (both files give a zero sigma): not within any number of sigmas, so not agreeing.
     stretches : the runs of stations beyond the limit, in station order per quantity.
     band_rms_m : RMS of the band-passed lateral and vertical differences per EN 13848 band
         (``{"lateral": {"D1": ...}, ...}``; NaN where the common track is too short for the band),
@@ -134,11 +136,12 @@ class Comparison:
     sigma_max_m: dict[str, float] = field(default_factory=dict)
     stretches: list[Stretch] = field(default_factory=list)
     band_rms_m: dict[str, dict[str, float]] = field(default_factory=dict)
+    zero_sigma: dict[str, int] = field(default_factory=dict)
 
     @property
     def agree(self) -> bool:
-        """True when no station is beyond the limit in any quantity."""
-        return not any(self.beyond.values())
+        """True when no station is beyond the limit in any quantity, nor differs against a zero sigma."""
+        return not any(self.beyond.values()) and not any(self.zero_sigma.values())
 
 
 def _foot_on_polyline(px: np.ndarray, py: np.ndarray, ex: np.ndarray, ey: np.ndarray
@@ -289,9 +292,10 @@ def compare_tracks(a: TrackInput, b: TrackInput, limit: float = DEFAULT_LIMIT,
     quantities = ("lateral", "vertical", "cant")
     rms = {q: _rms(getattr(d, f"{q}_m")) for q in (*quantities, "gauge")}
     mx = {q: _max_abs(getattr(d, f"{q}_m")) for q in (*quantities, "gauge")}
-    rms_z, beyond, stretches = {}, {}, []
+    rms_z, beyond, stretches, zero_sigma = {}, {}, [], {}
     for q in quantities:
         z = d.z(q)
+        zero_sigma[q] = int(np.sum((getattr(d, f"sigma_{q}_m") == 0.0) & (np.abs(getattr(d, f"{q}_m")) > 0.0)))
         rms_z[q] = _rms(z)
         beyond[q] = int(np.sum(np.abs(np.nan_to_num(z, nan=0.0)) > limit))
         stretches += stretches_beyond(s, getattr(d, f"{q}_m"), z, limit, q)
@@ -304,4 +308,4 @@ def compare_tracks(a: TrackInput, b: TrackInput, limit: float = DEFAULT_LIMIT,
     sig = {q: getattr(d, f"sigma_{q}_m") for q in quantities}
     med = {q: float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan") for q, v in sig.items()}
     return Comparison(d, float(limit), common, rms, mx, rms_z, beyond, med, {q: _max_abs(v) for q, v in sig.items()},
-                      stretches, bands)
+                      stretches, bands, zero_sigma)
