@@ -88,6 +88,7 @@ def summary_dict(ct: ComparedTracks) -> dict:
         "sigma_median_mm": {q: mm(v) for q, v in c.sigma_median_m.items()},
         "sigma_max_mm": {q: mm(v) for q, v in c.sigma_max_m.items()},
         "stations_beyond": c.beyond,
+        "stations_zero_sigma": c.zero_sigma,
         "stretches_beyond": [
             {"quantity": s.quantity, "from_chainage_m": ct.chainage_at(s.start_m),
              "to_chainage_m": ct.chainage_at(s.end_m), "stations": s.stations,

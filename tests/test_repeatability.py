@@ -228,3 +228,57 @@ def test_compare_gives_the_drawing_chainage_across_a_station_equation_and_reads_
     np.testing.assert_allclose(table["chainage_m"], drawing, atol=1e-4)
     np.testing.assert_allclose(table["distance_m"], s, atol=1e-4)
     assert table["cant_diff_mm"].isna().all()
+
+
+def test_stations_of_a_across_a_gap_in_b_are_not_compared():
+    """B: A's circle (a 300 m curve) with 100 stations (62.5 m) deleted in the middle. Before,
+    A's stations there were compared with B's chord across the gap (1.6 m of sag: out of
+    --max-offset-m in its middle, 0.06-0.48 m and hundreds of sigma near its ends); now they are not
+    beside B, nor is anything interpolated across it. One missing station is bridged, as the
+    survey sheet does (trackgeometry.GAP_STEPS)."""
+    R = 300.0
+    th = np.arange(640) * STEP / R
+    E, N, H = R * np.sin(th), R * np.cos(th), np.zeros_like(th)
+    a = track(E, N, H)
+    keep = np.r_[0:300, 400:640]
+    c = compare_tracks(a, track(E[keep], N[keep], H[keep], chainage=STEP * keep))
+    assert c.agree and c.beyond["lateral"] == 0
+    np.testing.assert_array_equal(c.difference.beside, np.isin(np.arange(640), keep))
+    assert c.common_m == pytest.approx(STEP * (639 - 101))
+    one = np.r_[0:300, 301:640]
+    c = compare_tracks(a, track(E[one], N[one], H[one], chainage=STEP * one))
+    assert c.difference.beside.all() and abs(c.difference.lateral_m[300]) < STEP**2 / (2 * R)
+
+
+def test_a_backward_run_has_its_cant_turned_to_as_direction():
+    """B runs the other way along A (its stations increase against A's): its left rail is A's
+    right one, so its cant is -A's (FORMATS.md: + when the left rail is higher facing increasing
+    chainage). Before, the cant difference was -2 x A's cant (240 mm in a 120 mm curve)."""
+    n = 200
+    E, N, H = line(0.7, n)
+    cant = np.linspace(0.0, 0.12, n)
+    a = track(E, N, H, cant=cant, sigma_cant=1e-4)
+    b = track(E[::-1], N[::-1], H[::-1], cant=-cant[::-1], sigma_cant=1e-4)
+    c = compare_tracks(a, b)
+    np.testing.assert_allclose(c.difference.cant_m, 0.0, atol=1e-12)
+    assert c.agree
+
+
+def test_a_difference_against_a_zero_sigma_is_not_agreement(tmp_path):
+    """Both files give sigma 0 and B is 50 mm higher: no ratio can be formed, and before the
+    command said "the surveys agree within their sigmas", JSON agree true, exit 0 with
+    --fail-on-disagreement. Identical files with zero sigmas still agree."""
+    from survey.cli import app
+
+    E, N, H = line(0.2, 100)
+    _write_track(tmp_path / "a.csv", track(E, N, H, sigma_m=(0.0, 0.0, 0.0)))
+    _write_track(tmp_path / "b.csv", track(E, N, H + 0.05, sigma_m=(0.0, 0.0, 0.0)))
+    r = CliRunner().invoke(app, ["compare", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"),
+                                 "--fail-on-disagreement"])
+    assert r.exit_code == 1, r.output
+    out = json.loads(r.stdout)
+    assert out["agree"] is False and out["stations_zero_sigma"] == {"lateral": 0, "vertical": 100, "cant": 0}
+    assert "agree" not in r.stderr and "zero sigma" in r.stderr
+    r = CliRunner().invoke(app, ["compare", str(tmp_path / "a.csv"), str(tmp_path / "a.csv"),
+                                 "--fail-on-disagreement"])
+    assert r.exit_code == 0 and json.loads(r.stdout)["agree"] is True

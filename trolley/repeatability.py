@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from trolley.bands import BANDS, band
-from trolley.trackgeometry import TrackInput, heading_from_positions, lateral_sigma
+from trolley.trackgeometry import GAP_STEPS, TrackInput, _gap_intervals, heading_from_positions, lateral_sigma
 
 #: |difference| / sigma beyond which a station is reported. Not 3: a 1.2 km track holds a few dozen
 #: independent stretches in each of three quantities, and 3 sigma was passed somewhere in 15 of
@@ -75,8 +75,8 @@ class TrackDifference:
     Attributes
     ----------
     station_m : track A's stations (its ``chainage_m``, the internal station), m.
-    beside : True where B runs beside the station (the foot of the perpendicular lies on B and is
-        within ``max_offset_m``).
+    beside : True where B runs beside the station (the foot of the perpendicular lies on B, not
+        inside a gap of B's stations, and is within ``max_offset_m``).
     lateral_m : horizontal difference across A's direction, + when B is to the right, m.
     vertical_m : height difference, + when B is higher, m.
     sigma_lateral_m, sigma_vertical_m : 1-sigma of the differences, sqrt(sigma_A^2 + sigma_B^2), m.
@@ -117,6 +117,8 @@ class Comparison:
     sigma_median_m, sigma_max_m : median and largest sigma of the difference per quantity, m:
         surveys agree within a large sigma too, and a survey whose fixes were rejected has one.
     beyond : number of stations beyond the limit per quantity.
+    zero_sigma : number of stations per quantity whose difference is not zero but whose sigma is
+        (both files give a zero sigma): not within any number of sigmas, so not agreeing.
     stretches : the runs of stations beyond the limit, in station order per quantity.
     band_rms_m : RMS of the band-passed lateral and vertical differences per EN 13848 band
         (``{"lateral": {"D1": ...}, ...}``; NaN where the common track is too short for the band),
@@ -134,11 +136,12 @@ class Comparison:
     sigma_max_m: dict[str, float] = field(default_factory=dict)
     stretches: list[Stretch] = field(default_factory=list)
     band_rms_m: dict[str, dict[str, float]] = field(default_factory=dict)
+    zero_sigma: dict[str, int] = field(default_factory=dict)
 
     @property
     def agree(self) -> bool:
-        """True when no station is beyond the limit in any quantity."""
-        return not any(self.beyond.values())
+        """True when no station is beyond the limit in any quantity, nor differs against a zero sigma."""
+        return not any(self.beyond.values()) and not any(self.zero_sigma.values())
 
 
 def _foot_on_polyline(px: np.ndarray, py: np.ndarray, ex: np.ndarray, ey: np.ndarray
@@ -189,9 +192,13 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     -------
     TrackDifference. B's values are interpolated linearly along its polyline at the foot of the
     perpendicular from A's station (the chord's sag at 0.625 m stations on a 300 m radius is
-    0.16 um); B's variances likewise. The lateral sigma of each track is its horizontal
-    covariance projected on A's right normal (``trackgeometry.lateral_sigma``; a track without
-    ``cov_EN_m2`` takes it as 0).
+    0.16 um); B's variances likewise. Nothing is interpolated across a gap of B's stations (an
+    interval longer than ``trackgeometry.GAP_STEPS`` of its median step, as the survey sheet):
+    a station of A whose foot falls inside one is not beside B. Where B runs the other way
+    (its increasing station against A's), B's cant is turned to A's direction (FORMATS.md: + when
+    the left rail is higher facing increasing chainage). The lateral sigma of each track is its
+    horizontal covariance projected on A's right normal (``trackgeometry.lateral_sigma``; a track
+    without ``cov_EN_m2`` takes it as 0).
     """
     if b.E_m.size < 2:
         raise ValueError("track B needs at least two stations")
@@ -200,7 +207,11 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     c, s = np.cos(psi), np.sin(psi)
     dE = _at_foot(b.E_m, k, t) - a.E_m
     dN = _at_foot(b.N_m, k, t) - a.N_m
-    beside = ~outside & (np.hypot(dE, dN) <= max_offset_m)
+    sb = np.asarray(b.chainage_m, dtype=float)
+    gap = _gap_intervals(sb, float(np.median(np.diff(sb))), GAP_STEPS)[k] & (t > 1e-9) & (t < 1.0 - 1e-9)
+    beside = ~outside & ~gap & (np.hypot(dE, dN) <= max_offset_m)
+    # +1 where B's segment at the foot runs along A's direction (psi is a bearing: forward (sin, cos))
+    along = np.where(s * (b.E_m[k + 1] - b.E_m[k]) + c * (b.N_m[k + 1] - b.N_m[k]) < 0.0, -1.0, 1.0)
 
     def var_b(sigma):
         return _at_foot(np.asarray(sigma, dtype=float) ** 2, k, t)
@@ -220,7 +231,7 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
         vertical_m=only_beside(_at_foot(b.H_m, k, t) - a.H_m),
         sigma_lateral_m=only_beside(np.hypot(sig_lat_a, sig_lat_b)),
         sigma_vertical_m=only_beside(np.sqrt(np.asarray(a.sigma_H_m) ** 2 + var_b(b.sigma_H_m))),
-        cant_m=only_beside(_at_foot(b.cant_m, k, t) - a.cant_m),
+        cant_m=only_beside(along * _at_foot(b.cant_m, k, t) - a.cant_m),
         sigma_cant_m=only_beside(np.sqrt(cant_var_a + cant_var_b)),
         gauge_m=only_beside(_at_foot(b.gauge_m, k, t) - a.gauge_m))
 
@@ -281,9 +292,10 @@ def compare_tracks(a: TrackInput, b: TrackInput, limit: float = DEFAULT_LIMIT,
     quantities = ("lateral", "vertical", "cant")
     rms = {q: _rms(getattr(d, f"{q}_m")) for q in (*quantities, "gauge")}
     mx = {q: _max_abs(getattr(d, f"{q}_m")) for q in (*quantities, "gauge")}
-    rms_z, beyond, stretches = {}, {}, []
+    rms_z, beyond, stretches, zero_sigma = {}, {}, [], {}
     for q in quantities:
         z = d.z(q)
+        zero_sigma[q] = int(np.sum((getattr(d, f"sigma_{q}_m") == 0.0) & (np.abs(getattr(d, f"{q}_m")) > 0.0)))
         rms_z[q] = _rms(z)
         beyond[q] = int(np.sum(np.abs(np.nan_to_num(z, nan=0.0)) > limit))
         stretches += stretches_beyond(s, getattr(d, f"{q}_m"), z, limit, q)
@@ -296,4 +308,4 @@ def compare_tracks(a: TrackInput, b: TrackInput, limit: float = DEFAULT_LIMIT,
     sig = {q: getattr(d, f"sigma_{q}_m") for q in quantities}
     med = {q: float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan") for q, v in sig.items()}
     return Comparison(d, float(limit), common, rms, mx, rms_z, beyond, med, {q: _max_abs(v) for q, v in sig.items()},
-                      stretches, bands)
+                      stretches, bands, zero_sigma)

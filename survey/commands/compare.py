@@ -29,7 +29,8 @@ def compare(
     max_offset_m: float = typer.Option(0.5, "--max-offset-m", help="stations of A farther than this from B are "
                                                                    "not compared, m (0-10]."),
     fail_on_disagreement: bool = typer.Option(False, "--fail-on-disagreement",
-                                              help="exit with code 1 when a difference is beyond the limit."),
+                                              help="exit with code 1 when a difference is beyond the limit "
+                                                   "(or differs where both sigmas are zero)."),
     json_output: JsonAlways = False,
 ) -> None:
     """Compare two surveys of one track: lateral, vertical, cant and gauge differences against their sigmas."""
@@ -76,9 +77,15 @@ def compare(
         console.print(f"[red]beyond {c.limit:g} sigma[/red]: {s['quantity']} {s['from_chainage_m']:.3f}-"
                       f"{s['to_chainage_m']:.3f} m, up to {s['max_abs_diff_mm']:.2f} mm ({s['max_abs_z']:.1f} sigma at "
                       f"{s['at_chainage_m']:.3f} m)", highlight=False, soft_wrap=True)
-    verdict = ("[green]the surveys agree[/green] within their sigmas" if c.agree else
-               f"[red]{len(c.stretches)} stretch(es) beyond {c.limit:g} sigma[/red]: a blunder, too small a sigma, "
-               "or the track moved between the surveys")
+    zero = ", ".join(f"{q} at {n} stations" for q, n in c.zero_sigma.items() if n)
+    if c.stretches:
+        verdict = (f"[red]{len(c.stretches)} stretch(es) beyond {c.limit:g} sigma[/red]: a blunder, too small a "
+                   "sigma, or the track moved between the surveys")
+    elif zero:
+        verdict = (f"[red]not judged[/red]: the surveys differ where both files give a zero sigma ({zero}); "
+                   "a difference cannot be within a zero sigma")
+    else:
+        verdict = "[green]the surveys agree[/green] within their sigmas"
     console.print(f"B = {escape(str(ct.b_path))} minus A = {escape(str(ct.a_path))}: {verdict}", soft_wrap=True)
     jsonout.echo(summary)
     if fail_on_disagreement and not c.agree:
