@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from trolley.bands import BANDS, band
-from trolley.trackgeometry import GAP_STEPS, TrackInput, _gap_intervals, heading_from_positions, lateral_sigma
+from trolley.trackgeometry import GAP_STEPS, TrackInput, gap_intervals, heading_from_positions, lateral_sigma
 
 #: |difference| / sigma beyond which a station is reported. Not 3: a 1.2 km track holds a few dozen
 #: independent stretches in each of three quantities, and 3 sigma was passed somewhere in 15 of
@@ -208,7 +208,7 @@ def track_difference(a: TrackInput, b: TrackInput, max_offset_m: float = DEFAULT
     dE = _at_foot(b.E_m, k, t) - a.E_m
     dN = _at_foot(b.N_m, k, t) - a.N_m
     sb = np.asarray(b.chainage_m, dtype=float)
-    gap = _gap_intervals(sb, float(np.median(np.diff(sb))), GAP_STEPS)[k] & (t > 1e-9) & (t < 1.0 - 1e-9)
+    gap = gap_intervals(sb, float(np.median(np.diff(sb))), GAP_STEPS)[k] & (t > 1e-9) & (t < 1.0 - 1e-9)
     beside = ~outside & ~gap & (np.hypot(dE, dN) <= max_offset_m)
     # +1 where B's segment at the foot runs along A's direction (psi is a bearing: forward (sin, cos))
     along = np.where(s * (b.E_m[k + 1] - b.E_m[k]) + c * (b.N_m[k + 1] - b.N_m[k]) < 0.0, -1.0, 1.0)

@@ -375,11 +375,11 @@ def chainage_gaps(chainage_m: np.ndarray, step_m: float, gap_steps: float = GAP_
     """The intervals between consecutive stations longer than ``gap_steps`` grid steps, as
     (last station before, first station after) pairs, m."""
     s = np.asarray(chainage_m, dtype=float)
-    i = np.flatnonzero(_gap_intervals(s, step_m, gap_steps))
+    i = np.flatnonzero(gap_intervals(s, step_m, gap_steps))
     return [(float(s[k]), float(s[k + 1])) for k in i]
 
 
-def _gap_intervals(s: np.ndarray, step_m: float, gap_steps: float = GAP_STEPS) -> np.ndarray:
+def gap_intervals(s: np.ndarray, step_m: float, gap_steps: float = GAP_STEPS) -> np.ndarray:
     """True for each interval between consecutive stations longer than ``gap_steps`` steps."""
     return np.diff(s) > gap_steps * step_m * (1.0 + 1e-9)
 
@@ -416,7 +416,7 @@ def track_geometry(track: TrackInput, config: GeometryConfig = GeometryConfig())
         # grid stations strictly inside a gap have no measurement: empty, never a straight line
         # (each grid station's input interval by one searchsorted, not a pass per gap)
         k = np.clip(np.searchsorted(s, grid, side="right") - 1, 0, s.size - 2)
-        in_gap = _gap_intervals(s, step)[k] & (grid > s[k] + 1e-9 * step) & (grid < s[k + 1] - 1e-9 * step)
+        in_gap = gap_intervals(s, step)[k] & (grid > s[k] + 1e-9 * step) & (grid < s[k + 1] - 1e-9 * step)
         vals = {f: _resample(grid, s, getattr(track, f), in_gap) for f in fields}
     else:
         vals = {f: (None if getattr(track, f) is None else np.asarray(getattr(track, f), dtype=float))

@@ -68,9 +68,11 @@ def compare(
     parts = []
     for q in ("lateral", "vertical", "cant", "gauge"):
         if summary["rms_mm"][q] == summary["rms_mm"][q]:  # not NaN: both tracks have it
-            z, sig = c.rms_z.get(q), summary["sigma_median_mm"].get(q)
+            z, sig, top = c.rms_z.get(q), summary["sigma_median_mm"].get(q), summary["sigma_max_mm"].get(q)
+            # the largest sigma too: two surveys agree within a large one, e.g. where fixes were rejected
             parts.append(f"{q} RMS {summary['rms_mm'][q]:.3f} mm" + (
-                f" (sigma {sig:.3f} mm median, RMS diff/sigma {z:.2f})" if z is not None and z == z else ""))
+                f" (sigma {sig:.3f} mm median, {top:.3f} mm largest; RMS diff/sigma {z:.2f})"
+                if z is not None and z == z else ""))
     console.print(f"{c.common_m:.1f} m compared ({summary['stations_compared']} of {summary['stations']} stations "
                   f"of A): " + "; ".join(parts), highlight=False, soft_wrap=True)
     for s in summary["stretches_beyond"]:
