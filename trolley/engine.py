@@ -658,6 +658,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
     snoop_stat = np.full(len(fix_t), np.nan)
     moved_stat = np.full(len(fix_t), np.nan)
     snoop_passes = 0
+    xs_prev = F_prev = None
     it = -1
     while True:
         it += 1
@@ -666,6 +667,19 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         report(f"error model, {label}", base)
         lever_ned = dr_cur.trolley_to_nav[fix_blocks].apply(lever)
         p0 = fix_ned[0] - lever_ned[0] - dr_cur.position_ned_m[fix_blocks[0]]
+        F, Q = error_model(dr_cur, nodes, noise, *turn_sigmas(meta, config), handling=handling)
+        if F_prev is not None:
+            # the correction's positions integrate its attitude and scale errors along the previous
+            # pass's headings (its smoother's model); this pass's model integrates the total error
+            # along the corrected ones. Re-integrated along these, the correction's positions
+            # follow this pass's model, as the total error does: kept as they were, the two
+            # models differ by speed x heading correction x the correction itself, the second
+            # order of the heading error (MEMS: 3.7 deg, ~20 mm along the track per 60 m, and
+            # the relinearised pass's forward NIS grew to 25-322 on correct fixes)
+            xs_prev = xs_prev.copy()
+            xs_prev[1:, _POS] += np.cumsum(np.einsum("kij,kj->ki", (F - F_prev)[:, _POS, :], xs_prev[:-1]), axis=0)
+            correction = correction.copy()
+            correction[:, _POS] = _interp_nodes(dr, nodes, xs_prev[:, _POS])
         offset = correction[:, _POS] - correction[fix_blocks[0], _POS]
         H = fix_matrices(lever_ned, dr_cur.euler_rad()[fix_blocks, 2])
         # the lever arm was put into the frame with the corrected attitude: its error in terms of
@@ -674,7 +688,6 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         lever_offset = np.einsum("mik,mk->mi", H[:, :, att], correction[fix_blocks][:, att])
         z = p0 + dr_cur.position_ned_m[fix_blocks] + lever_ned - fix_ned + offset[fix_blocks] + lever_offset
         meas = meas_all = Measurements(fix_nodes, z, H, R)
-        F, Q = error_model(dr_cur, nodes, noise, *turn_sigmas(meta, config), handling=handling)
         fwd_progress = within(f"forward filter, {label}", base + 0.1 * share, base + 0.55 * share)
         if it == 0:
             fwd = forward_filter(F, Q, np.zeros(8), P0, meas, gate_probability=config.gate_probability,
@@ -713,6 +726,7 @@ def process_session(session: RawSession, design=None, config: ProcessConfig = Pr
         ned = p0 + dr_cur.position_ned_m - (x_blocks[:, _POS] - offset)
         dr_used = dr_cur
         correction = x_blocks
+        xs_prev, F_prev = xs, F
         worst_angle = float(np.max(np.abs(x_blocks[:, [3, 6]])))
         worst_scale = float(np.max(np.abs(x_blocks[:, 2])))
         if not snooped and (it >= passes - 1 or (worst_angle < config.relinearise_above_rad and worst_scale < 1e-3)):
