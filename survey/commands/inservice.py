@@ -47,6 +47,9 @@ inservice_app.command("vehicle")(vehicle_cmd)
 OUTPUT_STEP_M = 0.25
 #: shortest calibration run, m: the tuning's J over 3-200 m starts after the filter's 30 m start-up
 MIN_CALIBRATION_LENGTH_M = 250.0
+#: a filter rate within this fraction of a model's calibration rate is that rate (a logger's clock
+#: is some 10-100 ppm off its nominal rate; the filter's own uniformity check allows 1e-3)
+SAME_RATE_TOLERANCE = 1e-3
 #: the files `process` writes into --out
 OUTPUT_NAMES = ("irregularities.csv", "alignment.png", "inservice.xlsx", "summary.json")
 #: the sensor channels as named in messages
@@ -290,7 +293,9 @@ def process_cmd(
     except ValueError as exc:
         _fail(f"{recording / 'sensors.csv'}: {exc}")
     if mdl is not None:
-        m = mdl.at_dt(dt * q)
+        # a logger's clock a few ppm off (or the mean of jittered time stamps) is the calibration's
+        # rate: at_dt would drop the consistency reference and warn of a J several times larger
+        m = mdl if abs(dt * q / mdl.dt_s - 1.0) <= SAME_RATE_TOLERANCE else mdl.at_dt(dt * q)
         if m is not mdl:
             # the rescaling of Q, R and S with dt is first order: measured on the benchmark (bug hunt
             # 2026-11-26) J grows 2-4 times (0.31 -> 0.71 mm at 1000 Hz, 1.10 mm at 200 Hz with a
