@@ -62,3 +62,42 @@ def test_a_dropped_sample_or_a_rate_that_changes_is_still_refused(recording, tmp
     res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
     assert res.exit_code == 2 and said in " ".join(res.output.split()), res.output
     assert not (tmp_path / "out").exists()
+
+
+def _model_text():
+    return BUILTIN_MODEL_PATH.read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("edit, said", [
+    # (bug hunt 26b) cut after r_matrix (s_matrix is the last line): the full matrices were dropped
+    # for the diagonals, J 0.28 -> 1.16 mm on seed 1, exit 0
+    (lambda t: t[:t.index("s_matrix = ")], "missing key noise.s_matrix: q_matrix, r_matrix, s_matrix go together"),
+    # a typo read as absent: no consistency check, "calibrated before the check existed"
+    (lambda t: t.replace("innovation_rms =", "innovation_rm ="),
+     "unknown key noise.innovation_rm (did you mean noise.innovation_rms?)"),
+    (lambda t: t.replace('kind = "bogie"\n', ""),
+     "unknown key parameters.a (the paper design model has no such parameter: is the file's kind right?)"),
+])
+def test_a_model_file_cut_short_or_mistyped_is_refused(tmp_path, edit, said):
+    from survey.inservice_model import ModelFileError, read_model
+
+    path = tmp_path / "model.toml"
+    path.write_text(edit(_model_text()), encoding="utf-8")
+    with pytest.raises(ModelFileError) as exc:
+        read_model(path)
+    assert said in str(exc.value)
+
+
+def test_older_model_files_are_still_read(tmp_path):
+    import re
+
+    from survey.inservice_model import read_model
+
+    # before the calibration speed, the consistency reference, the full matrices and sensor_gravity
+    text = _model_text()
+    for key in ("speed_m_s", "innovation_rms", "q_matrix", "r_matrix", "s_matrix", "sensor_gravity"):
+        text = re.sub(rf"^{key} = .*\n", "", text, flags=re.M)
+    path = tmp_path / "old.toml"
+    path.write_text(text, encoding="utf-8")
+    old = read_model(path)
+    assert old.S is None and old.speed_m_s is None and old.innovation_rms is None
