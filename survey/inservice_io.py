@@ -321,8 +321,9 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     for key, val in (("sensors.sigma_acc_m_s2", sa), ("sensors.sigma_gyro_rad_s", sg)):
         if val < 0:
             raise InserviceFormatError(f"{fname}: {key} must be >= 0, got {val}")
-    if np.any(cols["speed_m_s"] <= 0):
-        i = int(np.argmax(cols["speed_m_s"] <= 0))
+    if np.any(cols["speed_m_s"] < 0):
+        # (0, a train standing in a station, is said with the slow rows below)
+        i = int(np.argmax(cols["speed_m_s"] < 0))
         raise InserviceFormatError(f"sensors.csv: row {cols['_line'][i]}, column speed_m_s: must be > 0")
     cols["t_s"] = _check_sampling(cols, rate, fname)
     return InserviceRecording(

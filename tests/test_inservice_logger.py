@@ -115,3 +115,17 @@ def test_irregularities_keep_their_grid_at_any_chainage(recording, tmp_path):  #
     assert res.exit_code == 0, res.output
     s = pd.read_csv(tmp_path / "out" / "irregularities.csv")["s_m"].to_numpy()
     assert s[0] == 123556.0 and np.allclose(np.diff(s), 0.25, rtol=0.0, atol=1e-9)
+
+
+def test_a_train_standing_in_a_station_is_told_to_leave_those_rows_out(recording, tmp_path):  # noqa: F811
+    # (bug hunt 26b) speed 0 got "must be > 0", without the hint a speed of 0.5 m/s got
+    rec = _copy(recording, tmp_path)
+    df = pd.read_csv(rec / "sensors.csv")
+    n = len(df)
+    v = np.where(np.arange(n) >= n - 40, 0.0, df["speed_m_s"])
+    s = np.where(np.arange(n) >= n - 40, df["s_m"].iloc[n - 41], df["s_m"])
+    df.assign(speed_m_s=v, s_m=s).to_csv(rec / "sensors.csv", index=False, float_format="%.17g")
+    with pytest.raises(io.InserviceFormatError) as exc:
+        io.read_recording(rec)
+    assert str(exc.value).startswith(f"sensors.csv: row {n - 40 + 2}, column speed_m_s: 0 m/s is below 1 m/s, where")
+    assert str(exc.value).endswith("(starting or stopping): leave those rows out")
