@@ -106,15 +106,22 @@ def test_older_model_files_are_still_read(tmp_path):
     assert old.S is None and old.speed_m_s is None and old.innovation_rms is None
 
 
-def test_irregularities_keep_their_grid_at_any_chainage(recording, tmp_path):  # noqa: F811
+def test_irregularities_keep_their_grid_at_any_chainage_and_killed_runs_leave_nothing(recording, tmp_path):  # noqa: F811
     # (bug hunt 26b) s_m written with %.6g: at 123456 m four rows per metre had one chainage
     rec = _copy(recording, tmp_path)
     df = pd.read_csv(rec / "sensors.csv")
     df.assign(s_m=df["s_m"] + 123456.0).to_csv(rec / "sensors.csv", index=False, float_format="%.17g")
+    # (bug hunt 26b) and into an --out where a run killed -9 while writing left its temporaries: they
+    # stayed, a full copy of each output per kill; a file of the user's stays
+    (tmp_path / "out").mkdir()
+    stale = [tmp_path / "out" / n for n in (".irregularities.csv.k1ll3d_9.csv", ".inservice.xlsx.abcd1234.xlsx")]
+    for p in (*stale, tmp_path / "out" / ".notes.txt.abcd1234.txt"):
+        p.write_text("partial")
     res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
     s = pd.read_csv(tmp_path / "out" / "irregularities.csv")["s_m"].to_numpy()
     assert s[0] == 123556.0 and np.allclose(np.diff(s), 0.25, rtol=0.0, atol=1e-9)
+    assert not any(p.exists() for p in stale) and (tmp_path / "out" / ".notes.txt.abcd1234.txt").exists()
 
 
 def test_a_train_standing_in_a_station_is_told_to_leave_those_rows_out(recording, tmp_path):  # noqa: F811

@@ -31,7 +31,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
+from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, remove_stale_temporaries, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
 from survey.limits import MAX_SEED, check_finite, check_integer, check_seed
@@ -410,6 +410,8 @@ def process_cmd(
         cols[f"sigma_alignment_{lo}_{hi}m_mm"] = units.m_to_mm(np.interp(grid, band[0], band[2]))
     try:
         out.mkdir(parents=True, exist_ok=True)
+        # a run killed while writing left its hidden temporaries (a full copy of each output)
+        remove_stale_temporaries(out, OUTPUT_NAMES)
         with all_or_nothing():
             # the chainage to 0.1 mm whatever its size (%.6g wrote 123456.25 m as 123456: four rows
             # per metre with one chainage); the millimetres to six significant digits
