@@ -136,3 +136,17 @@ def test_a_train_standing_in_a_station_is_told_to_leave_those_rows_out(recording
         io.read_recording(rec)
     assert str(exc.value).startswith(f"sensors.csv: row {n - 40 + 2}, column speed_m_s: 0 m/s is below 1 m/s, where")
     assert str(exc.value).endswith("(starting or stopping): leave those rows out")
+
+
+def test_a_model_of_a_faster_rate_is_not_answered_with_a_filter_rate_the_recording_cannot_reach(
+        recording, tmp_path):  # noqa: F811
+    # (bug hunt 26b) a 1000 Hz model on a 200 Hz recording said "use --filter-rate-hz 1000", which
+    # changes nothing (J 0.59 mm, rms error/sigma 1.98 on seed 1)
+    text = BUILTIN_MODEL_PATH.read_text(encoding="utf-8")
+    model = tmp_path / "model_1k.toml"
+    model.write_text(text.replace("dt_s = 0.004999999999999005", "dt_s = 0.001"), encoding="utf-8")
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(recording / "recording"), "--out",
+                                      str(tmp_path / "out"), "--model", str(model)])
+    said = " ".join(res.stderr.split())
+    assert res.exit_code == 0 and "the model was calibrated at 1000 Hz" in said, res.output
+    assert "--filter-rate-hz 1000" not in said and "calibrate at this rate (--rate-hz 200 --filter-rate-hz 200)" in said

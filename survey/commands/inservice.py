@@ -301,10 +301,17 @@ def process_cmd(
             # the rescaling of Q, R and S with dt is first order: measured on the benchmark (bug hunt
             # 2026-11-26) J grows 2-4 times (0.31 -> 0.71 mm at 1000 Hz, 1.10 mm at 200 Hz with a
             # 100 Hz model)
+            # (bug hunt 26b) with a 1000 Hz model the sigmas of a 200 Hz recording were half the error
+            # (seed 1), and "use --filter-rate-hz 1000" cannot speed up a 200 Hz recording: that
+            # advice only where the model's rate is the recording's divided by a whole number
+            model_hz, rec_hz = 1.0 / mdl.dt_s, 1.0 / dt
+            whole = max(1, round(rec_hz / model_hz))
+            fix = f"calibrate at this rate (--rate-hz {rec_hz:g} --filter-rate-hz {filter_rate_hz:g})"
+            if abs(rec_hz / whole / model_hz - 1.0) <= SAME_RATE_TOLERANCE:
+                fix = f"use --filter-rate-hz {model_hz:g} or " + fix
             console.print(f"warning: the filter runs at {1.0 / (dt * q):g} Hz and the model was calibrated at "
-                          f"{1.0 / mdl.dt_s:g} Hz: J can be several times the calibrated one; use --filter-rate-hz "
-                          f"{1.0 / mdl.dt_s:g} or calibrate at this rate (--rate-hz / --filter-rate-hz)",
-                          highlight=False, markup=False, soft_wrap=True)
+                          f"{model_hz:g} Hz: J can be several times the calibrated one and its sigmas too "
+                          f"small; {fix}", highlight=False, markup=False, soft_wrap=True)
         est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
