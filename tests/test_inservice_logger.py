@@ -150,3 +150,11 @@ def test_a_model_of_a_faster_rate_is_not_answered_with_a_filter_rate_the_recordi
     said = " ".join(res.stderr.split())
     assert res.exit_code == 0 and "the model was calibrated at 1000 Hz" in said, res.output
     assert "--filter-rate-hz 1000" not in said and "calibrate at this rate (--rate-hz 200 --filter-rate-hz 200)" in said
+
+
+def test_a_tab_separated_sensors_csv_says_so(recording, tmp_path):  # noqa: F811
+    # (bug hunt 26b) "missing column t_s" though t_s was in the header, as for ';' before
+    rec = _copy(recording, tmp_path)
+    pd.read_csv(rec / "sensors.csv").to_csv(rec / "sensors.csv", sep="\t", index=False)
+    with pytest.raises(io.InserviceFormatError, match="sensors.csv: row 1: the columns are separated by tabs"):
+        io.read_recording(rec)
