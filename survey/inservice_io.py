@@ -258,7 +258,21 @@ def _check_sampling(cols: dict, rate_hz: float, fname: str) -> np.ndarray:
     if abs(step * rate_hz - 1.0) > SAMPLING_TOLERANCE:
         raise InserviceFormatError(f"{fname}: run.rate_hz = {rate_hz:g}, but the samples of sensors.csv are "
                                    f"{step:.6g} s apart ({1.0 / step:.6g} Hz): column t_s in seconds?")
-    ratio = float(np.median(np.diff(s) / step) / np.median(v))
+    # before the rate of the chainage: a train running down the line, an odometer that drops out
+    # or is reset were told "speed in m/s, chainage in m?"
+    ds = np.diff(s)
+    if np.any(ds <= 0):
+        i = int(np.argmax(ds <= 0))
+        if np.median(ds) < 0:
+            why = ("decreases along the run (against the chainage direction?): s_m must increase in the direction of "
+                   "travel")
+        elif ds[i] == 0:
+            why = (f"does not advance at a speed of {v[i + 1]:g} m/s (an odometer that dropped out, or one coarser "
+                   "than the run of a sample?)")
+        else:
+            why = f"goes back by {-ds[i]:.6g} m (an odometer reset?)"
+        raise InserviceFormatError(f"sensors.csv: row {line[i + 1]}, column s_m: the chainage {why}")
+    ratio = float(np.median(ds / step) / np.median(v))
     if abs(ratio - 1.0) > SAMPLING_TOLERANCE:
         raise InserviceFormatError(f"sensors.csv: column speed_m_s: the chainage s_m advances at {ratio:.6g} times "
                                    "the speed column's value: speed in m/s, chainage in m?")

@@ -158,3 +158,19 @@ def test_a_tab_separated_sensors_csv_says_so(recording, tmp_path):  # noqa: F811
     pd.read_csv(rec / "sensors.csv").to_csv(rec / "sensors.csv", sep="\t", index=False)
     with pytest.raises(io.InserviceFormatError, match="sensors.csv: row 1: the columns are separated by tabs"):
         io.read_recording(rec)
+
+
+@pytest.mark.parametrize("chainage, said", [
+    (lambda s: 5000.0 - s, "row 3, column s_m: the chainage decreases along the run (against the chainage direction?)"),
+    (lambda s: np.where(s > 150.0, 150.0, s), "row 503, column s_m: the chainage does not advance at a speed of 20 m/s"),
+    (lambda s: np.where(s > 150.0, s - 100.0, s), "row 503, column s_m: the chainage goes back by 99.9 m"),
+])
+def test_a_chainage_that_does_not_advance_is_named_as_such(recording, tmp_path, chainage, said):  # noqa: F811
+    # (bug hunt 26b) a train running down the line, an odometer that dropped out or was reset: "the
+    # chainage s_m advances at -1 times the speed column's value: speed in m/s, chainage in m?"
+    rec = _copy(recording, tmp_path)
+    df = pd.read_csv(rec / "sensors.csv")
+    df.assign(s_m=chainage(df["s_m"].to_numpy())).to_csv(rec / "sensors.csv", index=False, float_format="%.17g")
+    with pytest.raises(io.InserviceFormatError) as exc:
+        io.read_recording(rec)
+    assert str(exc.value).startswith("sensors.csv: " + said), str(exc.value)
