@@ -106,7 +106,8 @@ def test_older_model_files_are_still_read(tmp_path):
     assert old.S is None and old.speed_m_s is None and old.innovation_rms is None
 
 
-def test_irregularities_keep_their_grid_at_any_chainage_and_killed_runs_leave_nothing(recording, tmp_path):  # noqa: F811
+def test_irregularities_keep_their_grid_at_any_chainage_and_killed_runs_leave_nothing(
+        recording, tmp_path):  # noqa: F811
     # (bug hunt 26b) s_m written with %.6g: at 123456 m four rows per metre had one chainage
     rec = _copy(recording, tmp_path)
     df = pd.read_csv(rec / "sensors.csv")
@@ -162,7 +163,8 @@ def test_a_tab_separated_sensors_csv_says_so(recording, tmp_path):  # noqa: F811
 
 @pytest.mark.parametrize("chainage, said", [
     (lambda s: 5000.0 - s, "row 3, column s_m: the chainage decreases along the run (against the chainage direction?)"),
-    (lambda s: np.where(s > 150.0, 150.0, s), "row 503, column s_m: the chainage does not advance at a speed of 20 m/s"),
+    (lambda s: np.where(s > 150.0, 150.0, s),
+     "row 503, column s_m: the chainage does not advance at a speed of 20 m/s"),
     (lambda s: np.where(s > 150.0, s - 100.0, s), "row 503, column s_m: the chainage goes back by 99.9 m"),
 ])
 def test_a_chainage_that_does_not_advance_is_named_as_such(recording, tmp_path, chainage, said):  # noqa: F811
