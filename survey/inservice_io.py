@@ -71,7 +71,9 @@ class InserviceRecording:
     sense_gravity : the accelerometers sense g times their roll, as real ones do ([sensors]
         ``accelerometers_sense_gravity``; False, the paper's virtual sensors, when the key is absent).
     wheelset_sensor_m, frame_sensor_m : sensor positions (x, y, z) from the car body centre, m.
-    t_s, s_m, speed_arr_m_s, wheelset_ay_m_s2, wheelset_wz_rad_s, frame_ay_m_s2 : sensors.csv.
+    t_s, s_m, speed_arr_m_s, wheelset_ay_m_s2, wheelset_wz_rad_s, frame_ay_m_s2 : sensors.csv; read
+        from a file, ``t_s`` counts from the first sample, uniform at the file's mean interval (the
+        jitter of a logger's time stamps removed; ``read_recording``).
     """
 
     nominal: dict
@@ -215,9 +217,17 @@ def refuse_unknown(table: dict, known, where: str, fname: str, error: type[Value
             raise error(f"{fname}: unknown key {dotted}{key}{hint}")
 
 
-def _check_sampling(cols: dict, rate_hz: float, fname: str) -> None:
+#: how far one step between sample times may lie from the recording's usual step, and one sample's
+#: time from the uniform grid, in steps: a logger's time stamps jitter (taken by software, rounded
+#: to the millisecond, epoch seconds in a float) while a dropped sample is a step of 2 and a gap more
+STEP_JITTER = 0.5
+
+
+def _check_sampling(cols: dict, rate_hz: float, fname: str) -> np.ndarray:
     """Uniform sample times at [run] rate_hz, speeds the model holds for, a chainage that advances
-    at the speed column's rate; each refusal names the row (sensors.csv) or the key."""
+    at the speed column's rate; each refusal names the row (sensors.csv) or the key. Returns the
+    sample times as the filter takes them: from the first sample's, k times the mean interval (the
+    time stamps' jitter of up to :data:`STEP_JITTER` steps removed)."""
     t, s, v, line = cols["t_s"], cols["s_m"], cols["speed_m_s"], cols["_line"]
     slow = v < MIN_SPEED_M_S
     if np.any(slow):
@@ -226,22 +236,47 @@ def _check_sampling(cols: dict, rate_hz: float, fname: str) -> None:
                                    f"{MIN_SPEED_M_S:g} m/s, where the in-service model does not hold (starting or "
                                    "stopping): leave those rows out")
     if t.size < 3:
-        return
+        return t - t[0]
     dt = np.diff(t)
     step = float(np.median(dt))
-    off = ~np.isclose(dt, step, rtol=1e-3, atol=0.0)
+    off = np.abs(dt - step) > STEP_JITTER * step
     if np.any(off):
         i = int(np.argmax(off))
         raise InserviceFormatError(f"sensors.csv: row {line[i + 1]}, column t_s: a step of {dt[i]:.6g} s after "
                                    f"{t[i]:.6g} s where the samples are {step:.6g} s apart: sample times must be "
                                    "uniform (a gap or a dropped sample?)")
+    # the mean interval, a straight line through all time stamps: their rounding and jitter average out
+    k = np.arange(t.size)
+    kc, tc = k - 0.5 * (t.size - 1), t - t[0]
+    step = float(np.dot(kc, tc - tc.mean()) / np.dot(kc, kc))
+    drift = np.abs(tc - tc.mean() - kc * step) > STEP_JITTER * step
+    if np.any(drift):
+        i = int(np.argmax(drift))
+        raise InserviceFormatError(f"sensors.csv: row {line[i]}, column t_s: {t[i]:.6g} s is more than half a "
+                                   f"sample from the uniform rate of the whole file ({1.0 / step:.6g} Hz): sample "
+                                   "times must be uniform (a rate that changes?)")
     if abs(step * rate_hz - 1.0) > SAMPLING_TOLERANCE:
         raise InserviceFormatError(f"{fname}: run.rate_hz = {rate_hz:g}, but the samples of sensors.csv are "
                                    f"{step:.6g} s apart ({1.0 / step:.6g} Hz): column t_s in seconds?")
-    ratio = float(np.median(np.diff(s) / dt) / np.median(v))
+    # before the rate of the chainage: a train running down the line, an odometer that drops out
+    # or is reset were told "speed in m/s, chainage in m?"
+    ds = np.diff(s)
+    if np.any(ds <= 0):
+        i = int(np.argmax(ds <= 0))
+        if np.median(ds) < 0:
+            why = ("decreases along the run (against the chainage direction?): s_m must increase in the direction of "
+                   "travel")
+        elif ds[i] == 0:
+            why = (f"does not advance at a speed of {v[i + 1]:g} m/s (an odometer that dropped out, or one coarser "
+                   "than the run of a sample?)")
+        else:
+            why = f"goes back by {-ds[i]:.6g} m (an odometer reset?)"
+        raise InserviceFormatError(f"sensors.csv: row {line[i + 1]}, column s_m: the chainage {why}")
+    ratio = float(np.median(ds / step) / np.median(v))
     if abs(ratio - 1.0) > SAMPLING_TOLERANCE:
         raise InserviceFormatError(f"sensors.csv: column speed_m_s: the chainage s_m advances at {ratio:.6g} times "
                                    "the speed column's value: speed in m/s, chainage in m?")
+    return k * step
 
 
 def read_recording(folder: str | os.PathLike) -> InserviceRecording:
@@ -300,10 +335,11 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     for key, val in (("sensors.sigma_acc_m_s2", sa), ("sensors.sigma_gyro_rad_s", sg)):
         if val < 0:
             raise InserviceFormatError(f"{fname}: {key} must be >= 0, got {val}")
-    if np.any(cols["speed_m_s"] <= 0):
-        i = int(np.argmax(cols["speed_m_s"] <= 0))
+    if np.any(cols["speed_m_s"] < 0):
+        # (0, a train standing in a station, is said with the slow rows below)
+        i = int(np.argmax(cols["speed_m_s"] < 0))
         raise InserviceFormatError(f"sensors.csv: row {cols['_line'][i]}, column speed_m_s: must be > 0")
-    _check_sampling(cols, rate, fname)
+    cols["t_s"] = _check_sampling(cols, rate, fname)
     return InserviceRecording(
         nominal=nominal, vehicle_extra=extra, speed_m_s=speed, rate_hz=rate, start_chainage_m=start,
         curvature_1_m=-curv, sigma_acc_m_s2=sa, sigma_gyro_rad_s=sg,

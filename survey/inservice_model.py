@@ -17,11 +17,18 @@ from pathlib import Path
 import numpy as np
 
 from survey.atomicwrite import write_text_atomic
-from survey.inservice_io import parse_toml
+from survey.inservice_io import parse_toml, refuse_unknown
 
 FORMAT = "trolley-inservice-model/1"
 #: sample intervals a model file may hold, s (filter rates 5 Hz to 100 kHz)
 MIN_DT_S, MAX_DT_S = 1e-5, 0.2
+
+
+#: the correlated noises' full matrices: all or none
+FULL_MATRIX_KEYS = ("q_matrix", "r_matrix", "s_matrix")
+#: the keys of [noise] (speed_m_s, innovation_rms and the full matrices are optional)
+NOISE_KEYS = frozenset({"dt_s", "q_diagonal", "r_diagonal", "sigma_scale", "q_dynamics_factor", "q_xi_factor",
+                        "sigma_xi_virtual_m", "speed_m_s", "innovation_rms", *FULL_MATRIX_KEYS})
 
 
 #: the model ``trolley inservice calibrate`` writes with its defaults (the built-in vehicle, 20 m/s,
@@ -123,6 +130,17 @@ def read_model(path: str | os.PathLike):
     if kind not in kinds:
         raise ModelFileError(f"{fname}: kind must be one of {', '.join(sorted(kinds))}, got {kind!r}")
     cls = kinds[kind]
+    # a mistyped optional key would read as absent (innovation_rms: no consistency check, "calibrated
+    # before the check existed"); older files have fewer keys, never others
+    refuse_unknown(data, {"format", "kind", "parameters", "noise"}, "", fname, ModelFileError)
+    refuse_unknown(par, {f.name for f in fields(cls)}, "parameters", fname, ModelFileError,
+                   otherwise=f" (the {kind} design model has no such parameter: is the file's kind right?)")
+    refuse_unknown(noi, NOISE_KEYS, "noise", fname, ModelFileError)
+    full = [k for k in FULL_MATRIX_KEYS if k in noi]
+    if full and len(full) < len(FULL_MATRIX_KEYS):
+        lost = next(k for k in FULL_MATRIX_KEYS if k not in noi)
+        raise ModelFileError(f"{fname}: missing key noise.{lost}: {', '.join(FULL_MATRIX_KEYS)} go together (a file "
+                             "cut short?); without them the diagonals alone are a worse model")
     try:
         params = cls(**{f.name: (_flag if f.type in (bool, "bool") else _number)(par, f.name, "parameters", fname)
                         for f in fields(cls)})
@@ -136,7 +154,7 @@ def read_model(path: str | os.PathLike):
                              f"{1 / MAX_DT_S:g}-{1 / MIN_DT_S:g} Hz), got {dt}")
     n = params.n_state
     Q, R, S = np.diag(_vector(noi, "q_diagonal", n, fname)), np.diag(_vector(noi, "r_diagonal", 4, fname)), None
-    if "s_matrix" in noi:
+    if full:
         Q = _vector(noi, "q_matrix", n * n, fname, signed=True).reshape(n, n)
         R = _vector(noi, "r_matrix", 16, fname, signed=True).reshape(4, 4)
         S = _vector(noi, "s_matrix", 4 * n, fname, signed=True).reshape(n, 4)

@@ -177,10 +177,12 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         raise TgmsFormatError(f"{name}: file not found in {path.parent}")
     with open(path, "rb") as fh:
         head = fh.readline().decode("utf-8-sig", errors="replace")
-    if ";" in head and "," not in head:
-        # a spreadsheet saved with its locale's list separator (and, likely, decimal commas)
-        raise TgmsFormatError(f"{name}: row 1: the columns are separated by ';': save the file as comma-separated "
-                              "CSV with decimal points (0.5)")
+    for sep, said in ((";", "';'"), ("\t", "tabs")):
+        if sep in head and "," not in head:
+            # a spreadsheet saved with its locale's list separator (and, likely, decimal commas), or
+            # a logger's tab-separated text: "missing column t_s" though t_s was in the header
+            raise TgmsFormatError(f"{name}: row 1: the columns are separated by {said}: save the file as "
+                                  "comma-separated CSV with decimal points (0.5)")
     try:
         # low_memory=False: a text cell in a long numeric column is reported below, not as a DtypeWarning
         df = pd.read_csv(path, skipinitialspace=True, low_memory=False)

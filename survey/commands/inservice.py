@@ -31,7 +31,7 @@ import typer
 from rich.console import Console
 
 from survey import jsonout
-from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_with
+from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, remove_stale_temporaries, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
 from survey.limits import MAX_SEED, check_finite, check_integer, check_seed
@@ -43,10 +43,14 @@ inservice_app = typer.Typer(help="In-service vehicle: wheelset/bogie inertial se
 inservice_app.command("simulate")(simulate_cmd)
 inservice_app.command("vehicle")(vehicle_cmd)
 
-#: output grid step of irregularities.csv, m
+#: output grid step of irregularities.csv, m, and the decimals of its chainage column
 OUTPUT_STEP_M = 0.25
+CHAINAGE_DECIMALS = 4
 #: shortest calibration run, m: the tuning's J over 3-200 m starts after the filter's 30 m start-up
 MIN_CALIBRATION_LENGTH_M = 250.0
+#: a filter rate within this fraction of a model's calibration rate is that rate (a logger's clock
+#: is some 10-100 ppm off its nominal rate; the filter's own uniformity check allows 1e-3)
+SAME_RATE_TOLERANCE = 1e-3
 #: the files `process` writes into --out
 OUTPUT_NAMES = ("irregularities.csv", "alignment.png", "inservice.xlsx", "summary.json")
 #: the sensor channels as named in messages
@@ -290,15 +294,24 @@ def process_cmd(
     except ValueError as exc:
         _fail(f"{recording / 'sensors.csv'}: {exc}")
     if mdl is not None:
-        m = mdl.at_dt(dt * q)
+        # a logger's clock a few ppm off (or the mean of jittered time stamps) is the calibration's
+        # rate: at_dt would drop the consistency reference and warn of a J several times larger
+        m = mdl if abs(dt * q / mdl.dt_s - 1.0) <= SAME_RATE_TOLERANCE else mdl.at_dt(dt * q)
         if m is not mdl:
             # the rescaling of Q, R and S with dt is first order: measured on the benchmark (bug hunt
             # 2026-11-26) J grows 2-4 times (0.31 -> 0.71 mm at 1000 Hz, 1.10 mm at 200 Hz with a
             # 100 Hz model)
+            # (bug hunt 26b) with a 1000 Hz model the sigmas of a 200 Hz recording were half the error
+            # (seed 1), and "use --filter-rate-hz 1000" cannot speed up a 200 Hz recording: that
+            # advice only where the model's rate is the recording's divided by a whole number
+            model_hz, rec_hz = 1.0 / mdl.dt_s, 1.0 / dt
+            whole = max(1, round(rec_hz / model_hz))
+            fix = f"calibrate at this rate (--rate-hz {rec_hz:g} --filter-rate-hz {filter_rate_hz:g})"
+            if abs(rec_hz / whole / model_hz - 1.0) <= SAME_RATE_TOLERANCE:
+                fix = f"use --filter-rate-hz {model_hz:g} or " + fix
             console.print(f"warning: the filter runs at {1.0 / (dt * q):g} Hz and the model was calibrated at "
-                          f"{1.0 / mdl.dt_s:g} Hz: J can be several times the calibrated one; use --filter-rate-hz "
-                          f"{1.0 / mdl.dt_s:g} or calibrate at this rate (--rate-hz / --filter-rate-hz)",
-                          highlight=False, markup=False, soft_wrap=True)
+                          f"{model_hz:g} Hz: J can be several times the calibrated one and its sigmas too "
+                          f"small; {fix}", highlight=False, markup=False, soft_wrap=True)
         est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
                        curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
@@ -404,8 +417,13 @@ def process_cmd(
         cols[f"sigma_alignment_{lo}_{hi}m_mm"] = units.m_to_mm(np.interp(grid, band[0], band[2]))
     try:
         out.mkdir(parents=True, exist_ok=True)
+        # a run killed while writing left its hidden temporaries (a full copy of each output)
+        remove_stale_temporaries(out, OUTPUT_NAMES)
         with all_or_nothing():
-            write_csv_frame(out / "irregularities.csv", pd.DataFrame(cols), "%.6g")
+            # the chainage to 0.1 mm whatever its size (%.6g wrote 123456.25 m as 123456: four rows
+            # per metre with one chainage); the millimetres to six significant digits
+            frame = pd.DataFrame(cols).assign(s_m=[f"{v:.{CHAINAGE_DECIMALS}f}" for v in grid])
+            write_csv_frame(out / "irregularities.csv", frame, "%.6g")
             run_name = f"{recording.resolve().parent.name}/{recording.name}"
             _write_png(out / "alignment.png", cols, truth_mm, title=f"lateral alignment - {run_name}")
             _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
