@@ -97,6 +97,8 @@ class InserviceRecording:
     vehicle_name: str | None = None
     #: the row of sensors.csv each sample was read from (None: not read from a file)
     rows: np.ndarray | None = None
+    #: what the reader found inconsistent but not needed by the filter (``process`` warns)
+    notes: tuple[str, ...] = ()
 
 
 def recording_from_run(run, params, start_chainage_m: float = 0.0, vehicle_name: str | None = None) -> InserviceRecording:
@@ -158,6 +160,40 @@ def write_recording(folder: str | os.PathLike, rec: InserviceRecording) -> None:
                        "frame_ay_m_s2": -np.asarray(rec.frame_ay_m_s2)})
     write_csv_frame(folder / "sensors.csv", df[SENSOR_COLUMNS], "%.9g")
     write_text_atomic(folder / "inservice.toml", inservice_toml_text(rec))
+
+
+#: plausible sensor position from the car body centre, m (|x| along, |y| across, |z| height): a
+#: position typed in millimetres is thousands of metres
+SENSOR_POSITION_LIMIT_M = (20.0, 2.0, 5.0)
+#: how far [run] start_chainage_m may lie from sensors.csv's first s_m, m (a rounded start)
+START_CHAINAGE_TOLERANCE_M = 1.0
+
+
+def _run_against_columns(speed: float, start: float, start_given: bool, cols: dict, fname: str) -> tuple[str, ...]:
+    """Notes on [run] speed_m_s and start_chainage_m that do not describe sensors.csv's run (72
+    for 20 m/s is km/h, 5000 against an s_m from 0 another chainage): the filter reads the columns,
+    so nothing is refused, but one of the two is wrong and the user must hear which was used."""
+    v, s = cols["speed_m_s"], cols["s_m"]
+    low, high = float(np.min(v)), float(np.max(v))
+    notes = []
+    if not low * (1.0 - SAMPLING_TOLERANCE) <= speed <= high * (1.0 + SAMPLING_TOLERANCE):
+        notes.append(f"{fname}: run.speed_m_s = {speed:g}, but sensors.csv's speed_m_s runs {low:g}-{high:g} m/s "
+                     "(km/h?); the speed column is used")
+    if start_given and abs(float(s[0]) - start) > START_CHAINAGE_TOLERANCE_M:
+        notes.append(f"{fname}: run.start_chainage_m = {start:g}, but sensors.csv's s_m starts at {float(s[0]):g} m "
+                     f"(row {cols['_line'][0]}); the s_m column is used")
+    return tuple(notes)
+
+
+def _implausible_position(key: str, a: tuple, fname: str) -> str | None:
+    """A note on a sensor position beyond :data:`SENSOR_POSITION_LIMIT_M` (typed in mm?); the
+    filter's model has its own sensor positions, so nothing is refused."""
+    far = np.abs(np.asarray(a)) > np.asarray(SENSOR_POSITION_LIMIT_M)
+    if not far.any():
+        return None
+    j = int(np.argmax(far))
+    return (f"{fname}: sensors.{key}: {'xyz'[j]} = {a[j]:g} m is beyond {SENSOR_POSITION_LIMIT_M[j]:g} m from the car "
+            "body centre (millimetres?)")
 
 
 def _position(table: dict, key: str, fname: str) -> tuple:
@@ -340,15 +376,17 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
         i = int(np.argmax(cols["speed_m_s"] < 0))
         raise InserviceFormatError(f"sensors.csv: row {cols['_line'][i]}, column speed_m_s: must be > 0")
     cols["t_s"] = _check_sampling(cols, rate, fname)
+    notes = _run_against_columns(speed, start, "start_chainage_m" in run, cols, fname)
+    positions = {k: _position(sen, k, fname) for k in ("wheelset_sensor_m", "frame_sensor_m")}
+    notes += tuple(n for n in (_implausible_position(k, v, fname) for k, v in positions.items()) if n)
     return InserviceRecording(
         nominal=nominal, vehicle_extra=extra, speed_m_s=speed, rate_hz=rate, start_chainage_m=start,
         curvature_1_m=-curv, sigma_acc_m_s2=sa, sigma_gyro_rad_s=sg,
-        wheelset_sensor_m=_position(sen, "wheelset_sensor_m", fname),
-        frame_sensor_m=_position(sen, "frame_sensor_m", fname),
+        wheelset_sensor_m=positions["wheelset_sensor_m"], frame_sensor_m=positions["frame_sensor_m"],
         t_s=cols["t_s"], s_m=cols["s_m"], speed_arr_m_s=cols["speed_m_s"],
         wheelset_ay_m_s2=-cols["wheelset_ay_m_s2"], wheelset_wz_rad_s=-cols["wheelset_wz_rad_s"],
         frame_ay_m_s2=-cols["frame_ay_m_s2"], sense_gravity=gravity,
-        vehicle_name=name.strip() if isinstance(name, str) else None, rows=np.asarray(cols["_line"]))
+        vehicle_name=name.strip() if isinstance(name, str) else None, rows=np.asarray(cols["_line"]), notes=notes)
 
 
 def bogie_nominal(rec: InserviceRecording) -> dict | None:

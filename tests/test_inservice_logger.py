@@ -176,3 +176,35 @@ def test_a_chainage_that_does_not_advance_is_named_as_such(recording, tmp_path, 
     with pytest.raises(io.InserviceFormatError) as exc:
         io.read_recording(rec)
     assert str(exc.value).startswith("sensors.csv: " + said), str(exc.value)
+
+
+def test_run_settings_and_sensor_positions_that_do_not_describe_the_columns_are_said(recording, tmp_path):  # noqa: F811
+    """[run] speed_m_s in km/h, a start chainage of another run and a sensor position in mm are read
+    but not used by the filter (it reads the columns; its model has its own positions): the reader
+    notes each, naming the key and both values, and ``process`` warns and keeps going."""
+    rec = _copy(recording, tmp_path)
+    toml = (rec / "inservice.toml").read_text()
+    assert "speed_m_s = 20" in toml and "start_chainage_m = " in toml and "frame_sensor_m = [" in toml
+    assert io.read_recording(rec).notes == ()
+    first = float(pd.read_csv(rec / "sensors.csv")["s_m"].iloc[0])
+    lines = []
+    for line in toml.splitlines():
+        if line.startswith("speed_m_s"):
+            line = "speed_m_s = 72.0"
+        elif line.startswith("start_chainage_m"):
+            line = f"start_chainage_m = {first + 5000.0!r}"
+        elif line.startswith("frame_sensor_m"):
+            line = "frame_sensor_m = [10780.0, 0.0, 460.0]"
+        lines.append(line)
+    (rec / "inservice.toml").write_text("\n".join(lines) + "\n")
+    notes = io.read_recording(rec).notes
+    assert len(notes) == 3
+    assert notes[0].startswith("inservice.toml: run.speed_m_s = 72, but sensors.csv's speed_m_s runs 20-20 m/s")
+    assert f"run.start_chainage_m = {first + 5000.0:g}, but sensors.csv's s_m starts at {first:g} m" in notes[1]
+    assert "sensors.frame_sensor_m: x = 10780 m is beyond 20 m from the car body centre (millimetres?)" in notes[2]
+    res = CliRunner().invoke(_app(), ["inservice", "process", str(rec), "--out", str(tmp_path / "out"),
+                                      "--model", str(BUILTIN_MODEL_PATH)])
+    assert res.exit_code == 0, res.output
+    said = " ".join(res.stderr.split())
+    assert all(f"warning: {' '.join(n.split())}" in said for n in notes)
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["recording_notes"] == list(notes)

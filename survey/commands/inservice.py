@@ -267,6 +267,8 @@ def process_cmd(
         _fail(str(exc))
     if len(rec.t_s) < 10:
         _fail(f"{recording / 'sensors.csv'}: needs at least 10 rows, got {len(rec.t_s)}")
+    for note in rec.notes:
+        console.print(f"warning: {note}", highlight=False, markup=False, soft_wrap=True)
     if not np.all(np.diff(rec.s_m) > 0):
         i = int(np.argmax(np.diff(rec.s_m) <= 0))
         _fail(f"sensors.csv: row {i + 3}, column s_m: chainage must increase (the vehicle must move)")
@@ -350,7 +352,8 @@ def process_cmd(
                "recording_accelerometers_sense_gravity": rec.sense_gravity,
                "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
                "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
-               "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None}
+               "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None,
+               "recording_notes": list(rec.notes)}
     if mdl is None:
         summary["vehicle_check"] = {"checked": False, "reason": "no calibrated model (--model)"}
         summary["speed_check"] = {"checked": False, "reason": "no calibrated model (--model)"}
