@@ -73,6 +73,9 @@ def test_process_writes_outputs_with_accuracy(recording, tmp_path):
     from openpyxl import load_workbook
     ws = load_workbook(out / "inservice.xlsx").active
     assert ws.cell(1, 1).value == "recording" and ws.cell(4, 2).value == "alignment_mm"
+    assert ws.cell(1, 5).value == "model" and ws.cell(2, 5).value == (
+        summary["model"] if summary["calibrated"] else f"UNCALIBRATED: {summary['model']}, default noise; neither the "
+        "accuracy nor honest sigmas (trolley inservice calibrate)")
     assert ws.cell(5, 1).value == 100.0 and ws.max_row == 4 + len(df)
 
 
@@ -186,6 +189,9 @@ def test_process_writes_the_band_passed_alignment_with_its_sigma(tmp_path):
     from openpyxl import load_workbook
     ws = load_workbook(out / "inservice.xlsx").active
     assert [ws.cell(4, j).value for j in range(1, 6)] == list(df.columns)
+    # the client's workbook says it too, not only the terminal (bug hunt 26b)
+    assert ws.cell(1, 5).value == "model" and ws.cell(2, 5).value.startswith(
+        "UNCALIBRATED: nominal (recording [vehicle]), default noise; neither the accuracy nor honest sigmas")
 
 
 def test_process_checks_that_the_recording_fits_the_calibrated_model(tmp_path):

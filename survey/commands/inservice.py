@@ -158,20 +158,24 @@ def _write_xlsx(path: Path, recording: str, summary: dict, cols: dict) -> None:
     wb = Workbook()
     ws = wb.active
     ws.title = "Alignment"
-    head = ["recording", "length_m", "speed_m_s", "smoother", "cpu_s", "real_time_ratio"]
     bands = list(summary.get("accuracy", {}))
-    head += [f"J_{b}_mm" for b in bands] + [f"Jrel_{b}" for b in bands] + ["model_check", "vehicle_check",
-                                                                                  "speed_check"]
-    _header(ws, 1, head)
-    put_text(ws, 2, 1, recording)
-    put_text(ws, 2, len(head) - 2, _consistency_text(summary["consistency"]))
-    put_text(ws, 2, len(head) - 1, _vehicle_text(summary["vehicle_check"]))
-    put_text(ws, 2, len(head), _speed_text(summary["speed_check"]))
-    vals = [summary["length_m"], summary["speed_m_s"], None, summary["cpu_s"], summary["real_time_ratio"]]
-    vals += [summary["accuracy"][b]["J_mm"] for b in bands] + [summary["accuracy"][b]["Jrel"] for b in bands]
-    for j, v in enumerate(vals, start=2):
-        if j == 4:
-            put_text(ws, 2, j, summary["smoother"])
+    # (name, text or number): the client reads this row without summary.json, so an uncalibrated
+    # model says so here too, not only on the terminal
+    model = summary["model"] if summary["calibrated"] else (
+        f"UNCALIBRATED: {summary['model']}, default noise; neither the accuracy nor honest sigmas "
+        "(trolley inservice calibrate)")
+    row = [("recording", recording), ("length_m", summary["length_m"]), ("speed_m_s", summary["speed_m_s"]),
+           ("smoother", summary["smoother"]), ("model", model), ("cpu_s", summary["cpu_s"]),
+           ("real_time_ratio", summary["real_time_ratio"])]
+    row += [(f"J_{b}_mm", summary["accuracy"][b]["J_mm"]) for b in bands]
+    row += [(f"Jrel_{b}", summary["accuracy"][b]["Jrel"]) for b in bands]
+    row += [("model_check", _consistency_text(summary["consistency"])),
+            ("vehicle_check", _vehicle_text(summary["vehicle_check"])),
+            ("speed_check", _speed_text(summary["speed_check"]))]
+    _header(ws, 1, [name for name, _ in row])
+    for j, (_, v) in enumerate(row, start=1):
+        if isinstance(v, str):
+            put_text(ws, 2, j, v)
         else:
             _num(ws, 2, j, v, "0.000")
     _header(ws, 4, list(cols))
