@@ -34,7 +34,7 @@ from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, remove_stale_temporaries, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
-from survey.limits import MAX_SEED, check_finite, check_integer, check_seed
+from survey.limits import MAX_SEED, check_allocation, check_finite, check_integer, check_seed
 
 console = Console(stderr=True)
 
@@ -57,6 +57,19 @@ OUTPUT_NAMES = ("irregularities.csv", "alignment.png", "inservice.xlsx", "summar
 SENSOR_LABELS = ("wheelset accelerometer", "wheelset gyro", "frame accelerometer")
 #: and as keys of summary.json
 CONSISTENCY_KEYS = ("wheelset_ay", "wheelset_wz", "frame_ay")
+
+#: memory of `process` beyond the recording's filter samples: the libraries and the band sigma's
+#: blocks (measured with /usr/bin/time -v, docs/inservice.md "Memory"), bytes
+PROCESS_BASE_BYTES = 0.6e9
+
+
+def process_memory_bytes(samples: int, n_state: int) -> float:
+    """Peak memory `process` needs for a recording of ``samples`` samples at the filter rate and a
+    design model of ``n_state`` states, bytes (an estimate, on the large side): per sample the
+    forward filter's stored posterior and prior covariances, the smoother's gains and their
+    temporaries, about six n x n matrices of doubles, and the output columns.
+    Measured (bogie model, 20 states): 16-19 kB per sample above a base of 0.35-0.4 GB."""
+    return PROCESS_BASE_BYTES + samples * (48.0 * n_state ** 2 + 2000.0)
 
 
 def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
@@ -291,6 +304,19 @@ def process_cmd(
     import scipy.linalg  # noqa: F401
     t0 = time.process_time()
     q = decimation_factor(1.0 / dt, filter_rate_hz)
+    if mdl is None:
+        bog = bogie_nominal(rec)
+        params = BogieParameters(**bog) if bog is not None else ModelParameters(**rec.nominal)
+    n_state = (mdl.params if mdl is not None else params).n_state
+    try:
+        # before the filter's arrays: a recording too long for this machine is refused, not swapped
+        samples = (len(rec.t_s) + q - 1) // q
+        check_allocation(samples, process_memory_bytes(samples, n_state) / samples,
+                         f"{recording / 'sensors.csv'}: {len(rec.t_s)} samples over "
+                         f"{float(rec.s_m[-1] - rec.s_m[0]):.0f} m ({samples} at the filter rate, {n_state} states)",
+                         advice="process the recording in shorter parts")
+    except ValueError as exc:
+        _fail(str(exc))
     try:
         (t_f, s_f, v_f), z = decimated(q, [rec.t_s, rec.s_m, rec.speed_arr_m_s], z)
     except ValueError as exc:
@@ -331,8 +357,6 @@ def process_cmd(
         # the sensors' white noise per sample, after decimation by q
         noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4) / np.sqrt(q),
                                sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6) / np.sqrt(q))
-        bog = bogie_nominal(rec)
-        params = BogieParameters(**bog) if bog is not None else ModelParameters(**rec.nominal)
         est = estimate(params, t_f, s_f, v_f, z, noise=noise, curvature_1_m=rec.curvature_1_m or None,
                        smoother=smoother)
         scale, kind = 1.0, params.KIND
