@@ -259,7 +259,7 @@ def process_cmd(
     from trolley import units
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.bogie import BogieParameters
-    from trolley.inservice.estimator import SETTLE_M, NoiseDensities, band_alignment, estimate
+    from trolley.inservice.estimator import SETTLE_M, NoiseDensities, estimate_in_blocks
     from trolley.inservice.identification import HONESTY_BAND_M, model_consistency, speed_fits
     from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimated, decimation_factor
@@ -321,6 +321,11 @@ def process_cmd(
         (t_f, s_f, v_f), z = decimated(q, [rec.t_s, rec.s_m, rec.speed_arr_m_s], z)
     except ValueError as exc:
         _fail(f"{recording / 'sensors.csv'}: {exc}")
+    length = float(rec.s_m[-1] - rec.s_m[0])
+    xi_true = np.interp(s_f, tru["s_m"], tru["alignment_m"]) if tru is not None else None
+    # the filter, the smoother and the band sigma in blocks of estimator.BAND_BLOCK_M: the memory
+    # is the block's, whatever the recording's length (docs/inservice.md, "Long recordings")
+    band_m = HONESTY_BAND_M if length >= HONESTY_BAND_M[1] else None
     if mdl is not None:
         # a logger's clock a few ppm off (or the mean of jittered time stamps) is the calibration's
         # rate: at_dt would drop the consistency reference and warn of a J several times larger
@@ -340,9 +345,9 @@ def process_cmd(
             console.print(f"warning: the filter runs at {1.0 / (dt * q):g} Hz and the model was calibrated at "
                           f"{model_hz:g} Hz: J can be several times the calibrated one and its sigmas too "
                           f"small; {fix}", highlight=False, markup=False, soft_wrap=True)
-        est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
-                       curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
+        est = estimate_in_blocks(m.params, t_f, s_f, v_f, z, band_m, scale, xi_true, Q=m.Q, R=m.R, S=m.S,
+                                 curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         fit, not_checked = None, None
         if mdl.innovation_rms is None:
             not_checked = "the model file has no innovation reference (calibrated before the check existed)"
@@ -357,14 +362,10 @@ def process_cmd(
         # the sensors' white noise per sample, after decimation by q
         noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4) / np.sqrt(q),
                                sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6) / np.sqrt(q))
-        est = estimate(params, t_f, s_f, v_f, z, noise=noise, curvature_1_m=rec.curvature_1_m or None,
-                       smoother=smoother)
         scale, kind = 1.0, params.KIND
-    length = float(rec.s_m[-1] - rec.s_m[0])
-    xi_true = np.interp(s_f, tru["s_m"], tru["alignment_m"]) if tru is not None else None
-    band = None
-    if length >= HONESTY_BAND_M[1]:
-        band = band_alignment(est, *HONESTY_BAND_M, sigma_scale=scale, truth_m=xi_true)
+        est = estimate_in_blocks(params, t_f, s_f, v_f, z, band_m, scale, xi_true, noise=noise,
+                                 curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
+    band = est.band
     cpu = time.process_time() - t0
     sig = est.sigma_alignment_m * scale
     grid, (a_g, s_g) = uniform_grid(s_f, est.alignment_m, sig, step_m=OUTPUT_STEP_M)
@@ -375,7 +376,7 @@ def process_cmd(
                "design_model": kind, "sensor_gravity": bool(mdl.params.sensor_gravity) if mdl is not None else False,
                "recording_accelerometers_sense_gravity": rec.sense_gravity,
                "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
-               "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
+               "filter_rate_hz": 1.0 / (dt * q), "blocks": est.blocks, "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None,
                "recording_notes": list(rec.notes)}
     if mdl is None:

@@ -523,6 +523,9 @@ def _bandpass_matrix(n: int, step_m: float, short_m: float, long_m: float) -> np
 BAND_STEP_M = 0.5
 BAND_BLOCK_M = 1000.0
 BAND_MARGIN_WAVES = 2.0
+#: how far beyond a block's band window the smoother of :func:`estimate_in_blocks` is run, in long
+#: wavelengths of the band
+SMOOTHER_AHEAD_WAVES = 2.0
 
 
 def band_error_covariance(est: AlignmentEstimate, short_m: float, long_m: float, sigma_scale: float = 1.0):
@@ -678,3 +681,99 @@ def _band_window(est, lo, hi, g, d, short_m, long_m, values, out, rows, keep) ->
     for r, v in enumerate(values):
         out[r, rows] = bandpass_wavelength(np.interp(g, s, v), h, short_m, long_m)[keep]
     out[-1, rows] = np.sqrt(np.maximum(var[keep], 0.0))
+
+
+@dataclass
+class AlignmentProfile:
+    """Result of :func:`estimate_in_blocks`: the alignment and its sigma at every sample, the forward
+    filter's normalized innovations (as in :class:`AlignmentEstimate`, so :func:`innovation_rms`
+    takes it) and the band-passed alignment of :func:`band_alignment`, without the states and their
+    covariances (which a long record cannot hold).
+
+    Attributes
+    ----------
+    t_s, s_m : (N,) sample times (s) and chainages (m).
+    alignment_m, sigma_alignment_m : (N,) estimated alignment xi and its 1-sigma (not scaled), m.
+    normalized_innovations : (N, 4) as in :class:`AlignmentEstimate`.
+    smoother : "rts" or "none".
+    band : (grid_m, alignment_m, sigma_m[, truth_band_m]) as :func:`band_alignment` returns, or None.
+    blocks : number of blocks the record was smoothed in (1: :func:`estimate` on the whole record).
+    """
+
+    t_s: np.ndarray
+    s_m: np.ndarray
+    alignment_m: np.ndarray
+    sigma_alignment_m: np.ndarray
+    normalized_innovations: np.ndarray
+    smoother: str
+    band: tuple | None
+    blocks: int
+
+
+def estimate_in_blocks(p: DesignParameters, t_s, s_m, speed_m_s, measurements, band_m=None,
+                       sigma_scale: float = 1.0, truth_m=None, block_m: float | None = None,
+                       **kwargs) -> AlignmentProfile:
+    """:func:`estimate` and :func:`band_alignment` with memory bounded by the block, not the record.
+
+    The forward filter runs over the whole record and keeps only the samples of the current
+    window; the smoother and the band sigma run per block of :func:`band_alignment` (the same
+    blocks: :data:`BAND_BLOCK_M` and :data:`BAND_MARGIN_WAVES` long wavelengths of margin on both
+    sides), the smoother started at the window's last sample from the filter's posterior there,
+    and the block's own samples and grid points are kept. The smoother of a window then misses the
+    sensors beyond the margin, which it has forgotten by then (docs/inservice.md, "Long
+    recordings"). A record of one block (at most 1.5 ``block_m``), or without a band, is
+    :func:`estimate` and :func:`band_alignment` themselves, to the bit.
+
+    Parameters
+    ----------
+    p, t_s, s_m, speed_m_s, measurements, **kwargs : as :func:`estimate` (R, Q, noise,
+        curvature_1_m, smoother, initial_covariance, S).
+    band_m : (short_m, long_m) of the band-passed alignment, or None (no band, no blocks).
+    sigma_scale, truth_m : as :func:`band_alignment`.
+    block_m : block length, m (default :data:`BAND_BLOCK_M`).
+
+    Returns
+    -------
+    AlignmentProfile
+    """
+    s = np.asarray(s_m, float)
+    block_m = BAND_BLOCK_M if block_m is None else float(block_m)
+    grid = _band_grid(s, band_m[1]) if band_m is not None else None
+    if grid is None or grid[-1] - grid[0] <= 1.5 * block_m:
+        est = estimate(p, t_s, s, speed_m_s, measurements, **kwargs)
+        band = None if band_m is None else band_alignment(est, *band_m, sigma_scale=sigma_scale, truth_m=truth_m,
+                                                          block_m=block_m)
+        return AlignmentProfile(est.t_s, est.s_m, est.alignment_m, est.sigma_alignment_m,
+                                est.normalized_innovations, est.smoother, band, 1)
+    smoother = kwargs.pop("smoother", "rts")
+    if smoother not in ("rts", "none"):
+        raise ValueError(f"smoother must be 'rts' or 'none', got {smoother!r}")
+    fw = _ForwardFilter(p, t_s, speed_m_s, measurements, smoother=smoother, **kwargs)
+    n = fw.n
+    xi, sig, nu = np.empty(n), np.empty(n), np.empty((n, N_MEAS))
+    d = _coarse_step(s)
+    truth = None if truth_m is None else np.asarray(truth_m, float)
+    out = np.empty((2 + (truth is not None), len(grid)))
+    fwd, blocks = None, 0
+    for w, keep in _band_blocks(grid, block_m, BAND_MARGIN_WAVES * band_m[1]):
+        g = grid[w]
+        lo, hi = _window_samples(s, g)
+        # the smoother looks further ahead than the band's window: the unfiltered alignment's long
+        # waves are remembered over several hundred metres
+        ahead = min(int(np.searchsorted(s, g[-1] + SMOOTHER_AHEAD_WAVES * band_m[1])) + 1, n)
+        if ahead > fw.k:
+            new = fw.run(ahead)
+            nu[new["start"]:ahead] = new["Nu"]
+            fwd = _join(fwd, new, lo)
+        est = fw.smoothed(fwd, lo, ahead, s)
+        # the block's own samples: from its first grid point to (not including) the next block's
+        gk = g[keep]
+        a = int(np.searchsorted(s, gk[0] - 1e-9))
+        b = n if gk[-1] >= grid[-1] else int(np.searchsorted(s, gk[-1] + BAND_STEP_M - 1e-9))
+        xi[a:b], sig[a:b] = est.alignment_m[a - lo:b - lo], est.sigma_alignment_m[a - lo:b - lo]
+        values = [est.alignment_m] + ([truth[lo:ahead]] if truth is not None else [])
+        _band_window(est, 0, hi - lo, g, d, band_m[0], band_m[1], values, out, np.flatnonzero(w)[keep], keep)
+        blocks += 1
+        del est
+    band = (grid, out[0], sigma_scale * out[-1]) + ((out[1],) if truth is not None else ())
+    return AlignmentProfile(fw.t, s, xi, sig, nu, smoother, band, blocks)
