@@ -58,18 +58,18 @@ SENSOR_LABELS = ("wheelset accelerometer", "wheelset gyro", "frame accelerometer
 #: and as keys of summary.json
 CONSISTENCY_KEYS = ("wheelset_ay", "wheelset_wz", "frame_ay")
 
-#: memory of `process` beyond the recording's filter samples: the libraries and the band sigma's
-#: blocks (measured with /usr/bin/time -v, docs/inservice.md "Memory"), bytes
-PROCESS_BASE_BYTES = 0.6e9
+#: memory of `process` beyond the recording's samples: the libraries, one block's forward-filter
+#: window, smoother and band sigma (estimator.estimate_in_blocks; measured with /usr/bin/time -v,
+#: docs/inservice.md "Long recordings"), bytes
+PROCESS_BASE_BYTES = 1.4e9
 
 
 def process_memory_bytes(samples: int, n_state: int) -> float:
     """Peak memory `process` needs for a recording of ``samples`` samples at the filter rate and a
-    design model of ``n_state`` states, bytes (an estimate, on the large side): per sample the
-    forward filter's stored posterior and prior covariances, the smoother's gains and their
-    temporaries, about six n x n matrices of doubles, and the output columns.
-    Measured (bogie model, 20 states): 16-19 kB per sample above a base of 0.35-0.4 GB."""
-    return PROCESS_BASE_BYTES + samples * (48.0 * n_state ** 2 + 2000.0)
+    design model of ``n_state`` states, bytes (an estimate, on the large side): one block's window
+    (the base) and per sample the recording, the estimate's columns and the outputs (measured with
+    the bogie model, 20 states, 2-10 km: 1.8 kB per sample above 1.3 GB)."""
+    return PROCESS_BASE_BYTES + samples * (2500.0 + 4.0 * n_state ** 2)
 
 
 def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
