@@ -22,7 +22,7 @@ def physical_memory_bytes() -> int:
         return 8 << 30
 
 
-def check_allocation(count: float, bytes_each: float, what: str) -> None:
+def check_allocation(count: float, bytes_each: float, what: str, advice: str = "choose a coarser value") -> None:
     """Refuse a planned allocation larger than :data:`MEMORY_SHARE` of the physical memory.
 
     Parameters
@@ -30,6 +30,7 @@ def check_allocation(count: float, bytes_each: float, what: str) -> None:
     count : number of items (samples, stations, ...) the parameters ask for; may be inf or nan.
     bytes_each : memory one item needs through the computation, bytes (an estimate).
     what : what the user set, for the message (e.g. ``"--step 1e-07 over 120 m"``).
+    advice : what to do instead, the message's end.
 
     Raises
     ------
@@ -41,7 +42,7 @@ def check_allocation(count: float, bytes_each: float, what: str) -> None:
         need = "an unbounded amount" if not math.isfinite(count) else f"{count * bytes_each / 1e9:.3g} GB"
         n = "unbounded" if not math.isfinite(count) else f"{count:.3g}"
         raise ValueError(f"{what}: asks for {n} items, {need} of memory, more than this machine can give "
-                         f"({limit / 1e9:.3g} GB); choose a coarser value")
+                         f"({limit / 1e9:.3g} GB); {advice}")
 
 
 def shown(value: float) -> str:

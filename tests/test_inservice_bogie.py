@@ -213,3 +213,26 @@ def test_coarse_covariance_with_a_shorter_last_step_is_the_sample_recursion(smoo
                 full[i, j] = full[j, i] = W[XI_INDEX]
     want = full[np.ix_(idx, idx)]
     assert np.allclose(got, want, rtol=1e-9, atol=1e-12 * np.max(np.abs(want)))
+
+
+def test_estimate_in_blocks_agrees_with_the_whole_record():
+    # (review 26: memory grew with the record's length) the forward filter runs on, the smoother and
+    # the band sigma run per band block over its window; against the smoother of the whole record
+    # with the same band blocks, the band-passed estimate and sigma and the unfiltered ones agree
+    P = ModelParameters()
+    t, s, X, Z, noise = _own_model_run(P, 6000, 3, xi_density=4e-8)        # 600 m
+    kw = dict(noise=noise, initial_covariance=np.eye(7) * 1e-14)
+    e = estimate(P, t, s, 20.0, Z, **kw)
+    g, xb, sb, tb = band_alignment(e, 3.0, 70.0, sigma_scale=1.3, truth_m=X[:, 6], block_m=150.0)
+    pr = est_mod.estimate_in_blocks(P, t, s, 20.0, Z, (3.0, 70.0), 1.3, X[:, 6], block_m=150.0, **kw)
+    assert pr.blocks == 4          # 0-150-300-450-600 m
+    g2, xb2, sb2, tb2 = pr.band
+    assert np.array_equal(g, g2) and np.array_equal(tb, tb2)
+    assert np.max(np.abs(xb2 - xb) / sb) < 0.01 and np.max(np.abs(sb2 / sb - 1)) < 0.01
+    assert np.max(np.abs(pr.alignment_m - e.alignment_m) / e.sigma_alignment_m) < 0.05
+    assert np.max(np.abs(pr.sigma_alignment_m / e.sigma_alignment_m - 1)) < 0.01
+    assert np.array_equal(pr.normalized_innovations, e.normalized_innovations)
+    # one block is estimate + band_alignment themselves
+    one = est_mod.estimate_in_blocks(P, t, s, 20.0, Z, (3.0, 70.0), 1.3, X[:, 6], block_m=500.0, **kw)
+    assert one.blocks == 1 and np.array_equal(one.alignment_m, e.alignment_m)
+    assert np.array_equal(one.band[2], band_alignment(e, 3.0, 70.0, sigma_scale=1.3, block_m=500.0)[2])

@@ -283,3 +283,25 @@ def test_process_says_when_the_recording_is_of_another_vehicle(tmp_path):
     diffs = io.vehicle_differences(rec, bog)
     assert diffs["m_body_kg"] == (28000.0, 32000.0) and diffs["conicity"] == (0.2, 0.15)
     assert diffs["izz_frame_kg_m2"] == (1.0, bog.If) and "kx_primary_n_m" not in diffs
+
+
+def test_process_refuses_a_recording_too_long_for_the_memory(recording, tmp_path, monkeypatch):
+    # (review 26: an hour's recording needed some 14 GB and went to swap or the OOM killer without a
+    # word) the memory is estimated before the filter's arrays; a machine too small for it says so
+    import survey.limits
+
+    from survey.commands.inservice import process_memory_bytes
+
+    need = process_memory_bytes(1501, 20)
+    monkeypatch.setattr(survey.limits, "physical_memory_bytes", lambda: int(1.9 * need))
+    out = tmp_path / "out"
+    args = ["inservice", "process", str(recording / "recording"), "--out", str(out)]
+    res = CliRunner().invoke(_app(), args)
+    assert res.exit_code == 2, res.output
+    msg = " ".join(res.output.split())
+    assert str(recording / "recording" / "sensors.csv") in msg and "1501 samples" in msg, msg
+    assert "GB of memory" in msg and "shorter parts" in msg, msg
+    assert not out.exists()
+    monkeypatch.setattr(survey.limits, "physical_memory_bytes", lambda: int(2.1 * need))
+    res = CliRunner().invoke(_app(), args)
+    assert res.exit_code == 0, res.output

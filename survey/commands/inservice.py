@@ -34,7 +34,7 @@ from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, remove_stale_temporaries, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
-from survey.limits import MAX_SEED, check_finite, check_integer, check_seed
+from survey.limits import MAX_SEED, check_allocation, check_finite, check_integer, check_seed
 
 console = Console(stderr=True)
 
@@ -57,6 +57,19 @@ OUTPUT_NAMES = ("irregularities.csv", "alignment.png", "inservice.xlsx", "summar
 SENSOR_LABELS = ("wheelset accelerometer", "wheelset gyro", "frame accelerometer")
 #: and as keys of summary.json
 CONSISTENCY_KEYS = ("wheelset_ay", "wheelset_wz", "frame_ay")
+
+#: memory of `process` beyond the recording's samples: the libraries, one block's forward-filter
+#: window, smoother and band sigma (estimator.estimate_in_blocks; measured with /usr/bin/time -v,
+#: docs/inservice.md "Long recordings"), bytes
+PROCESS_BASE_BYTES = 1.4e9
+
+
+def process_memory_bytes(samples: int, n_state: int) -> float:
+    """Peak memory `process` needs for a recording of ``samples`` samples at the filter rate and a
+    design model of ``n_state`` states, bytes (an estimate, on the large side): one block's window
+    (the base) and per sample the recording, the estimate's columns and the outputs (measured with
+    the bogie model, 20 states, 2-10 km: 1.8 kB per sample above 1.3 GB)."""
+    return PROCESS_BASE_BYTES + samples * (2500.0 + 4.0 * n_state ** 2)
 
 
 def _write_png(path: Path, cols: dict, truth_mm=None, title: str = "") -> None:
@@ -250,7 +263,7 @@ def process_cmd(
     from trolley import units
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.bogie import BogieParameters
-    from trolley.inservice.estimator import SETTLE_M, NoiseDensities, band_alignment, estimate
+    from trolley.inservice.estimator import SETTLE_M, NoiseDensities, estimate_in_blocks
     from trolley.inservice.identification import HONESTY_BAND_M, model_consistency, speed_fits
     from trolley.inservice.model import ModelParameters
     from trolley.inservice.resample import decimated, decimation_factor
@@ -295,10 +308,28 @@ def process_cmd(
     import scipy.linalg  # noqa: F401
     t0 = time.process_time()
     q = decimation_factor(1.0 / dt, filter_rate_hz)
+    if mdl is None:
+        bog = bogie_nominal(rec)
+        params = BogieParameters(**bog) if bog is not None else ModelParameters(**rec.nominal)
+    n_state = (mdl.params if mdl is not None else params).n_state
+    try:
+        # before the filter's arrays: a recording too long for this machine is refused, not swapped
+        samples = (len(rec.t_s) + q - 1) // q
+        check_allocation(samples, process_memory_bytes(samples, n_state) / samples,
+                         f"{recording / 'sensors.csv'}: {len(rec.t_s)} samples over "
+                         f"{float(rec.s_m[-1] - rec.s_m[0]):.0f} m ({samples} at the filter rate, {n_state} states)",
+                         advice="process the recording in shorter parts")
+    except ValueError as exc:
+        _fail(str(exc))
     try:
         (t_f, s_f, v_f), z = decimated(q, [rec.t_s, rec.s_m, rec.speed_arr_m_s], z)
     except ValueError as exc:
         _fail(f"{recording / 'sensors.csv'}: {exc}")
+    length = float(rec.s_m[-1] - rec.s_m[0])
+    xi_true = np.interp(s_f, tru["s_m"], tru["alignment_m"]) if tru is not None else None
+    # the filter, the smoother and the band sigma in blocks of estimator.BAND_BLOCK_M: the memory
+    # is the block's, whatever the recording's length (docs/inservice.md, "Long recordings")
+    band_m = HONESTY_BAND_M if length >= HONESTY_BAND_M[1] else None
     if mdl is not None:
         # a logger's clock a few ppm off (or the mean of jittered time stamps) is the calibration's
         # rate: at_dt would drop the consistency reference and warn of a J several times larger
@@ -318,9 +349,9 @@ def process_cmd(
             console.print(f"warning: the filter runs at {1.0 / (dt * q):g} Hz and the model was calibrated at "
                           f"{model_hz:g} Hz: J can be several times the calibrated one and its sigmas too "
                           f"small; {fix}", highlight=False, markup=False, soft_wrap=True)
-        est = estimate(m.params, t_f, s_f, v_f, z, Q=m.Q, R=m.R, S=m.S,
-                       curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         scale, kind = m.sigma_scale, m.params.KIND
+        est = estimate_in_blocks(m.params, t_f, s_f, v_f, z, band_m, scale, xi_true, Q=m.Q, R=m.R, S=m.S,
+                                 curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
         fit, not_checked = None, None
         if mdl.innovation_rms is None:
             not_checked = "the model file has no innovation reference (calibrated before the check existed)"
@@ -335,16 +366,10 @@ def process_cmd(
         # the sensors' white noise per sample, after decimation by q
         noise = NoiseDensities(sigma_acc_m_s2=max(rec.sigma_acc_m_s2, 1e-4) / np.sqrt(q),
                                sigma_gyro_rad_s=max(rec.sigma_gyro_rad_s, 1e-6) / np.sqrt(q))
-        bog = bogie_nominal(rec)
-        params = BogieParameters(**bog) if bog is not None else ModelParameters(**rec.nominal)
-        est = estimate(params, t_f, s_f, v_f, z, noise=noise, curvature_1_m=rec.curvature_1_m or None,
-                       smoother=smoother)
         scale, kind = 1.0, params.KIND
-    length = float(rec.s_m[-1] - rec.s_m[0])
-    xi_true = np.interp(s_f, tru["s_m"], tru["alignment_m"]) if tru is not None else None
-    band = None
-    if length >= HONESTY_BAND_M[1]:
-        band = band_alignment(est, *HONESTY_BAND_M, sigma_scale=scale, truth_m=xi_true)
+        est = estimate_in_blocks(params, t_f, s_f, v_f, z, band_m, scale, xi_true, noise=noise,
+                                 curvature_1_m=rec.curvature_1_m or None, smoother=smoother)
+    band = est.band
     cpu = time.process_time() - t0
     sig = est.sigma_alignment_m * scale
     grid, (a_g, s_g) = uniform_grid(s_f, est.alignment_m, sig, step_m=OUTPUT_STEP_M)
@@ -355,7 +380,7 @@ def process_cmd(
                "design_model": kind, "sensor_gravity": bool(mdl.params.sensor_gravity) if mdl is not None else False,
                "recording_accelerometers_sense_gravity": rec.sense_gravity,
                "calibrated": mdl is not None, "sensor_rate_hz": 1.0 / dt,
-               "filter_rate_hz": 1.0 / (dt * q), "cpu_s": round(cpu, 4), "duration_s": duration,
+               "filter_rate_hz": 1.0 / (dt * q), "blocks": est.blocks, "cpu_s": round(cpu, 4), "duration_s": duration,
                "real_time_ratio": round(duration / cpu, 1) if cpu > 0 else None,
                "recording_notes": list(rec.notes)}
     if mdl is None:

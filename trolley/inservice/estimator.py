@@ -280,100 +280,151 @@ def estimate(p: DesignParameters, t_s, s_m, speed_m_s, measurements, R=None, Q=N
     -------
     AlignmentEstimate
     """
-    from filterpy.kalman import KalmanFilter, rts_smoother
-
     if smoother not in ("rts", "none"):
         raise ValueError(f"smoother must be 'rts' or 'none', got {smoother!r}")
-    t = np.asarray(t_s, float)
-    n = len(t)
-    zm = np.asarray(measurements, float)
-    if zm.shape != (n, 3):
-        raise ValueError(f"measurements must have shape ({n}, 3), got {zm.shape}")
-    if n < 2:
-        raise ValueError("need at least two samples")
-    dts = np.diff(t)
-    dt = float(np.median(dts))
-    if not (dt > 0 and np.allclose(dts, dt, rtol=1e-3, atol=1e-9)):
-        raise ValueError("sample times must be uniform and increasing")
-    noise = noise or NoiseDensities()
-    R = noise.r() if R is None else np.asarray(R, float)
-    v = np.broadcast_to(np.asarray(speed_m_s, float), t.shape)
-    if not np.all(v > 0):
-        raise ValueError("speed must be > 0 m/s throughout (the SM's creep damping goes with 1/V)")
-    kap = np.zeros(n) if curvature_1_m is None else np.broadcast_to(np.asarray(curvature_1_m, float), t.shape)
-    curved = bool(np.any(kap != 0))
+    fw = _ForwardFilter(p, t_s, speed_m_s, measurements, R=R, Q=Q, noise=noise, curvature_1_m=curvature_1_m,
+                        smoother=smoother, initial_covariance=initial_covariance, S=S)
+    return fw.smoothed(fw.run(fw.n), 0, fw.n, np.asarray(s_m, float))
 
-    bins = np.round(v / SPEED_BIN_M_S).astype(np.int64)
-    ubins, which = np.unique(bins, return_inverse=True)
-    models = [discrete_model(p, b * SPEED_BIN_M_S, dt, Q=Q, noise=noise) for b in ubins]
-    H = models[0].H
-    if S is not None:
-        S = np.asarray(S, float)
-        J = S @ np.linalg.inv(R)
-        models = [DiscreteModel(m.F - J @ H, m.G, H, m.D, 0.5 * ((m.Q - J @ S.T) + (m.Q - J @ S.T).T))
-                  for m in models]
-    # measurements with the known curvature feed removed, as (N, 4, 1) column vectors
-    Dk = np.stack([mdl.D[:, 0] for mdl in models])[which] * kap[:, None]
-    z = np.column_stack([zm, np.zeros(n)]) - Dk
-    zcol = z[:, :, None]
 
-    ns = models[0].F.shape[0]
-    Jz = np.zeros((n, ns)) if S is None else z @ J.T      # J z_k, input of step k + 1
-    Xp = np.empty((n, ns)) if S is not None else None      # priors for the smoother with inputs
-    Pp = np.empty((n, ns, ns)) if S is not None else None
-    kf = KalmanFilter(dim_x=ns, dim_z=N_MEAS, dim_u=1)
-    kf.H = H
-    kf.R = R
-    kf.x = np.zeros((ns, 1))
-    kf.P = _initial_covariance(p.state_kinds) if initial_covariance is None else np.asarray(initial_covariance, float)
-    Xf = np.empty((n, ns))
-    Pf = np.empty((n, ns, ns))
-    Af = np.empty((n, ns, ns)) if smoother == "none" else None
-    Nu = np.empty((n, N_MEAS))       # innovations, then normalized by their predicted sigmas
-    Su = np.empty((n, N_MEAS))
-    det = np.zeros((n, ns))          # deterministic response to the curvature input
-    d = np.zeros(ns)
-    u = np.zeros((1, 1))
-    for k in range(n):
-        if k:
-            mdl = models[which[k]]
-            kf.F, kf.Q, kf.B = mdl.F, mdl.Q, mdl.G
-            u[0, 0] = kap[k - 1]
-            kf.predict(u=u)
-            if S is not None:
-                kf.x[:, 0] += Jz[k - 1]
-                Xp[k], Pp[k] = kf.x[:, 0], kf.P
-            elif curved:
-                d = mdl.F @ d + mdl.G[:, 0] * kap[k - 1]
-                det[k] = d
-        kf.update(zcol[k])
-        Nu[k] = kf.y[:, 0]
-        Su[k] = kf.S.diagonal()
-        Xf[k] = kf.x[:, 0]
-        Pf[k] = kf.P
-        if Af is not None:
-            Af[k] = (np.eye(ns) - kf.K @ H) @ models[which[k]].F
-    if smoother == "rts" and S is not None:
-        X, P, trans = _rts_from_priors(Xf, Pf, Xp, Pp, [models[w].F for w in which])
-    elif smoother == "rts":
-        # filterpy's F[k] takes step k to k + 1; ours (models[which[k]]) takes k - 1 to k
-        Fs = [models[w].F for w in which[1:]] + [models[which[-1]].F]
-        Qs = [models[w].Q for w in which[1:]] + [models[which[-1]].Q]
-        Xs, Ps, trans, _ = rts_smoother((Xf - det)[:, :, None], Pf, Fs, Qs)
-        X, P = Xs[:, :, 0] + det, Ps
-    else:
-        X, P, trans = Xf, Pf, Af
-    if smoother == "rts":
-        # The RTS covariance update P_k + C_k (P_(k+1)^s - P_(k+1|k)) C_k^T cancels badly right after a
-        # wide P0 (stiff dynamics, exact accelerometers) and can leave a negative variance in the first
-        # samples; the filter's P_k, which the smoothed one never exceeds, is used there instead.
-        bad = np.any(np.einsum("kii->ki", P) < 0.0, axis=1)
-        if bad.any():
-            P = P.copy()
-            P[bad] = Pf[bad]
-    sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 0.0))
-    Nu /= np.sqrt(Su)
-    return AlignmentEstimate(t, np.asarray(s_m, float), X, sig, Xf, smoother, trans, P[:, :, XI_INDEX].copy(), Nu)
+class _ForwardFilter:
+    """The forward filter of :func:`estimate` (Eq. 18-24), run over a record in consecutive pieces
+    (:meth:`run`), and the smoother over any stretch of what it stored (:meth:`smoothed`): a long
+    record is smoothed in overlapping windows (:func:`estimate_in_blocks`) while the filter runs on."""
+
+    def __init__(self, p, t_s, speed_m_s, measurements, R=None, Q=None, noise=None, curvature_1_m=None,
+                 smoother="rts", initial_covariance=None, S=None):
+        from filterpy.kalman import KalmanFilter
+
+        t = np.asarray(t_s, float)
+        n = len(t)
+        zm = np.asarray(measurements, float)
+        if zm.shape != (n, 3):
+            raise ValueError(f"measurements must have shape ({n}, 3), got {zm.shape}")
+        if n < 2:
+            raise ValueError("need at least two samples")
+        dts = np.diff(t)
+        dt = float(np.median(dts))
+        if not (dt > 0 and np.allclose(dts, dt, rtol=1e-3, atol=1e-9)):
+            raise ValueError("sample times must be uniform and increasing")
+        noise = noise or NoiseDensities()
+        R = noise.r() if R is None else np.asarray(R, float)
+        v = np.broadcast_to(np.asarray(speed_m_s, float), t.shape)
+        if not np.all(v > 0):
+            raise ValueError("speed must be > 0 m/s throughout (the SM's creep damping goes with 1/V)")
+        kap = np.zeros(n) if curvature_1_m is None else np.broadcast_to(np.asarray(curvature_1_m, float), t.shape)
+        self.curved = bool(np.any(kap != 0))
+
+        bins = np.round(v / SPEED_BIN_M_S).astype(np.int64)
+        ubins, which = np.unique(bins, return_inverse=True)
+        models = [discrete_model(p, b * SPEED_BIN_M_S, dt, Q=Q, noise=noise) for b in ubins]
+        H = models[0].H
+        J = None
+        if S is not None:
+            S = np.asarray(S, float)
+            J = S @ np.linalg.inv(R)
+            models = [DiscreteModel(m.F - J @ H, m.G, H, m.D, 0.5 * ((m.Q - J @ S.T) + (m.Q - J @ S.T).T))
+                      for m in models]
+        # measurements with the known curvature feed removed
+        Dk = np.stack([mdl.D[:, 0] for mdl in models])[which] * kap[:, None]
+        self.z = np.column_stack([zm, np.zeros(n)]) - Dk
+        self.t, self.n, self.kap, self.which, self.models, self.H, self.J, self.S = t, n, kap, which, models, H, J, S
+        self.smoother = smoother
+        self.ns = models[0].F.shape[0]
+        kf = KalmanFilter(dim_x=self.ns, dim_z=N_MEAS, dim_u=1)
+        kf.H = H
+        kf.R = R
+        kf.x = np.zeros((self.ns, 1))
+        kf.P = _initial_covariance(p.state_kinds) if initial_covariance is None else np.asarray(initial_covariance, float)
+        self.kf = kf
+        self.k = 0                       # the next sample to filter
+        self.d = np.zeros(self.ns)       # deterministic response to the curvature input
+
+    def run(self, stop: int) -> dict:
+        """Filter the samples from the next one to ``stop`` - 1; returns their arrays: the posterior
+        states and covariances Xf, Pf, the priors Xp, Pp (with S), the error transitions Af (without
+        the smoother), the innovations Nu normalized by their predicted sigmas, and det, the
+        deterministic curvature response (curved track without S)."""
+        k0, ns, S, kf, H, models, which, kap = self.k, self.ns, self.S, self.kf, self.H, self.models, self.which, self.kap
+        m = stop - k0
+        z = self.z[k0:stop]
+        zcol = z[:, :, None]
+        Jz = None if S is None else self.z[max(k0 - 1, 0):stop] @ self.J.T   # J z_k, input of step k + 1
+        jo = 1 if k0 else 0
+        Xp = np.empty((m, ns)) if S is not None else None      # priors for the smoother with inputs
+        Pp = np.empty((m, ns, ns)) if S is not None else None
+        Xf = np.empty((m, ns))
+        Pf = np.empty((m, ns, ns))
+        Af = np.empty((m, ns, ns)) if self.smoother == "none" else None
+        Nu = np.empty((m, N_MEAS))       # innovations, then normalized by their predicted sigmas
+        Su = np.empty((m, N_MEAS))
+        det = np.zeros((m, ns)) if (self.curved and S is None) else None
+        d = self.d
+        u = np.zeros((1, 1))
+        for i in range(m):
+            k = k0 + i
+            if k:
+                mdl = models[which[k]]
+                kf.F, kf.Q, kf.B = mdl.F, mdl.Q, mdl.G
+                u[0, 0] = kap[k - 1]
+                kf.predict(u=u)
+                if S is not None:
+                    kf.x[:, 0] += Jz[i - 1 + jo]
+                    Xp[i], Pp[i] = kf.x[:, 0], kf.P
+                elif det is not None:
+                    d = mdl.F @ d + mdl.G[:, 0] * kap[k - 1]
+                    det[i] = d
+            kf.update(zcol[i])
+            Nu[i] = kf.y[:, 0]
+            Su[i] = kf.S.diagonal()
+            Xf[i] = kf.x[:, 0]
+            Pf[i] = kf.P
+            if Af is not None:
+                Af[i] = (np.eye(ns) - kf.K @ H) @ models[which[k]].F
+        self.d, self.k = d, stop
+        Nu /= np.sqrt(Su)
+        return {"start": k0, "Xf": Xf, "Pf": Pf, "Xp": Xp, "Pp": Pp, "Af": Af, "Nu": Nu, "det": det}
+
+    def smoothed(self, fwd: dict, lo: int, hi: int, s_m: np.ndarray) -> AlignmentEstimate:
+        """The estimate of the samples lo..hi - 1 (indices of the record; ``fwd`` holds them, as made
+        by :meth:`run` or joined by :func:`_join`): the RTS smoother started at sample hi - 1 from the
+        filter's posterior there (the whole record's smoother when hi is its end), or the filter."""
+        from filterpy.kalman import rts_smoother
+
+        a, b = lo - fwd["start"], hi - fwd["start"]
+        Xf, Pf = fwd["Xf"][a:b], fwd["Pf"][a:b]
+        models, which = self.models, self.which[lo:hi]
+        if self.smoother == "rts" and self.S is not None:
+            X, P, trans = _rts_from_priors(Xf, Pf, fwd["Xp"][a:b], fwd["Pp"][a:b], [models[w].F for w in which])
+        elif self.smoother == "rts":
+            det = fwd["det"][a:b] if fwd["det"] is not None else np.zeros_like(Xf)
+            # filterpy's F[k] takes step k to k + 1; ours (models[which[k]]) takes k - 1 to k
+            Fs = [models[w].F for w in which[1:]] + [models[which[-1]].F]
+            Qs = [models[w].Q for w in which[1:]] + [models[which[-1]].Q]
+            Xs, Ps, trans, _ = rts_smoother((Xf - det)[:, :, None], Pf, Fs, Qs)
+            X, P = Xs[:, :, 0] + det, Ps
+        else:
+            X, P, trans = Xf, Pf, fwd["Af"][a:b]
+        if self.smoother == "rts":
+            # The RTS covariance update P_k + C_k (P_(k+1)^s - P_(k+1|k)) C_k^T cancels badly right after a
+            # wide P0 (stiff dynamics, exact accelerometers) and can leave a negative variance in the first
+            # samples; the filter's P_k, which the smoothed one never exceeds, is used there instead.
+            bad = np.any(np.einsum("kii->ki", P) < 0.0, axis=1)
+            if bad.any():
+                P = P.copy()
+                P[bad] = Pf[bad]
+        sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 0.0))
+        return AlignmentEstimate(self.t[lo:hi], s_m[lo:hi], X, sig, Xf, self.smoother, trans,
+                                 P[:, :, XI_INDEX].copy(), fwd["Nu"][a:b])
+
+
+def _join(old: dict | None, new: dict, lo: int) -> dict:
+    """The forward filter's arrays of ``old`` from sample lo on, followed by ``new``'s."""
+    if old is None or lo >= new["start"]:
+        return new
+    a = lo - old["start"]
+    return {"start": lo, **{key: None if v is None else np.concatenate([v[a:], new[key]])
+                            for key, v in old.items() if key != "start"}}
 
 
 def innovation_rms(est: AlignmentEstimate, skip_m: float = SETTLE_M) -> np.ndarray:
@@ -472,6 +523,9 @@ def _bandpass_matrix(n: int, step_m: float, short_m: float, long_m: float) -> np
 BAND_STEP_M = 0.5
 BAND_BLOCK_M = 1000.0
 BAND_MARGIN_WAVES = 2.0
+#: how far beyond a block's band window the smoother of :func:`estimate_in_blocks` is run, in long
+#: wavelengths of the band
+SMOOTHER_AHEAD_WAVES = 2.0
 
 
 def band_error_covariance(est: AlignmentEstimate, short_m: float, long_m: float, sigma_scale: float = 1.0):
@@ -528,7 +582,7 @@ def honesty_spread(covariance: np.ndarray, low: float = 0.7, high: float = 1.3, 
 
 
 def band_alignment(est: AlignmentEstimate, short_m: float, long_m: float, sigma_scale: float = 1.0,
-                   truth_m=None):
+                   truth_m=None, block_m: float | None = None):
     """The alignment band-passed to short_m-long_m (the EN 13848 wavelength range, trolley.bands)
     and the 1-sigma of that band-passed estimate, on a uniform grid of :data:`BAND_STEP_M`.
 
@@ -550,6 +604,7 @@ def band_alignment(est: AlignmentEstimate, short_m: float, long_m: float, sigma_
     short_m, long_m : band limits (wavelengths), m.
     sigma_scale : calibration factor of the sigmas (identification.EstimatorModel.sigma_scale).
     truth_m : optional (N,) true alignment at ``est.s_m``, band-passed by the same operator.
+    block_m : block length, m (default :data:`BAND_BLOCK_M`).
 
     Returns
     -------
@@ -558,40 +613,167 @@ def band_alignment(est: AlignmentEstimate, short_m: float, long_m: float, sigma_
     sigma_m : (G,) its 1-sigma, m.
     truth_band_m : (G,) the band-passed truth (only when ``truth_m`` is given).
     """
-    from trolley.bands import bandpass_wavelength
-
     if est.transitions is None or est.cov_xi is None:
         raise ValueError("band_alignment needs an estimate made by estimate()")
     s = np.asarray(est.s_m, float)
+    grid = _band_grid(s, long_m)
+    d = _coarse_step(s)
+    values = [est.alignment_m] + ([np.asarray(truth_m, float)] if truth_m is not None else [])
+    out = np.empty((len(values) + 1, len(grid)))
+    for w, keep in _band_blocks(grid, BAND_BLOCK_M if block_m is None else block_m, BAND_MARGIN_WAVES * long_m):
+        lo, hi = _window_samples(s, grid[w])
+        _band_window(est, lo, hi, grid[w], d, short_m, long_m, values, out, np.flatnonzero(w)[keep], keep)
+    res = (grid, out[0], sigma_scale * out[-1])
+    return res + (out[1],) if truth_m is not None else res
+
+
+def _band_grid(s: np.ndarray, long_m: float) -> np.ndarray:
+    """The grid of :func:`band_alignment` over the chainages s."""
     h = BAND_STEP_M
     grid = s[0] + h * np.arange(int(np.floor((s[-1] - s[0]) / h + 1e-9)) + 1)
     if grid[-1] - grid[0] < long_m:
         raise ValueError(f"a {grid[-1] - grid[0]:.1f} m record cannot hold waves of {long_m} m")
-    d = max(1, int(round(h / float(np.median(np.diff(s))))))
-    margin = BAND_MARGIN_WAVES * long_m
-    values = [est.alignment_m] + ([np.asarray(truth_m, float)] if truth_m is not None else [])
-    out = np.empty((len(values) + 1, len(grid)))
+    return grid
+
+
+def _coarse_step(s: np.ndarray) -> int:
+    """Samples per step of the band grid."""
+    return max(1, int(round(BAND_STEP_M / float(np.median(np.diff(s))))))
+
+
+def _band_blocks(grid: np.ndarray, block_m: float, margin_m: float):
+    """The blocks a long record is band-passed (and smoothed) in: for each, the window of the grid
+    it is filtered over (a mask of ``grid``: the block and ``margin_m`` on both sides, cut at the
+    record's ends) and the block's own points within that window (a mask of ``grid[window]``). A
+    rest of up to half a block joins the last block; a record of up to 1.5 blocks is one block."""
     start = grid[0]
     while True:
-        stop = grid[-1] if grid[-1] - start <= 1.5 * BAND_BLOCK_M else start + BAND_BLOCK_M
-        w = (grid >= start - margin - 1e-9) & (grid <= stop + margin + 1e-9)
+        stop = grid[-1] if grid[-1] - start <= 1.5 * block_m else start + block_m
+        w = (grid >= start - margin_m - 1e-9) & (grid <= stop + margin_m + 1e-9)
         g = grid[w]
-        lo = max(np.searchsorted(s, g[0], side="right") - 1, 0)
-        hi = min(np.searchsorted(s, g[-1]) + 1, len(s))
-        idx = np.unique(np.r_[np.arange(lo, hi, d), hi - 1])
-        L = _interpolation_matrix(s[idx], g)
-        Cg = L @ (L @ _coarse_alignment_covariance(est, idx)).T
-        # diag(B Cg B^T) with B the band-pass as a matrix: filtering the columns of Cg gives B Cg,
-        # O(G^2) instead of a G^3 product
-        B = _bandpass_matrix(len(g), h, short_m, long_m)
-        var = np.sum(bandpass_wavelength(Cg, h, short_m, long_m, axis=0) * B, axis=1)
-        keep = (g >= start - 1e-9) & ((g < stop - 1e-9) | (stop >= grid[-1]))
-        rows = np.flatnonzero(w)[keep]
-        for r, v in enumerate(values):
-            out[r, rows] = bandpass_wavelength(np.interp(g, s, v), h, short_m, long_m)[keep]
-        out[-1, rows] = np.sqrt(np.maximum(var[keep], 0.0))
+        yield w, (g >= start - 1e-9) & ((g < stop - 1e-9) | (stop >= grid[-1]))
         if stop >= grid[-1]:
-            break
+            return
         start = stop
-    res = (grid, out[0], sigma_scale * out[-1])
-    return res + (out[1],) if truth_m is not None else res
+
+
+def _window_samples(s: np.ndarray, g: np.ndarray) -> tuple[int, int]:
+    """The samples lo..hi - 1 of the chainages s that cover the window grid g."""
+    lo = max(np.searchsorted(s, g[0], side="right") - 1, 0)
+    hi = min(np.searchsorted(s, g[-1]) + 1, len(s))
+    return int(lo), int(hi)
+
+
+def _band_window(est, lo, hi, g, d, short_m, long_m, values, out, rows, keep) -> None:
+    """One window of :func:`band_alignment`: the band-passed ``values`` (at est.s_m) and the band
+    sigma over the window grid g from the samples lo..hi - 1 of ``est``, the points ``keep`` of g
+    written to the columns ``rows`` of ``out`` (values first, the sigma last)."""
+    from trolley.bands import bandpass_wavelength
+
+    s, h = est.s_m, BAND_STEP_M
+    idx = np.unique(np.r_[np.arange(lo, hi, d), hi - 1])
+    L = _interpolation_matrix(s[idx], g)
+    Cg = L @ (L @ _coarse_alignment_covariance(est, idx)).T
+    # diag(B Cg B^T) with B the band-pass as a matrix: filtering the columns of Cg gives B Cg,
+    # O(G^2) instead of a G^3 product
+    B = _bandpass_matrix(len(g), h, short_m, long_m)
+    var = np.sum(bandpass_wavelength(Cg, h, short_m, long_m, axis=0) * B, axis=1)
+    for r, v in enumerate(values):
+        out[r, rows] = bandpass_wavelength(np.interp(g, s, v), h, short_m, long_m)[keep]
+    out[-1, rows] = np.sqrt(np.maximum(var[keep], 0.0))
+
+
+@dataclass
+class AlignmentProfile:
+    """Result of :func:`estimate_in_blocks`: the alignment and its sigma at every sample, the forward
+    filter's normalized innovations (as in :class:`AlignmentEstimate`, so :func:`innovation_rms`
+    takes it) and the band-passed alignment of :func:`band_alignment`, without the states and their
+    covariances (which a long record cannot hold).
+
+    Attributes
+    ----------
+    t_s, s_m : (N,) sample times (s) and chainages (m).
+    alignment_m, sigma_alignment_m : (N,) estimated alignment xi and its 1-sigma (not scaled), m.
+    normalized_innovations : (N, 4) as in :class:`AlignmentEstimate`.
+    smoother : "rts" or "none".
+    band : (grid_m, alignment_m, sigma_m[, truth_band_m]) as :func:`band_alignment` returns, or None.
+    blocks : number of blocks the record was smoothed in (1: :func:`estimate` on the whole record).
+    """
+
+    t_s: np.ndarray
+    s_m: np.ndarray
+    alignment_m: np.ndarray
+    sigma_alignment_m: np.ndarray
+    normalized_innovations: np.ndarray
+    smoother: str
+    band: tuple | None
+    blocks: int
+
+
+def estimate_in_blocks(p: DesignParameters, t_s, s_m, speed_m_s, measurements, band_m=None,
+                       sigma_scale: float = 1.0, truth_m=None, block_m: float | None = None,
+                       **kwargs) -> AlignmentProfile:
+    """:func:`estimate` and :func:`band_alignment` with memory bounded by the block, not the record.
+
+    The forward filter runs over the whole record and keeps only the samples of the current
+    window; the smoother and the band sigma run per block of :func:`band_alignment` (the same
+    blocks: :data:`BAND_BLOCK_M` and :data:`BAND_MARGIN_WAVES` long wavelengths of margin on both
+    sides), the smoother started at the window's last sample from the filter's posterior there,
+    and the block's own samples and grid points are kept. The smoother of a window then misses the
+    sensors beyond the margin, which it has forgotten by then (docs/inservice.md, "Long
+    recordings"). A record of one block (at most 1.5 ``block_m``), or without a band, is
+    :func:`estimate` and :func:`band_alignment` themselves, to the bit.
+
+    Parameters
+    ----------
+    p, t_s, s_m, speed_m_s, measurements, **kwargs : as :func:`estimate` (R, Q, noise,
+        curvature_1_m, smoother, initial_covariance, S).
+    band_m : (short_m, long_m) of the band-passed alignment, or None (no band, no blocks).
+    sigma_scale, truth_m : as :func:`band_alignment`.
+    block_m : block length, m (default :data:`BAND_BLOCK_M`).
+
+    Returns
+    -------
+    AlignmentProfile
+    """
+    s = np.asarray(s_m, float)
+    block_m = BAND_BLOCK_M if block_m is None else float(block_m)
+    grid = _band_grid(s, band_m[1]) if band_m is not None else None
+    if grid is None or grid[-1] - grid[0] <= 1.5 * block_m:
+        est = estimate(p, t_s, s, speed_m_s, measurements, **kwargs)
+        band = None if band_m is None else band_alignment(est, *band_m, sigma_scale=sigma_scale, truth_m=truth_m,
+                                                          block_m=block_m)
+        return AlignmentProfile(est.t_s, est.s_m, est.alignment_m, est.sigma_alignment_m,
+                                est.normalized_innovations, est.smoother, band, 1)
+    smoother = kwargs.pop("smoother", "rts")
+    if smoother not in ("rts", "none"):
+        raise ValueError(f"smoother must be 'rts' or 'none', got {smoother!r}")
+    fw = _ForwardFilter(p, t_s, speed_m_s, measurements, smoother=smoother, **kwargs)
+    n = fw.n
+    xi, sig, nu = np.empty(n), np.empty(n), np.empty((n, N_MEAS))
+    d = _coarse_step(s)
+    truth = None if truth_m is None else np.asarray(truth_m, float)
+    out = np.empty((2 + (truth is not None), len(grid)))
+    fwd, blocks = None, 0
+    for w, keep in _band_blocks(grid, block_m, BAND_MARGIN_WAVES * band_m[1]):
+        g = grid[w]
+        lo, hi = _window_samples(s, g)
+        # the smoother looks further ahead than the band's window: the unfiltered alignment's long
+        # waves are remembered over several hundred metres
+        ahead = min(int(np.searchsorted(s, g[-1] + SMOOTHER_AHEAD_WAVES * band_m[1])) + 1, n)
+        if ahead > fw.k:
+            new = fw.run(ahead)
+            nu[new["start"]:ahead] = new["Nu"]
+            fwd = _join(fwd, new, lo)
+        est = fw.smoothed(fwd, lo, ahead, s)
+        # the block's own samples: from its first grid point to (not including) the next block's
+        gk = g[keep]
+        a = int(np.searchsorted(s, gk[0] - 1e-9))
+        b = n if gk[-1] >= grid[-1] else int(np.searchsorted(s, gk[-1] + BAND_STEP_M - 1e-9))
+        xi[a:b], sig[a:b] = est.alignment_m[a - lo:b - lo], est.sigma_alignment_m[a - lo:b - lo]
+        values = [est.alignment_m] + ([truth[lo:ahead]] if truth is not None else [])
+        _band_window(est, 0, hi - lo, g, d, band_m[0], band_m[1], values, out, np.flatnonzero(w)[keep], keep)
+        blocks += 1
+        del est
+    band = (grid, out[0], sigma_scale * out[-1]) + ((out[1],) if truth is not None else ())
+    return AlignmentProfile(fw.t, s, xi, sig, nu, smoother, band, blocks)
