@@ -761,6 +761,8 @@ def estimate_in_blocks(p: DesignParameters, t_s, s_m, speed_m_s, measurements, b
         # the smoother looks further ahead than the band's window: the unfiltered alignment's long
         # waves are remembered over several hundred metres
         ahead = min(int(np.searchsorted(s, g[-1] + SMOOTHER_AHEAD_WAVES * band_m[1])) + 1, n)
+        if g[-1] >= grid[-1]:
+            ahead = n   # the last block keeps the samples beyond the grid's last point (< one step)
         if ahead > fw.k:
             new = fw.run(ahead)
             nu[new["start"]:ahead] = new["Nu"]
