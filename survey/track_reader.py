@@ -385,7 +385,7 @@ def read_track_file(path: Path) -> TrackFile:
     along = "distance_m" if "distance_m" in cols and np.all(np.isfinite(cols["distance_m"])) else "chainage_m"
     s = cols[along]
     if s.size < 2:
-        raise ExportInputError(f"{path}: {s.size} station; the survey sheet needs at least two (a track, not a point)")
+        raise ExportInputError(f"{path}: {s.size} station; a track needs at least two (not a point)")
     if not np.all(np.diff(s) > 0):
         i = int(np.argmax(np.diff(s) <= 0)) + 1
         raise ExportInputError(f"{path}: row {i + 2}, column {along}: {float(s[i])!r} does not increase")

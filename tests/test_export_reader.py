@@ -217,7 +217,7 @@ def test_a_single_station_is_refused_naming_the_file(tmp_path):
     from survey.track_reader import read_track_file
 
     path = _track(tmp_path / "track.csv", n=1)
-    with pytest.raises(ExportInputError, match=r"track.csv: 1 station; the survey sheet needs at least two"):
+    with pytest.raises(ExportInputError, match=r"track.csv: 1 station; a track needs at least two"):
         read_track_file(path)
 
 
