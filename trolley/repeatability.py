@@ -33,7 +33,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from trolley.bands import BANDS, band
-from trolley.trackgeometry import GAP_STEPS, TrackInput, gap_intervals, heading_from_positions, lateral_sigma
+from trolley.trackgeometry import (GAP_STEPS, TrackInput, column_stats, gap_intervals, heading_from_positions,
+                                   lateral_sigma)
 
 #: |difference| / sigma beyond which a station is reported. Not 3: a 1.2 km track holds a few dozen
 #: independent stretches in each of three quantities, and 3 sigma was passed somewhere in 15 of
@@ -252,13 +253,14 @@ def stretches_beyond(station_m: np.ndarray, diff_m: np.ndarray, z: np.ndarray, l
 
 
 def _rms(x: np.ndarray) -> float:
-    x = x[np.isfinite(x)]
-    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
+    """RMS of the finite values (NaN when none): ``trackgeometry.column_stats``."""
+    return column_stats("", x).rms
 
 
 def _max_abs(x: np.ndarray) -> float:
-    x = x[np.isfinite(x)]
-    return float(np.max(np.abs(x))) if x.size else float("nan")
+    """Largest |value| of the finite values (NaN when none)."""
+    st = column_stats("", x)
+    return max(abs(st.minimum), abs(st.maximum))
 
 
 def compare_tracks(a: TrackInput, b: TrackInput, limit: float = DEFAULT_LIMIT,

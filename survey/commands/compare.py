@@ -7,6 +7,7 @@ summary (docs/track_geometry.md, "Two surveys of one track"; ``trolley.repeatabi
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -38,41 +39,37 @@ def compare(
     from rich.markup import escape
 
     from survey import jsonout
-    from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, write_csv_frame
+    from survey.atomicwrite import all_or_nothing, check_outputs, write_csv_frame
     from survey.comparison import compared_tracks, difference_frame, summary_dict, write_difference_plot
-    from survey.errors import refuse
     from survey.limits import check_finite
-    from survey.track_reader import ExportInputError, resolve_track_csv
+    from survey.track_reader import resolve_track_csv
 
     console = Console(stderr=True)
-    try:
-        check_finite(limit, "--limit", positive=True, maximum=MAX_LIMIT_SIGMA)
-        check_finite(max_offset_m, "--max-offset-m", positive=True, maximum=MAX_OFFSET_LIMIT_M,
-                     why="farther apart, they are not surveys of one track")
-        inputs = [resolve_track_csv(track_a), resolve_track_csv(track_b)]
-        check_outputs([("--csv", csv), ("--plot", plot)], inputs=inputs)
-        ct = compared_tracks(track_a, track_b, limit, max_offset_m)
-        with all_or_nothing():
-            if csv is not None:
-                write_csv_frame(csv, difference_frame(ct), float_format="%.4f")
-            if plot is not None:
-                write_difference_plot(plot, ct)
-    except (ExportInputError, OutputError, ValueError) as e:
-        refuse(" ".join(str(e).split()))
-    except OSError as e:
-        refuse(f"{e.filename or ''}: {e.strerror or e}")
+    # bad input (ValueError: the track readers', the output checks') and OSError come out as one
+    # line with exit code 2 through the app's guard (survey.errors.guarded)
+    check_finite(limit, "--limit", positive=True, maximum=MAX_LIMIT_SIGMA)
+    check_finite(max_offset_m, "--max-offset-m", positive=True, maximum=MAX_OFFSET_LIMIT_M,
+                 why="farther apart, they are not surveys of one track")
+    inputs = [resolve_track_csv(track_a), resolve_track_csv(track_b)]
+    check_outputs([("--csv", csv), ("--plot", plot)], inputs=inputs)
+    ct = compared_tracks(track_a, track_b, limit, max_offset_m)
+    with all_or_nothing():
+        if csv is not None:
+            write_csv_frame(csv, difference_frame(ct), float_format="%.4f")
+        if plot is not None:
+            write_difference_plot(plot, ct)
     for note in ct.a.notes + ct.b.notes:
         console.print(f"note: {note}", highlight=False, markup=False, soft_wrap=True)
     summary = summary_dict(ct)
     c = ct.comparison
     parts = []
     for q in ("lateral", "vertical", "cant", "gauge"):
-        if summary["rms_mm"][q] == summary["rms_mm"][q]:  # not NaN: both tracks have it
+        if math.isfinite(summary["rms_mm"][q]):  # both tracks have it
             z, sig, top = c.rms_z.get(q), summary["sigma_median_mm"].get(q), summary["sigma_max_mm"].get(q)
             # the largest sigma too: two surveys agree within a large one, e.g. where fixes were rejected
             parts.append(f"{q} RMS {summary['rms_mm'][q]:.3f} mm" + (
                 f" (sigma {sig:.3f} mm median, {top:.3f} mm largest; RMS diff/sigma {z:.2f})"
-                if z is not None and z == z else ""))
+                if z is not None and math.isfinite(z) else ""))
     console.print(f"{c.common_m:.1f} m compared ({summary['stations_compared']} of {summary['stations']} stations "
                   f"of A): " + "; ".join(parts), highlight=False, soft_wrap=True)
     for s in summary["stretches_beyond"]:
