@@ -254,12 +254,12 @@ def process_cmd(
 ) -> None:
     """Estimate the lateral alignment from a recording (Munoz 2021 Kalman filter, plus an RTS smoother)."""
     import numpy as np
-    import pandas as pd
 
     from survey.inservice_io import (InserviceFormatError, bogie_nominal, read_recording, read_truth,
                                      vehicle_differences)
     from survey.inservice_model import ModelFileError, read_model
-    from survey.atomicwrite import write_csv_frame, write_text_atomic
+    from survey.atomicwrite import write_text_atomic
+    from survey.sessionio import write_csv_columns
     from trolley import units
     from trolley.inservice.accuracy import band_accuracy, honesty, uniform_grid
     from trolley.inservice.bogie import BogieParameters
@@ -453,9 +453,11 @@ def process_cmd(
         remove_stale_temporaries(out, OUTPUT_NAMES)
         with all_or_nothing():
             # the chainage to 0.1 mm whatever its size (%.6g wrote 123456.25 m as 123456: four rows
-            # per metre with one chainage); the millimetres to six significant digits
-            frame = pd.DataFrame(cols).assign(s_m=[f"{v:.{CHAINAGE_DECIMALS}f}" for v in grid])
-            write_csv_frame(out / "irregularities.csv", frame, "%.6g")
+            # per metre with one chainage); the millimetres to six significant digits; empty cells
+            # where a value does not exist (sessionio's per-column writer, as track.csv)
+            formats = [f"%.{CHAINAGE_DECIMALS}f" if name == "s_m" else "%.6g" for name in cols]
+            write_with(out / "irregularities.csv", lambda tmp: write_csv_columns(
+                tmp, list(cols), [np.asarray(v, dtype=float) for v in cols.values()], formats, nan_as_empty=True))
             run_name = f"{recording.resolve().parent.name}/{recording.name}"
             _write_png(out / "alignment.png", cols, truth_mm, title=f"lateral alignment - {run_name}")
             _write_xlsx(out / "inservice.xlsx", str(recording), {**summary, "accuracy": summary.get("accuracy", {})},
