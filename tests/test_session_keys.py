@@ -97,26 +97,27 @@ def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
     assert (tmp_path / "projects" / "t1" / "sessions" / "kb" / "survey.xlsx").is_file()
 
 
-def test_at_16x_the_world_waits_at_a_stop_f_while_moving_is_answered_and_e_asks_first(tmp_path):
-    """8 s stops at 16x last 0.5 s of wall-clock time: the simulated world waits at the stop until
-    the crew has taken its fix. ``f`` while the trolley moves says why nothing happens; ``e`` asks
-    before it ends the session."""
+def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_asks_first(tmp_path):
+    """8 s stops at 40x last 0.2 s of wall-clock time, and the 20 s first stop ends in the tick in
+    which the static alignment ends: the simulated world waits at each stop until the crew has
+    taken its fix there, however late the key comes (before 2026-11-27 it waited only once the
+    session had seen the trolley standing after the alignment: on a loaded machine the trolley had
+    left the first stop, ``f`` was answered "the trolley is moving", and CI failed). ``f`` while
+    the trolley moves says why nothing happens; ``e`` asks before it ends the session."""
     make_project(tmp_path / "projects", static_s="20.0")  # 8 s stops (tests/session_project.py)
-    # 16x, not 40x: at 40x the 20 s static alignment lasts 0.5 s of wall-clock time, and on a
-    # loaded machine (four copies of this test on two cores: 1 of 4 failed) the trolley left the
-    # first stop, where the world does not wait before the alignment is done, during FIX001
-    child = _start(tmp_path, "fast", "16")
+    child = _start(tmp_path, "fast", "40")
     try:
         child.expect("a accept")
         child.send("a")
         child.expect("station accepted")
+        child.expect("static alignment done: f = take a fix here")
+        time.sleep(1.0)  # 40 s of simulated time: twice the first stop, had the world not waited
         _fix(child, "FIX001")
-        child.expect("static alignment done")
         child.expect("moving")
         child.send("f")
         child.expect("f ignored: the trolley is moving")
         child.expect("standing at 60")
-        time.sleep(2.0)  # 32 s of simulated time at 16x: four times the stop, had the world not waited
+        time.sleep(1.0)  # 40 s of simulated time: five times the stop, had the world not waited
         _fix(child, "FIX002")
         child.send("e")
         child.expect("end the session\\? y = end it")

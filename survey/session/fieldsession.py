@@ -36,6 +36,9 @@ from rich.markup import escape
 #: the trolley stands when the odometer moved less than this over ``STAND_WINDOW_S``
 STAND_TOLERANCE_M = 0.002
 STAND_WINDOW_S = 1.0
+#: past the static alignment's end, the data an interactive simulated world sends before it waits for
+#: the crew at the first stop: a sample of every stream (the odometer's period is 0.01 s)
+ALIGNMENT_DATA_MARGIN_S = 0.05
 TICK_S = 0.05
 #: a scripted crew looks at the simulated world at least every this many simulated seconds
 SIM_STEP_S = 2.0
@@ -151,6 +154,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._design = None
         self._tolerances = None
         self._world_held = False
+        self._hold_ends: dict[int, float] = {}  # stops an interactive simulated world stands at longer
         #: resume: the setup number (1-based) of a station change the crash interrupted
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
@@ -162,7 +166,6 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._live_replay: list[FixRecord] = []  # resume: stored fixes waiting for their data
         self._summarised: set[tuple[float, float]] = set()  # resume: the intervals summarised before
         self._confirm_end = False
-        self._stop_held = False
         self._key_prompt = ""  # a question of the station setup, shown instead of the loop's keys
         self._live_display = None
         self.interval_seconds: list[float] = []
@@ -302,7 +305,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 # before the loop (device check, and on resume the replay and the restored setup,
                 # which take wall-clock time in which the trolley would otherwise move on unseen)
                 # (the streams restart at their own last stored samples: every one must reach its own)
-                self.world.clock.limit = max(last.values(), default=0.0) + SIM_STEP_S
+                self.world.clock.limit = self._scripted_world_limit(max(last.values(), default=0.0))
             tb.imu_week, tb.imu_sow0_s = IMU_WEEK, IMU_SOW0
             tb.gauge_origin_s = self.world.gauge_t0_s
             if tb.odo_count0 is None:
@@ -463,7 +466,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self.stop_started_s = self.static_start_s
             self.screen.progress = None
             self._event("aligned", json.dumps({"static_start_s": self.static_start_s, "static_s": static_s}))
-            self.say("static alignment done: push the trolley to the next stop")
+            fixed_here = bool(self.accepted_fixes) and abs(self.motion()[2] - self.last_fix_distance_m) <= 1.0
+            self.say("static alignment done: " + ("push the trolley to the next stop" if fixed_here else
+                                                  "f = take a fix here, then push the trolley to the next stop"))
             self.screen.phase = "surveying"
 
     # ================================================================== fixes
@@ -611,7 +616,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self.device_pause = message
 
     def _check_health(self) -> None:
-        if self.world is not None and self.world.clock.frozen:
+        if self.world is not None and self.world.clock.standing_still:
             now = time.monotonic()  # the streams wait with the simulated clock: not a fault
             for k in self.acq.last_data_host:
                 self.acq.last_data_host[k] = now
@@ -663,7 +668,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             self.store.add_stop(self.rec.session_id, self._stop_record(t))
             self.stop_started_s = None
             self.stop_count += 1
-        self._hold_at_stop(standing, dist)
+        self._hold_at_stop()
         s = self.screen
         s.prompt = self.keys_prompt()
         s.t_s, s.standing, s.speed_m_s = t, standing, speed
@@ -717,16 +722,48 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         return StopRecord(self.stop_started_s, max(t_end, self.stop_started_s), f"S{self.stop_count:03d}",
                           self.chainage_now(d0))
 
-    def _hold_at_stop(self, standing: bool, dist: float) -> None:
-        """An interactive simulated session: the simulated world waits at a stop until the crew has
-        taken its fix, at the start once the static alignment is done (a real trolley waits for its
-        crew; the simulator's motion is scripted in time, and at 40x a stop would last a fraction
-        of a second)."""
-        if self.world is None or self.config.script is not None:
+    def _hold_at_stop(self) -> None:
+        """An interactive simulated session: the simulated world does not run past the end of the
+        stop it stands at (or is heading to) until the crew has done its part there: the static
+        alignment at the first stop, and an accepted fix at every stop (a real trolley waits for its
+        crew; the simulator's motion is scripted in time).
+
+        The hold is a limit on the simulated clock, set before the trolley reaches the stop's end,
+        not a freeze once the session sees it standing: at ``--speedup 40`` the first stop ends in
+        the very tick in which the static alignment ends, and an 8 s stop lasts 0.2 s of wall time,
+        so a loaded machine saw the trolley standing only after it had left (its fix key was then
+        answered "the trolley is moving"). At the first stop the world stands a little past the
+        stop's scripted end, within ``STOP_GRACE_S``, until the alignment has its data."""
+        if self.world is None or self.config.script is not None or self.world.clock is None:
             return
-        hold = (standing and self.aligned and not self.ended and not self.world.finished(self.data_time())
-                and (not self.accepted_fixes or abs(dist - self.last_fix_distance_m) > 1.0))
-        self._freeze_for("_stop_held", hold)
+        from survey.session.simworld import STOP_GRACE_S, stop_index_at
+
+        m = self.world.sim.truth.motion
+        clock = self.world.clock
+        t = clock.now()
+        limit = None
+        for k in range(m.stop_end_s.size):
+            end = max(float(m.stop_end_s[k]), self._hold_ends.get(k, -math.inf))
+            if end < t - 1e-6:
+                continue  # a stop the world has left
+            aligning = False
+            if not self.aligned and self.static_start_s is None:
+                aligning = True  # no IMU sample yet: the alignment has not begun
+            elif not self.aligned:
+                # the static alignment needs its data up to its end, which may lie a sample or
+                # two after the stop's scripted end (its window opens with the first IMU sample);
+                # one that cannot end at this stop is not waited for (it restarts at a later one)
+                needed = self.static_start_s + self.rec.meta.static_s
+                aligning = (m.stop_start_s[k] <= self.static_start_s
+                            and needed + ALIGNMENT_DATA_MARGIN_S <= end + STOP_GRACE_S)
+                if aligning and needed + ALIGNMENT_DATA_MARGIN_S > end:
+                    end = self._hold_ends[k] = needed + ALIGNMENT_DATA_MARGIN_S  # kept: the stop is still this one
+            fixed = any(stop_index_at(self.world.sim, f.t_s) == k for f in self.accepted_fixes)
+            # (still when the crew has ended: a reopened session goes on from this stop)
+            if aligning or not fixed:
+                limit = max(end, t)  # never backwards: the streams have sent up to t
+                break
+        clock.limit = limit
 
     def _freeze_for(self, flag: str, on: bool) -> None:
         """Freeze (``on``) or thaw the simulated clock when the hold named ``flag`` changes (one
@@ -883,7 +920,24 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         clock = self.world.clock
         d = self.data_time()
         base = d if np.isfinite(d) else clock.now()
-        clock.limit = max(base + SIM_STEP_S, clock.now())  # never backwards
+        clock.limit = max(self._scripted_world_limit(base), clock.now())  # never backwards
+
+    def _scripted_world_limit(self, seen_s: float) -> float:
+        """How far a scripted crew's world may run once the crew has seen the data up to ``seen_s``:
+        ``SIM_STEP_S`` further, but not past the end of a stop those data stand in (plus
+        ``STOP_GRACE_S``) before the crew has seen that end. A session resumed or reopened at
+        the very end of a stop (an interactive world waits there for the fix) still finds the
+        trolley standing; with the 2 s step alone it had left, and the fix was taken at the
+        next stop."""
+        from survey.session.simworld import STOP_GRACE_S, stop_index_at
+
+        limit = seen_s + SIM_STEP_S
+        k = stop_index_at(self.world.sim, seen_s)
+        if k >= 0:
+            end = float(self.world.sim.truth.motion.stop_end_s[k]) + STOP_GRACE_S
+            if seen_s < end - 1e-9:
+                limit = min(limit, end)
+        return limit
 
     def _hold_world(self, on: bool) -> None:
         """Freeze (or let run) a simulated world's clock for a scripted crew."""

@@ -111,6 +111,11 @@ class SimClock:
     def frozen(self) -> bool:
         return self.frozen_at is not None
 
+    @property
+    def standing_still(self) -> bool:
+        """Simulated time does not run: frozen, or standing at its limit (the streams wait too)."""
+        return self.frozen or (self.limit is not None and self.now() >= self.limit)
+
     def host_at(self, t_s: float) -> float:
         """Monotonic host time at which session time ``t_s`` comes."""
         return self.start_monotonic + (t_s - self.t0_s) / self.speedup
@@ -178,10 +183,17 @@ def prism_position_enh(sim, t_s: float) -> np.ndarray:
     return geo.grid_enh(np.array([p[0] + lever_n[1], p[1] + lever_n[0], p[2] - lever_n[2]]))
 
 
+#: the simulated trolley still stands this long after a stop's scripted end: it starts gently
+#: (5 um after 0.1 s at 2 m/s), and an interactive world waits for the crew at the first stop a
+#: moment past its end, until the static alignment has its data
+STOP_GRACE_S = 0.1
+
+
 def stop_index_at(sim, t_s: float) -> int:
-    """Index of the stop the simulated trolley stands at at ``t_s``, or -1 while it moves."""
+    """Index of the stop the simulated trolley stands at at ``t_s`` (up to ``STOP_GRACE_S`` past
+    its scripted end), or -1 while it moves."""
     m = sim.truth.motion
-    k = np.flatnonzero((m.stop_start_s <= t_s) & (t_s <= m.stop_end_s))
+    k = np.flatnonzero((m.stop_start_s <= t_s) & (t_s <= m.stop_end_s + STOP_GRACE_S))
     return int(k[0]) if k.size else -1
 
 
