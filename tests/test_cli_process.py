@@ -231,3 +231,30 @@ def test_a_fix_the_user_accepts_is_used_and_an_unknown_one_refused(session, tmp_
     assert r.exit_code == 2
     assert "--accept-fix CP9999: no fix with this point in" in " ".join(r.stderr.split())
     assert not (tmp_path / "g").exists()
+
+
+def test_a_folder_from_the_wrong_step_is_named_with_what_to_run_instead(session, tmp_path):
+    """`process` given a processed folder or a field session's output folder said only
+    "session.toml: file missing"; it now says what the folder is and the command to run."""
+    import shutil
+    processed = tmp_path / "processed"
+    assert runner.invoke(app, ["process", str(session), "--out", str(processed)]).exit_code == 0
+    r = runner.invoke(app, ["process", str(processed), "--out", str(tmp_path / "again")])
+    assert r.exit_code == 2
+    line = r.stderr.strip()
+    assert "\n" not in line and "a processed track (track.csv)" in line
+    assert f"trolley export {processed} --xlsx FILE" in line
+    # a field-session / demo output folder: DIR/session (raw) and DIR/processed (track)
+    field = tmp_path / "field"
+    shutil.copytree(session, field / "session")
+    shutil.copytree(processed, field / "processed")
+    r = runner.invoke(app, ["process", str(field), "--out", str(tmp_path / "again")])
+    assert r.exit_code == 2
+    line = r.stderr.strip()
+    assert "\n" not in line and f"trolley process {field / 'session'} --out OUT" in line
+    assert f"trolley export {field} --xlsx FILE" in line
+    assert not (tmp_path / "again").exists()
+    # any other folder without session.toml keeps the reader's message
+    (tmp_path / "empty").mkdir()
+    r = runner.invoke(app, ["process", str(tmp_path / "empty"), "--out", str(tmp_path / "again")])
+    assert r.exit_code == 2 and "session.toml: file missing" in r.stderr

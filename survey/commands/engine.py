@@ -106,6 +106,15 @@ def run_process(session_dir: Path, out: Path, smoother: str = "rts", step: float
         fail(str(exc))
     if not session_dir.is_dir():
         fail(f"{session_dir}: no such session folder")
+    if not (session_dir / "session.toml").is_file():
+        # a folder from the wrong step: say what it is and what to run instead of "file missing"
+        if (session_dir / "session" / "session.toml").is_file():
+            fail(f"{session_dir}: a field-session or demo output folder, not a raw session; its raw session is "
+                 f"{session_dir / 'session'} (`trolley process {session_dir / 'session'} --out OUT`), and its "
+                 f"processed track is exported with `trolley export {session_dir} --xlsx FILE`")
+        if (session_dir / "track.csv").is_file():
+            fail(f"{session_dir}: a processed track (track.csv), not a raw session (no session.toml): "
+                 f"export it with `trolley export {session_dir} --xlsx FILE`")
     design_notes: list[str] = []
     with progress_bar("reading the session", err) as report:
         try:
