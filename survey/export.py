@@ -192,7 +192,8 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     t3 = time.perf_counter()
     rep = SurveyReport(track_csv=path, geometry=geometry, columns=columns, tolerances=tol,
                        defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
-                       notes=notes, record=record, stationing=stationing)
+                       notes=notes, record=record, stationing=stationing,
+                       cov_EN=file.track.cov_EN_m2 is not None)
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
 
 

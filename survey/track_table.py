@@ -265,6 +265,8 @@ class SurveyReport:
         stationing is the internal station. ``geometry.chainage_m`` (and every chainage in
         ``defects``) is the internal station, along which chords, twist bases, filters and
         sections run; every chainage shown goes through :meth:`station`.
+    cov_EN : True when track.csv gave the E-N covariance (``cov_EN_mm2``) that the lateral sigma
+        takes; False for a track.csv without it (taken as 0).
     """
 
     track_csv: Path
@@ -279,6 +281,7 @@ class SurveyReport:
     notes: list[str] = field(default_factory=list)
     record: FieldRecord | None = None
     stationing: Stationing | None = None
+    cov_EN: bool = False
 
     def station(self, internal_m):
         """Drawing station (what the client sees) of internal stations, m (array or float)."""

@@ -162,7 +162,9 @@ def _summary_sheet(ws, rep: SurveyReport) -> None:
     kv("Gauge change rate", f"(gauge(s) - gauge(s - {cfg.gauge_rate_base_m:g} m)) / {cfg.gauge_rate_base_m:g} m")
     kv("Long chords", ", ".join(f"{a:g} m / {b:g} m" for a, b in cfg.long_chords_m))
     kv("Bands", "zero-phase Butterworth band-pass of the deviations, -3 dB at the band edges")
-    kv("σ lateral", "from σE, σN projected on the track normal (E-N covariance not available)")
+    kv("σ lateral", "from σE, σN and their E-N covariance (track.csv cov_EN_mm2) projected on the track normal"
+       if rep.cov_EN else "from σE, σN projected on the track normal (E-N covariance not available: track.csv "
+       "has no cov_EN_mm2, taken as 0)")
     for note in rep.notes:
         kv("Note", note)
     r += 1

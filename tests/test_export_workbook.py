@@ -457,3 +457,31 @@ def test_section_quality_takes_twist_less_design(exported):
     g = rep.geometry
     raw = section_quality(g.chainage_m, g.columns["twist_m"], step_m=g.step_m)
     assert np.nanmax(raw.std) > 1e-3
+
+
+def test_the_summary_says_whether_the_lateral_sigma_took_the_e_n_covariance(tmp_path):
+    """The Summary's "σ lateral" row said "E-N covariance not available" on every sheet, also when
+    track.csv had cov_EN_mm2 and the Track sheet's σ lateral took it (the demo's)."""
+    import openpyxl
+    import pandas as pd
+
+    def summary_row(xlsx):
+        ws = openpyxl.load_workbook(xlsx)["Summary"]
+        return next(r[1] for r in ws.iter_rows(values_only=True) if r[0] == "σ lateral")
+
+    out = _write_outputs(tmp_path / "out", with_fixes=False)
+    export_outputs(out, tmp_path / "without.xlsx", None, None)
+    assert "E-N covariance not available" in summary_row(tmp_path / "without.xlsx")
+    track = pd.read_csv(out / "track.csv")
+    track["cov_EN_mm2"] = 0.1                      # rho 0.5 with sigma_E 0.4, sigma_N 0.5
+    track.to_csv(out / "track.csv", index=False, float_format="%.6f", na_rep="")
+    export_outputs(out, tmp_path / "with.xlsx", tmp_path / "with.csv", None)
+    text = summary_row(tmp_path / "with.xlsx")
+    assert "not available" not in text and "E-N covariance (track.csv cov_EN_mm2)" in text
+    # and the sheet's sigma is the one with the covariance (the claim is true)
+    table = pd.read_csv(tmp_path / "with.csv")
+    i = 50                                          # on the first straight: heading 0.3 rad
+    psi = np.arctan2(np.diff(table["E_m"])[i], np.diff(table["N_m"])[i])
+    c, s = np.cos(psi), np.sin(psi)
+    with_cov = np.sqrt(c * c * 0.16 + s * s * 0.25 - 2 * s * c * 0.1)
+    assert table["sigma_lateral_mm"][i] == pytest.approx(with_cov, abs=2e-3)
