@@ -495,10 +495,11 @@ def test_a_full_disk_at_the_end_names_the_folder_and_the_way_on(tmp_path, monkey
 
     monkeypatch.setattr(survey.session.final, "process_stored_session", full)
     fs = SimpleNamespace(accepted_fixes=[1, 2], static_start_s=0.0, rec=SimpleNamespace(session_id=1),
-                         config=SimpleNamespace(out_dir=tmp_path / "out"), name="ref", store=None, console=None,
+                         config=SimpleNamespace(out_dir=tmp_path / "out", project="site7"), name="ref", store=None,
+                         console=None,
                          tolerance_name="default", say=print)
     with pytest.raises(SessionAbort) as exc:
         FieldSession._final_processing(fs)
     assert str(exc.value) == (f"end of session: cannot write the results into {tmp_path / 'out'} (No space left on "
                               "device); the session is stored")
-    assert "trolley survey resume PROJECT --session ref" in exc.value.hint
+    assert "trolley survey resume site7 --session ref" in exc.value.hint   # the project as given

@@ -77,7 +77,7 @@ def simulated_world(store, speedup: float):
     a = store.alignment()
     if a is None:
         fail(f"project {store.info().name!r} has no design alignment to simulate along",
-             "`trolley project import-alignment FILE.xml`")
+             f"`trolley project import-alignment FILE.xml --project {store.info().name}`")
     folder = store.path.parent
     kwargs = {}
     if (folder / "project.toml").is_file():
@@ -214,6 +214,11 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                 out = Path(start["out"]) if Path(start["out"]).is_absolute() else store.path.parent / start["out"]
         if simulate == (devices is not None):
             fail("give exactly one of --simulate and --devices PORTS.json")
+        if not resume and len(store.cpiii_points()) < 3:
+            # before anything is stored or written: the free station needs them (it stopped the
+            # start after the device check, with a session stored to be resumed)
+            fail(f"project {store.info().name!r} has {len(store.cpiii_points())} CPIII points; the free station "
+                 "needs at least 3", f"`trolley project import-cpiii FILE --project {store.info().name}`")
         actions = None
         if script is not None:
             from survey.session.script import check_dropped_points
@@ -266,7 +271,8 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
         except ToleranceError as exc:
             fail(f"project tolerance set: {exc}", "the file must exist where the project names it")
         config = SessionConfig(script=actions, out_dir=out, live=live, tolerances=tolerances, reopen=reopen,
-                               script_path=str(script.resolve()) if script is not None else None)
+                               script_path=str(script.resolve()) if script is not None else None,
+                               project=project)
         fs = FieldSession(store, session, config, world=world, ports=ports, console=err, keys=keys,
                           resume=resume, device_options=options)
         try:

@@ -66,6 +66,8 @@ class SessionConfig:
     reopen : on resume, reopen an ended session to add intervals (the script, if any, starts again).
     script_path : the script's file, kept with a reopen (a "script_file" event) so that a resume of
         the reopened session runs the same script without being told again.
+    project : the project as the crew gave it on the command line (a name or a folder), for the
+        commands the messages suggest.
     """
 
     script: list[Action] | None = None
@@ -76,6 +78,7 @@ class SessionConfig:
     tolerances: str | None = None
     reopen: bool = False
     script_path: str | None = None
+    project: str = "PROJECT"
 
 
 @dataclass
@@ -245,7 +248,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             elif self.rec.state == "ended":
                 if any(r.kind == "final" for r in self.store.processing_runs(self.rec.session_id)):
                     raise SessionAbort(f"session {self.name!r} has ended; nothing to resume",
-                                       f"`trolley survey resume PROJECT --session {self.name} --reopen` "
+                                       f"`trolley survey resume {self.config.project} --session {self.name} --reopen` "
                                        "reopens it to add intervals; or start a new session")
                 return  # ended but its final processing did not finish: run() does only that
         else:
@@ -257,7 +260,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             try:
                 self.rec = self.store.create_session(self.name, meta, alignment_id=design.alignment_id if design else None)
             except StoreError as exc:
-                raise SessionAbort(str(exc), "choose another --session name, or `trolley survey resume`") from None
+                raise SessionAbort(str(exc), f"choose another --session name, or `trolley survey resume "
+                                              f"{self.config.project} --session {self.name}` to continue that one") from None
         if self.rec.alignment_id is not None:
             a = self.store.alignment(self.rec.alignment_id)
             self._design = a.design(self.rec.meta.trolley.rail_spacing_m)
@@ -1148,7 +1152,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             # a full disk names no file: say which folder the end was writing, and that nothing is lost
             raise SessionAbort(f"end of session: cannot write the results into {self.config.out_dir} "
                                f"({os_error_text(exc)}); the session is stored",
-                               f"free space (or fix the folder), then `trolley survey resume PROJECT --session "
+                               f"free space (or fix the folder), then `trolley survey resume {self.config.project} --session "
                                f"{self.name}` does the end again") from None
 
     def _shutdown(self) -> None:

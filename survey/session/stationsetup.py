@@ -237,7 +237,8 @@ class StationSetupSteps:
         pts = self.store.cpiii_points()
         if len(pts) < 3:
             raise SessionAbort("the project has fewer than 3 CPIII points",
-                               "import them with `trolley project import-cpiii FILE --project NAME`")
+                               f"import them with `trolley project import-cpiii FILE --project "
+                               f"{self.store.info().name}`")
         if self.world is not None:
             st = self.world.station_enh_m
         elif self.last_fix is not None:  # a station change: near the trolley

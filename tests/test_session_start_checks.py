@@ -1,0 +1,61 @@
+"""What `trolley survey start` says to a new user who has not finished the project: the commands
+it suggests name the project (a "try: `... --project NAME`" or "resume PROJECT" had to be
+completed by hand, and `import-alignment FILE.xml` without --project fails), and a project
+without CPIII points is refused before anything is stored (it was refused after the device
+check, with a session stored that had to be resumed)."""
+from __future__ import annotations
+
+import shutil
+
+from typer.testing import CliRunner
+
+from session_project import DEMO, make_project
+from survey.cli import app
+from survey.store import ProjectStore
+
+runner = CliRunner()
+
+
+def _script(tmp_path):
+    script = tmp_path / "crew.txt"
+    script.write_text("fix\nend\n", encoding="utf-8")
+    return script
+
+
+def test_a_project_without_cpiii_is_refused_before_anything_is_stored(tmp_path):
+    root = tmp_path / "projects"
+    assert runner.invoke(app, ["project", "new", "site1", "--root", str(root)]).exit_code == 0
+    assert runner.invoke(app, ["project", "import-alignment", str(DEMO / "alignment.xml"), "--project", "site1",
+                               "--root", str(root)]).exit_code == 0
+    r = runner.invoke(app, ["survey", "start", "site1", "--session", "s1", "--simulate", "--script",
+                            str(_script(tmp_path)), "--root", str(root)])
+    assert r.exit_code == 2
+    assert "error: project 'site1' has 0 CPIII points; the free station needs at least 3" in r.stderr
+    assert "`trolley project import-cpiii FILE --project site1`" in r.stderr
+    assert "device check" not in r.output
+    with ProjectStore.open(root / "site1") as store:
+        assert store.sessions() == []
+    assert not (root / "site1" / "sessions").exists()
+
+
+def test_a_project_without_design_names_the_project_in_the_import_command(tmp_path):
+    root = tmp_path / "projects"
+    assert runner.invoke(app, ["project", "new", "site1", "--root", str(root)]).exit_code == 0
+    assert runner.invoke(app, ["project", "import-cpiii", str(DEMO / "cpiii.csv"), "--project", "site1",
+                               "--root", str(root)]).exit_code == 0
+    r = runner.invoke(app, ["survey", "start", "site1", "--session", "s1", "--simulate", "--script",
+                            str(_script(tmp_path)), "--root", str(root)])
+    assert r.exit_code == 2
+    assert "`trolley project import-alignment FILE.xml --project site1`" in r.stderr
+
+
+def test_a_session_name_taken_suggests_the_resume_of_that_session_in_that_project(tmp_path):
+    root = tmp_path / "projects"
+    folder = make_project(root, "site1")
+    with ProjectStore.open(folder) as store:
+        store.create_session("s1", store.session_meta("alignment.xml"))
+    r = runner.invoke(app, ["survey", "start", "site1", "--session", "s1", "--simulate", "--script",
+                            str(_script(tmp_path)), "--root", str(root)])
+    assert r.exit_code == 2
+    assert "session 's1' already exists in project 'site1'" in r.stderr
+    assert "`trolley survey resume site1 --session s1`" in r.stderr
