@@ -214,11 +214,6 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                 out = Path(start["out"]) if Path(start["out"]).is_absolute() else store.path.parent / start["out"]
         if simulate == (devices is not None):
             fail("give exactly one of --simulate and --devices PORTS.json")
-        if not resume and len(store.cpiii_points()) < 3:
-            # before anything is stored or written: the free station needs them (it stopped the
-            # start after the device check, with a session stored to be resumed)
-            fail(f"project {store.info().name!r} has {len(store.cpiii_points())} CPIII points; the free station "
-                 "needs at least 3", f"`trolley project import-cpiii FILE --project {store.info().name}`")
         actions = None
         if script is not None:
             from survey.session.script import check_dropped_points
@@ -245,6 +240,11 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             except OutputError as exc:
                 fail(str(exc))
         _check_writable(out, resume)
+        if not resume and len(store.cpiii_points()) < 3:
+            # before anything is stored or written: the free station needs them (it stopped the
+            # start after the device check, with a session stored to be resumed)
+            fail(f"project {store.info().name!r} has {len(store.cpiii_points())} CPIII points; the free station "
+                 "needs at least 3", f"`trolley project import-cpiii FILE --project {store.info().name}`")
         if not resume and not out_checked:
             from survey.atomicwrite import OutputError, claim_folder
 
