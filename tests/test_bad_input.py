@@ -350,6 +350,9 @@ PROBES: list[Probe] = [
     Probe("export/tolerances-not-utf8", lambda t, i: (t / "tol.toml").write_bytes(b"name = \"\xe9\"\n") and
           ["export", str(_proc(t, i)), "--tolerances", str(t / "tol.toml"), "--csv", str(t / "o.csv")],
           ("tol.toml",)),
+    Probe("export/tolerances-unknown-name", export_probe(lambda p: None, "--csv", "{t}/o.csv", "--tolerances",
+                                                         "hsr_balastless_static"),
+          ("--tolerances: hsr_balastless_static", "hsr_ballastless_static")),
     Probe("export/fixes-bad-accepted", export_probe(lambda p: set_cell(p / "fixes.csv", 3, "accepted", "yes"),
                                                     "--csv", "{t}/o.csv"), ("fixes.csv", "3", "accepted")),
     Probe("export/markup-in-folder-name", lambda t, i: ["export", str(copy(i.processed, t / "run[/x]") / "nope.csv")],

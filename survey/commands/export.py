@@ -100,7 +100,11 @@ def export(
                                     twist_base_m=twist_base_m, versine_chord_m=chord_m,
                                     gauge_rate_base_m=gauge_rate_base_m, lateral_sign=lateral_sign.value,
                                     cant_sign=cant_sign.value, versine_sign=versine_sign.value)
-    except (ExportInputError, ToleranceError, ValueError) as e:
+    except ToleranceError as e:
+        # named as `project new --tolerances` names it: a mistyped set name said only "NAME: neither ..."
+        typer.echo("error: --tolerances: " + " ".join(str(e).split()), err=True)
+        raise typer.Exit(code=2)
+    except (ExportInputError, ValueError) as e:
         typer.echo("error: " + " ".join(str(e).split()), err=True)
         raise typer.Exit(code=2)
     except OSError as e:
