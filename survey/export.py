@@ -19,7 +19,8 @@ from typing import Callable
 import numpy as np
 
 from trolley.tolerances import ToleranceSet, find_defects
-from trolley.trackgeometry import GAP_STEPS, GeometryConfig, column_stats, track_geometry
+from trolley.trackgeometry import (ABSOLUTE_COLUMNS, FIX_NEAR_TRACK_M, GAP_STEPS, GeometryConfig, column_stats,
+                                  fixed_span, track_geometry)
 
 from survey.atomicwrite import all_or_nothing, check_outputs, write_text_atomic
 from survey.fieldrecord import FIELD_RECORD, read_field_record
@@ -28,7 +29,7 @@ from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
                                  read_fixes_csv, read_summary_json, read_track_file, resolve_track_csv, session_equipment,
                                  SurveyInfo)
-from survey.track_table import SurveyReport, column_values, sheet_columns
+from survey.track_table import SurveyReport, column_values, fix_chainages, sheet_columns
 
 DEFAULT_TOLERANCES = "hsr_ballastless_static"
 
@@ -181,20 +182,69 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
         spans = ", ".join(f"{shown(a):.3f}-{shown(b):.3f} m" for a, b in geometry.gaps_m)
         notes.append(f"track.csv has no stations in {spans} (longer than {GAP_STEPS:g} steps of "
                      f"{geometry.step_m:g} m): the stations there are empty, not interpolated")
+    absolute_checked = absolute_span(geometry, fixes, notes, stationing)
     t2 = time.perf_counter()
     columns = sheet_columns(cfg)
     # checked and summarised as the files keep them (rounded to the digits written), so the
     # sheet's peak, its red cells and the verdict agree at a limit
     kept = {c.key: c.kept(geometry.columns[c.key]) for c in columns if c.key in geometry.columns}
     checked = {k: kept.get(k, v) for k, v in geometry.columns.items()}
+    if absolute_checked is not None:
+        for k in ABSOLUTE_COLUMNS:
+            if k in checked:
+                checked[k] = np.where(absolute_checked, checked[k], np.nan)
     defects = find_defects(geometry.chainage_m, checked, tol)
     stats = {k: column_stats(k, v) for k, v in checked.items()}
     t3 = time.perf_counter()
     rep = SurveyReport(track_csv=path, geometry=geometry, columns=columns, tolerances=tol,
                        defects=defects, stats=stats, info=info, fixes=fixes, design_file=design_file,
                        notes=notes, record=record, stationing=stationing,
-                       cov_EN=file.track.cov_EN_m2 is not None)
+                       cov_EN=file.track.cov_EN_m2 is not None, absolute_checked=absolute_checked)
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
+
+
+#: the start of the Summary note on stations outside the outermost fixes (the command prints it)
+UNFIXED_NOTE = "deviations from the design not checked"
+
+
+def absolute_span(geometry, fixes, notes: list[str], stationing=None) -> np.ndarray | None:
+    """Per station, whether its absolute parameters (deviations from the design, slew, lift) are
+    checked against the tolerances: between the first and the last fix the processing used
+    (:func:`trolley.trackgeometry.fixed_span`). None: every station (no fixes.csv, or no used fix
+    on the surveyed track; said in ``notes``).
+
+    Beyond the outermost fixes a station's position is dead reckoning from one fix: a session
+    ended 1140 m after its last fix had sigmas up to 495 mm there and 38 "defects" that were the
+    drift (bug hunt 2026-11-27). Its relative parameters (gauge, cant, twist, versines, chords,
+    bands) rest on the trolley's own sensors over a short base and are still checked; the
+    stations outside are said in ``notes`` with their largest sigma.
+    """
+    if fixes is None:
+        return None
+    acc, _ = fix_chainages(geometry, fixes)
+    if not acc.size:
+        if any(f.accepted for f in fixes):
+            notes.append(f"no fix of fixes.csv that the processing used lies on the surveyed track (within "
+                         f"{FIX_NEAR_TRACK_M:g} m): the deviations from the design are checked at every station")
+        return None
+    inside = fixed_span(geometry.chainage_m, acc)
+    s = geometry.chainage_m
+    outside = ~inside & np.isfinite(geometry.columns["lateral_dev_m"] + geometry.columns["vertical_dev_m"])
+    if not outside.any():
+        return None
+    shown = (lambda x: float(x)) if stationing is None else (lambda x: float(stationing.station(x)))
+    parts = []
+    for side, sel, fix in (("before the first", outside & (s < acc.min()), acc.min()),
+                           ("beyond the last", outside & (s > acc.max()), acc.max())):
+        if sel.any():
+            lat = column_stats("", geometry.columns["sigma_lateral_m"][sel]).maximum
+            ver = column_stats("", geometry.columns["sigma_vertical_m"][sel]).maximum
+            parts.append(f"{shown(s[sel][0]):.3f}-{shown(s[sel][-1]):.3f} m, {side} fix used ({shown(fix):.3f} m; "
+                         f"sigma lateral up to {1e3 * lat:.1f} mm, vertical up to {1e3 * ver:.1f} mm)")
+    notes.append(f"{UNFIXED_NOTE} at stations " + " and ".join(parts) + ": their position is dead reckoning from "
+                 "one fix; their lateral and vertical deviations, slew and lift are shown, not checked against the "
+                 "tolerances; their gauge, cant, twist, versines, chords and bands are checked")
+    return inside
 
 
 def write_track_csv(path: Path, rep: SurveyReport) -> Path:

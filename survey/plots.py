@@ -30,9 +30,9 @@ import numpy as np
 
 from survey.atomicwrite import write_with
 from trolley.bands import BANDS
-from trolley.trackgeometry import band_source
+from trolley.trackgeometry import ABSOLUTE_COLUMNS, band_source
 
-from survey.track_table import SurveyReport, limit_in_display
+from survey.track_table import SurveyReport, fix_chainages, limit_in_display
 
 #: file stem, title, panels (each a list of geometry columns sharing one y axis and unit)
 PLOTS = [
@@ -117,27 +117,6 @@ def edge_zones(chainage_m: np.ndarray, values: np.ndarray, source: np.ndarray | 
     return [(float(chainage_m[a]), float(chainage_m[b])) for a, b in zip(edges[::2], edges[1::2] - 1)]
 
 
-def fix_chainages(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray]:
-    """Chainage of the accepted and of the rejected prism fixes (the nearest station to each fix's
-    E, N; fixes more than 5 m off the surveyed track are left out)."""
-    g = rep.geometry
-    E, N = g.columns["E_m"], g.columns["N_m"]
-    fixes = list(rep.fixes or [])
-    if rep.record is not None:
-        seen = {f.point for f in fixes}
-        fixes += [f for f in rep.record.rejected if f.point not in seen]
-    if not fixes or E.size == 0:
-        return np.zeros(0), np.zeros(0)
-    fe = np.array([f.E_m for f in fixes])
-    fn = np.array([f.N_m for f in fixes])
-    d2 = (E[None, :] - fe[:, None]) ** 2 + (N[None, :] - fn[:, None]) ** 2
-    i = np.argmin(d2, axis=1)
-    near = d2[np.arange(i.size), i] < 25.0
-    acc = np.array([f.accepted for f in fixes])
-    s = g.chainage_m[i]
-    return s[near & acc], s[near & ~acc]
-
-
 def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, np.ndarray, np.ndarray],
                xlim: tuple[float, float] | None = None) -> bool:
     """Draw one panel (the columns ``keys`` on one y axis) into ``ax``.
@@ -156,6 +135,7 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
     sel = np.ones(s.size, bool) if xlim is None else (s >= xlim[0]) & (s <= xlim[1])
     colours = ["tab:blue", "tab:orange", "tab:green"]
     vals = []
+    drawn_unfixed = False
     for n, k in enumerate(keys):
         col = by_key[k]
         v = col.display(rep.geometry.columns[k])
@@ -176,6 +156,15 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
             sig = by_key[SIGMA_OF[k]].display(rep.geometry.columns[SIGMA_OF[k]])
             ax.fill_between(s[sel], (v - sig)[sel], (v + sig)[sel], color=colours[n % 3], alpha=0.25, lw=0,
                             label="±1σ")
+        if k in ABSOLUTE_COLUMNS and rep.absolute_checked is not None and not drawn_unfixed:
+            # the stations outside the outermost fixes: dead reckoning from one fix, not checked
+            inside = np.flatnonzero(rep.absolute_checked)
+            spans = [(s[0], s[inside[0]]), (s[inside[-1]], s[-1])] if inside.size else [(s[0], s[-1])]
+            for j, (a, b) in enumerate(x for x in spans if x[1] > x[0]):
+                # over the tolerance zones and the sigma band, under the line: washed out, not hidden
+                ax.axvspan(a, b, facecolor="0.92", alpha=0.75, lw=0, zorder=1.5,
+                           label="beyond the fixes: dead reckoning, not checked" if j == 0 else None)
+            drawn_unfixed = True
         zones = edge_zones(s, rep.geometry.columns[k], rep.geometry.columns.get(band_source(k)), k)
         for j, (a, b) in enumerate(zones):
             ax.axvspan(a, b, facecolor="none", edgecolor="0.5", hatch="///", lw=0, zorder=0,
@@ -224,7 +213,7 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
 
 def panel_marks(rep: SurveyReport) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(accepted fix, rejected fix, stop) chainages for :func:`draw_panel`."""
-    acc, rej = fix_chainages(rep)
+    acc, rej = fix_chainages(rep.geometry, rep.fixes, rep.record)
     stops = np.array([p.chainage_m for p in rep.record.stops if math.isfinite(p.chainage_m)]) \
         if rep.record is not None else np.zeros(0)
     return acc, rej, stops

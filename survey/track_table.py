@@ -15,7 +15,7 @@ from trolley import units
 from trolley.bands import BANDS
 from trolley.stationing import Stationing
 from trolley.tolerances import Defect, Limit, ToleranceSet
-from trolley.trackgeometry import ColumnStats, GeometryConfig, TrackGeometry
+from trolley.trackgeometry import ColumnStats, GeometryConfig, TrackGeometry, nearest_stations
 
 from survey.fieldrecord import FieldRecord
 from survey.track_reader import FixRow, SurveyInfo
@@ -244,6 +244,35 @@ def limit_in_column(limit: Limit, column: SheetColumn) -> tuple[float, float]:
     return _as_written(float(conv(limit.lower))), _as_written(float(conv(limit.upper)))
 
 
+def fix_chainages(geometry: TrackGeometry, fixes: list[FixRow] | None,
+                  record: FieldRecord | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Chainage of the fixes the processing used and of those it or the crew rejected: the
+    station nearest to each fix's E, N (:func:`trolley.trackgeometry.nearest_stations`; a fix
+    farther than ``FIX_NEAR_TRACK_M`` from the surveyed track is left out).
+
+    Parameters
+    ----------
+    geometry : the report's geometry (its E_m, N_m columns).
+    fixes : fixes.csv's rows (None: none).
+    record : the field record, whose fixes rejected in the field fixes.csv does not hold.
+
+    Returns
+    -------
+    accepted_m, rejected_m : chainages, m.
+    """
+    rows = list(fixes or [])
+    if record is not None:
+        seen = {f.point for f in rows}
+        rows += [f for f in record.rejected if f.point not in seen]
+    if not rows:
+        return np.zeros(0), np.zeros(0)
+    i = nearest_stations(geometry.columns["E_m"], geometry.columns["N_m"],
+                         np.array([f.E_m for f in rows]), np.array([f.N_m for f in rows]))
+    acc = np.array([f.accepted for f in rows])
+    s = geometry.chainage_m[np.maximum(i, 0)]
+    return s[(i >= 0) & acc], s[(i >= 0) & ~acc]
+
+
 @dataclass
 class SurveyReport:
     """Everything the workbook, CSV and plots show.
@@ -267,6 +296,10 @@ class SurveyReport:
         sections run; every chainage shown goes through :meth:`station`.
     cov_EN : True when track.csv gave the E-N covariance (``cov_EN_mm2``) that the lateral sigma
         takes; False for a track.csv without it (taken as 0).
+    absolute_checked : per station, whether its absolute parameters
+        (:data:`trolley.trackgeometry.ABSOLUTE_COLUMNS`) are checked against the tolerances: the
+        stations between the first and the last fix used (:func:`trolley.trackgeometry.fixed_span`);
+        None: every station (no fixes.csv beside track.csv, or no fix on the track).
     """
 
     track_csv: Path
@@ -282,6 +315,7 @@ class SurveyReport:
     record: FieldRecord | None = None
     stationing: Stationing | None = None
     cov_EN: bool = False
+    absolute_checked: np.ndarray | None = None
 
     def station(self, internal_m):
         """Drawing station (what the client sees) of internal stations, m (array or float)."""

@@ -31,6 +31,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from trolley.trackgeometry import ABSOLUTE_COLUMNS
+
 from survey.atomicwrite import atomic_path
 from survey.sheet_text import put_text
 from survey.surveyheader import NOT_GIVEN, header_rows
@@ -732,14 +734,21 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
             continue
         lo, hi = limit_in_column(lim, rep.columns[j - 1])
         L = _col_letter(j)
+        top, bottom = row0, end
+        if lim.column in ABSOLUTE_COLUMNS and rep.absolute_checked is not None:
+            # only the stations between the outermost fixes are checked (export.absolute_span)
+            rows = np.flatnonzero(rep.absolute_checked)
+            if not rows.size:
+                continue
+            top, bottom = row0 + int(rows[0]), row0 + int(rows[-1])
         conds = []
         if math.isfinite(lo):
-            conds.append(f"{L}{row0}<{lo!r}")
+            conds.append(f"{L}{top}<{lo!r}")
         if math.isfinite(hi):
-            conds.append(f"{L}{row0}>{hi!r}")
+            conds.append(f"{L}{top}>{hi!r}")
         # ISNUMBER: empty cells (no value) are not exceedances
-        formula = f"AND(ISNUMBER({L}{row0}),OR({','.join(conds)}))"
-        ws.conditional_formatting.add(f"{L}{row0}:{L}{end}", FormulaRule(formula=[formula], fill=red, font=font))
+        formula = f"AND(ISNUMBER({L}{top}),OR({','.join(conds)}))"
+        ws.conditional_formatting.add(f"{L}{top}:{L}{bottom}", FormulaRule(formula=[formula], fill=red, font=font))
 
 
 def _sheet_part(z: zipfile.ZipFile, title: str) -> str:

@@ -78,7 +78,8 @@ def test_panel_labels_marks_and_edge_zones(report):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from survey.plots import draw_panel, edge_zones, fix_chainages, panel_marks
+    from survey.plots import draw_panel, edge_zones, panel_marks
+    from survey.track_table import fix_chainages
 
     _, res = report
     rep = res.report
@@ -89,7 +90,7 @@ def test_panel_labels_marks_and_edge_zones(report):
     assert "±1σ" in labels and "CPIII fix" in labels
     plt.close(fig)
     # the fixes of fixes.csv stand at E 1000, N 5000: the start of the alignment (chainage 0)
-    acc, rej = fix_chainages(rep)
+    acc, rej = fix_chainages(rep.geometry, rep.fixes, rep.record)
     assert acc.size == 3 and np.all(acc == 0.0) and rej.size == 1   # the filter's reject; the field ones lie off this track
     # D3 (70-200 m) edge zones: the 200 m at each end of the deviations the band leaves empty
     s = rep.geometry.chainage_m

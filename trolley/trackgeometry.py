@@ -566,7 +566,65 @@ def column_stats(name: str, x: np.ndarray) -> ColumnStats:
                        float(v.min()), float(v.max()), float(np.sqrt(np.mean(v * v))))
 
 
+#: the absolute parameters: a station's position against the design, which only the prism fixes
+#: on CPIII give (the relative ones, gauge, cant, twist, versines, chords and bands, come from the
+#: trolley's own sensors over a short base)
+ABSOLUTE_COLUMNS = ("lateral_dev_m", "vertical_dev_m", "slew_m", "lift_m")
+#: a fix farther than this in plan from every station is not on the surveyed track (half the
+#: 4.5-5 m spacing of two tracks; the prism stands at most about 0.8 m beside the track point)
+FIX_NEAR_TRACK_M = 2.5
+
+
+def nearest_stations(E_m: np.ndarray, N_m: np.ndarray, point_E_m: np.ndarray, point_N_m: np.ndarray,
+                     max_distance_m: float = FIX_NEAR_TRACK_M) -> np.ndarray:
+    """Index of the station nearest in plan to each point, -1 where none lies within
+    ``max_distance_m`` (or the track has no finite station).
+
+    A k-d tree (scipy.spatial.cKDTree): the distance matrix of every point to every station
+    needed 8 bytes x points x stations, 2.5 GB for 2000 fixes on 160 000 stations.
+    """
+    from scipy.spatial import cKDTree
+
+    E_m, N_m = np.asarray(E_m, dtype=float), np.asarray(N_m, dtype=float)
+    pts = np.column_stack([np.asarray(point_E_m, dtype=float), np.asarray(point_N_m, dtype=float)]).reshape(-1, 2)
+    out = np.full(pts.shape[0], -1, dtype=np.intp)
+    finite = np.flatnonzero(np.isfinite(E_m) & np.isfinite(N_m))
+    ok = np.isfinite(pts).all(axis=1)
+    if finite.size == 0 or not ok.any():
+        return out
+    # coordinates relative to one station: grid eastings of 5e5 m would cost the tree digits
+    e0, n0 = E_m[finite[0]], N_m[finite[0]]
+    tree = cKDTree(np.column_stack([E_m[finite] - e0, N_m[finite] - n0]))
+    d, i = tree.query(pts[ok] - [e0, n0], distance_upper_bound=max_distance_m)
+    hit = np.isfinite(d)
+    idx = np.full(d.shape, -1, dtype=np.intp)
+    idx[hit] = finite[i[hit]]
+    out[ok] = idx
+    return out
+
+
+def fixed_span(chainage_m: np.ndarray, fix_chainage_m: np.ndarray) -> np.ndarray:
+    """Stations between the first and the last fix (bool per station): where the position rests
+    on fixes at both sides, and the smoother bridges the dead reckoning between two of them
+    (Jiang 2017 Sec. 4.3). Outside this span the absolute position is dead reckoning from one
+    fix, whose error and sigma grow with the distance without a second fix to bound them
+    (Jiang 2017 Sec. 3.2, Eq. 7-10); all False without a fix.
+
+    Parameters
+    ----------
+    chainage_m : station chainages, m (sorted).
+    fix_chainage_m : chainage of each fix used by the smoother (e.g. from :func:`nearest_stations`).
+    """
+    s = np.asarray(chainage_m, dtype=float)
+    f = np.asarray(fix_chainage_m, dtype=float)
+    f = f[np.isfinite(f)]
+    if f.size == 0:
+        return np.zeros(s.shape, dtype=bool)
+    return (s >= f.min()) & (s <= f.max())
+
+
 __all__ = ["GeometryConfig", "TrackInput", "TrackGeometry", "ColumnStats", "RailValues", "rail_values", "track_geometry",
            "column_names", "column_stats", "long_chord_name", "versine", "horizontal_versine",
            "long_chord_check", "backward_difference", "shifted", "lateral_sigma",
-           "heading_from_positions", "uniform_grid", "chainage_gaps"]
+           "heading_from_positions", "uniform_grid", "chainage_gaps", "ABSOLUTE_COLUMNS", "FIX_NEAR_TRACK_M",
+           "nearest_stations", "fixed_span"]
