@@ -156,8 +156,8 @@ def test_a_model_files_nonsense_values_are_refused(tmp_path, edit, message):
       'q_diagonal = "1e-09 2e-09 3e-09 4e-09 5e-09 6e-09 7e-09"'),
      "noise.q_diagonal must be 7 finite numbers >= 0 in a list [...], got '1e-09 2e-09 3e-09 4e-09 5e-09 6e-09 ..."),
 ])
-def test_a_model_vector_of_the_wrong_length_or_kind_says_what_is_wrong_not_all_its_numbers(recording, tmp_path,  # noqa: F811
-                                                                                           edit, message):
+def test_a_model_vector_of_the_wrong_length_or_kind_says_what_is_wrong_not_all_its_numbers(
+        recording, tmp_path, edit, message):  # noqa: F811
     text = model_toml_text(replace(_model(), S=np.zeros((7, 4))))
     assert edit[0] in text
     path = tmp_path / "model.toml"
@@ -169,6 +169,23 @@ def test_a_model_vector_of_the_wrong_length_or_kind_says_what_is_wrong_not_all_i
     res = _run("process", recording / "recording", "--out", tmp_path / "o", "--model", path)
     assert res.exit_code == 2 and res.stderr == f"error: model.toml: {message}\n", res.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_folder_given_to_model_or_truth_is_one_line_naming_the_option(recording, tmp_path):  # noqa: F811
+    # it was "error: sim: file not found in /tmp" (--model) and "error: /tmp/sim: Is a directory" (--truth)
+    empty, holding = tmp_path / "empty", tmp_path / "calibrated"
+    empty.mkdir()
+    holding.mkdir()
+    write_model(holding / "model.toml", _model())
+    for option, folder, said in (
+            ("--model", empty, "is a folder, not a model file (`trolley inservice calibrate --out FILE` writes one)"),
+            ("--model", holding, f"is a folder, not a model file (did you mean {holding / 'model.toml'}?)"),
+            ("--truth", recording, f"is a folder, not a truth file (did you mean {recording / 'truth.csv'}?)"),
+            ("--truth", empty, "is a folder, not a truth file (`trolley inservice simulate --out OUT` writes "
+                               "OUT/truth.csv)")):
+        res = _run("process", recording / "recording", "--out", tmp_path / "o", option, folder)
+        assert res.exit_code == 2 and res.stderr == f"error: {option} {folder}: {said}\n", res.stderr
+        assert not (tmp_path / "o").exists()
 
 
 def test_a_full_r_matrix_that_is_not_positive_definite_is_refused(tmp_path):
