@@ -103,10 +103,12 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except OSError as exc:
         # name the user's file, not the hidden temporary one that could not be made
         raise OSError(exc.errno, exc.strerror, str(path)) from None
-    os.close(fd)
+    # (in the try at once: a SIGTERM, raised as an exception, between two statements here would
+    # leave the temporary; survey.errors.sigterm_as_interrupt)
     tmp = Path(tmp_name)
-    pending = _PENDING.get()
     try:
+        os.close(fd)
+        pending = _PENDING.get()
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())

@@ -11,13 +11,21 @@ with exit code 3; ``TROLLEY_DEBUG=1`` shows its traceback.
 Click's own usage errors (an option value typer cannot convert, an unknown option, a missing
 argument) come out the same way, through the ``trolley`` group :class:`OneLineUsageErrors`
 (:func:`usage_error_text`), instead of click's usage block and ``Error:`` line.
+
+Ctrl-C and SIGTERM end a command the same way (:func:`sigterm_as_interrupt`): a
+KeyboardInterrupt in the main thread, so every ``finally`` and ``except BaseException`` on the
+way up runs (the atomic writers remove their temporaries, the field session stops its devices and
+threads), then one line ``error: interrupted (Ctrl-C)`` or ``error: interrupted (SIGTERM)`` and
+exit code 128 + the signal's number, as a shell reports a process the signal ended: 130 and 143.
 """
 from __future__ import annotations
 
 import functools
 import os
 import re
+import signal
 import sqlite3
+import threading
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -80,18 +88,68 @@ def refuse(text: str) -> NoReturn:
     raise typer.Exit(code=EXIT_BAD_INPUT) from None
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by :func:`sigterm_as_interrupt`: a KeyboardInterrupt, so
+    that the code a Ctrl-C runs on its way out runs for it too."""
+
+
+def interrupt_text(exc: KeyboardInterrupt) -> str:
+    """``interrupted (SIGTERM)`` or ``interrupted (Ctrl-C)``: the start of an interrupted command's line."""
+    return f"interrupted ({'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'})"
+
+
+def interrupt_exit_code(exc: KeyboardInterrupt) -> int:
+    """128 + the signal's number, as a shell reports a process the signal ended: 143 for SIGTERM,
+    130 for Ctrl-C (typer's code for it, kept)."""
+    return 128 + (signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT)
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread.
+
+    Python's default for SIGTERM ends the process at once: no ``finally`` runs, and a command
+    killed while writing left its hidden temporary beside the output (the output itself is
+    atomic). Only the first SIGTERM raises; it puts the default back, so a second one ends a
+    clean-up that hangs at once, as a kill would (the field session resumes from its store after
+    any kill). Nothing is installed outside the main thread (signal handlers live there) or when
+    SIGTERM is ignored (a parent that ignores it means it); the previous handler is put back at
+    the end (``trolley devices simulate`` installs its own inside, which wins while it runs).
+    """
+    def on_sigterm(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        raise Terminated()
+
+    installed = False
+    if threading.current_thread() is threading.main_thread() and \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN:
+        previous = signal.signal(signal.SIGTERM, on_sigterm)
+        installed = True
+    try:
+        yield
+    finally:
+        if installed:
+            # (None: a handler set outside Python, which signal.signal cannot put back)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
 def guarded(func: Callable) -> Callable:
-    """Wrap a typer command: known errors -> ``error: ...`` on stderr and exit 2."""
+    """Wrap a typer command: known errors -> ``error: ...`` on stderr and exit 2; Ctrl-C and
+    SIGTERM -> ``error: interrupted (...)``, exit 130 or 143 (module docstring)."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         import numpy as np
 
         try:
-            with warnings.catch_warnings(), np.errstate(all="ignore"):
+            with sigterm_as_interrupt(), warnings.catch_warnings(), np.errstate(all="ignore"):
                 warnings.simplefilter("ignore", RuntimeWarning)
                 return func(*args, **kwargs)
-        except (typer.Exit, typer.Abort, typer.TyperException, KeyboardInterrupt, SystemExit):
+        except KeyboardInterrupt as exc:
+            # (typer turned a Ctrl-C into exit 130 without a word)
+            typer.echo(f"error: {interrupt_text(exc)}", err=True)
+            raise typer.Exit(code=interrupt_exit_code(exc)) from None
+        except (typer.Exit, typer.Abort, typer.TyperException, SystemExit):
             raise
         except Exception as exc:  # noqa: BLE001 - the last line of defence, see the module docstring
             if os.environ.get("TROLLEY_DEBUG"):

@@ -10,6 +10,7 @@ Written atomically; the reader names the file and the key of any bad value.
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import asdict, fields
 from pathlib import Path
@@ -95,15 +96,39 @@ def _flag(table: dict, key: str, where: str, fname: str) -> bool:
     return v
 
 
-def _vector(table: dict, key: str, n: int, fname: str, signed: bool = False) -> np.ndarray:
-    v = table.get(key)
+def _vector(table: dict, key: str, n: int, fname: str, signed: bool = False, hint: str = "") -> np.ndarray:
+    """``noise.key`` as ``n`` finite numbers (>= 0 unless ``signed``). The message names what is
+    wrong, never the whole list: a q_matrix holds 400 numbers, and a list one number too long
+    printed in full hid the one fact that mattered, its length. ``hint`` follows a length
+    message (where ``n`` comes from)."""
+    want = f"{fname}: noise.{key} must be {n} finite numbers{'' if signed else ' >= 0'}"
+    if key not in table:
+        raise ModelFileError(f"{fname}: missing key noise.{key}")
+    v = table[key]
+    if not isinstance(v, list):
+        raise ModelFileError(f"{want} in a list [...], got {_short(v)}")
+    if len(v) != n:
+        raise ModelFileError(f"{want}, got {len(v)}{hint}")
+    for i, x in enumerate(v):
+        # (bool is an int to Python; a nested list is a matrix written as rows)
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise ModelFileError(f"{want}; number {i + 1} is {'a list' if isinstance(x, list) else _short(x)}")
+        if not math.isfinite(_float(x)) or (not signed and x < 0):
+            raise ModelFileError(f"{want}; number {i + 1} is {_float(x)!r}")
+    return np.asarray(v, dtype=float)
+
+
+def _short(v: object) -> str:
+    """``repr(v)``, cut to 40 characters (a long text typed where the numbers belong)."""
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _float(x: int | float) -> float:
     try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        a = None
-    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)) or (not signed and np.any(a < 0)):
-        raise ModelFileError(f"{fname}: noise.{key} must be {n} finite numbers{'' if signed else ' >= 0'}, got {v!r}")
-    return a
+        return float(x)
+    except OverflowError:        # an integer beyond a float's range (10**400) is inf to the filter
+        return math.inf if x > 0 else -math.inf
 
 
 def model_provenance(path: str | os.PathLike) -> str | None:
@@ -153,11 +178,14 @@ def read_model(path: str | os.PathLike):
         raise ModelFileError(f"{fname}: noise.dt_s must be {MIN_DT_S:g}-{MAX_DT_S:g} s (a filter rate of "
                              f"{1 / MAX_DT_S:g}-{1 / MIN_DT_S:g} Hz), got {dt}")
     n = params.n_state
-    Q, R, S = np.diag(_vector(noi, "q_diagonal", n, fname)), np.diag(_vector(noi, "r_diagonal", 4, fname)), None
+    # a length message says where the length comes from: a file of the other kind has other lengths
+    states = f" (the {kind} design model has {n} states)"
+    Q = np.diag(_vector(noi, "q_diagonal", n, fname, hint=states))
+    R, S = np.diag(_vector(noi, "r_diagonal", 4, fname)), None
     if full:
-        Q = _vector(noi, "q_matrix", n * n, fname, signed=True).reshape(n, n)
-        R = _vector(noi, "r_matrix", 16, fname, signed=True).reshape(4, 4)
-        S = _vector(noi, "s_matrix", 4 * n, fname, signed=True).reshape(n, 4)
+        Q = _vector(noi, "q_matrix", n * n, fname, signed=True, hint=f" ({n}x{n} row by row{states})").reshape(n, n)
+        R = _vector(noi, "r_matrix", 16, fname, signed=True, hint=" (4x4 row by row)").reshape(4, 4)
+        S = _vector(noi, "s_matrix", 4 * n, fname, signed=True, hint=f" ({n}x4 row by row{states})").reshape(n, 4)
     _check_covariances(Q, R, fname)
     nu = None
     if "innovation_rms" in noi:      # (optional: files written before the consistency check lack it)

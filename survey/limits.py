@@ -116,3 +116,29 @@ def check_seed(value: int | None, option: str = "--seed") -> None:
     check_integer(value, option, minimum=0)
     check_integer(value, option, maximum=MAX_SEED, why="a seed is a 64-bit integer in project.toml, session.toml, "
                                                        "the project store and the simulators' summaries")
+
+
+def check_file_option(path: os.PathLike | str | None, option: str, what: str, usual_name: str,
+                      made_by: str = "") -> None:
+    """Refuse a folder given to an option that reads one file, naming the option: the reader's
+    own message named neither the option nor what was wrong ("sim: file not found in /tmp",
+    "/tmp/sim: Is a directory").
+
+    Parameters
+    ----------
+    path : the option's value (None: not given).
+    option : the option's name (``--model``).
+    what : the file it wants, for the message (``a model file``).
+    usual_name : the file's usual name: when the folder holds one, the message proposes it.
+    made_by : what writes such a file, for the message when the folder holds none.
+
+    Raises
+    ------
+    ValueError
+        ``--model runs/a: is a folder, not a model file (did you mean runs/a/model.toml?)``.
+    """
+    if path is None or not os.path.isdir(path):
+        return
+    inner = os.path.join(path, usual_name)
+    hint = f"did you mean {inner}?" if os.path.isfile(inner) else made_by
+    raise ValueError(f"{option} {path}: is a folder, not {what}" + (f" ({hint})" if hint else ""))

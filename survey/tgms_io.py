@@ -170,13 +170,41 @@ def _cells_in_row(path: Path, row: int) -> int:
     return len(rec)
 
 
+def _first_used_line(path: Path) -> tuple[str, int]:
+    """The first line that is not blank (pandas skips blank lines) and its row number (1-based, as
+    an editor shows it); ("", 1) for an empty file."""
+    with open(path, "rb") as fh:
+        for row, raw in enumerate(fh, start=1):
+            text = raw.decode("utf-8-sig" if row == 1 else "utf-8", errors="replace")
+            if text.strip():
+                return text.rstrip("\r\n"), row
+    return "", 1
+
+
+def _comment_line_text(name: str, row: int, text: str, columns: list[str], before_header: bool) -> str:
+    """The message of a line starting with '#': these formats have no comment lines (FORMATS.md
+    section 3, docs/inservice.md "Recording format"), and the message says so, not "a decimal
+    comma?". Refused rather than skipped: the formats are exchange formats read exactly as
+    written, and a logger's comment may say what the columns do not (units, a clock offset)."""
+    shown = text.strip()
+    shown = repr(shown if len(shown) <= 40 else shown[:37] + "...")
+    if before_header and columns and columns[0] in text.lstrip().lstrip("#").split(",")[0].strip():
+        return f"{name}: row {row}: the header starts with '#' ({shown}): write the column names without it"
+    where = "the column names come first" if before_header else "every row after the header is data"
+    return (f"{name}: row {row}: a comment line ({shown}){' above the header' if before_header else ''}; the "
+            f"format has no comment lines, {where} (delete the line)")
+
+
 def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
               monotonic: str | None = "t_s", strict: bool = False, min_rows: int = 1) -> dict[str, np.ndarray]:
     name = path.name
     if not path.exists():
         raise TgmsFormatError(f"{name}: file not found in {path.parent}")
-    with open(path, "rb") as fh:
-        head = fh.readline().decode("utf-8-sig", errors="replace")
+    head, head_row = _first_used_line(path)
+    if head.lstrip().startswith("#"):
+        # pandas took the comment for the header (one column) and answered the first data row with
+        # "6 cells, the header has 1 columns (a decimal comma?)"
+        raise TgmsFormatError(_comment_line_text(name, head_row, head, columns, before_header=True))
     for sep, said in ((";", "';'"), ("\t", "tabs")):
         if sep in head and "," not in head:
             # a spreadsheet saved with its locale's list separator (and, likely, decimal commas), or
@@ -214,6 +242,10 @@ def _read_csv(path: Path, columns: list[str], *, integer: tuple[str, ...] = (),
         bad = ~np.isfinite(vals)
         if bad.any():
             i = int(np.argmax(bad))
+            # (before "a row cut short?": a comment line is one cell wide)
+            if str(df.iloc[i, 0]).lstrip().startswith("#"):
+                raise TgmsFormatError(_comment_line_text(name, int(line[i]), ",".join(
+                    str(x) for x in df.iloc[i] if not pd.isna(x)), columns, before_header=False))
             if pd.isna(col.iloc[i]) and _cells_in_row(path, int(line[i])) < len(df.columns):
                 raise TgmsFormatError(f"{name}: row {line[i]}: {_cells_in_row(path, int(line[i]))} cells, the "
                                       f"header has {len(df.columns)} columns (a row cut short?)")

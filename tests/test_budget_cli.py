@@ -81,7 +81,8 @@ def test_table_output_has_verdicts_and_limits():
     (["--imu", "mems"], "--imu mems cannot find north by gyrocompassing: give --heading-error-deg"),
     (["--imu", "custom", "--gyro-arw-deg-sqrt-h", "0.005"], "--imu custom needs"),
     (["--latitude-deg", "90"], "--latitude-deg"),
-    (["--monte-carlo", "-3"], "--monte-carlo"),
+    (["--monte-carlo", "-3"], "error: --monte-carlo: must be >= 0, got -3\n"),
+    (["--monte-carlo", "1"], "error: --monte-carlo: must be 0 (none) or >= 2, got 1 (one run has no spread)\n"),
     (["--odo-scale-noise", "nan"], "--odo-scale-noise: must be a finite number, got nan"),
     (["--monte-carlo", "10", "--seed", "-1"], "--seed: must be >= 0"),
 ])
@@ -243,7 +244,9 @@ MODEL = "(the range of the error model)"
     (["--fix-spacing-m", "1e300", "--monte-carlo", "10"],
      "--fix-spacing-m: must be <= 10000, got 1e+300 " + MODEL),
     (["--speed-m-s", "1e11"], "--speed-m-s: must be <= 30, got 1e+11 " + MODEL),
-    (["--monte-carlo", "99999999999"], "--monte-carlo must be at most 1000000"),
+    # (the colon after the option was missing, and this test pinned it so)
+    (["--monte-carlo", "99999999999"],
+     "error: --monte-carlo: must be <= 1000000, got 99999999999 (their RMS then has a 0.07 % sampling error)\n"),
     # all the digits: "%g" showed 89.999999 as 90
     (["--latitude-deg", "89.999999"],
      "--latitude-deg: must be <= 85, got 89.999999 (no gyrocompassing near the poles)"),

@@ -139,6 +139,55 @@ def test_a_model_files_nonsense_values_are_refused(tmp_path, edit, message):
         read_model(path)
 
 
+@pytest.mark.parametrize("edit, message", [
+    # one number too many: the 8 numbers were all printed, the lengths not
+    (("q_diagonal = [", "q_diagonal = [1e-09, "),
+     "noise.q_diagonal must be 7 finite numbers >= 0, got 8 (the paper design model has 7 states)"),
+    (("r_diagonal = [0.0001, ", "r_diagonal = ["), "noise.r_diagonal must be 4 finite numbers >= 0, got 3"),
+    # a full matrix written with one row missing (49 numbers printed before)
+    (("q_matrix = [1e-09, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ", "q_matrix = ["),
+     "noise.q_matrix must be 49 finite numbers, got 42 (7x7 row by row (the paper design model has 7 states))"),
+    (("s_matrix = [0.0, ", "s_matrix = [[0.0], "), "noise.s_matrix must be 28 finite numbers; number 1 is a list"),
+    (("r_diagonal = [0.0001, 2.5e-07", "r_diagonal = [0.0001, -2.5e-07"),
+     "noise.r_diagonal must be 4 finite numbers >= 0; number 2 is -2.5e-07"),
+    (("r_diagonal = [0.0001, 2.5e-07", 'r_diagonal = [0.0001, "2.5e-07"'),
+     "noise.r_diagonal must be 4 finite numbers >= 0; number 2 is '2.5e-07'"),
+    (("q_diagonal = [1e-09, 2e-09, 3.0000000000000004e-09, 4e-09, 5e-09, 6.000000000000001e-09, 7.000000000000001e-09]",
+      'q_diagonal = "1e-09 2e-09 3e-09 4e-09 5e-09 6e-09 7e-09"'),
+     "noise.q_diagonal must be 7 finite numbers >= 0 in a list [...], got '1e-09 2e-09 3e-09 4e-09 5e-09 6e-09 ..."),
+])
+def test_a_model_vector_of_the_wrong_length_or_kind_says_what_is_wrong_not_all_its_numbers(
+        recording, tmp_path, edit, message):  # noqa: F811
+    text = model_toml_text(replace(_model(), S=np.zeros((7, 4))))
+    assert edit[0] in text
+    path = tmp_path / "model.toml"
+    path.write_text(text.replace(edit[0], edit[1], 1), encoding="utf-8")
+    with pytest.raises(ModelFileError) as info:
+        read_model(path)
+    assert str(info.value) == "model.toml: " + message
+    # the command's line is the same: one line, exit 2, nothing written
+    res = _run("process", recording / "recording", "--out", tmp_path / "o", "--model", path)
+    assert res.exit_code == 2 and res.stderr == f"error: model.toml: {message}\n", res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_folder_given_to_model_or_truth_is_one_line_naming_the_option(recording, tmp_path):  # noqa: F811
+    # it was "error: sim: file not found in /tmp" (--model) and "error: /tmp/sim: Is a directory" (--truth)
+    empty, holding = tmp_path / "empty", tmp_path / "calibrated"
+    empty.mkdir()
+    holding.mkdir()
+    write_model(holding / "model.toml", _model())
+    for option, folder, said in (
+            ("--model", empty, "is a folder, not a model file (`trolley inservice calibrate --out FILE` writes one)"),
+            ("--model", holding, f"is a folder, not a model file (did you mean {holding / 'model.toml'}?)"),
+            ("--truth", recording, f"is a folder, not a truth file (did you mean {recording / 'truth.csv'}?)"),
+            ("--truth", empty, "is a folder, not a truth file (`trolley inservice simulate --out OUT` writes "
+                               "OUT/truth.csv)")):
+        res = _run("process", recording / "recording", "--out", tmp_path / "o", option, folder)
+        assert res.exit_code == 2 and res.stderr == f"error: {option} {folder}: {said}\n", res.stderr
+        assert not (tmp_path / "o").exists()
+
+
 def test_a_full_r_matrix_that_is_not_positive_definite_is_refused(tmp_path):
     m = _model()
     S = np.zeros((7, 4))

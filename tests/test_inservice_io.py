@@ -89,6 +89,41 @@ def test_bad_recordings_name_file_row_column(folder, fname, old, new, message):
         io.read_recording(folder)
 
 
+@pytest.mark.parametrize("edit, message", [
+    # pandas took the comment for a one-column header: "row 2: 6 cells, the header has 1 columns (a
+    # decimal comma? use a point: 0.5)"
+    (lambda text: "# logger 2.1, SI units\n" + text,
+     "sensors.csv: row 1: a comment line ('# logger 2.1, SI units') above the header; the format has no comment "
+     "lines, the column names come first (delete the line)"),
+    (lambda text: "\n  \n# logger\n" + text,
+     "sensors.csv: row 3: a comment line ('# logger') above the header; the format has no comment lines, the "
+     "column names come first (delete the line)"),
+    (lambda text: "#" + text, "sensors.csv: row 1: the header starts with '#' ('#t_s,s_m,speed_m_s,wheelset_ay_m_s2,w"
+                              "...'): write the column names without it"),
+    # in the data: "row 5, column t_s: not a finite number ('# wheel change')"
+    (lambda text: text.replace("\n0.015,", "\n# wheel change\n0.015,", 1),
+     "sensors.csv: row 5: a comment line ('# wheel change'); the format has no comment lines, every row after the "
+     "header is data (delete the line)"),
+])
+def test_a_comment_line_in_sensors_csv_is_named_as_one(folder, edit, message):
+    path = folder / "sensors.csv"
+    assert path.read_text().split("\n")[4].startswith("0.015,")
+    path.write_text(edit(path.read_text()))
+    with pytest.raises(io.InserviceFormatError) as info:
+        io.read_recording(folder)
+    assert str(info.value) == message
+
+
+def test_a_comment_line_in_truth_csv_is_named_as_one(tmp_path, run):
+    _, r = run
+    path = tmp_path / "truth.csv"
+    io.write_truth(path, r.s_m, r.alignment_m, r.vertical_m, r.curvature_1_m)
+    path.write_text("# seed 4\n" + path.read_text())
+    with pytest.raises(io.InserviceFormatError, match=r"^truth.csv: row 1: a comment line \('# seed 4'\) above the "
+                                                      "header; the format has no comment lines"):
+        io.read_truth(path)
+
+
 def test_missing_files(tmp_path, folder):
     with pytest.raises(io.InserviceFormatError, match="not a folder"):
         io.read_recording(tmp_path / "nope")

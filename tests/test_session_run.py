@@ -262,6 +262,44 @@ def test_sigkill_in_an_interval_then_resume_matches_an_uninterrupted_run(project
         assert "resumed" in kinds and kinds[-1] == "end"
 
 
+def test_sigterm_in_an_interval_ends_as_ctrl_c_then_resume_matches_an_uninterrupted_run(project):
+    """SIGTERM (a logout, a service stop, a CI timeout) ended the process at once, as SIGKILL does;
+    now it ends the session as Ctrl-C does (survey.errors.sigterm_as_interrupt): the devices, the
+    simulated world and the session's threads stopped (all daemons, or joined in
+    FieldSession._shutdown: none keeps the process alive), the resume command said, exit 143.
+    The resumed session gives the uninterrupted one's result, as after a kill."""
+    root, _ = project
+    db = root / "projects" / "t1" / "project.sqlite"
+    err = root / "termed.err"
+    with open(err, "w") as fh:
+        p = subprocess.Popen(TROLLEY + ["survey", "start", "t1", "--root", "projects", "--session", "termed",
+                                        "--simulate", "--speedup", "40", "--script", "crew.txt"],
+                             cwd=root, stdout=subprocess.DEVNULL, stderr=fh, env={**os.environ, "COLUMNS": "300"})
+    deadline = time.monotonic() + 90
+    while _odometer_distance(db, "termed") < 20.0:  # first interval: 0 .. 60 m
+        assert p.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(timeout=10) == 143          # (measured: 0.3 s; a thread that kept it alive would time out)
+    text = " ".join(err.read_text().split())
+    assert ("error: interrupted (SIGTERM); everything recorded so far is in the store try: `trolley survey resume "
+            "t1 --session termed` continues it") in text, text[-2000:]
+    with store(root) as st:
+        assert st.session("termed").state != "ended"
+        assert 20.0 <= float(st.odometer_arrays(st.session("termed").session_id)[1].max()) < 60.0
+    out = root / "projects" / "t1" / "sessions" / "termed"
+    # its marker only (the outputs are written at the end): nothing hidden left by the interrupt
+    assert [q.name for q in out.rglob(".*")] == [".made-by-trolley"]
+    r = run_cli(["survey", "resume", "t1", "--root", "projects", "--session", "termed", "--speedup", "40"], root)
+    assert r.returncode == 0, r.stderr[-3000:]
+    with store(root) as st:
+        assert counts(st, "termed") == counts(st, "ref")
+        assert [f.accepted for f in st.fixes(st.session("termed").session_id)] == [True] * 4
+        a, b = final_track(st, "ref"), final_track(st, "termed")
+        assert np.array_equal(a.chainage_m, b.chainage_m)
+        assert np.max(np.abs(a.enh_m - b.enh_m)) < 0.05e-3
+
+
 def _interval_summaries(st, name):
     """(interval events, interval processing runs, the chainage span each summary shows)."""
     sid = st.session(name).session_id

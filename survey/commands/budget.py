@@ -513,13 +513,14 @@ def budget_command(
 
     plot = renamed(plot, plot_old, "--plots", "--plot")
     try:
+        # `error: --option: what is wrong`, as survey.limits.check_integer says it for every other option
         if monte_carlo < 0:
-            raise BudgetInputError(f"--monte-carlo must be >= 0, got {monte_carlo}")
+            raise BudgetInputError(f"--monte-carlo: must be >= 0, got {monte_carlo}")
         if monte_carlo == 1:
-            raise BudgetInputError("--monte-carlo needs at least 2 runs")
+            raise BudgetInputError("--monte-carlo: must be 0 (none) or >= 2, got 1 (one run has no spread)")
         if monte_carlo > MAX_MONTE_CARLO_RUNS:
-            raise BudgetInputError(f"--monte-carlo must be at most {MAX_MONTE_CARLO_RUNS} (their RMS then has a "
-                                   f"{100 / math.sqrt(2 * MAX_MONTE_CARLO_RUNS):.2f} % sampling error), got {monte_carlo}")
+            raise BudgetInputError(f"--monte-carlo: must be <= {MAX_MONTE_CARLO_RUNS}, got {monte_carlo} (their RMS "
+                                   f"then has a {100 / math.sqrt(2 * MAX_MONTE_CARLO_RUNS):.2f} % sampling error)")
         from survey.limits import check_finite, check_seed
 
         check_seed(seed)

@@ -34,7 +34,7 @@ from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, remove_stale_temporaries, write_with
 from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
-from survey.limits import MAX_SEED, check_allocation, check_finite, check_integer, check_seed
+from survey.limits import MAX_SEED, check_allocation, check_file_option, check_finite, check_integer, check_seed
 
 console = Console(stderr=True)
 
@@ -274,13 +274,17 @@ def process_cmd(
     except ValueError as exc:
         _fail(str(exc))
     try:
+        check_file_option(model, "--model", "a model file", "model.toml",
+                          "`trolley inservice calibrate --out FILE` writes one")
+        check_file_option(truth, "--truth", "a truth file", "truth.csv",
+                          "`trolley inservice simulate --out OUT` writes OUT/truth.csv")
         check_outputs([], inputs=[recording, truth, model], folders=[("--out", out)])
         if out.is_dir():
             check_outputs([("--out", out / name) for name in OUTPUT_NAMES], inputs=[truth, model])
         rec = read_recording(recording)
         tru = read_truth(truth) if truth is not None else None
         mdl = read_model(model) if model is not None else None
-    except (InserviceFormatError, ModelFileError, OutputError) as exc:
+    except (InserviceFormatError, ModelFileError, OutputError, ValueError) as exc:
         _fail(str(exc))
     if len(rec.t_s) < 10:
         _fail(f"{recording / 'sensors.csv'}: needs at least 10 rows, got {len(rec.t_s)}")

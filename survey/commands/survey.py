@@ -16,6 +16,8 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from survey.errors import interrupt_exit_code, interrupt_text
+
 err = Console(stderr=True)
 survey_app = typer.Typer(help="The field survey session: start, resume.", no_args_is_help=True,
                           rich_markup_mode=None)
@@ -283,9 +285,9 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                     "script": str(script.resolve()) if script else None,
                     "devices": str(devices.resolve()) if devices else None, "out": _stored_out(out, store)})))
             outcome = fs.run()
-        except KeyboardInterrupt:
-            fail("interrupted; everything recorded so far is in the store",
-                 f"`trolley survey resume {project} --session {session}` continues it", code=130)
+        except KeyboardInterrupt as exc:   # Ctrl-C, or SIGTERM (survey.errors.sigterm_as_interrupt)
+            fail(f"{interrupt_text(exc)}; everything recorded so far is in the store",
+                 f"`trolley survey resume {project} --session {session}` continues it", code=interrupt_exit_code(exc))
         except SessionAbort as exc:
             hint = exc.hint
             if not resume and fs.rec is not None:
