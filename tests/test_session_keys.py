@@ -221,3 +221,44 @@ def test_an_ended_session_is_reopened_to_add_intervals(tmp_path):
     assert kinds.count("interval") == 2  # the live summaries of the two intervals added
     assert len(finals) == 1 and track.chainage_m[0] < 1.0 and track.chainage_m[-1] > 119.0
     assert "survey.xlsx" in r.stdout
+
+
+def test_killed_at_a_stop_the_interactive_resume_finds_the_trolley_still_there(tmp_path):
+    """kill -9 while the world waits at the 60 m stop for its fix; ``trolley survey resume`` at the
+    keyboard: the device check and the restore take wall-clock time, 40-120 simulated s at 40x,
+    in which the world had left the stop before the loop held it (``f`` was answered "the
+    trolley is moving"). The world now stands at the stop's end from its start until the loop
+    looks, and the fix taken 2 s (80 simulated s) later is the 60 m stop's."""
+    import signal
+
+    make_project(tmp_path / "projects", static_s="20.0")
+    child = _start(tmp_path, "kb", "40")
+    try:
+        child.expect("a accept")
+        child.send("a")
+        child.expect("station accepted")
+        _fix(child, "FIX001")
+        child.expect("standing at 60")
+        time.sleep(1.5)  # the world waits at the stop's end; the store has the data up to it (0.5 s flushes)
+        os.kill(child.pid, signal.SIGKILL)
+    finally:
+        child.close()
+    env = {**os.environ, "TERM": "xterm", "COLUMNS": "140", "LINES": "50"}
+    child = pexpect.spawn(sys.executable, ["-m", "survey.cli", "survey", "resume", "t1", "--root", "projects",
+                                           "--session", "kb"], cwd=str(tmp_path), env=env, encoding="utf-8",
+                          timeout=60, dimensions=(50, 140))
+    try:
+        child.expect("f fix")
+        time.sleep(2.0)
+        _fix(child, "FIX002")
+    finally:
+        child.terminate(force=True)
+    from survey.commands.survey import simulated_world
+    from survey.session.simworld import stop_index_at
+    from survey.store import ProjectStore
+
+    with ProjectStore.open(tmp_path / "projects" / "t1") as st:
+        fixes = st.fixes(st.session("kb").session_id)
+        sim = simulated_world(st, 1.0).sim
+    assert [(f.point, f.accepted, stop_index_at(sim, f.t_s)) for f in fixes] == [("FIX001", True, 0),
+                                                                                ("FIX002", True, 1)]

@@ -310,6 +310,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                 # which take wall-clock time in which the trolley would otherwise move on unseen)
                 # (the streams restart at their own last stored samples: every one must reach its own)
                 self.world.clock.limit = self._scripted_world_limit(max(last.values(), default=0.0))
+            else:
+                self._hold_before_loop(max(last.values(), default=0.0))
             tb.imu_week, tb.imu_sow0_s = IMU_WEEK, IMU_SOW0
             tb.gauge_origin_s = self.world.gauge_t0_s
             if tb.odo_count0 is None:
@@ -726,6 +728,28 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         return StopRecord(self.stop_started_s, max(t_end, self.stop_started_s), f"S{self.stop_count:03d}",
                           self.chainage_now(d0))
 
+    def _hold_before_loop(self, stored_s: float) -> None:
+        """The crew at the keyboard, until the loop first looks (device check, and on resume the
+        restore): the simulated world does not leave the stop it stands at or heads to, whatever
+        was done there (:meth:`_hold_at_stop` then decides). A resumed session's world had run
+        40-120 simulated s through the device check, past the stop the crew was at.
+
+        At a stop's end (a session killed while the world waited there) it sends ``STOP_GRACE_S``
+        of data past what is stored: the device check waits for a sample of every stream (the
+        gauge's come every 0.1 s), and the trolley has moved 5 um by then."""
+        from survey.session.simworld import STOP_GRACE_S
+
+        m = self.world.sim.truth.motion
+        for k in range(m.stop_end_s.size):
+            if m.stop_end_s[k] + STOP_GRACE_S < stored_s - 1e-6:
+                continue  # a stop the world has left
+            end = float(m.stop_end_s[k])
+            if m.stop_start_s[k] <= stored_s:
+                end = self._hold_ends[k] = max(end, stored_s + STOP_GRACE_S)
+            self.world.clock.limit = end
+            return
+        self.world.clock.limit = None
+
     def _hold_at_stop(self) -> None:
         """An interactive simulated session: the simulated world does not run past the end of the
         stop it stands at (or is heading to) until the crew has done its part there: the static
@@ -740,7 +764,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         stop's scripted end, within ``STOP_GRACE_S``, until the alignment has its data."""
         if self.world is None or self.config.script is not None or self.world.clock is None:
             return
-        from survey.session.simworld import STOP_GRACE_S, stop_index_at
+        from survey.session.simworld import STOP_GRACE_S
 
         m = self.world.sim.truth.motion
         clock = self.world.clock
@@ -762,7 +786,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                             and needed + ALIGNMENT_DATA_MARGIN_S <= end + STOP_GRACE_S)
                 if aligning and needed + ALIGNMENT_DATA_MARGIN_S > end:
                     end = self._hold_ends[k] = needed + ALIGNMENT_DATA_MARGIN_S  # kept: the stop is still this one
-            fixed = any(stop_index_at(self.world.sim, f.t_s) == k for f in self.accepted_fixes)
+            fixed = any(m.stop_start_s[k] - 1e-6 <= f.t_s <= end + 1e-6 for f in self.accepted_fixes)
             # (still when the crew has ended: a reopened session goes on from this stop)
             if aligning or not fixed:
                 limit = max(end, t)  # never backwards: the streams have sent up to t
