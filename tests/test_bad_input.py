@@ -305,7 +305,8 @@ PROBES: list[Probe] = [
     Probe("process/step-1e-7", process_probe(lambda s: None, "--step-m", "1e-7"), ("--step-m",)),
     Probe("process/step-nan", process_probe(lambda s: None, "--step-m", "nan"), ("--step-m",)),
     # ---- export -------------------------------------------------------------------------
-    Probe("export/track-decimal-comma", export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", '"500123,5"')),
+    Probe("export/track-decimal-comma", export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", '"500123,5"'),
+                                                     "--csv", "{t}/o.csv"),
           ("track.csv", "5", "E_m")),
     Probe("export/track-decimal-comma-unquoted",
           export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", "500123,5"), "--csv", "{t}/o.csv"),
@@ -325,7 +326,7 @@ PROBES: list[Probe] = [
     Probe("export/track-zero-stations", export_probe(lambda p: keep_rows(p / "track.csv", 0), "--csv", "{t}/o.csv"),
           ("track.csv",)),
     Probe("export/track-is-a-folder", lambda t, i: (t / "x" / "track.csv").mkdir(parents=True) or
-          ["export", str(t / "x" / "track.csv")], ("track.csv",)),
+          ["export", str(t / "x" / "track.csv"), "--csv", str(t / "o.csv")], ("track.csv",)),
     Probe("export/twist-base-inf", export_probe(lambda p: None, "--twist-base-m", "inf", "--csv", "{t}/o.csv"),
           ("--twist-base-m",)),
     Probe("export/twist-base-zero", export_probe(lambda p: None, "--twist-base-m", "0", "--csv", "{t}/o.csv"),
@@ -355,7 +356,8 @@ PROBES: list[Probe] = [
           ("--tolerances: hsr_balastless_static", "hsr_ballastless_static")),
     Probe("export/fixes-bad-accepted", export_probe(lambda p: set_cell(p / "fixes.csv", 3, "accepted", "yes"),
                                                     "--csv", "{t}/o.csv"), ("fixes.csv", "3", "accepted")),
-    Probe("export/markup-in-folder-name", lambda t, i: ["export", str(copy(i.processed, t / "run[/x]") / "nope.csv")],
+    Probe("export/markup-in-folder-name", lambda t, i: ["export", str(copy(i.processed, t / "run[/x]") / "nope.csv"),
+                                                          "--csv", str(t / "o.csv")],
           ("run[/x]",)),
     # ---- simulate -----------------------------------------------------------------------
     Probe("simulate/rate-hz-1e7", lambda t, i: simulate_args(t, "--rate-hz", "1e7"), ("--rate-hz",)),
