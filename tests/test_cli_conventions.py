@@ -565,6 +565,25 @@ def test_progress_share_maps_a_sub_step_onto_its_part_of_the_bar():
     assert share(None, 0.0, 1.0) is None
 
 
+def test_an_error_under_a_progress_bar_is_one_line_when_stderr_is_no_terminal(tmp_path):
+    # rich's bar printed an empty line above the error when it stopped on a pipe or a file
+    import io
+
+    from rich.console import Console
+
+    from survey.commands.progress import progress_bar
+
+    r = runner.invoke(app, ["export", str(tmp_path / "notrack"), "--csv", str(tmp_path / "o.csv")])
+    assert r.exit_code == 2 and r.stderr == f"error: {tmp_path / 'notrack'}: no such file or folder\n", r.stderr
+    for interactive in (False, True):
+        out = io.StringIO()
+        with progress_bar("reading", Console(file=out, force_terminal=interactive, force_interactive=interactive,
+                                             width=100)) as report:
+            report("computing", 0.5)
+        # a terminal still gets its bar (transient: drawn, then cursor moves wipe it)
+        assert ("computing" in out.getvalue()) == interactive and (out.getvalue() == "") != interactive, out.getvalue()
+
+
 def test_monte_carlo_progress_rises_to_one_and_leaves_the_draws_alone():
     from trolley import budget as B
     from trolley.sensors import IMU_PRESETS
