@@ -344,8 +344,12 @@ PROBES: list[Probe] = [
     Probe("export/xlsx-missing-folder", export_probe(lambda p: None, "--xlsx", "{t}/no/s.xlsx"), ("--xlsx", "no")),
     Probe("export/csv-ok-but-plots-a-file", lambda t, i: (t / "pl").write_text("x") and
           ["export", str(_proc(t, i)), "--csv", str(t / "o.csv"), "--plots", str(t / "pl")], ("--plots", "pl")),
-    Probe("export/same-file-twice", export_probe(lambda p: None, "--csv", "{t}/o.csv", "--xlsx", "{t}/o.csv"),
-          ("o.csv",)),
+    # (through a link: each option's file name must end in its own suffix)
+    Probe("export/same-file-twice", export_probe(lambda p: (p.parent / "o.xlsx").symlink_to(p.parent / "o.csv"),
+                                                 "--csv", "{t}/o.csv", "--xlsx", "{t}/o.xlsx"),
+          ("--csv", "o.csv: also given to --xlsx")),
+    Probe("export/xlsx-named-csv", export_probe(lambda p: None, "--xlsx", "{t}/x.csv"),
+          ("--xlsx", "x.csv: the file name must end in .xlsx",)),
     Probe("export/session-design-escape", lambda t, i: _session_design_escape(t, i) and
           ["export", str(t / "proc"), "--csv", str(t / "o.csv")], ("session.toml", "design.alignment")),
     Probe("export/tolerances-not-utf8", lambda t, i: (t / "tol.toml").write_bytes(b"name = \"\xe9\"\n") and

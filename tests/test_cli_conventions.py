@@ -737,3 +737,31 @@ def test_help_is_still_click_help():
     assert r.exit_code == 0 and r.stdout.startswith("Usage: trolley budget [OPTIONS]") and "--seed" in r.stdout
     r = runner.invoke(app, [])          # no command: the command list, as before (click: exit code 2)
     assert r.exit_code == 2 and "Commands:" in r.output and "budget" in r.output and "error" not in r.output
+
+
+# ---------------------------------------------------------------------------- file names
+# an output file's name ends in its format's suffix: `export --xlsx x.csv` wrote an Excel workbook
+# named x.csv (survey.atomicwrite.check_suffix), refused before the inputs are even looked at
+
+#: (command, option, suffix, the file it writes)
+SUFFIXES = [
+    ("export", "--xlsx", ".xlsx", "an Excel workbook"),
+    ("export", "--pdf", ".pdf", "a PDF report"),
+    ("export", "--csv", ".csv", "a CSV table"),
+]
+
+
+@pytest.mark.parametrize("command, option, suffix, what", SUFFIXES, ids=[f"{c} {o}" for c, o, *_ in SUFFIXES])
+def test_an_output_file_whose_name_lacks_its_formats_suffix_is_refused_first(command, option, suffix, what,
+                                                                             stop_dir):
+    make, code, says = STOP[command]
+    for name, fixed in (("x.txt", "x" + suffix), ("x", "x" + suffix), ("x" + suffix + ".bak", "x" + suffix)):
+        value = str(stop_dir / name)
+        r, err = run_option(command, make(stop_dir), option, value)
+        assert r.exit_code == 2 and r.stderr == (f"error: {option} {value}: the file name must end in {suffix} "
+                                                 f"({what}; did you mean {stop_dir / fixed}?)\n"), r.stderr
+    # the suffix in any case passes, and the command stops at its later check
+    for name in ("x" + suffix, "x" + suffix.upper()):
+        r, err = run_option(command, make(stop_dir), option, str(stop_dir / name))
+        assert r.exit_code == code and says in err and "must end in" not in err, err
+    assert sorted(p.name for p in stop_dir.iterdir()) == ["afile", "mine"]
