@@ -748,6 +748,8 @@ SUFFIXES = [
     ("export", "--xlsx", ".xlsx", "an Excel workbook"),
     ("export", "--pdf", ".pdf", "a PDF report"),
     ("export", "--csv", ".csv", "a CSV table"),
+    ("compare", "--csv", ".csv", "a CSV table"),
+    ("compare", "--plot", ".png", "a PNG image"),
 ]
 
 
