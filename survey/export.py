@@ -24,6 +24,7 @@ from trolley.trackgeometry import (ABSOLUTE_COLUMNS, FIX_NEAR_TRACK_M, GAP_STEPS
 
 from survey.atomicwrite import all_or_nothing, check_outputs, check_suffix, write_text_atomic
 from survey.fieldrecord import FIELD_RECORD, read_field_record
+from survey.limits import check_file_option
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
@@ -386,6 +387,8 @@ def check_export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, p
     for option, value, suffix, what in (("--xlsx", xlsx, ".xlsx", "an Excel workbook"),
                                         ("--pdf", pdf, ".pdf", "a PDF report"), ("--csv", csv, ".csv", "a CSV table")):
         check_suffix(option, value, suffix, what)
+    # "design alignment file not found" named no option
+    check_file_option(design, "--design", "a LandXML design file", "alignment.xml")
     path = resolve_track_csv(Path(track_csv))
     inputs = [path, path.parent / "fixes.csv", path.parent / "summary.json", design,
               Path(tolerances) if Path(tolerances).suffix.lower() == ".toml" else None]

@@ -767,3 +767,81 @@ def test_an_output_file_whose_name_lacks_its_formats_suffix_is_refused_first(com
         r, err = run_option(command, make(stop_dir), option, str(stop_dir / name))
         assert r.exit_code == code and says in err and "must end in" not in err, err
     assert sorted(p.name for p in stop_dir.iterdir()) == ["afile", "mine"]
+
+
+# ---------------------------------------------------------------------------- file options
+# an option that reads one file names itself when the file is missing or is a folder
+# (survey.limits.check_file_option), before anything else is read: `survey start --script
+# nosuch.txt` printed "[Errno 2] No such file or directory: 'nosuch.txt'", `tgms process --params
+# /tmp` "/tmp: cannot read parameters ([Errno 21] Is a directory: '/tmp')", `--vehicle
+# nosuch.toml` "nosuch.toml: file not found in ."
+
+#: every option that reads one file: (command, option, what the folder message says it wants)
+FILE_OPTIONS = [
+    ("export", "--design", "a LandXML design file"),
+    ("tgms process", "--params", "a parameter file"),
+    ("survey start", "--script", "a script file"),
+    ("survey start", "--devices", "a devices file"),
+    ("survey resume", "--script", "a script file"),
+    ("survey resume", "--devices", "a devices file"),
+    ("inservice simulate", "--vehicle", "a vehicle file"),
+    ("inservice calibrate", "--vehicle", "a vehicle file"),
+    ("inservice process", "--truth", "a truth file"),
+    ("inservice process", "--model", "a model file"),
+]
+
+#: every other option of type Path: what it writes, or a folder it reads
+OTHER_PATH_OPTIONS = {
+    *((c, "--out") for c in ("process", "simulate", "demo", "devices record", "devices simulate",
+                             "project export-session", "tgms simulate", "tgms process", "tgms tune", "survey start",
+                             "survey resume", "inservice simulate", "inservice vehicle", "inservice process",
+                             "inservice calibrate")),
+    ("export", "--xlsx"), ("export", "--pdf"), ("export", "--csv"), ("export", "--plots"), ("compare", "--csv"),
+    ("compare", "--plot"), ("budget", "--plots"), ("budget", "--plot"), ("devices simulate", "--link-dir"),
+    # folders read
+    ("simulate", "--project"), ("devices simulate", "--session-dir"), ("devices simulate", "--session"),
+    *((c, "--root") for c in ("project new", "project import-cpiii", "project import-alignment",
+                              "project import-session", "project export-session", "project set-crs", "project set",
+                              "project show", "survey start", "survey resume")),
+}
+
+
+def test_every_path_option_is_a_file_read_in_the_table_or_known_not_to_be():
+    """A Path option added later must be placed: when it reads one file, the test below feeds it
+    a missing file and a folder."""
+    paths = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS for p in cmd.params
+             if p.param_type_name == "option" and getattr(p, "type_descriptor", None) is not None
+             and Path in (p.type_descriptor.annotation, *get_args(p.type_descriptor.annotation))}
+    files = {(c, o) for c, o, _ in FILE_OPTIONS}
+    assert not files & OTHER_PATH_OPTIONS
+    assert paths == files | OTHER_PATH_OPTIONS
+
+
+@pytest.mark.parametrize("command, option, what", FILE_OPTIONS, ids=[f"{c} {o}" for c, o, _ in FILE_OPTIONS])
+def test_a_file_option_given_a_missing_file_or_a_folder_names_itself_first(command, option, what, stop_dir):
+    make, code, says = STOP[command]
+    missing, folder = stop_dir / "nosuch.txt", stop_dir / "mine"
+    r, _ = run_option(command, make(stop_dir), option, str(missing))
+    assert r.exit_code == 2 and r.stderr == f"error: {option} {missing}: no such file\n", r.stderr
+    r, _ = run_option(command, make(stop_dir), option, str(folder))
+    assert r.exit_code == 2 and r.stderr.startswith(f"error: {option} {folder}: is a folder, not {what}"), r.stderr
+    assert len(r.stderr.splitlines()) == 1, r.stderr
+    assert sorted(p.name for p in stop_dir.iterdir()) == ["afile", "mine"]
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]
+
+
+def test_a_resume_names_the_file_its_start_named_when_it_has_gone(tmp_path):
+    # a resume without --script/--devices takes the start's, which may have moved since
+    from survey.store import ProjectStore, SessionEvent
+
+    with ProjectStore.create(tmp_path, "p") as store:
+        rec = store.create_session("s")
+        store.add_event(rec.session_id, SessionEvent(0.0, "start", json.dumps({
+            "simulate": False, "speedup": 1.0, "script": str(tmp_path / "gone.txt"),
+            "devices": str(tmp_path / "PORTS.json"), "out": "sessions/s"})))
+    (tmp_path / "PORTS.json").write_text("{}")
+    r = runner.invoke(app, ["survey", "resume", "p", "--root", str(tmp_path), "--session", "s"])
+    assert r.exit_code == 2 and r.stderr.splitlines() == [
+        f"error: --script {tmp_path / 'gone.txt'}: no such file (the file the session started with)",
+        "  try: give the option with the file's new place"], r.stderr
+
