@@ -9,6 +9,8 @@ handling, DESIGN.md "bad input: never a partial output file, never a change to r
   plain ``open()`` would have given it (``0o666 & ~umask``, typically 0644, not ``mkstemp``'s
   0600) and is ``os.replace``-d onto the target, so the target is always either the old file or
   the complete new one.
+- :func:`check_suffix`: an output file's name ends in its format's suffix (``.xlsx``, ``.pdf``,
+  ``.csv``, ``.png``), since other programs know a file by its name.
 - :func:`check_outputs`: every output of a command checked (folder exists, target not a folder,
   not one of the command's inputs, not a raw session file, writable) *before* the first is
   written, so a command with several outputs writes all of them or none.
@@ -223,6 +225,32 @@ def _same_file(a: Path, b: Path) -> bool:
         return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
     except OSError:
         return False
+
+
+def check_suffix(option: str, path: str | os.PathLike | None, suffix: str, what: str) -> None:
+    """Refuse an output file whose name does not end in ``suffix`` (any case): the format is the
+    option's, and other programs (Excel, a PDF viewer, a file manager) know a file by its name
+    (``export --xlsx x.csv`` wrote an Excel workbook named x.csv).
+
+    Parameters
+    ----------
+    option : the option's name (``--xlsx``).
+    path : its value (None: not given).
+    suffix : the suffix the file must have (``.xlsx``).
+    what : the file the option writes, for the message (``an Excel workbook``).
+
+    Raises
+    ------
+    OutputError
+        ``--xlsx x.csv: the file name must end in .xlsx (an Excel workbook; did you mean x.xlsx?)``.
+    """
+    if path is None or Path(path).suffix.lower() == suffix:
+        return
+    path = Path(path)
+    # x.txt -> x.xlsx, x -> x.xlsx, x.xlsx.bak -> x.xlsx
+    stem = path.stem if path.stem.lower().endswith(suffix) else path.stem + suffix
+    hint = f"; did you mean {path.with_name(stem)}?" if path.name not in ("", ".", "..") else ""
+    raise OutputError(f"{option} {path}: the file name must end in {suffix} ({what}{hint})")
 
 
 def check_outputs(outputs: Iterable[tuple[str, Path | None]], inputs: Iterable[Path | None] = (),

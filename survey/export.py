@@ -22,8 +22,9 @@ from trolley.tolerances import ToleranceSet, find_defects
 from trolley.trackgeometry import (ABSOLUTE_COLUMNS, FIX_NEAR_TRACK_M, GAP_STEPS, GeometryConfig, column_stats,
                                   fixed_span, track_geometry)
 
-from survey.atomicwrite import all_or_nothing, check_outputs, write_text_atomic
+from survey.atomicwrite import all_or_nothing, check_outputs, check_suffix, write_text_atomic
 from survey.fieldrecord import FIELD_RECORD, read_field_record
+from survey.limits import check_file_option
 from survey.sheet_text import csv_safe_text
 from survey.tolerance_files import load_tolerances
 from survey.track_reader import (ExportInputError, add_design, design_alignment_name, design_alignment_path,
@@ -375,12 +376,19 @@ def check_export_outputs(track_csv: Path, xlsx: Path | None, csv: Path | None, p
                          pdf: Path | None = None) -> None:
     """Check every output before any is written: folders exist and are writable, no output is one
     of the inputs (track.csv, fixes.csv, summary.json, design, tolerance file) or a raw session
-    file, no two options name the same file.
+    file, no two options name the same file, each file's name ends in its format's suffix (.xlsx,
+    .pdf, .csv).
 
     Raises
     ------
     survey.atomicwrite.OutputError, ExportInputError
     """
+    # the names first, before the track is even looked for: a workbook named x.csv is no output
+    for option, value, suffix, what in (("--xlsx", xlsx, ".xlsx", "an Excel workbook"),
+                                        ("--pdf", pdf, ".pdf", "a PDF report"), ("--csv", csv, ".csv", "a CSV table")):
+        check_suffix(option, value, suffix, what)
+    # "design alignment file not found" named no option
+    check_file_option(design, "--design", "a LandXML design file", "alignment.xml")
     path = resolve_track_csv(Path(track_csv))
     inputs = [path, path.parent / "fixes.csv", path.parent / "summary.json", design,
               Path(tolerances) if Path(tolerances).suffix.lower() == ".toml" else None]

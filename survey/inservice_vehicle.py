@@ -126,6 +126,10 @@ def _check_range(key: str, value: float, where: str, fname: str) -> None:
                                f"vehicles ({unit})")
 
 
+#: what writes a vehicle file, for the messages about a folder given instead of one
+VEHICLE_MADE_BY = "`trolley inservice vehicle --out FILE` writes one"
+
+
 def read_vehicle(path: str | os.PathLike) -> VehicleFile:
     """Read a vehicle file (raises :class:`VehicleFileError` naming the file and the key).
 
@@ -138,8 +142,7 @@ def read_vehicle(path: str | os.PathLike) -> VehicleFile:
     path = Path(path)
     fname = path.name
     if path.is_dir():
-        raise VehicleFileError(f"{path}: is a folder, not a vehicle file (`trolley inservice vehicle --out FILE` "
-                               "writes one)")
+        raise VehicleFileError(f"{path}: is a folder, not a vehicle file ({VEHICLE_MADE_BY})")
     data = parse_toml(path, FORMAT, ("vehicle",), VehicleFileError)
     for key in data:
         if key not in ("format", "name", "vehicle", "sensors"):

@@ -120,9 +120,10 @@ def check_seed(value: int | None, option: str = "--seed") -> None:
 
 def check_file_option(path: os.PathLike | str | None, option: str, what: str, usual_name: str,
                       made_by: str = "") -> None:
-    """Refuse a folder given to an option that reads one file, naming the option: the reader's
-    own message named neither the option nor what was wrong ("sim: file not found in /tmp",
-    "/tmp/sim: Is a directory").
+    """Refuse a missing file or a folder given to an option that reads one file, naming the
+    option: the readers' own messages named neither the option nor, at times, what was wrong
+    ("sim: file not found in /tmp", "/tmp/sim: Is a directory", "[Errno 2] No such file or
+    directory: 'nosuch.txt'").
 
     Parameters
     ----------
@@ -135,10 +136,15 @@ def check_file_option(path: os.PathLike | str | None, option: str, what: str, us
     Raises
     ------
     ValueError
-        ``--model runs/a: is a folder, not a model file (did you mean runs/a/model.toml?)``.
+        ``--model runs/a: is a folder, not a model file (did you mean runs/a/model.toml?)``,
+        ``--script nosuch.txt: no such file``.
     """
-    if path is None or not os.path.isdir(path):
+    if path is None:
         return
-    inner = os.path.join(path, usual_name)
-    hint = f"did you mean {inner}?" if os.path.isfile(inner) else made_by
-    raise ValueError(f"{option} {path}: is a folder, not {what}" + (f" ({hint})" if hint else ""))
+    if os.path.isdir(path):
+        inner = os.path.join(path, usual_name)
+        hint = f"did you mean {inner}?" if os.path.isfile(inner) else made_by
+        raise ValueError(f"{option} {path}: is a folder, not {what}" + (f" ({hint})" if hint else ""))
+    if not os.path.exists(path):          # (a link to nothing too)
+        raise ValueError(f"{option} {path}: no such file")
+    # (an unreadable file is typer's: its Path type says "--params: path 'p.toml' is not readable")

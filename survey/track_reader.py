@@ -154,7 +154,7 @@ def resolve_track_csv(path: Path) -> Path:
         if (path / "session.toml").is_file() and (path / "imu.csv").is_file():
             raise ExportInputError(
                 f"{path}: a raw session folder (session.toml, imu.csv), not yet processed: run "
-                f"`trolley process {path} --out OUT` first, then `trolley export OUT`")
+                f"`trolley process {path} --out OUT` first, then `trolley export OUT --xlsx FILE`")
         raise ExportInputError(f"{path}: folder has no track.csv (nor processed/track.csv)")
     if not path.is_file():
         raise ExportInputError(f"{path}: no such file or folder")

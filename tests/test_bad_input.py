@@ -305,7 +305,8 @@ PROBES: list[Probe] = [
     Probe("process/step-1e-7", process_probe(lambda s: None, "--step-m", "1e-7"), ("--step-m",)),
     Probe("process/step-nan", process_probe(lambda s: None, "--step-m", "nan"), ("--step-m",)),
     # ---- export -------------------------------------------------------------------------
-    Probe("export/track-decimal-comma", export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", '"500123,5"')),
+    Probe("export/track-decimal-comma", export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", '"500123,5"'),
+                                                     "--csv", "{t}/o.csv"),
           ("track.csv", "5", "E_m")),
     Probe("export/track-decimal-comma-unquoted",
           export_probe(lambda p: set_cell(p / "track.csv", 5, "E_m", "500123,5"), "--csv", "{t}/o.csv"),
@@ -325,7 +326,7 @@ PROBES: list[Probe] = [
     Probe("export/track-zero-stations", export_probe(lambda p: keep_rows(p / "track.csv", 0), "--csv", "{t}/o.csv"),
           ("track.csv",)),
     Probe("export/track-is-a-folder", lambda t, i: (t / "x" / "track.csv").mkdir(parents=True) or
-          ["export", str(t / "x" / "track.csv")], ("track.csv",)),
+          ["export", str(t / "x" / "track.csv"), "--csv", str(t / "o.csv")], ("track.csv",)),
     Probe("export/twist-base-inf", export_probe(lambda p: None, "--twist-base-m", "inf", "--csv", "{t}/o.csv"),
           ("--twist-base-m",)),
     Probe("export/twist-base-zero", export_probe(lambda p: None, "--twist-base-m", "0", "--csv", "{t}/o.csv"),
@@ -343,8 +344,12 @@ PROBES: list[Probe] = [
     Probe("export/xlsx-missing-folder", export_probe(lambda p: None, "--xlsx", "{t}/no/s.xlsx"), ("--xlsx", "no")),
     Probe("export/csv-ok-but-plots-a-file", lambda t, i: (t / "pl").write_text("x") and
           ["export", str(_proc(t, i)), "--csv", str(t / "o.csv"), "--plots", str(t / "pl")], ("--plots", "pl")),
-    Probe("export/same-file-twice", export_probe(lambda p: None, "--csv", "{t}/o.csv", "--xlsx", "{t}/o.csv"),
-          ("o.csv",)),
+    # (through a link: each option's file name must end in its own suffix)
+    Probe("export/same-file-twice", export_probe(lambda p: (p.parent / "o.xlsx").symlink_to(p.parent / "o.csv"),
+                                                 "--csv", "{t}/o.csv", "--xlsx", "{t}/o.xlsx"),
+          ("--csv", "o.csv: also given to --xlsx")),
+    Probe("export/xlsx-named-csv", export_probe(lambda p: None, "--xlsx", "{t}/x.csv"),
+          ("--xlsx", "x.csv: the file name must end in .xlsx",)),
     Probe("export/session-design-escape", lambda t, i: _session_design_escape(t, i) and
           ["export", str(t / "proc"), "--csv", str(t / "o.csv")], ("session.toml", "design.alignment")),
     Probe("export/tolerances-not-utf8", lambda t, i: (t / "tol.toml").write_bytes(b"name = \"\xe9\"\n") and
@@ -355,7 +360,8 @@ PROBES: list[Probe] = [
           ("--tolerances: hsr_balastless_static", "hsr_ballastless_static")),
     Probe("export/fixes-bad-accepted", export_probe(lambda p: set_cell(p / "fixes.csv", 3, "accepted", "yes"),
                                                     "--csv", "{t}/o.csv"), ("fixes.csv", "3", "accepted")),
-    Probe("export/markup-in-folder-name", lambda t, i: ["export", str(copy(i.processed, t / "run[/x]") / "nope.csv")],
+    Probe("export/markup-in-folder-name", lambda t, i: ["export", str(copy(i.processed, t / "run[/x]") / "nope.csv"),
+                                                          "--csv", str(t / "o.csv")],
           ("run[/x]",)),
     # ---- simulate -----------------------------------------------------------------------
     Probe("simulate/rate-hz-1e7", lambda t, i: simulate_args(t, "--rate-hz", "1e7"), ("--rate-hz",)),

@@ -565,6 +565,25 @@ def test_progress_share_maps_a_sub_step_onto_its_part_of_the_bar():
     assert share(None, 0.0, 1.0) is None
 
 
+def test_an_error_under_a_progress_bar_is_one_line_when_stderr_is_no_terminal(tmp_path):
+    # rich's bar printed an empty line above the error when it stopped on a pipe or a file
+    import io
+
+    from rich.console import Console
+
+    from survey.commands.progress import progress_bar
+
+    r = runner.invoke(app, ["export", str(tmp_path / "notrack"), "--csv", str(tmp_path / "o.csv")])
+    assert r.exit_code == 2 and r.stderr == f"error: {tmp_path / 'notrack'}: no such file or folder\n", r.stderr
+    for interactive in (False, True):
+        out = io.StringIO()
+        with progress_bar("reading", Console(file=out, force_terminal=interactive, force_interactive=interactive,
+                                             width=100)) as report:
+            report("computing", 0.5)
+        # a terminal still gets its bar (transient: drawn, then cursor moves wipe it)
+        assert ("computing" in out.getvalue()) == interactive and (out.getvalue() == "") != interactive, out.getvalue()
+
+
 def test_monte_carlo_progress_rises_to_one_and_leaves_the_draws_alone():
     from trolley import budget as B
     from trolley.sensors import IMU_PRESETS
@@ -718,3 +737,111 @@ def test_help_is_still_click_help():
     assert r.exit_code == 0 and r.stdout.startswith("Usage: trolley budget [OPTIONS]") and "--seed" in r.stdout
     r = runner.invoke(app, [])          # no command: the command list, as before (click: exit code 2)
     assert r.exit_code == 2 and "Commands:" in r.output and "budget" in r.output and "error" not in r.output
+
+
+# ---------------------------------------------------------------------------- file names
+# an output file's name ends in its format's suffix: `export --xlsx x.csv` wrote an Excel workbook
+# named x.csv (survey.atomicwrite.check_suffix), refused before the inputs are even looked at
+
+#: (command, option, suffix, the file it writes)
+SUFFIXES = [
+    ("export", "--xlsx", ".xlsx", "an Excel workbook"),
+    ("export", "--pdf", ".pdf", "a PDF report"),
+    ("export", "--csv", ".csv", "a CSV table"),
+    ("compare", "--csv", ".csv", "a CSV table"),
+    ("compare", "--plot", ".png", "a PNG image"),
+]
+
+
+@pytest.mark.parametrize("command, option, suffix, what", SUFFIXES, ids=[f"{c} {o}" for c, o, *_ in SUFFIXES])
+def test_an_output_file_whose_name_lacks_its_formats_suffix_is_refused_first(command, option, suffix, what,
+                                                                             stop_dir):
+    make, code, says = STOP[command]
+    for name, fixed in (("x.txt", "x" + suffix), ("x", "x" + suffix), ("x" + suffix + ".bak", "x" + suffix)):
+        value = str(stop_dir / name)
+        r, err = run_option(command, make(stop_dir), option, value)
+        assert r.exit_code == 2 and r.stderr == (f"error: {option} {value}: the file name must end in {suffix} "
+                                                 f"({what}; did you mean {stop_dir / fixed}?)\n"), r.stderr
+    # the suffix in any case passes, and the command stops at its later check
+    for name in ("x" + suffix, "x" + suffix.upper()):
+        r, err = run_option(command, make(stop_dir), option, str(stop_dir / name))
+        assert r.exit_code == code and says in err and "must end in" not in err, err
+    assert sorted(p.name for p in stop_dir.iterdir()) == ["afile", "mine"]
+
+
+# ---------------------------------------------------------------------------- file options
+# an option that reads one file names itself when the file is missing or is a folder
+# (survey.limits.check_file_option), before anything else is read: `survey start --script
+# nosuch.txt` printed "[Errno 2] No such file or directory: 'nosuch.txt'", `tgms process --params
+# /tmp` "/tmp: cannot read parameters ([Errno 21] Is a directory: '/tmp')", `--vehicle
+# nosuch.toml` "nosuch.toml: file not found in ."
+
+#: every option that reads one file: (command, option, what the folder message says it wants)
+FILE_OPTIONS = [
+    ("export", "--design", "a LandXML design file"),
+    ("tgms process", "--params", "a parameter file"),
+    ("survey start", "--script", "a script file"),
+    ("survey start", "--devices", "a devices file"),
+    ("survey resume", "--script", "a script file"),
+    ("survey resume", "--devices", "a devices file"),
+    ("inservice simulate", "--vehicle", "a vehicle file"),
+    ("inservice calibrate", "--vehicle", "a vehicle file"),
+    ("inservice process", "--truth", "a truth file"),
+    ("inservice process", "--model", "a model file"),
+]
+
+#: every other option of type Path: what it writes, or a folder it reads
+OTHER_PATH_OPTIONS = {
+    *((c, "--out") for c in ("process", "simulate", "demo", "devices record", "devices simulate",
+                             "project export-session", "tgms simulate", "tgms process", "tgms tune", "survey start",
+                             "survey resume", "inservice simulate", "inservice vehicle", "inservice process",
+                             "inservice calibrate")),
+    ("export", "--xlsx"), ("export", "--pdf"), ("export", "--csv"), ("export", "--plots"), ("compare", "--csv"),
+    ("compare", "--plot"), ("budget", "--plots"), ("budget", "--plot"), ("devices simulate", "--link-dir"),
+    # folders read
+    ("simulate", "--project"), ("devices simulate", "--session-dir"), ("devices simulate", "--session"),
+    *((c, "--root") for c in ("project new", "project import-cpiii", "project import-alignment",
+                              "project import-session", "project export-session", "project set-crs", "project set",
+                              "project show", "survey start", "survey resume")),
+}
+
+
+def test_every_path_option_is_a_file_read_in_the_table_or_known_not_to_be():
+    """A Path option added later must be placed: when it reads one file, the test below feeds it
+    a missing file and a folder."""
+    paths = {(" ".join(path), p.opts[0]) for path, cmd in COMMANDS for p in cmd.params
+             if p.param_type_name == "option" and getattr(p, "type_descriptor", None) is not None
+             and Path in (p.type_descriptor.annotation, *get_args(p.type_descriptor.annotation))}
+    files = {(c, o) for c, o, _ in FILE_OPTIONS}
+    assert not files & OTHER_PATH_OPTIONS
+    assert paths == files | OTHER_PATH_OPTIONS
+
+
+@pytest.mark.parametrize("command, option, what", FILE_OPTIONS, ids=[f"{c} {o}" for c, o, _ in FILE_OPTIONS])
+def test_a_file_option_given_a_missing_file_or_a_folder_names_itself_first(command, option, what, stop_dir):
+    make, code, says = STOP[command]
+    missing, folder = stop_dir / "nosuch.txt", stop_dir / "mine"
+    r, _ = run_option(command, make(stop_dir), option, str(missing))
+    assert r.exit_code == 2 and r.stderr == f"error: {option} {missing}: no such file\n", r.stderr
+    r, _ = run_option(command, make(stop_dir), option, str(folder))
+    assert r.exit_code == 2 and r.stderr.startswith(f"error: {option} {folder}: is a folder, not {what}"), r.stderr
+    assert len(r.stderr.splitlines()) == 1, r.stderr
+    assert sorted(p.name for p in stop_dir.iterdir()) == ["afile", "mine"]
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]
+
+
+def test_a_resume_names_the_file_its_start_named_when_it_has_gone(tmp_path):
+    # a resume without --script/--devices takes the start's, which may have moved since
+    from survey.store import ProjectStore, SessionEvent
+
+    with ProjectStore.create(tmp_path, "p") as store:
+        rec = store.create_session("s")
+        store.add_event(rec.session_id, SessionEvent(0.0, "start", json.dumps({
+            "simulate": False, "speedup": 1.0, "script": str(tmp_path / "gone.txt"),
+            "devices": str(tmp_path / "PORTS.json"), "out": "sessions/s"})))
+    (tmp_path / "PORTS.json").write_text("{}")
+    r = runner.invoke(app, ["survey", "resume", "p", "--root", str(tmp_path), "--session", "s"])
+    assert r.exit_code == 2 and r.stderr.splitlines() == [
+        f"error: --script {tmp_path / 'gone.txt'}: no such file (the file the session started with)",
+        "  try: give the option with the file's new place"], r.stderr
+

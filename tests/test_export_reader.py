@@ -360,3 +360,30 @@ def test_the_pdf_and_the_limits_read_as_the_sheet():
     for mm in (18.0, 0.2443, 0.9):
         lim = Limit("gauge_dev", "gauge_dev_m", -mm * 1e-3, mm * 1e-3, "mm", source="t")
         assert limit_in_column(lim, gauge) == (-mm, mm)
+
+
+def test_an_export_that_asks_for_no_output_is_refused_unless_it_is_a_check(tmp_path):
+    # `trolley export DIR` alone computed everything, wrote nothing and exited 0: a forgotten
+    # --xlsx looked like a success
+    from typer.testing import CliRunner
+
+    from survey.cli import app
+
+    path = _track(tmp_path / "t" / "track.csv")
+    before = sorted(tmp_path.rglob("*"))
+    r = CliRunner().invoke(app, ["export", str(path)])
+    assert r.exit_code == 2 and r.stdout == ""
+    assert r.stderr == ("error: nothing to write: give one or more of --xlsx FILE, --pdf FILE, --csv FILE, "
+                        "--plots FOLDER (or --fail-on-defects or --json to check the track without writing a "
+                        "file)\n"), r.stderr
+    # the check is the purpose of --fail-on-defects (and of --json): it goes on and says that
+    # nothing was written
+    for check in ("--fail-on-defects", "--json"):
+        r = CliRunner().invoke(app, ["export", str(path), check])
+        assert r.exit_code == 0, r.stderr
+        assert json.loads(r.stdout)["stations"] == 40 and json.loads(r.stdout)["passed"] is True
+        assert "note: no output file asked for (--xlsx, --pdf, --csv, --plots): nothing written" in r.stderr
+    assert sorted(tmp_path.rglob("*")) == before
+    # with an output there is no such note
+    r = CliRunner().invoke(app, ["export", str(path), "--csv", str(tmp_path / "t.csv")])
+    assert r.exit_code == 0 and "nothing written" not in r.stderr and (tmp_path / "t.csv").is_file()

@@ -91,7 +91,7 @@ def test_process_forward_filter_only_and_without_truth(recording, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--smoother", "ukf"], "'ukf' is not one of"),
     (["--truth", "MISSING"], "truth.csv"),
-    (["--model", "MISSING"], "file not found"),
+    (["--model", "MISSING"], "no such file"),
 ])
 def test_process_refuses_bad_input_without_output(recording, tmp_path, args, message):
     out = tmp_path / "out"

@@ -139,7 +139,7 @@ def test_cli_lists_the_names_then_imports_by_name(tmp_path):
     res = runner.invoke(app, ["project", "import-alignment", f, "--project", "l7", "--root", root,
                               "--name", "Gleis 2"])
     assert res.exit_code == 0, res.stderr
-    assert "alignment 'Gleis 2', 3 elements" in res.stderr
+    assert "alignment 'Gleis 2', 3 elements" in res.stdout
     with ProjectStore.open_project(tmp_path, "l7") as store:
         rec = store.alignment()
         assert rec.name == "Gleis 2" and rec.alignment_name == "Gleis 2"

@@ -56,7 +56,8 @@ def test_new_import_show(tmp_path):
     cp = tmp_path / "cp.csv"
     cp.write_text("id,E_m,N_m,H_m\nCP0101,500001.0,3100002.0,45.1\nCP0102,500004.5,3100001.0,45.2\n", encoding="utf-8")
     res = run("project", "import-cpiii", str(cp), "--project", "line7", "--root", root)
-    assert "2 CPIII points imported" in res.stderr
+    # the result on stdout, as every command's (it was on stderr)
+    assert res.stdout == f"{cp}: 2 CPIII points imported; the project has 2\n" and res.stderr == ""
     bad = tmp_path / "bad.gsi"
     bad.write_text("*110001+000000000000CP99 81..01+0000000000012345 82..06+0000000000012345 "
                    "83..06+0000000000012345 \n", encoding="utf-8")
@@ -65,7 +66,11 @@ def test_new_import_show(tmp_path):
     xml = tmp_path / "design.xml"
     xml.write_text(design_xml(), encoding="utf-8")
     res = run("project", "import-alignment", str(xml), "--project", "line7", "--root", root)
-    assert "5 elements" in res.stderr and "1000.000 .. 1450.000 m" in res.stderr
+    assert res.stdout == f"{xml}: alignment 'up-line', 5 elements, chainage 1000.000 .. 1450.000 m\n"
+    assert "5 elements" not in res.stderr
+    # with --json stdout is the JSON object alone, the line goes to stderr
+    res = run("project", "import-alignment", str(xml), "--project", "line7", "--root", root, "--json")
+    assert json.loads(res.stdout)["elements"] == 5 and "5 elements" in res.stderr
     broken = tmp_path / "broken.xml"
     broken.write_text(design_xml().replace("<CoordGeom>", "<CoordGeom><Spiral spiType='bloss'/>"), encoding="utf-8")
     res = run("project", "import-alignment", str(broken), "--project", "line7", "--root", root, code=2)

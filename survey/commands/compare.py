@@ -39,7 +39,7 @@ def compare(
     from rich.markup import escape
 
     from survey import jsonout
-    from survey.atomicwrite import all_or_nothing, check_outputs, write_csv_frame
+    from survey.atomicwrite import all_or_nothing, check_outputs, check_suffix, write_csv_frame
     from survey.comparison import compared_tracks, difference_frame, summary_dict, write_difference_plot
     from survey.limits import check_finite
     from survey.track_reader import resolve_track_csv
@@ -50,6 +50,9 @@ def compare(
     check_finite(limit, "--limit", positive=True, maximum=MAX_LIMIT_SIGMA)
     check_finite(max_offset_m, "--max-offset-m", positive=True, maximum=MAX_OFFSET_LIMIT_M,
                  why="farther apart, they are not surveys of one track")
+    # the plot is a PNG whatever its name: --plot d.pdf wrote a PNG named d.pdf
+    check_suffix("--csv", csv, ".csv", "a CSV table")
+    check_suffix("--plot", plot, ".png", "a PNG image")
     inputs = [resolve_track_csv(track_a), resolve_track_csv(track_b)]
     check_outputs([("--csv", csv), ("--plot", plot)], inputs=inputs)
     ct = compared_tracks(track_a, track_b, limit, max_offset_m)

@@ -13,7 +13,12 @@ import typer
 from rich.markup import escape
 
 from survey.commands.options import JsonAlways, old_name, renamed
+from survey.errors import refuse
 
+
+#: the outputs an export writes (option, metavar): without one (and without --fail-on-defects or
+#: --json, which make the check itself the purpose) there is nothing to do
+OUTPUT_OPTIONS = (("--xlsx", "FILE"), ("--pdf", "FILE"), ("--csv", "FILE"), ("--plots", "FOLDER"))
 
 #: the longest twist base, versine chord or gauge-rate base, m: 1e300 gave a sheet whose columns
 #: of that base were all empty
@@ -84,6 +89,12 @@ def export(
     chord_m = renamed(chord_m, chord_old, "--chord-m", "--chord")
     gauge_rate_base_m = renamed(gauge_rate_base_m, gauge_rate_base_old, "--gauge-rate-base-m", "--gauge-rate-base")
     console = Console(stderr=True)
+    asked = [value for value in (xlsx, pdf, csv, plots) if value is not None]
+    if not asked and not (fail_on_defects or json_output):
+        # it computed everything, wrote nothing and exited 0: a forgotten --xlsx looked like a success
+        outputs = ", ".join(f"{option} {metavar}" for option, metavar in OUTPUT_OPTIONS)
+        refuse(f"nothing to write: give one or more of {outputs} (or --fail-on-defects or --json to check the "
+               "track without writing a file)")
     for option, value in ((typed["--twist-base-m"], twist_base_m), (typed["--chord-m"], chord_m),
                           (typed["--gauge-rate-base-m"], gauge_rate_base_m)):
         try:
@@ -117,6 +128,9 @@ def export(
             console.print(f"note: {note}", highlight=False, markup=False, soft_wrap=True)
     verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
     console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {escape(rep.tolerances.name)}: {verdict}")
+    if not asked:
+        console.print("note: no output file asked for (" + ", ".join(o for o, _ in OUTPUT_OPTIONS) +
+                      "): nothing written", highlight=False, markup=False, soft_wrap=True)
     jsonout.echo(result.as_dict())
     if fail_on_defects and not result.passed:
         raise typer.Exit(code=1)

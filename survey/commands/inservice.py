@@ -32,7 +32,8 @@ from rich.console import Console
 
 from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, check_outputs, remove_stale_temporaries, write_with
-from survey.commands.inservice_simulate import VehicleOption, _fail, simulate_cmd, vehicle_cmd, vehicle_for_run
+from survey.commands.inservice_simulate import (VehicleOption, _fail, check_vehicle_option, simulate_cmd, vehicle_cmd,
+                                                vehicle_for_run)
 from survey.commands.options import InserviceKind, InserviceSmoother, JsonAlways
 from survey.limits import MAX_SEED, check_allocation, check_file_option, check_finite, check_integer, check_seed
 
@@ -515,6 +516,7 @@ def calibrate_cmd(
         # the further runs' seeds SEED+1 ... go to the summary's extra_seeds: 64-bit integers too
         check_integer(seed, "--seed", maximum=MAX_SEED - extra_runs,
                       why=f"--extra-runs {extra_runs} takes the seeds up to SEED+{extra_runs}, 64-bit integers")
+        check_vehicle_option(vehicle)
     except ValueError as exc:
         _fail(str(exc))
     try:

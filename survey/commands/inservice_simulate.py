@@ -22,7 +22,7 @@ from rich.console import Console
 from survey import jsonout
 from survey.atomicwrite import OutputError, all_or_nothing, guard_overwrite, write_marker
 from survey.commands.options import JsonAlways
-from survey.limits import check_finite, check_seed
+from survey.limits import check_file_option, check_finite, check_seed
 
 console = Console(stderr=True)
 
@@ -39,6 +39,14 @@ def _fail(msg: str) -> None:
 VehicleOption = Annotated[Optional[Path], typer.Option(
     "--vehicle", help="vehicle file (`trolley inservice vehicle --out FILE` writes one to edit; docs/inservice.md, "
                       "\"Your vehicle\"); default: the Manchester benchmark vehicle with the paper's sensor noise")]
+
+
+def check_vehicle_option(vehicle: Optional[Path]) -> None:
+    """Refuse a missing file or a folder given to --vehicle, naming the option (ValueError): the
+    reader said "nosuch.toml: file not found in ." and "/tmp: is a folder", without it."""
+    from survey.inservice_vehicle import VEHICLE_MADE_BY
+
+    check_file_option(vehicle, "--vehicle", "a vehicle file", "vehicle.toml", VEHICLE_MADE_BY)
 
 
 def vehicle_for_run(vehicle: Optional[Path], speed_m_s: float, **conditions):
@@ -150,6 +158,7 @@ def simulate_cmd(
         check_finite(harmonic_wavelength_m, "--harmonic-wavelength-m", minimum=1.0, maximum=1000.0)
         check_finite(harmonic_amplitude_mm, "--harmonic-amplitude-mm", minimum=0.0, maximum=20.0)
         check_finite(rate_hz, "--rate-hz", minimum=20.0, maximum=2000.0)
+        check_vehicle_option(vehicle)
     except ValueError as exc:
         _fail(str(exc))
     if harmonic_wavelength_m is not None and resonance:

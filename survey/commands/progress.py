@@ -31,8 +31,10 @@ def progress_bar(first_step: str, console=None) -> Iterator[Report]:
     from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
 
     con = console if console is not None else Console(stderr=True)
+    # no bar where nobody watches (stderr a file or a pipe): rich draws none there anyway, but
+    # printed an empty line when it stopped, above the one line of an error
     with Progress(TextColumn("{task.description:<48}"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
-                  console=con, transient=True) as prog:
+                  console=con, transient=True, disable=not con.is_interactive) as prog:
         task = prog.add_task(first_step, total=1.0)
 
         def report(step: str, fraction: float) -> None:

@@ -32,6 +32,12 @@ def say(message: str) -> None:
     err.print(message, highlight=False, soft_wrap=True, markup=False)
 
 
+def result(message: str, json_output: bool) -> None:
+    """The command's result line: on stdout, where every command prints its result
+    (docs/conventions.md); with --json on stderr, so that stdout is the one JSON object."""
+    (err if json_output else Console()).print(message, highlight=False, soft_wrap=True, markup=False)
+
+
 def fail(message: str, code: int = 2) -> None:
     """Print a one-line error to stderr and exit non-zero."""
     from rich.text import Text
@@ -203,7 +209,7 @@ def import_cpiii(
             fail(f"{e} (nothing imported)")
         total = len(store.cpiii_points())
     extra = f", {res.already_present} already present" if res.already_present else ""
-    say(f"{file}: {res.added} CPIII points imported{extra}; the project has {total}")
+    result(f"{file}: {res.added} CPIII points imported{extra}; the project has {total}", json_output)
     if json_output:
         jsonout.echo({"file": file, "added": res.added, "already_present": res.already_present, "total": total})
 
@@ -244,9 +250,9 @@ def import_alignment(
         crs_notes = design_crs(store, file, text)
     for note in (*rec.notes, *crs_notes):
         say(f"{file}: note: {note}")
-    say(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
-              f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
-        + (f", {len(rec.notes)} note(s)" if rec.notes else ""))
+    result(f"{file}: alignment {rec.name!r}, {rec.element_count} elements, chainage "
+           f"{rec.chainage_start_m:.3f} .. {rec.chainage_end_m:.3f} m"
+           + (f", {len(rec.notes)} note(s)" if rec.notes else ""), json_output)
     if json_output:
         jsonout.echo({"file": file, "name": rec.name, "elements": rec.element_count,
                       "chainage_start_m": rec.chainage_start_m, "chainage_end_m": rec.chainage_end_m,

@@ -33,6 +33,10 @@ SpeedupOption = Annotated[Optional[float], typer.Option("--speedup", help="simul
 #: for the crew); 1e300 is inf in all but name, which ran the session at an unbounded clock.
 MAX_SPEEDUP = 1000.0
 SPEEDUP_WHY = "a faster simulated clock runs no faster: the devices and the processing set the pace"
+#: (what, usual name[, what writes one]) of the files --script and --devices read, for
+#: survey.limits.check_file_option
+SCRIPT_FILE = ("a script file", "crew_script.txt")
+DEVICES_FILE = ("a devices file", "PORTS.json", "`trolley devices simulate --out FILE` writes one")
 OutOption = Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <project>/sessions/<session>)")]
 JsonOption = Annotated[bool, typer.Option("--json", help="print the final summary as one JSON object on stdout "
                                                          "(the crew's screen and messages go to stderr)")]
@@ -181,13 +185,16 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
     from survey.session.script import ScriptError, read_script
     from survey.store import SessionEvent, StoreError
 
-    from survey.limits import check_finite
+    from survey.limits import check_file_option, check_finite
     from survey.names import check_name
 
     try:
         check_name("--session", session)
         # before the store is opened: inf passed `> 0` and the session ran at an unbounded clock
         check_finite(speedup, "--speedup", positive=True, maximum=MAX_SPEEDUP, why=SPEEDUP_WHY)
+        # the reader's "[Errno 2] No such file or directory: 'crew.txt'" named no option
+        check_file_option(script, "--script", *SCRIPT_FILE)
+        check_file_option(devices, "--devices", *DEVICES_FILE)
     except ValueError as exc:      # UnsafeNameError is one
         fail(str(exc))
     store = open_store(project, root)
@@ -210,6 +217,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
                           "the step the interrupted one had reached (said below)", highlight=False, markup=False)
             script = script if script is not None else (Path(kept) if kept else None)
             devices = devices if devices is not None else (Path(start["devices"]) if start.get("devices") else None)
+            try:
+                # the files the start named may have moved since
+                check_file_option(script, "--script", *SCRIPT_FILE)
+                check_file_option(devices, "--devices", *DEVICES_FILE)
+            except ValueError as exc:
+                fail(f"{exc} (the file the session started with)", "give the option with the file's new place")
             if out is None and start.get("out"):
                 # relative to the project folder (sessions/NAME): a project copied or moved to
                 # another disk resumes into its own folder, never into the old place

@@ -20,7 +20,7 @@ from survey.atomicwrite import (OutputError, all_or_nothing, check_outputs, guar
                                 write_text_atomic, write_with)
 from survey.commands.options import (JsonAlways, RailProfile, TgmsBox, TgmsModel, TgmsOrientation, TgmsTrajectory,
                                      old_name, renamed)
-from survey.limits import check_allocation, check_finite, check_seed
+from survey.limits import check_allocation, check_file_option, check_finite, check_seed
 
 console = Console(stderr=True)
 
@@ -296,6 +296,9 @@ def process_cmd(
     step = renamed(step, step_old, "--step-m", "--step", 0.25)
     try:
         check_finite(step, step_option, minimum=0.01, maximum=5.0)
+        # the reader said "/tmp: cannot read parameters ([Errno 21] Is a directory: '/tmp')"
+        check_file_option(params_file, "--params", "a parameter file", "params.toml",
+                          "`trolley tgms tune DIR --out FILE` writes one")
         bounds = parse_band(band, step)
         check_outputs([], inputs=[folder], folders=[("--out", out)])
     except ValueError as exc:
