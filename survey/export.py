@@ -204,8 +204,16 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     return rep, {"read": t1 - t0, "geometry": t2 - t1, "check": t3 - t2}
 
 
-#: the start of the Summary note on stations outside the outermost fixes (the command prints it)
+#: the start of the Summary note on stations outside the outermost fixes
 UNFIXED_NOTE = "deviations from the design not checked"
+#: the notes that say what was not checked, which a PASS must not hide: ``trolley export`` prints
+#: them before its verdict, the PDF's summary page lists them (:func:`unchecked_notes`)
+UNCHECKED_NOTES = ("track.csv column", "track.csv has no gauge_mm", "track.csv has no stations", UNFIXED_NOTE)
+
+
+def unchecked_notes(rep: SurveyReport) -> list[str]:
+    """The report's notes that say what was not checked (:data:`UNCHECKED_NOTES`)."""
+    return [n for n in rep.notes if n.startswith(UNCHECKED_NOTES)]
 
 
 def absolute_span(geometry, fixes, notes: list[str], stationing=None) -> np.ndarray | None:

@@ -4,7 +4,8 @@ Pages, A4 landscape, each with the project, line, track and chainage at the top 
 software, "page i of N" and the tolerance set at the bottom:
 
 1. cover: the header block (survey/surveyheader.py) and the verdict;
-2. summary: fixes, overlap checks, and the statistics of every parameter against its limit;
+2. summary: fixes, overlap checks, what was not checked (``survey.export.unchecked_notes``), and
+   the statistics of every parameter against its limit;
 3. strip charts, one page per kilometre of chainage (the panels of survey/plots.py: deviations
    with their 1-sigma band, gauge, cant deviation, twist, with fixes, stops and tolerances);
 4. the single defects (:data:`DEFECT_ROWS` a page) and the track quality per 200 m section;
@@ -152,6 +153,12 @@ def _summary(fig, rep: SurveyReport) -> None:
                      + (f", of them within {held[0].limit_text} of the setups' own uncertainty: "
                         f"{', '.join(o.new_point for o in held)}" if held else ""))
     lines.append(f"Defects: {len(rep.defects)} against {rep.tolerances.name}")
+    import textwrap
+
+    from survey.export import unchecked_notes
+
+    for note in unchecked_notes(rep):   # what was not checked: a PASS must not hide it
+        lines += textwrap.wrap(f"Note: {note}", 150, subsequent_indent="    ")
     for i, t in enumerate(lines):
         fig.text(0.05, 0.92 - 0.03 * i, t, fontsize=9)
     limits = {lim.column: lim for lim in rep.tolerances.limits}

@@ -95,6 +95,19 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
     ranges = [str(r.sqref) for r in ws.conditional_formatting if str(r.sqref).startswith(col)]
     first = TRACK_FIRST_ROW + int(np.flatnonzero(s >= 50.0)[0])
     assert ranges == [f"{col}{first}:{col}{first + 400}"]
+    # the PDF's summary page says it too (the client signs the PDF)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from survey.reportpdf import _summary
+
+    fig = plt.figure()
+    _summary(fig, rep)
+    shown = " ".join(" ".join(t.get_text().split()) for t in fig.texts)
+    plt.close(fig)
+    assert "Note: deviations from the design not checked at stations 0.000-49.375 m, before the first fix" in shown
 
 
 def test_every_station_is_checked_between_fixes_at_both_ends_and_without_fixes_csv(tmp_path):

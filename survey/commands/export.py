@@ -76,7 +76,7 @@ def export(
 
     from survey import jsonout
     from survey.commands.progress import progress_bar
-    from survey.export import UNFIXED_NOTE, export_outputs
+    from survey.export import export_outputs, unchecked_notes
     from survey.limits import check_finite
     from survey.track_reader import ExportInputError
     from trolley.tolerances import ToleranceError
@@ -122,10 +122,8 @@ def export(
         typer.echo(f"error: {e.filename or ''}: {e.strerror or e}", err=True)
         raise typer.Exit(code=2)
     rep = result.report
-    for note in rep.notes:
-        if note.startswith(("track.csv column", "track.csv has no gauge_mm", "track.csv has no stations", UNFIXED_NOTE)):
-            # what was not checked, before a PASS is believed
-            console.print(f"note: {note}", highlight=False, markup=False, soft_wrap=True)
+    for note in unchecked_notes(rep):   # what was not checked, before a PASS is believed
+        console.print(f"note: {note}", highlight=False, markup=False, soft_wrap=True)
     verdict = "[green]PASS[/green]" if result.passed else f"[red]FAIL[/red]: {result.defects} defect(s)"
     console.print(f"{rep.geometry.chainage_m.size} stations, tolerances {escape(rep.tolerances.name)}: {verdict}")
     if not asked:
