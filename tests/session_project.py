@@ -1,9 +1,12 @@
 """A small simulated project for the field-session tests (not a test module)."""
 from __future__ import annotations
 
+import os
+import pickle
 import re
 import shutil
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -60,3 +63,29 @@ def fix_covariance_by_hand(fix, setup, instrument) -> np.ndarray:
 def fix_sigmas_by_hand(fix, setup, instrument) -> np.ndarray:
     """(3,) the E, N, H sigma a fix must carry: the diagonal of :func:`fix_covariance_by_hand`."""
     return np.sqrt(np.diag(fix_covariance_by_hand(fix, setup, instrument)))
+
+
+def shared_copy(tmp_path_factory, name: str, build: Callable[[Path], object]) -> tuple[Path, object]:
+    """A folder built once per test run, whatever the number of xdist workers, and this worker's
+    own copy of it: ``(copy, what build returned)``.
+
+    A module fixture is built once per worker that runs a test of the module: with 4 workers the
+    reference session of tests/test_session_run.py (10-20 s) was run up to 4 times. ``build(folder)``
+    runs under a lock in a folder all workers share (the run's base temporary folder); each worker
+    then works on its own copy, so no two write into one project store.
+    """
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / f"shared-{name}"
+    with open(f"{shared}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)    # released when the file closes
+        if not (shared / ".built").is_file():
+            shutil.rmtree(shared, ignore_errors=True)   # a build that failed half way
+            shared.mkdir(parents=True)
+            (shared / ".result.pickle").write_bytes(pickle.dumps(build(shared)))
+            (shared / ".built").touch()
+        result = pickle.loads((shared / ".result.pickle").read_bytes())
+        copy = tmp_path_factory.mktemp(name)
+        shutil.copytree(shared, copy, dirs_exist_ok=True, symlinks=True)
+    return copy, result

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from session_project import fix_covariance_by_hand, fix_sigmas_by_hand, make_project
+from session_project import fix_covariance_by_hand, fix_sigmas_by_hand, make_project, shared_copy
 
 SCRIPT = "fix\nmove\nfix\nstation\nmove\nfix\nstation\nmove\nfix\nend\n"
 #: the overlap measurement (second attempt) at stop 1 (60 m) 2.2 mm off along the long axis of the
@@ -22,13 +22,17 @@ BLUNDERS = ((1, 1, 0.00198, 0.00097, 0.0), (2, 1, 0.0, 0.0, 0.0022))
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
+    """The noisy session, run once for all workers; each worker's tests read its own copy."""
+    return shared_copy(tmp_path_factory, "overlap", _noisy_session)
+
+
+def _noisy_session(root):
     from survey.commands.survey import simulated_world
     from survey.session.fieldsession import FieldSession, SessionConfig
     from survey.session.script import parse_script
     from survey.store import ProjectStore
     from trolley.resection import InstrumentSigmas
 
-    root = tmp_path_factory.mktemp("overlap")
     make_project(root, length_m="180.0")
     console = Console(stderr=True, record=True, width=400)
     with ProjectStore.open(root / "t1") as st:
@@ -41,7 +45,7 @@ def session(tmp_path_factory):
         world.options = replace(world.options, fix_blunders_m=BLUNDERS)
         FieldSession(st, "noisy", SessionConfig(script=parse_script(SCRIPT), out_dir=root / "out"),
                      world=world, console=console).run()
-    return root, " ".join(console.export_text().split())
+    return " ".join(console.export_text().split())
 
 
 def test_fix_sigmas_carry_the_setup_covariance_scaled_by_sigma0(session):

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from polling import count_in_store
-from session_project import fix_covariance_by_hand, fix_sigmas_by_hand, make_project
+from session_project import fix_covariance_by_hand, fix_sigmas_by_hand, make_project, shared_copy
 
 TROLLEY = [sys.executable, "-m", "survey.cli"]
 SPEEDUP = "25"
@@ -33,15 +33,19 @@ def run_cli(args, cwd, timeout=120):
                           env={**os.environ, "COLUMNS": "160"})
 
 
-@pytest.fixture(scope="module")
-def project(tmp_path_factory):
-    root = tmp_path_factory.mktemp("session_run")
+def _reference(root):
     make_project(root / "projects", tolerance_set="en13848_5_alert")  # not the default set
     (root / "crew.txt").write_text(SCRIPT)
     r = run_cli(["survey", "start", "t1", "--root", "projects", "--session", "ref", "--simulate",
                  "--speedup", SPEEDUP, "--script", "crew.txt"], root)
     assert r.returncode == 0, r.stderr[-3000:]
-    return root, r
+    return r
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    """The reference session, run once for all workers; each worker's tests work on its own copy."""
+    return shared_copy(tmp_path_factory, "session_run", _reference)
 
 
 def store(root):
