@@ -103,7 +103,9 @@ def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_a
     taken its fix there, however late the key comes (before 2026-11-27 it waited only once the
     session had seen the trolley standing after the alignment: on a loaded machine the trolley had
     left the first stop, ``f`` was answered "the trolley is moving", and CI failed). ``f`` while
-    the trolley moves says why nothing happens; ``e`` asks before it ends the session."""
+    the trolley moves says why nothing happens; ``e`` asks before it ends the session. The last
+    stop ends where the simulated data end: ``f`` there takes the fix (it was dropped without a
+    word once the world waited at a stop's end: the last interval had no closing fix)."""
     make_project(tmp_path / "projects", static_s="20.0")  # 8 s stops (tests/session_project.py)
     child = _start(tmp_path, "fast", "40")
     try:
@@ -123,6 +125,13 @@ def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_a
         child.expect("end the session\\? y = end it")
         child.send("x")
         child.expect("the session goes on")
+        # the last stop ends where the simulated data end: the world waits there for the fix, and
+        # f takes it (it was dropped without a word, "the simulated survey is over")
+        child.expect("standing at 120")
+        time.sleep(1.0)
+        child.expect("f = take the fix at this last stop")
+        child.send("f")
+        child.expect("FIX003 accepted", timeout=10)
         _end(child)
     finally:
         child.close()
@@ -134,8 +143,8 @@ def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_a
     with ProjectStore.open(tmp_path / "projects" / "t1") as st:
         fixes = st.fixes(st.session("fast").session_id)
         sim = simulated_world(st, 1.0).sim
-    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True)]
-    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1]  # the second one at the 60 m stop
+    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True), ("FIX003", True)]
+    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1, 2]  # the second one at the 60 m stop
 
 
 def test_one_set_of_keys_on_the_screen(tmp_path):

@@ -685,7 +685,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         s.sigma_fix_here_mm = interval_sigma_mm(self.rec.meta, s.distance_since_fix_m, t - t_ref)
         s.devices = self.acq.health()
         if self.world is not None and self.world.finished(self.data_time()) and self.config.script is None:
-            s.message = "the simulated survey is over: e = end the session"
+            # the last stop ends with the data: the world may wait there for its fix (_hold_at_stop)
+            s.message = ("the simulated survey is over: f = take the fix at this last stop, then e = end the session"
+                         if self.world.clock.limit is not None else "the simulated survey is over: e = end the session")
         if self.paused:
             s.phase = "PAUSED (train): p to resume"
         elif self.device_pause:
@@ -933,8 +935,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                              "a fix is taken when it stands")
                     return True
                 return False
-            if self.world is not None and self.world.finished(self.now()):
-                return True
+            if self.world is not None and self.config.script is not None and self.world.finished(self.now()):
+                return True  # a scripted fix past the end of the simulated survey
+            # (at the keyboard the world waits for the fix at the last stop at the end of its data)
             ok = self.remeasure_pending() if a.name == "remeasure" else self.take_fix()
             return ok or self.config.script is None
         return True
