@@ -13,6 +13,7 @@ import os
 import sys
 import time
 
+import numpy as np
 import pexpect
 
 from session_project import make_project
@@ -271,3 +272,31 @@ def test_killed_at_a_stop_the_interactive_resume_finds_the_trolley_still_there(t
         sim = simulated_world(st, 1.0).sim
     assert [(f.point, f.accepted, stop_index_at(sim, f.t_s)) for f in fixes] == [("FIX001", True, 0),
                                                                                 ("FIX002", True, 1)]
+
+
+def test_killed_again_and_again_at_a_stop_the_resumed_world_still_waits_there():
+    """Each interactive resume at a stop's end sends 0.1 s more data (the device check waits for
+    a sample of every stream); the stop is left only once the trolley has moved from it. By time
+    alone (the stop's end + 0.1 s) the third kill at the 60 m stop, with data stored to 0.2 s past
+    its end, found the world heading for the 120 m stop: the fix at 60 m was lost."""
+    from types import SimpleNamespace
+
+    from survey.session.fieldsession import HELD_MOVE_M, FieldSession
+    from survey.session.simworld import SimClock
+    from trolley.truthsim import motion_profile
+
+    m = motion_profile(0.0, 120.0, 60.0, static_s=20.0, stop_s=8.0, speed_m_s=2.0, accel_time_s=4.0)
+    fs = FieldSession.__new__(FieldSession)
+    end = float(m.stop_end_s[1])
+    stored, limits = end, []
+    for _ in range(4):   # killed at the limit each time, resumed at the keyboard
+        fs._hold_ends = {}
+        fs.world = SimpleNamespace(sim=SimpleNamespace(truth=SimpleNamespace(motion=m)), clock=SimClock(stored, 40.0))
+        fs._hold_before_loop(stored)
+        stored = fs.world.clock.limit
+        limits.append(round(stored - end, 6))
+    # 5 um, 0.08 mm, 0.41 mm from the stop: standing; the fourth resume would send the trolley
+    # 1.3 mm on, and the world goes on to the next stop's end (the 120 m stop, the data's end)
+    assert limits == [0.1, 0.2, 0.3, round(float(m.stop_end_s[2]) - end, 6)]
+    moved = m.evaluate(np.array([end, end + 0.3]))[0]
+    assert abs(moved[1] - moved[0]) <= HELD_MOVE_M
