@@ -125,7 +125,7 @@ def _fmt(x: float, digits: int = 2) -> str:
 def _cover(fig, rep: SurveyReport) -> None:
     fig.text(0.05, 0.92, "Track survey report", fontsize=20, weight="bold")
     passed = rep.passed
-    fig.text(0.05, 0.875, ("PASS: no value beyond tolerance" if passed else
+    fig.text(0.05, 0.875, (f"PASS: {rep.no_defects_text}" if passed else
                            f"FAIL: {len(rep.defects)} defect(s) beyond tolerance"),
              fontsize=13, weight="bold", color="#006100" if passed else "#9C0006")
     ax = fig.add_axes([0.05, 0.06, 0.9, 0.78])
