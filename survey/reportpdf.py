@@ -133,6 +133,10 @@ def _cover(fig, rep: SurveyReport) -> None:
     _table(ax, rows, ["Field", "Value"], [0.25, 0.75], fontsize=8)
 
 
+#: the most lines one note takes on the summary page (the page holds the statistics table too)
+NOTE_LINES = 4
+
+
 def _summary(fig, rep: SurveyReport) -> None:
     from survey.workbook import _field_only_rejections
 
@@ -158,7 +162,10 @@ def _summary(fig, rep: SurveyReport) -> None:
     from survey.export import unchecked_notes
 
     for note in unchecked_notes(rep):   # what was not checked: a PASS must not hide it
-        lines += textwrap.wrap(f"Note: {note}", 150, subsequent_indent="    ")
+        # at most NOTE_LINES lines each: a note listing 130 gaps took the page, and the statistics
+        # table below got a negative height (ValueError, no PDF)
+        lines += textwrap.wrap(f"Note: {note}", 150, subsequent_indent="    ", max_lines=NOTE_LINES,
+                               placeholder=" ... (in full: the workbook's Summary, export --json's notes)")
     for i, t in enumerate(lines):
         fig.text(0.05, 0.92 - 0.03 * i, t, fontsize=9)
     limits = {lim.column: lim for lim in rep.tolerances.limits}

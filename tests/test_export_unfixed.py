@@ -108,6 +108,15 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
     shown = " ".join(" ".join(t.get_text().split()) for t in fig.texts)
     plt.close(fig)
     assert "Note: deviations from the design not checked at stations 0.000-49.375 m, before the first fix" in shown
+    # a note listing many gaps takes at most 4 lines: it took the page, the statistics table had a
+    # negative height and no PDF was written (ValueError: Width and height ... must be non-negative)
+    rep.notes.append("track.csv has no stations in " + ", ".join(f"{10 * i:.3f}-{10 * i + 5:.3f} m" for i in range(300)))
+    fig = plt.figure()
+    _summary(fig, rep)
+    gaps = [t.get_text() for t in fig.texts if "no stations in" in t.get_text()]
+    table = fig.axes[-1].get_position()
+    plt.close(fig)
+    assert len(gaps) == 1 and table.height > 0.4
 
 
 def test_every_station_is_checked_between_fixes_at_both_ends_and_without_fixes_csv(tmp_path):
