@@ -125,12 +125,16 @@ def _fmt(x: float, digits: int = 2) -> str:
 def _cover(fig, rep: SurveyReport) -> None:
     fig.text(0.05, 0.92, "Track survey report", fontsize=20, weight="bold")
     passed = rep.passed
-    fig.text(0.05, 0.875, ("PASS: no value beyond tolerance" if passed else
+    fig.text(0.05, 0.875, (f"PASS: {rep.no_defects_text}" if passed else
                            f"FAIL: {len(rep.defects)} defect(s) beyond tolerance"),
              fontsize=13, weight="bold", color="#006100" if passed else "#9C0006")
     ax = fig.add_axes([0.05, 0.06, 0.9, 0.78])
     rows = [[label, text] for label, text in header_rows(rep)]
     _table(ax, rows, ["Field", "Value"], [0.25, 0.75], fontsize=8)
+
+
+#: the most lines one note takes on the summary page (the page holds the statistics table too)
+NOTE_LINES = 4
 
 
 def _summary(fig, rep: SurveyReport) -> None:
@@ -158,7 +162,10 @@ def _summary(fig, rep: SurveyReport) -> None:
     from survey.export import unchecked_notes
 
     for note in unchecked_notes(rep):   # what was not checked: a PASS must not hide it
-        lines += textwrap.wrap(f"Note: {note}", 150, subsequent_indent="    ")
+        # at most NOTE_LINES lines each: a note listing 130 gaps took the page, and the statistics
+        # table below got a negative height (ValueError, no PDF)
+        lines += textwrap.wrap(f"Note: {note}", 150, subsequent_indent="    ", max_lines=NOTE_LINES,
+                               placeholder=" ... (in full: the workbook's Summary, export --json's notes)")
     for i, t in enumerate(lines):
         fig.text(0.05, 0.92 - 0.03 * i, t, fontsize=9)
     limits = {lim.column: lim for lim in rep.tolerances.limits}

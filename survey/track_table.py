@@ -357,3 +357,13 @@ class SurveyReport:
     def passed(self) -> bool:
         """True when no defect was found."""
         return not self.defects
+
+    @property
+    def no_defects_text(self) -> str:
+        """What a report without defects says of its values (the PDF's cover, the Defects sheet):
+        with stations outside the outermost fixes (:attr:`absolute_checked`) not every value was
+        checked, and one beyond tolerance may stand there."""
+        if self.absolute_checked is None:
+            return "no value beyond tolerance"
+        # (the cover's line at 13 pt bold: 0.87 of the page's width)
+        return "no checked value beyond tolerance (not every value was checked: see the summary's notes)"

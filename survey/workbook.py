@@ -328,7 +328,7 @@ def _defects_sheet(ws, rep: SurveyReport) -> None:
         put_text(ws, r, 12, "example value" if lim.example else lim.source)
     last = r0 + max(len(rep.defects), 1)
     if not rep.defects:
-        put_text(ws, r0 + 1, 2, "no value beyond tolerance")
+        put_text(ws, r0 + 1, 2, rep.no_defects_text)
     else:
         ws.auto_filter.ref = f"A{r0}:L{last}"
     for j, w in enumerate((6, 34, 11, 11, 12, 12, 10, 10, 10, 7, 9, 60), start=1):

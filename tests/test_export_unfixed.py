@@ -108,6 +108,15 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
     shown = " ".join(" ".join(t.get_text().split()) for t in fig.texts)
     plt.close(fig)
     assert "Note: deviations from the design not checked at stations 0.000-49.375 m, before the first fix" in shown
+    # a note listing many gaps takes at most 4 lines: it took the page, the statistics table had a
+    # negative height and no PDF was written (ValueError: Width and height ... must be non-negative)
+    rep.notes.append("track.csv has no stations in " + ", ".join(f"{10 * i:.3f}-{10 * i + 5:.3f} m" for i in range(300)))
+    fig = plt.figure()
+    _summary(fig, rep)
+    gaps = [t.get_text() for t in fig.texts if "no stations in" in t.get_text()]
+    table = fig.axes[-1].get_position()
+    plt.close(fig)
+    assert len(gaps) == 1 and table.height > 0.4
 
 
 def test_every_station_is_checked_between_fixes_at_both_ends_and_without_fixes_csv(tmp_path):
@@ -134,3 +143,32 @@ def test_the_command_prints_the_note_before_its_verdict(tmp_path):
     text = " ".join(r.output.split())
     assert "note: deviations from the design not checked at stations 100.625-499.375 m, beyond the last fix" in text
     assert text.index("note: deviations") < text.index("stations, tolerances")
+
+
+def test_a_pass_with_stations_beyond_the_fixes_does_not_say_no_value_is_beyond_tolerance(tmp_path):
+    """The PDF's cover and the Defects sheet said "no value beyond tolerance" of a PASS with
+    stations beyond the last fix, whose deviations from the design were not checked (the client
+    signs the cover; bug hunt 2026-11-27's 1140 m beyond the last fix had 38 such values)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from survey.export import build_report
+    from survey.reportpdf import _cover
+
+    out = _outputs_with_fixes_at(tmp_path / "o", [0.0, 100.0], {})
+    rep, _ = build_report(out / "track.csv", tolerances="en13848_5_alert")
+    assert rep.passed and rep.absolute_checked is not None
+    fig = plt.figure(figsize=(11.69, 8.27))   # A4 landscape, as the report
+    _cover(fig, rep)
+    shown = " ".join(t.get_text() for t in fig.texts)
+    fig.canvas.draw()
+    right = max(t.get_window_extent().x1 for t in fig.texts) / fig.bbox.width
+    plt.close(fig)
+    assert "PASS: no checked value beyond tolerance (not every value was checked: see the summary's notes)" in shown
+    assert right < 0.97    # on the page
+    assert "no value beyond tolerance" not in shown.replace("no checked value", "")
+    (out / "fixes.csv").unlink()   # every station checked: as before
+    rep, _ = build_report(out / "track.csv", tolerances="en13848_5_alert")
+    assert rep.absolute_checked is None and rep.no_defects_text == "no value beyond tolerance"

@@ -13,6 +13,7 @@ import os
 import sys
 import time
 
+import numpy as np
 import pexpect
 
 from session_project import make_project
@@ -103,7 +104,9 @@ def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_a
     taken its fix there, however late the key comes (before 2026-11-27 it waited only once the
     session had seen the trolley standing after the alignment: on a loaded machine the trolley had
     left the first stop, ``f`` was answered "the trolley is moving", and CI failed). ``f`` while
-    the trolley moves says why nothing happens; ``e`` asks before it ends the session."""
+    the trolley moves says why nothing happens; ``e`` asks before it ends the session. The last
+    stop ends where the simulated data end: ``f`` there takes the fix (it was dropped without a
+    word once the world waited at a stop's end: the last interval had no closing fix)."""
     make_project(tmp_path / "projects", static_s="20.0")  # 8 s stops (tests/session_project.py)
     child = _start(tmp_path, "fast", "40")
     try:
@@ -123,6 +126,13 @@ def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_a
         child.expect("end the session\\? y = end it")
         child.send("x")
         child.expect("the session goes on")
+        # the last stop ends where the simulated data end: the world waits there for the fix, and
+        # f takes it (it was dropped without a word, "the simulated survey is over")
+        child.expect("standing at 120")
+        time.sleep(1.0)
+        child.expect("f = take the fix at this last stop")
+        child.send("f")
+        child.expect("FIX003 accepted", timeout=10)
         _end(child)
     finally:
         child.close()
@@ -134,8 +144,8 @@ def test_at_40x_the_world_waits_at_every_stop_f_while_moving_is_answered_and_e_a
     with ProjectStore.open(tmp_path / "projects" / "t1") as st:
         fixes = st.fixes(st.session("fast").session_id)
         sim = simulated_world(st, 1.0).sim
-    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True)]
-    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1]  # the second one at the 60 m stop
+    assert [(f.point, f.accepted) for f in fixes] == [("FIX001", True), ("FIX002", True), ("FIX003", True)]
+    assert [stop_index_at(sim, f.t_s) for f in fixes] == [0, 1, 2]  # the second one at the 60 m stop
 
 
 def test_one_set_of_keys_on_the_screen(tmp_path):
@@ -262,3 +272,31 @@ def test_killed_at_a_stop_the_interactive_resume_finds_the_trolley_still_there(t
         sim = simulated_world(st, 1.0).sim
     assert [(f.point, f.accepted, stop_index_at(sim, f.t_s)) for f in fixes] == [("FIX001", True, 0),
                                                                                 ("FIX002", True, 1)]
+
+
+def test_killed_again_and_again_at_a_stop_the_resumed_world_still_waits_there():
+    """Each interactive resume at a stop's end sends 0.1 s more data (the device check waits for
+    a sample of every stream); the stop is left only once the trolley has moved from it. By time
+    alone (the stop's end + 0.1 s) the third kill at the 60 m stop, with data stored to 0.2 s past
+    its end, found the world heading for the 120 m stop: the fix at 60 m was lost."""
+    from types import SimpleNamespace
+
+    from survey.session.fieldsession import HELD_MOVE_M, FieldSession
+    from survey.session.simworld import SimClock
+    from trolley.truthsim import motion_profile
+
+    m = motion_profile(0.0, 120.0, 60.0, static_s=20.0, stop_s=8.0, speed_m_s=2.0, accel_time_s=4.0)
+    fs = FieldSession.__new__(FieldSession)
+    end = float(m.stop_end_s[1])
+    stored, limits = end, []
+    for _ in range(4):   # killed at the limit each time, resumed at the keyboard
+        fs._hold_ends = {}
+        fs.world = SimpleNamespace(sim=SimpleNamespace(truth=SimpleNamespace(motion=m)), clock=SimClock(stored, 40.0))
+        fs._hold_before_loop(stored)
+        stored = fs.world.clock.limit
+        limits.append(round(stored - end, 6))
+    # 5 um, 0.08 mm, 0.41 mm from the stop: standing; the fourth resume would send the trolley
+    # 1.3 mm on, and the world goes on to the next stop's end (the 120 m stop, the data's end)
+    assert limits == [0.1, 0.2, 0.3, round(float(m.stop_end_s[2]) - end, 6)]
+    moved = m.evaluate(np.array([end, end + 0.3]))[0]
+    assert abs(moved[1] - moved[0]) <= HELD_MOVE_M

@@ -40,6 +40,10 @@ STAND_WINDOW_S = 1.0
 #: the crew at the first stop: a sample of every stream (the odometer's period is 0.01 s)
 ALIGNMENT_DATA_MARGIN_S = 0.05
 TICK_S = 0.05
+#: an interactive simulated world resumed at a stop's end stands there on while the data it sends
+#: (``STOP_GRACE_S`` more at each resume) take the trolley at most this far from the stop: half
+#: ``STAND_TOLERANCE_M``, so the session still sees it standing
+HELD_MOVE_M = 0.5 * STAND_TOLERANCE_M
 #: a scripted crew looks at the simulated world at least every this many simulated seconds
 SIM_STEP_S = 2.0
 #: reason stored with a fix that failed the innovation test, until the crew decides
@@ -685,7 +689,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         s.sigma_fix_here_mm = interval_sigma_mm(self.rec.meta, s.distance_since_fix_m, t - t_ref)
         s.devices = self.acq.health()
         if self.world is not None and self.world.finished(self.data_time()) and self.config.script is None:
-            s.message = "the simulated survey is over: e = end the session"
+            # the last stop ends with the data: the world may wait there for its fix (_hold_at_stop)
+            s.message = ("the simulated survey is over: f = take the fix at this last stop, then e = end the session"
+                         if self.world.clock.limit is not None else "the simulated survey is over: e = end the session")
         if self.paused:
             s.phase = "PAUSED (train): p to resume"
         elif self.device_pause:
@@ -736,13 +742,21 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
         At a stop's end (a session killed while the world waited there) it sends ``STOP_GRACE_S``
         of data past what is stored: the device check waits for a sample of every stream (the
-        gauge's come every 0.1 s), and the trolley has moved 5 um by then."""
+        gauge's come every 0.1 s), and the trolley has moved 5 um by then. Each resume there adds
+        that much, so a stop is left by time only once the trolley would move more than
+        :data:`HELD_MOVE_M` from it in the data sent: by the stop's end + ``STOP_GRACE_S`` alone,
+        the third kill at one stop (stored data 0.2 s past its end, the trolley 0.08 mm from it)
+        found the world heading for the next stop, and the fix there was lost."""
         from survey.session.simworld import STOP_GRACE_S
 
         m = self.world.sim.truth.motion
         for k in range(m.stop_end_s.size):
             if m.stop_end_s[k] + STOP_GRACE_S < stored_s - 1e-6:
-                continue  # a stop the world has left
+                if not m.stop_start_s[k] <= stored_s <= m.stop_end_s[k] + 1.0:
+                    continue  # a stop the world has left
+                s = m.evaluate(np.array([float(m.stop_end_s[k]), stored_s + STOP_GRACE_S]))[0]
+                if abs(s[1] - s[0]) > HELD_MOVE_M:
+                    continue  # the trolley is leaving it
             end = float(m.stop_end_s[k])
             if m.stop_start_s[k] <= stored_s:
                 end = self._hold_ends[k] = max(end, stored_s + STOP_GRACE_S)
@@ -933,8 +947,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                              "a fix is taken when it stands")
                     return True
                 return False
-            if self.world is not None and self.world.finished(self.now()):
-                return True
+            if self.world is not None and self.config.script is not None and self.world.finished(self.now()):
+                return True  # a scripted fix past the end of the simulated survey
+            # (at the keyboard the world waits for the fix at the last stop at the end of its data)
             ok = self.remeasure_pending() if a.name == "remeasure" else self.take_fix()
             return ok or self.config.script is None
         return True
