@@ -150,7 +150,12 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
             ax.plot(s[sel], v[sel], lw=0.4, color=colours[n % 3], alpha=0.35, label=f"{label} per station")
             v = chord_envelope(v, p, rep.geometry.step_m)
             label = f"{label}, max over {p:g} m"
-        vals.append(v[sel][np.isfinite(v[sel])])
+        scale = sel
+        if k in ABSOLUTE_COLUMNS and rep.absolute_checked is not None and (sel & rep.absolute_checked).any():
+            # the y range follows the checked stations: hundreds of mm of drift beyond the fixes
+            # flattened the checked part and its 10 mm band to a line (it runs off the panel)
+            scale = sel & rep.absolute_checked
+        vals.append(v[scale][np.isfinite(v[scale])])
         ax.plot(s[sel], v[sel], lw=0.9, color=colours[n % 3], label=label)
         if k in SIGMA_OF:
             sig = by_key[SIGMA_OF[k]].display(rep.geometry.columns[SIGMA_OF[k]])

@@ -72,7 +72,7 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
 
     # fixes at 50, 150 and 300 m; a 15 mm lateral step at 250 m (between fixes: a defect), at 20 m
     # (before the first) and at 400 m (beyond the last): not checked there
-    out = _outputs_with_fixes_at(tmp_path / "o", [50.0, 150.0, 300.0], {20.0: 0.015, 250.0: 0.015, 400.0: 0.015})
+    out = _outputs_with_fixes_at(tmp_path / "o", [50.0, 150.0, 300.0], {20.0: 0.015, 250.0: 0.015, 400.0: 0.040})
     res = export_outputs(out, tmp_path / "s.xlsx", None, None)
     rep = res.report
     lateral = [d for d in rep.defects if d.column == "lateral_dev_m"]
@@ -81,7 +81,7 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
     assert np.array_equal(rep.absolute_checked, (s >= 50.0) & (s <= 300.0))
     # the statistics count the checked stations only; the Track values stay as they are
     assert rep.stats["lateral_dev_m"].count == int(((s >= 50.0) & (s <= 300.0)).sum()) == 401
-    assert np.nanmax(rep.geometry.columns["lateral_dev_m"][s > 300.0]) > 0.014   # the 15 mm step, shown
+    assert np.nanmax(rep.geometry.columns["lateral_dev_m"][s > 300.0]) > 0.039   # the 40 mm step, shown
     note = next(n for n in rep.notes if n.startswith(UNFIXED_NOTE))
     sig = 1e3 * rep.geometry.columns["sigma_lateral_m"]
     assert (f"0.000-49.375 m, before the first fix used (50.000 m; sigma lateral up to {sig[s < 50].max():.1f} mm"
@@ -106,6 +106,17 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
     fig = plt.figure()
     _summary(fig, rep)
     shown = " ".join(" ".join(t.get_text().split()) for t in fig.texts)
+    plt.close(fig)
+    # the deviation panel's y range follows the checked stations (1.25 x their largest value):
+    # the 40 mm beyond the last fix runs off it
+    from survey.plots import draw_panel, panel_marks
+
+    fig, ax = plt.subplots()
+    draw_panel(ax, rep, ["lateral_dev_m"], panel_marks(rep))
+    inside = rep.columns[[c.key for c in rep.columns].index("lateral_dev_m")].display(
+        rep.geometry.columns["lateral_dev_m"][rep.absolute_checked])
+    top = ax.get_ylim()[1]
+    assert top == pytest.approx(1.25 * np.nanmax(np.abs(inside)), rel=1e-9) and top < 25.0
     plt.close(fig)
     assert "Note: deviations from the design not checked at stations 0.000-49.375 m, before the first fix" in shown
     # a note listing many gaps takes at most 4 lines: it took the page, the statistics table had a
