@@ -47,6 +47,23 @@ def _fix(child, label: str) -> None:
     raise AssertionError(f"{label} not taken")
 
 
+def _at_the_60_m_stop(tmp_path):
+    """A session ``kb`` at 40x: the station accepted, FIX001 at the start, the trolley standing at
+    the 60 m stop (its world waits there for the fix)."""
+    make_project(tmp_path / "projects", static_s="20.0")
+    child = _start(tmp_path, "kb", "40")
+    try:
+        child.expect("a accept")
+        child.send("a")
+        child.expect("station accepted")
+        _fix(child, "FIX001")
+        child.expect("standing at 60")
+    except BaseException:
+        child.close()
+        raise
+    return child
+
+
 def test_interactive_session_with_two_fixes_a_pause_and_a_note(tmp_path):
     make_project(tmp_path / "projects", static_s="20.0", stop_s="30.0")  # 2 s per stop at 15x: time to type
     child = _start(tmp_path, "kb", "15")
@@ -188,14 +205,8 @@ def test_an_ended_session_is_reopened_to_add_intervals(tmp_path):
     next interval, the fix at 120 m. The session is processed again at its new end."""
     import subprocess
 
-    make_project(tmp_path / "projects", static_s="20.0")
-    child = _start(tmp_path, "kb", "40")
+    child = _at_the_60_m_stop(tmp_path)
     try:
-        child.expect("a accept")
-        child.send("a")
-        child.expect("station accepted")
-        _fix(child, "FIX001")
-        child.expect("standing at 60")
         child.send("e")
         child.expect("end the session\\? y = end it")
         child.send("y")
@@ -241,14 +252,8 @@ def test_killed_at_a_stop_the_interactive_resume_finds_the_trolley_still_there(t
     looks, and the fix taken 2 s (80 simulated s) later is the 60 m stop's."""
     import signal
 
-    make_project(tmp_path / "projects", static_s="20.0")
-    child = _start(tmp_path, "kb", "40")
+    child = _at_the_60_m_stop(tmp_path)
     try:
-        child.expect("a accept")
-        child.send("a")
-        child.expect("station accepted")
-        _fix(child, "FIX001")
-        child.expect("standing at 60")
         time.sleep(1.5)  # the world waits at the stop's end; the store has the data up to it (0.5 s flushes)
         os.kill(child.pid, signal.SIGKILL)
     finally:

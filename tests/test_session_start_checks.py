@@ -22,13 +22,18 @@ def _script(tmp_path):
     return script
 
 
-def test_a_project_without_cpiii_is_refused_before_anything_is_stored(tmp_path):
+def _start_with_only(tmp_path, command: str, file: str):
+    """``survey start`` on a new project site1 given only ``file`` (through ``project COMMAND``)."""
     root = tmp_path / "projects"
     assert runner.invoke(app, ["project", "new", "site1", "--root", str(root)]).exit_code == 0
-    assert runner.invoke(app, ["project", "import-alignment", str(DEMO / "alignment.xml"), "--project", "site1",
+    assert runner.invoke(app, ["project", command, str(DEMO / file), "--project", "site1",
                                "--root", str(root)]).exit_code == 0
-    r = runner.invoke(app, ["survey", "start", "site1", "--session", "s1", "--simulate", "--script",
-                            str(_script(tmp_path)), "--root", str(root)])
+    return root, runner.invoke(app, ["survey", "start", "site1", "--session", "s1", "--simulate", "--script",
+                                     str(_script(tmp_path)), "--root", str(root)])
+
+
+def test_a_project_without_cpiii_is_refused_before_anything_is_stored(tmp_path):
+    root, r = _start_with_only(tmp_path, "import-alignment", "alignment.xml")
     assert r.exit_code == 2
     assert "error: project 'site1' has 0 CPIII points; the free station needs at least 3" in r.stderr
     assert "`trolley project import-cpiii FILE --project site1`" in r.stderr
@@ -40,12 +45,7 @@ def test_a_project_without_cpiii_is_refused_before_anything_is_stored(tmp_path):
 
 
 def test_a_project_without_design_names_the_project_in_the_import_command(tmp_path):
-    root = tmp_path / "projects"
-    assert runner.invoke(app, ["project", "new", "site1", "--root", str(root)]).exit_code == 0
-    assert runner.invoke(app, ["project", "import-cpiii", str(DEMO / "cpiii.csv"), "--project", "site1",
-                               "--root", str(root)]).exit_code == 0
-    r = runner.invoke(app, ["survey", "start", "site1", "--session", "s1", "--simulate", "--script",
-                            str(_script(tmp_path)), "--root", str(root)])
+    _, r = _start_with_only(tmp_path, "import-cpiii", "cpiii.csv")
     assert r.exit_code == 2
     assert "`trolley project import-alignment FILE.xml --project site1`" in r.stderr
 
