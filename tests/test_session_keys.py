@@ -305,3 +305,22 @@ def test_killed_again_and_again_at_a_stop_the_resumed_world_still_waits_there():
     assert limits == [0.1, 0.2, 0.3, round(float(m.stop_end_s[2]) - end, 6)]
     moved = m.evaluate(np.array([end, end + 0.3]))[0]
     assert abs(moved[1] - moved[0]) <= HELD_MOVE_M
+
+
+def test_at_40x_a_station_change_right_after_a_fix_has_the_trolley_at_its_stop(tmp_path):
+    """``f`` then ``s`` at the 60 m stop: the world stays there 2 s after the fix (CREW_LINGER_S),
+    so the station change finds the trolley standing and measures the overlap at that stop
+    (before, at 40x, the trolley left in the next tick: "station change: stop the trolley first")."""
+    child = _at_the_60_m_stop(tmp_path)
+    try:
+        _fix(child, "FIX002")
+        child.expect("moves on in 2 s")
+        time.sleep(0.5)  # the crew reads the screen: 20 simulated s at 40x
+        child.send("s")
+        child.expect("station change: setting up station 2")
+        child.expect("a accept")
+        child.send("a")
+        child.expect("overlap check at FIX002: new - old station")
+        child.expect("overlap fix FIX003 accepted")
+    finally:
+        child.terminate(force=True)

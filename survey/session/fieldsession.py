@@ -39,6 +39,10 @@ STAND_WINDOW_S = 1.0
 #: past the static alignment's end, the data an interactive simulated world sends before it waits for
 #: the crew at the first stop: a sample of every stream (the odometer's period is 0.01 s)
 ALIGNMENT_DATA_MARGIN_S = 0.05
+#: an interactive simulated world stays this long (wall-clock) at a stop after the crew's fix there:
+#: time for ``s`` (a station change, whose overlap check measures this stop again), ``u`` or ``n``
+#: before the trolley moves on; at 40x it left in the next tick, and a station change found it moving
+CREW_LINGER_S = 2.0
 TICK_S = 0.05
 #: an interactive simulated world resumed at a stop's end stands there on while the data it sends
 #: (``STOP_GRACE_S`` more at each resume) take the trolley at most this far from the stop: half
@@ -162,6 +166,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         self._tolerances = None
         self._world_held = False
         self._hold_ends: dict[int, float] = {}  # stops an interactive simulated world stands at longer
+        self._fix_wall_s = -math.inf  # monotonic time of the last accepted fix (CREW_LINGER_S)
         #: resume: the setup number (1-based) of a station change the crash interrupted
         self._station_resumed: int | None = None
         self._fix_distance_pending = False
@@ -514,7 +519,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         if accepted:
             # said first: _accepted starts the interval's processing, whose summary follows on its own thread
             self.say(f"fix {label} accepted at t = {t:.1f} s"
-                     + (f" (innovation {1e3 * np.linalg.norm(verdict.innovation_enh_m):.2f} mm)" if verdict else ""))
+                     + (f" (innovation {1e3 * np.linalg.norm(verdict.innovation_enh_m):.2f} mm)" if verdict else "")
+                     + (f"; the simulated trolley moves on in {CREW_LINGER_S:g} s (s = station change here first)"
+                        if self.world is not None and self.config.script is None and self.aligned else ""))
             self._accepted(fix, dist)
         else:
             self.pending = (fix_id, fix, verdict)
@@ -550,6 +557,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
 
     def _accepted(self, fix: FixRecord, distance_m: float | None) -> None:
         self.accepted_fixes.append(fix)
+        self._fix_wall_s = time.monotonic()
         self._set_last_fix(fix, distance_m)
         self.screen.fixes_accepted = len(self.accepted_fixes)
         if len(self.accepted_fixes) > 1:
@@ -800,7 +808,10 @@ class FieldSession(StationSetupSteps, LiveFiltering):
                             and needed + ALIGNMENT_DATA_MARGIN_S <= end + STOP_GRACE_S)
                 if aligning and needed + ALIGNMENT_DATA_MARGIN_S > end:
                     end = self._hold_ends[k] = needed + ALIGNMENT_DATA_MARGIN_S  # kept: the stop is still this one
-            fixed = any(m.stop_start_s[k] - 1e-6 <= f.t_s <= end + 1e-6 for f in self.accepted_fixes)
+            at_k = [m.stop_start_s[k] - 1e-6 <= f.t_s <= end + 1e-6 for f in self.accepted_fixes]
+            # the crew's last fix was here a moment ago: it may still change the station or undo
+            lingering = bool(at_k) and at_k[-1] and time.monotonic() - self._fix_wall_s < CREW_LINGER_S
+            fixed = any(at_k) and not lingering
             # (still when the crew has ended: a reopened session goes on from this stop)
             if aligning or not fixed:
                 limit = max(end, t)  # never backwards: the streams have sent up to t
