@@ -728,6 +728,7 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
     ws.auto_filter.ref = f"A{head}:{last}{end}"
     red = PatternFill("solid", fgColor="FFC7CE", bgColor="FFC7CE")
     font = Font(color="9C0006")
+    unchecked = Font(color="808080", italic=True)
     for lim in rep.tolerances.limits:
         j = index.get(lim.column)
         if j is None:
@@ -749,6 +750,15 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
         # ISNUMBER: empty cells (no value) are not exceedances
         formula = f"AND(ISNUMBER({L}{top}),OR({','.join(conds)}))"
         ws.conditional_formatting.add(f"{L}{top}:{L}{bottom}", FormulaRule(formula=[formula], fill=red, font=font))
+    inside = np.flatnonzero(rep.absolute_checked) if rep.absolute_checked is not None else np.zeros(0, int)
+    for key in ABSOLUTE_COLUMNS if rep.absolute_checked is not None else ():
+        # beyond the outermost fixes in grey italics: shown, not checked (the Summary's note says why)
+        j = index.get(key)
+        spans = ((row0, row0 + int(inside[0]) - 1), (row0 + int(inside[-1]) + 1, end)) if inside.size else ((row0, end),)
+        for a, b in spans if j is not None else ():
+            if a <= b:
+                L = _col_letter(j)
+                ws.conditional_formatting.add(f"{L}{a}:{L}{b}", FormulaRule(formula=[f"ISNUMBER({L}{a})"], font=unchecked))
 
 
 def _sheet_part(z: zipfile.ZipFile, title: str) -> str:

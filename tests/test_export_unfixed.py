@@ -94,7 +94,11 @@ def test_deviations_outside_the_outermost_fixes_are_shown_not_checked(tmp_path):
     col = next(c.column_letter for c in ws[TRACK_FIRST_ROW - 1] if c.value and str(c.value).startswith("Lateral dev"))
     ranges = [str(r.sqref) for r in ws.conditional_formatting if str(r.sqref).startswith(col)]
     first = TRACK_FIRST_ROW + int(np.flatnonzero(s >= 50.0)[0])
-    assert ranges == [f"{col}{first}:{col}{first + 400}"]
+    assert sorted(ranges) == sorted([f"{col}{TRACK_FIRST_ROW}:{col}{first - 1}", f"{col}{first}:{col}{first + 400}",
+                                     f"{col}{first + 401}:{col}{TRACK_FIRST_ROW + s.size - 1}"])
+    rules = {str(r.sqref): r.rules[0] for r in ws.conditional_formatting if str(r.sqref).startswith(col)}
+    assert rules[f"{col}{TRACK_FIRST_ROW}:{col}{first - 1}"].dxf.font.i           # grey italic: not checked
+    assert rules[f"{col}{first}:{col}{first + 400}"].dxf.fill is not None          # red beyond the limit
     # the PDF's summary page says it too (the client signs the PDF)
     import matplotlib
 
