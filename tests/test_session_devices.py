@@ -320,3 +320,47 @@ def test_an_instrument_that_keeps_another_prism_constant_stops_the_session_befor
                                                            "read_mm": 0.0})]
     assert session.said == ["total station: prism constant +0.0 mm for the CPIII prisms (set and read back)"]
     assert sum(r.rpc == gc.TMC_SETPRISMCORR for r in twin.requests) == 2
+
+
+def test_the_devices_open_at_the_drivers_line_speeds_or_the_devices_files(tmp_path):
+    """A session's odometer and gauge opened at 9600 baud, though the counter module and the gauge
+    sensor speak 115200 (their drivers' and `devices record`'s default) and the devices file could
+    not say otherwise: on real ports nothing readable arrived. The speed set on a pty is the slave's
+    termios, which its master reads."""
+    import os
+    import pty
+    import termios
+
+    from survey.commands.survey import read_devices
+    from survey.session.acquisition import Acquisition, TimeBase
+
+    class Sink:
+        def append(self, *a):
+            pass
+
+    fds, ports = [], {}
+    for name in ("imu", "odometer", "gauge", "totalstation"):
+        m, s = pty.openpty()
+        fds += [m, s]
+        ports[name] = os.ttyname(s)
+    speed = {getattr(termios, f"B{b}"): b for b in (9600, 19200, 38400, 115200, 230400, 460800)}
+    try:
+        for given, want in (({}, {"imu": 460800, "odometer": 115200, "gauge": 115200}),
+                            ({"imu_baud": 230400, "odometer_baud": 38400, "gauge_baud": 19200},
+                             {"imu": 230400, "odometer": 38400, "gauge": 19200})):
+            f = tmp_path / "ports.json"
+            f.write_text(json.dumps({**ports, **given}))
+            p, options = read_devices(f)
+            bauds = {k[:-5]: v for k, v in options.items() if k.endswith("_baud")}
+            acq = Acquisition({k: v for k, v in p.items() if k != "totalstation"}, Sink(), TimeBase(), bauds=bauds)
+            acq.open(2.0)
+            try:
+                for name, link in acq.links.items():
+                    master = fds[2 * list(ports).index(name)]
+                    assert speed[termios.tcgetattr(master)[4]] == want[name], name
+            finally:
+                for link in acq.links.values():
+                    link.stop()
+    finally:
+        for fd in fds:
+            os.close(fd)

@@ -139,7 +139,8 @@ class session_lock:
 
 #: the ports and the driver options a devices file may hold (docs/field_session.md)
 DEVICE_PORTS = ("imu", "odometer", "gauge", "totalstation")
-DEVICE_OPTIONS = ("imu_type", "imu_rate_hz", "imu_axes", "odometer_config")
+DEVICE_BAUDS = ("imu_baud", "odometer_baud", "gauge_baud", "totalstation_baud")
+DEVICE_OPTIONS = ("imu_type", "imu_rate_hz", "imu_axes", "odometer_config") + DEVICE_BAUDS
 
 
 def _device_option_error(data: dict) -> str | None:
@@ -155,7 +156,7 @@ def _device_option_error(data: dict) -> str | None:
     import os
 
     from drivers import encoder, novatel
-    from survey.commands.devices import MAX_IMU_RATE_HZ, MAX_ODOMETER_PPR
+    from survey.commands.devices import MAX_BAUD, MAX_IMU_RATE_HZ, MAX_ODOMETER_PPR, MIN_BAUD
 
     known = DEVICE_PORTS + DEVICE_OPTIONS
     for key in data:
@@ -181,6 +182,11 @@ def _device_option_error(data: dict) -> str | None:
     def number(v) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool)
 
+    for key in DEVICE_BAUDS:
+        if key in data:
+            b = data[key]
+            if not (isinstance(b, int) and not isinstance(b, bool) and MIN_BAUD <= b <= MAX_BAUD):
+                return f"{key} must be a line speed of {MIN_BAUD} to {MAX_BAUD} baud, not {b!r}"
     if "imu_type" in data:
         t = data["imu_type"]
         if not (isinstance(t, int) and not isinstance(t, bool)) or t not in novatel.IMU_SCALES:

@@ -22,6 +22,10 @@ from drivers.serialport import SerialLink
 from drivers.stats import Stats
 from survey.store import GaugeRecord, ImuRecord, OdometerRecord
 
+#: line speeds of the streaming devices unless the devices file gives them (``<device>_baud``): those
+#: of the drivers and of ``trolley devices record`` (the odometer and the gauge were opened at 9600,
+#: a counter module or gauge sensor at its 115200 default then sent nothing readable)
+DEFAULT_BAUDS = {"imu": 460800, "odometer": encoder.DEFAULT_BAUD, "gauge": gauge.DEFAULT_BAUD}
 #: a device whose data stop for this long (wall clock) is reported as failing
 STALE_AFTER_S = 1.0
 #: on resume, monotonic and wall clock must agree this well for the host to count as not restarted
@@ -246,11 +250,12 @@ class Acquisition:
     world : the simulated world (simulated session) or None.
     odometer : counter settings.
     imu_type, imu_rate_hz, imu_axes : IMU scale and mounting.
+    bauds : device -> line speed, default :data:`DEFAULT_BAUDS` (the drivers' and ``devices record``'s).
     """
 
     def __init__(self, ports: dict[str, str], writer, timebase: TimeBase, world=None,
                  odometer: encoder.OdometerConfig = encoder.OdometerConfig(), imu_type: int | None = None,
-                 imu_rate_hz: float | None = None, imu_axes: str = "x,y,z") -> None:
+                 imu_rate_hz: float | None = None, imu_axes: str = "x,y,z", bauds: dict[str, int] | None = None) -> None:
         self.writer = writer
         self.tb = timebase
         self.world = world
@@ -267,7 +272,7 @@ class Acquisition:
         for name, port in ports.items():
             if name in mk:
                 self.links[name] = TappedLink(port, RawTap(mk[name](), name, self._raw), name,
-                                              baudrate=460800 if name == "imu" else 9600, sink=self._raw)
+                                              baudrate={**DEFAULT_BAUDS, **(bauds or {})}[name], sink=self._raw)
         self.last_data_host: dict[str, float] = {k: time.monotonic() for k in self.links}
         self.samples: dict[str, int] = {k: 0 for k in self.links}
         self.dropped: dict[str, int] = {}
