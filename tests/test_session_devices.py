@@ -364,3 +364,41 @@ def test_the_devices_open_at_the_drivers_line_speeds_or_the_devices_files(tmp_pa
     finally:
         for fd in fds:
             os.close(fd)
+
+
+def test_a_gauge_sensor_that_restarts_its_clock_goes_on_in_time_order():
+    """A bus-powered gauge sensor unplugged and plugged in again restarts its millisecond clock at 0.
+    Its readings were stored on the old clock's mapping, up to its whole uptime in the past (here
+    500 s before the session started), out of time order. So were they after a resume if it
+    restarted while the session was down. A clock that goes on over an unplug, or wraps at 2^32 ms,
+    keeps its mapping."""
+    from drivers.gauge import MS_MODULO, GaugeRecord
+    from survey.session.acquisition import Acquisition, TimeBase
+
+    class Sink:
+        def append(self, *a):
+            pass
+
+        def append_records(self, table, recs):
+            pass
+
+    def lines(t_host, ms0, n):  # 10 Hz, read 10 ms after each line
+        return [GaugeRecord(t_host + 0.1 * k + 0.01, k, (ms0 + 100 * k) % MS_MODULO, 1.435, 0) for k in range(n)]
+
+    tb = TimeBase(host_t0=1000.0, wall_t0=0.0)
+    acq = Acquisition({}, Sink(), tb)
+    acq.samples["gauge"] = 0
+    acq._gauge(lines(1000.0, MS_MODULO - 2000, 50))   # its clock wraps at 2 s
+    acq._gauge(lines(1008.0, 6000, 10))               # unplugged 3 s, its clock ran on
+    acq._gauge(lines(1012.0, 0, 10))                  # power-cycled: its clock restarted
+    t = acq.buffers.array("gauge")[:, 0]
+    np.testing.assert_allclose(t[:50], 0.01 + 0.1 * np.arange(50), atol=1e-9)
+    np.testing.assert_allclose(t[50:60], 8.01 + 0.1 * np.arange(10), atol=1e-9)
+    np.testing.assert_allclose(t[60:], 12.01 + 0.1 * np.arange(10), atol=1e-9)
+    # a resumed session (the same host run): its stored time base, and the sensor restarted meanwhile
+    resumed = Acquisition({}, Sink(), TimeBase(host_t0=1000.0, wall_t0=0.0, gauge_origin_s=tb.gauge_origin_s))
+    resumed.samples["gauge"] = 0
+    resumed.buffers.add("gauge", acq.buffers.array("gauge"))
+    resumed._gauge(lines(1030.0, 0, 10))
+    np.testing.assert_allclose(resumed.buffers.array("gauge")[70:, 0], 30.01 + 0.1 * np.arange(10), atol=1e-9)
+    assert not acq.write_error and not resumed.write_error

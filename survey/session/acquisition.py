@@ -26,6 +26,9 @@ from survey.store import GaugeRecord, ImuRecord, OdometerRecord
 #: of the drivers and of ``trolley devices record`` (the odometer and the gauge were opened at 9600,
 #: a counter module or gauge sensor at its 115200 default then sent nothing readable)
 DEFAULT_BAUDS = {"imu": 460800, "odometer": encoder.DEFAULT_BAUD, "gauge": gauge.DEFAULT_BAUD}
+#: the gauge sensor's clock restarted (or jumped) when its step between readings differs from the
+#: host clock's by more than this, s (a read batches at most a few tens of ms)
+GAUGE_CLOCK_BREAK_S = 2.0
 #: a device whose data stop for this long (wall clock) is reported as failing
 STALE_AFTER_S = 1.0
 #: on resume, monotonic and wall clock must agree this well for the host to count as not restarted
@@ -404,23 +407,51 @@ class Acquisition:
         self.samples["odometer"] += rows.shape[0]
 
     def _gauge(self, recs) -> None:
+        """Gauge readings on session time: the sensor's millisecond clock (unwrapped), shifted onto
+        the host clock by the smallest latency seen. Where the clock does not go on as the host's
+        (it went back, or moved GAUGE_CLOCK_BREAK_S more or less than the host clock: the sensor
+        restarted after an unplug, or while a resumed session was down) a new clock segment
+        starts, shifted again: it restarts at 0, and its readings were stored up to its whole
+        uptime in the past, out of time order."""
         recs = [r for r in recs if r.status == gauge.STATUS_OK]
         if not recs:
             return
         ms = np.array([r.t_device_ms for r in recs], np.int64)
-        if self._gauge_unwrap is None:
-            self._gauge_unwrap = (int(ms[0]), int(ms[0]))
-        prev, acc = self._gauge_unwrap
+        th = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
+        first = self._gauge_unwrap is None
+        prev, acc, prev_th = (int(ms[0]), int(ms[0]), th[0]) if first else self._gauge_unwrap
         seq = np.concatenate([[prev], ms])
         h = gauge.MS_MODULO // 2
         steps = (seq[1:] - seq[:-1] + h) % gauge.MS_MODULO - h  # the device clock wraps
         cum = acc + np.cumsum(steps)
-        self._gauge_unwrap = (int(ms[-1]), int(cum[-1]))
+        host_steps = np.diff(np.concatenate([[prev_th], th]))
+        brk = (steps < 0) | (np.abs(steps * 1e-3 - host_steps) > GAUGE_CLOCK_BREAK_S)
+        last = self.buffers.last_t("gauge")
+        real = self.world is None  # simulated: the twin's clock is the simulated one, its origin given
+        if not real:
+            brk[:] = False
         if self.tb.gauge_origin_s is None:
-            th = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
-            self.tb.gauge_origin_s = float(np.min(th - cum * 1e-3))
-        t = self.tb.gauge_origin_s + cum * 1e-3
+            brk[0] = True
+        elif first and real:
+            # a resumed session: the sensor may have restarted while it was down
+            t0 = self.tb.gauge_origin_s + cum[0] * 1e-3
+            brk[0] = brk[0] or t0 <= last or abs(th[0] - t0) > GAUGE_CLOCK_BREAK_S
+        self._gauge_unwrap = (int(ms[-1]), int(cum[-1]), float(th[-1]))
+        t = np.empty(cum.size)
+        starts = np.flatnonzero(brk)
+        edges = np.concatenate([[0], starts, [cum.size]])
+        for i, j in zip(edges[:-1], edges[1:]):
+            if j <= i:
+                continue
+            if brk[i]:  # a new clock segment: shifted by its own smallest latency (in this batch)
+                self.tb.gauge_origin_s = float(np.min(th[i:j] - cum[i:j] * 1e-3))
+            t[i:j] = self.tb.gauge_origin_s + cum[i:j] * 1e-3
         rows = np.column_stack([t, [r.gauge_m for r in recs]])
+        late = rows[:, 0] <= np.maximum.accumulate(np.concatenate([[last], rows[:-1, 0]]))
+        if real and np.any(late):  # never silently, as the odometer's
+            self.dropped["gauge"] = self.dropped.get("gauge", 0) + int(late.sum())
+            self.write_error = f"gauge: {self.dropped['gauge']} readings timed before the stored data were not stored"
+            rows = rows[~late]
         self._store("gauge_sample", GaugeRecord, rows)
         self.buffers.add("gauge", rows)
         self.samples["gauge"] += rows.shape[0]
