@@ -402,3 +402,30 @@ def test_a_gauge_sensor_that_restarts_its_clock_goes_on_in_time_order():
     resumed._gauge(lines(1030.0, 0, 10))
     np.testing.assert_allclose(resumed.buffers.array("gauge")[70:, 0], 30.01 + 0.1 * np.arange(10), atol=1e-9)
     assert not acq.write_error and not resumed.write_error
+
+
+def test_an_odometer_counter_restarted_by_an_unplug_carries_the_distance_on():
+    """A bus-powered counter module unplugged and plugged in again restarts at 0; its driver starts
+    a new segment (drivers/encoder.py). The session computed the distance from the first count
+    without segments, so the distance jumped back by the whole count (here 12 m)."""
+    from drivers.encoder import EncoderRecord, OdometerConfig
+    from survey.session.acquisition import Acquisition, TimeBase
+
+    class Sink:
+        def append(self, *a):
+            pass
+
+        def append_records(self, table, recs):
+            pass
+
+    cfg = OdometerConfig()
+    per_m = 1.0 / cfg.metres_per_count
+    acq = Acquisition({}, Sink(), TimeBase(host_t0=1000.0, wall_t0=0.0), odometer=cfg)
+    acq.samples["odometer"] = 0
+    c0 = 5000
+    acq._odometer([EncoderRecord(1000.0 + 0.01 * k, c0 + round(k * 0.01 * per_m), 0, 0) for k in range(1, 1201)])
+    # unplugged at 12 m, power-cycled: the counter starts again at 0, the trolley moving on at 1 m/s
+    acq._odometer([EncoderRecord(1015.0 + 0.01 * k, round(k * 0.01 * per_m), 0, 1) for k in range(100)])
+    d = acq.buffers.array("odo")[:, 1]
+    assert abs(d[1199] - 11.99) < 1e-3  # from the first reply
+    np.testing.assert_allclose(d[1200:], d[1199] + 0.01 * np.arange(100), atol=1e-3)

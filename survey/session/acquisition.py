@@ -281,6 +281,9 @@ class Acquisition:
         self.dropped: dict[str, int] = {}
         self._odo_reply_index = 0
         self._odo_skipped = 0
+        #: (parser segment, counter reading, distance there) the distance of new replies counts from
+        self._odo_base: tuple[int, int, float] | None = None
+        self._odo_last_d = 0.0
         self._gauge_unwrap: tuple[int, int] | None = None  # (last raw ms, accumulated)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -392,7 +395,20 @@ class Acquisition:
             t = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
         if self.tb.odo_count0 is None:
             self.tb.odo_count0 = int(c[0])
-        d = encoder.signed_delta(c, self.tb.odo_count0, self.odo_cfg.bits) * self.odo_cfg.metres_per_count
+        if self._odo_base is None:
+            self._odo_base = (recs[0].segment, self.tb.odo_count0, 0.0)
+        d = np.empty(c.size)
+        mpc = self.odo_cfg.metres_per_count
+        for i, r in enumerate(recs):
+            seg, c0, d0 = self._odo_base
+            if r.segment != seg:
+                # the parser re-anchored on readings that do not continue the old ones (a counter
+                # restarted at 0 by a power-cycled unplug): the distance carries on from the last
+                # reply (it jumped back by the whole count, and the session saw the trolley move)
+                last = d[i - 1] if i else self._odo_last_d
+                self._odo_base = seg, c0, d0 = r.segment, int(c[i]), float(last)
+            d[i] = d0 + encoder.signed_delta(int(c[i]), c0, self.odo_cfg.bits) * mpc
+        self._odo_last_d = float(d[-1])
         keep = np.append(np.diff(t) > 0, True)  # replies of one read share a host time
         rows = np.column_stack([t[keep], d[keep]])
         last = self.buffers.last_t("odo")
