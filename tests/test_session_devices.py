@@ -320,3 +320,112 @@ def test_an_instrument_that_keeps_another_prism_constant_stops_the_session_befor
                                                            "read_mm": 0.0})]
     assert session.said == ["total station: prism constant +0.0 mm for the CPIII prisms (set and read back)"]
     assert sum(r.rpc == gc.TMC_SETPRISMCORR for r in twin.requests) == 2
+
+
+def test_the_devices_open_at_the_drivers_line_speeds_or_the_devices_files(tmp_path):
+    """A session's odometer and gauge opened at 9600 baud, though the counter module and the gauge
+    sensor speak 115200 (their drivers' and `devices record`'s default) and the devices file could
+    not say otherwise: on real ports nothing readable arrived. The speed set on a pty is the slave's
+    termios, which its master reads."""
+    import os
+    import pty
+    import termios
+
+    from survey.commands.survey import read_devices
+    from survey.session.acquisition import Acquisition, TimeBase
+
+    class Sink:
+        def append(self, *a):
+            pass
+
+    fds, ports = [], {}
+    for name in ("imu", "odometer", "gauge", "totalstation"):
+        m, s = pty.openpty()
+        fds += [m, s]
+        ports[name] = os.ttyname(s)
+    speed = {getattr(termios, f"B{b}"): b for b in (9600, 19200, 38400, 115200, 230400, 460800)}
+    try:
+        for given, want in (({}, {"imu": 460800, "odometer": 115200, "gauge": 115200}),
+                            ({"imu_baud": 230400, "odometer_baud": 38400, "gauge_baud": 19200},
+                             {"imu": 230400, "odometer": 38400, "gauge": 19200})):
+            f = tmp_path / "ports.json"
+            f.write_text(json.dumps({**ports, **given}))
+            p, options = read_devices(f)
+            bauds = {k[:-5]: v for k, v in options.items() if k.endswith("_baud")}
+            acq = Acquisition({k: v for k, v in p.items() if k != "totalstation"}, Sink(), TimeBase(), bauds=bauds)
+            acq.open(2.0)
+            try:
+                for name, link in acq.links.items():
+                    master = fds[2 * list(ports).index(name)]
+                    assert speed[termios.tcgetattr(master)[4]] == want[name], name
+            finally:
+                for link in acq.links.values():
+                    link.stop()
+    finally:
+        for fd in fds:
+            os.close(fd)
+
+
+def test_a_gauge_sensor_that_restarts_its_clock_goes_on_in_time_order():
+    """A bus-powered gauge sensor unplugged and plugged in again restarts its millisecond clock at 0.
+    Its readings were stored on the old clock's mapping, up to its whole uptime in the past (here
+    500 s before the session started), out of time order. So were they after a resume if it
+    restarted while the session was down. A clock that goes on over an unplug, or wraps at 2^32 ms,
+    keeps its mapping."""
+    from drivers.gauge import MS_MODULO, GaugeRecord
+    from survey.session.acquisition import Acquisition, TimeBase
+
+    class Sink:
+        def append(self, *a):
+            pass
+
+        def append_records(self, table, recs):
+            pass
+
+    def lines(t_host, ms0, n):  # 10 Hz, read 10 ms after each line
+        return [GaugeRecord(t_host + 0.1 * k + 0.01, k, (ms0 + 100 * k) % MS_MODULO, 1.435, 0) for k in range(n)]
+
+    tb = TimeBase(host_t0=1000.0, wall_t0=0.0)
+    acq = Acquisition({}, Sink(), tb)
+    acq.samples["gauge"] = 0
+    acq._gauge(lines(1000.0, MS_MODULO - 2000, 50))   # its clock wraps at 2 s
+    acq._gauge(lines(1008.0, 6000, 10))               # unplugged 3 s, its clock ran on
+    acq._gauge(lines(1012.0, 0, 10))                  # power-cycled: its clock restarted
+    t = acq.buffers.array("gauge")[:, 0]
+    np.testing.assert_allclose(t[:50], 0.01 + 0.1 * np.arange(50), atol=1e-9)
+    np.testing.assert_allclose(t[50:60], 8.01 + 0.1 * np.arange(10), atol=1e-9)
+    np.testing.assert_allclose(t[60:], 12.01 + 0.1 * np.arange(10), atol=1e-9)
+    # a resumed session (the same host run): its stored time base, and the sensor restarted meanwhile
+    resumed = Acquisition({}, Sink(), TimeBase(host_t0=1000.0, wall_t0=0.0, gauge_origin_s=tb.gauge_origin_s))
+    resumed.samples["gauge"] = 0
+    resumed.buffers.add("gauge", acq.buffers.array("gauge"))
+    resumed._gauge(lines(1030.0, 0, 10))
+    np.testing.assert_allclose(resumed.buffers.array("gauge")[70:, 0], 30.01 + 0.1 * np.arange(10), atol=1e-9)
+    assert not acq.write_error and not resumed.write_error
+
+
+def test_an_odometer_counter_restarted_by_an_unplug_carries_the_distance_on():
+    """A bus-powered counter module unplugged and plugged in again restarts at 0; its driver starts
+    a new segment (drivers/encoder.py). The session computed the distance from the first count
+    without segments, so the distance jumped back by the whole count (here 12 m)."""
+    from drivers.encoder import EncoderRecord, OdometerConfig
+    from survey.session.acquisition import Acquisition, TimeBase
+
+    class Sink:
+        def append(self, *a):
+            pass
+
+        def append_records(self, table, recs):
+            pass
+
+    cfg = OdometerConfig()
+    per_m = 1.0 / cfg.metres_per_count
+    acq = Acquisition({}, Sink(), TimeBase(host_t0=1000.0, wall_t0=0.0), odometer=cfg)
+    acq.samples["odometer"] = 0
+    c0 = 5000
+    acq._odometer([EncoderRecord(1000.0 + 0.01 * k, c0 + round(k * 0.01 * per_m), 0, 0) for k in range(1, 1201)])
+    # unplugged at 12 m, power-cycled: the counter starts again at 0, the trolley moving on at 1 m/s
+    acq._odometer([EncoderRecord(1015.0 + 0.01 * k, round(k * 0.01 * per_m), 0, 1) for k in range(100)])
+    d = acq.buffers.array("odo")[:, 1]
+    assert abs(d[1199] - 11.99) < 1e-3  # from the first reply
+    np.testing.assert_allclose(d[1200:], d[1199] + 0.01 * np.arange(100), atol=1e-3)

@@ -85,8 +85,9 @@ def test_a_device_that_does_not_open_stops_the_start_with_the_reason(tmp_path):
                        capture_output=True, text=True, timeout=60, env={**os.environ, "COLUMNS": "200"})
     err = " ".join(r.stderr.split())
     assert r.returncode == 2, r.stderr
-    assert f"imu: cannot open {tmp_path / 'no-imu'}" in err
-    assert "try: check the cable and the port name" in err and "trolley survey resume t1 --session s1" in err
+    # refused before anything is stored (it was stored, and the crew told to resume it)
+    assert f"imu port '{tmp_path / 'no-imu'}' does not exist; nothing was stored" in err
+    assert "try: plug the device in" in err and "resume" not in err
     assert "Traceback" not in r.stderr
 
 

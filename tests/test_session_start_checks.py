@@ -60,3 +60,39 @@ def test_a_session_name_taken_suggests_the_resume_of_that_session_in_that_projec
     assert r.exit_code == 2
     assert "session 's1' already exists in project 'site1'" in r.stderr
     assert "`trolley survey resume site1 --session s1`" in r.stderr
+
+
+def test_a_devices_file_with_a_mistake_is_refused_before_anything_is_stored(tmp_path):
+    """Each mistake is one line naming the file and what is wrong, exit 2, and no session is stored
+    (they were found at the device check, with a session stored that had to be resumed, or never:
+    a misspelt "odometr" ran without the odometer, a negative imu_rate_hz turned the IMU data round,
+    an unknown odometer_config field was an internal error, exit 3)."""
+    import json
+
+    make_project(tmp_path)
+    for name in ("imu", "odo", "ts"):
+        (tmp_path / name).touch()  # ports that exist
+    imu, odo, ts = (str(tmp_path / n) for n in ("imu", "odo", "ts"))
+    cases = [({"imu": imu}, "no 'totalstation' port"),
+             ({"imu": None, "totalstation": ts}, "'imu' must be the path of a serial port"),
+             ({"imu": imu, "totalstation": ts, "odometr": odo}, "unknown key 'odometr' (did you mean 'odometer'?)"),
+             ({"imu": imu, "totalstation": imu}, "'imu' and 'totalstation' name the same port"),
+             ({"imu": imu, "totalstation": str(tmp_path / "nosuch")},
+              f"totalstation port '{tmp_path / 'nosuch'}' does not exist; nothing was stored"),
+             ({"imu": imu, "totalstation": ts, "imu_type": 999}, "imu_type 999 is not a NovAtel IMU type"),
+             ({"imu": imu, "totalstation": ts, "imu_rate_hz": -5}, "imu_rate_hz must be a number of Hz"),
+             ({"imu": imu, "totalstation": ts, "imu_axes": "x,y"}, "imu_axes: axis map 'x,y'"),
+             ({"imu": imu, "totalstation": ts, "odometer_config": {"decodee": 4}},
+              "odometer_config: unknown field 'decodee' (did you mean 'decode'?)"),
+             ({"imu": imu, "totalstation": ts, "odometer_config": {"ppr": "abc"}},
+              "odometer_config: ppr must be a whole number, not 'abc'")]
+    for i, (data, message) in enumerate(cases):
+        f = tmp_path / f"ports{i}.json"
+        f.write_text(json.dumps(data), encoding="utf-8")
+        r = runner.invoke(app, ["survey", "start", str(tmp_path / "t1"), "--session", f"s{i}", "--devices", str(f),
+                                "--script", str(_script(tmp_path))])
+        assert r.exit_code == 2, (data, r.output)
+        assert f"error: {f}: {message}" in " ".join(r.stderr.split()), (data, r.stderr)
+        assert "device check" not in r.output
+    with ProjectStore.open(tmp_path / "t1") as st:
+        assert st.sessions() == []

@@ -137,18 +137,113 @@ class session_lock:
             os.close(self.fd)
 
 
+#: the ports and the driver options a devices file may hold (docs/field_session.md)
+DEVICE_PORTS = ("imu", "odometer", "gauge", "totalstation")
+DEVICE_BAUDS = ("imu_baud", "odometer_baud", "gauge_baud", "totalstation_baud")
+DEVICE_OPTIONS = ("imu_type", "imu_rate_hz", "imu_axes", "odometer_config") + DEVICE_BAUDS
+
+
+def _device_option_error(data: dict) -> str | None:
+    """What is wrong with the ports and driver options of a devices file (None: nothing).
+
+    Checked before anything is stored: a mistake found at the device check left a stored session
+    behind that had to be resumed (a retry of ``start`` was refused as existing), and some were
+    never found (a misspelt ``"odometr"`` ran the survey without its odometer, a negative
+    ``imu_rate_hz`` turned every IMU sample round, ``"odometer_config": {"decodee": 4}`` ended in
+    an internal error)."""
+    import difflib
+    import math
+    import os
+
+    from drivers import encoder, novatel
+    from survey.commands.devices import MAX_BAUD, MAX_IMU_RATE_HZ, MAX_ODOMETER_PPR, MIN_BAUD
+
+    known = DEVICE_PORTS + DEVICE_OPTIONS
+    for key in data:
+        if key not in known:
+            near = difflib.get_close_matches(str(key).lower(), known, n=1, cutoff=0.6)
+            return (f"unknown key {key!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                    + f"; a devices file holds {', '.join(known)}")
+    for name in DEVICE_PORTS:
+        if name in data and not (isinstance(data[name], str) and data[name].strip()):
+            return f"{name!r} must be the path of a serial port (a non-empty string), not {data[name]!r}"
+    missing = [n for n in ("imu", "totalstation") if n not in data]
+    if missing:
+        return f"no {' and no '.join(repr(m) for m in missing)} port: a devices file names at least an imu and a totalstation port"
+    seen: dict[str, str] = {}
+    for name in DEVICE_PORTS:
+        if name in data:
+            real = os.path.realpath(data[name])
+            if real in seen:
+                return (f"{seen[real]!r} and {name!r} name the same port {data[name]!r}: each device needs "
+                        "its own serial port")
+            seen[real] = name
+
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    for key in DEVICE_BAUDS:
+        if key in data:
+            b = data[key]
+            if not (isinstance(b, int) and not isinstance(b, bool) and MIN_BAUD <= b <= MAX_BAUD):
+                return f"{key} must be a line speed of {MIN_BAUD} to {MAX_BAUD} baud, not {b!r}"
+    if "imu_type" in data:
+        t = data["imu_type"]
+        if not (isinstance(t, int) and not isinstance(t, bool)) or t not in novatel.IMU_SCALES:
+            known_types = ", ".join(f"{k} {v.name}" for k, v in sorted(novatel.IMU_SCALES.items()))
+            return f"imu_type {t!r} is not a NovAtel IMU type of the scale table ({known_types})"
+    if "imu_rate_hz" in data:
+        r = data["imu_rate_hz"]
+        if not (number(r) and math.isfinite(r) and 1.0 <= r <= MAX_IMU_RATE_HZ):
+            return f"imu_rate_hz must be a number of Hz from 1 to {MAX_IMU_RATE_HZ:g}, not {r!r}"
+    if "imu_axes" in data:
+        if not isinstance(data["imu_axes"], str):
+            return f"imu_axes must be a string like \"x,-y,-z\", not {data['imu_axes']!r}"
+        try:
+            novatel.axis_matrix(data["imu_axes"])
+        except ValueError as exc:
+            return f"imu_axes: {exc}"
+    oc = data.get("odometer_config", {})
+    if not isinstance(oc, dict):
+        return "odometer_config must be an object of OdometerConfig fields (ppr, decode, wheel_diameter_m, ...)"
+    fields = list(encoder.OdometerConfig.__dataclass_fields__)
+    for key, v in oc.items():
+        if key not in fields:
+            near = difflib.get_close_matches(str(key), fields, n=1, cutoff=0.6)
+            return (f"odometer_config: unknown field {key!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                    + f"; the fields are {', '.join(fields)}")
+        whole = key in ("ppr", "decode", "bits", "channel", "confirm")
+        if not number(v) or not math.isfinite(v) or (whole and v != int(v)):
+            return f"odometer_config: {key} must be a{' whole' if whole else ''} number, not {v!r}"
+    try:
+        cfg = encoder.OdometerConfig(**{k: int(v) if k in ("ppr", "decode", "bits", "channel", "confirm") else float(v)
+                                        for k, v in oc.items()})
+    except ValueError as exc:
+        return f"odometer_config: {exc}"
+    if cfg.ppr > MAX_ODOMETER_PPR:
+        return f"odometer_config: ppr must be <= {MAX_ODOMETER_PPR}, not {cfg.ppr}"
+    if cfg.channel not in (1, 2):
+        return f"odometer_config: channel must be 1 or 2, not {cfg.channel}"
+    if not (cfg.scale > 0 and cfg.max_speed_m_s > 0):
+        return "odometer_config: scale and max_speed_m_s must be positive"
+    return None
+
+
 def read_devices(path: Path) -> tuple[dict, dict]:
-    """(device -> port, driver options) from a devices JSON file."""
+    """(device -> port, driver options) from a devices JSON file; a mistake in it is one line naming
+    the file, before anything is stored."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         fail(f"{path}: {exc}", 'a JSON object like {"imu": "/dev/ttyUSB0", "totalstation": "/dev/ttyUSB1"}')
     if not isinstance(data, dict):
         fail(f"{path}: expected a JSON object")
-    ports = {k: str(v) for k, v in data.items() if k in ("imu", "odometer", "gauge", "totalstation")}
-    options = {k: v for k, v in data.items() if k in ("imu_type", "imu_rate_hz", "imu_axes", "odometer_config")}
-    if not isinstance(options.get("odometer_config", {}), dict):
-        fail(f"{path}: odometer_config must be an object of OdometerConfig fields (ppr, decode, wheel_diameter_m, ...)")
+    problem = _device_option_error(data)
+    if problem is not None:
+        fail(f"{path}: {problem}", "`trolley devices simulate --out FILE` writes one; docs/field_session.md "
+                                   "(\"Devices file\") lists the keys")
+    ports = {k: str(v) for k, v in data.items() if k in DEVICE_PORTS}
+    options = {k: v for k, v in data.items() if k in DEVICE_OPTIONS}
     return ports, options
 
 
@@ -272,6 +367,12 @@ def run_session(project: str, session: str, root: Path, devices: Optional[Path],
             world = simulated_world(store, speedup)
         else:
             ports, options = read_devices(devices)
+            for name, port in ports.items():
+                if not os.path.exists(port):
+                    # before anything is stored (it was stored, then the device check failed)
+                    fail(f"{devices}: {name} port {port!r} does not exist; "
+                         + ("the session is kept as it was" if resume else "nothing was stored"),
+                         "plug the device in and switch it on, or correct the port (`ls /dev/serial/by-id/`)")
         keys = None
         if actions is None:
             if not sys.stdin.isatty():

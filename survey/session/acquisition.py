@@ -22,6 +22,13 @@ from drivers.serialport import SerialLink
 from drivers.stats import Stats
 from survey.store import GaugeRecord, ImuRecord, OdometerRecord
 
+#: line speeds of the streaming devices unless the devices file gives them (``<device>_baud``): those
+#: of the drivers and of ``trolley devices record`` (the odometer and the gauge were opened at 9600,
+#: a counter module or gauge sensor at its 115200 default then sent nothing readable)
+DEFAULT_BAUDS = {"imu": 460800, "odometer": encoder.DEFAULT_BAUD, "gauge": gauge.DEFAULT_BAUD}
+#: the gauge sensor's clock restarted (or jumped) when its step between readings differs from the
+#: host clock's by more than this, s (a read batches at most a few tens of ms)
+GAUGE_CLOCK_BREAK_S = 2.0
 #: a device whose data stop for this long (wall clock) is reported as failing
 STALE_AFTER_S = 1.0
 #: on resume, monotonic and wall clock must agree this well for the host to count as not restarted
@@ -246,11 +253,12 @@ class Acquisition:
     world : the simulated world (simulated session) or None.
     odometer : counter settings.
     imu_type, imu_rate_hz, imu_axes : IMU scale and mounting.
+    bauds : device -> line speed, default :data:`DEFAULT_BAUDS` (the drivers' and ``devices record``'s).
     """
 
     def __init__(self, ports: dict[str, str], writer, timebase: TimeBase, world=None,
                  odometer: encoder.OdometerConfig = encoder.OdometerConfig(), imu_type: int | None = None,
-                 imu_rate_hz: float | None = None, imu_axes: str = "x,y,z") -> None:
+                 imu_rate_hz: float | None = None, imu_axes: str = "x,y,z", bauds: dict[str, int] | None = None) -> None:
         self.writer = writer
         self.tb = timebase
         self.world = world
@@ -267,12 +275,15 @@ class Acquisition:
         for name, port in ports.items():
             if name in mk:
                 self.links[name] = TappedLink(port, RawTap(mk[name](), name, self._raw), name,
-                                              baudrate=460800 if name == "imu" else 9600, sink=self._raw)
+                                              baudrate={**DEFAULT_BAUDS, **(bauds or {})}[name], sink=self._raw)
         self.last_data_host: dict[str, float] = {k: time.monotonic() for k in self.links}
         self.samples: dict[str, int] = {k: 0 for k in self.links}
         self.dropped: dict[str, int] = {}
         self._odo_reply_index = 0
         self._odo_skipped = 0
+        #: (parser segment, counter reading, distance there) the distance of new replies counts from
+        self._odo_base: tuple[int, int, float] | None = None
+        self._odo_last_d = 0.0
         self._gauge_unwrap: tuple[int, int] | None = None  # (last raw ms, accumulated)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -384,7 +395,20 @@ class Acquisition:
             t = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
         if self.tb.odo_count0 is None:
             self.tb.odo_count0 = int(c[0])
-        d = encoder.signed_delta(c, self.tb.odo_count0, self.odo_cfg.bits) * self.odo_cfg.metres_per_count
+        if self._odo_base is None:
+            self._odo_base = (recs[0].segment, self.tb.odo_count0, 0.0)
+        d = np.empty(c.size)
+        mpc = self.odo_cfg.metres_per_count
+        for i, r in enumerate(recs):
+            seg, c0, d0 = self._odo_base
+            if r.segment != seg:
+                # the parser re-anchored on readings that do not continue the old ones (a counter
+                # restarted at 0 by a power-cycled unplug): the distance carries on from the last
+                # reply (it jumped back by the whole count, and the session saw the trolley move)
+                last = d[i - 1] if i else self._odo_last_d
+                self._odo_base = seg, c0, d0 = r.segment, int(c[i]), float(last)
+            d[i] = d0 + encoder.signed_delta(int(c[i]), c0, self.odo_cfg.bits) * mpc
+        self._odo_last_d = float(d[-1])
         keep = np.append(np.diff(t) > 0, True)  # replies of one read share a host time
         rows = np.column_stack([t[keep], d[keep]])
         last = self.buffers.last_t("odo")
@@ -399,23 +423,51 @@ class Acquisition:
         self.samples["odometer"] += rows.shape[0]
 
     def _gauge(self, recs) -> None:
+        """Gauge readings on session time: the sensor's millisecond clock (unwrapped), shifted onto
+        the host clock by the smallest latency seen. Where the clock does not go on as the host's
+        (it went back, or moved GAUGE_CLOCK_BREAK_S more or less than the host clock: the sensor
+        restarted after an unplug, or while a resumed session was down) a new clock segment
+        starts, shifted again: it restarts at 0, and its readings were stored up to its whole
+        uptime in the past, out of time order."""
         recs = [r for r in recs if r.status == gauge.STATUS_OK]
         if not recs:
             return
         ms = np.array([r.t_device_ms for r in recs], np.int64)
-        if self._gauge_unwrap is None:
-            self._gauge_unwrap = (int(ms[0]), int(ms[0]))
-        prev, acc = self._gauge_unwrap
+        th = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
+        first = self._gauge_unwrap is None
+        prev, acc, prev_th = (int(ms[0]), int(ms[0]), th[0]) if first else self._gauge_unwrap
         seq = np.concatenate([[prev], ms])
         h = gauge.MS_MODULO // 2
         steps = (seq[1:] - seq[:-1] + h) % gauge.MS_MODULO - h  # the device clock wraps
         cum = acc + np.cumsum(steps)
-        self._gauge_unwrap = (int(ms[-1]), int(cum[-1]))
+        host_steps = np.diff(np.concatenate([[prev_th], th]))
+        brk = (steps < 0) | (np.abs(steps * 1e-3 - host_steps) > GAUGE_CLOCK_BREAK_S)
+        last = self.buffers.last_t("gauge")
+        real = self.world is None  # simulated: the twin's clock is the simulated one, its origin given
+        if not real:
+            brk[:] = False
         if self.tb.gauge_origin_s is None:
-            th = np.array([r.t_host_s for r in recs], float) - self.tb.host_t0
-            self.tb.gauge_origin_s = float(np.min(th - cum * 1e-3))
-        t = self.tb.gauge_origin_s + cum * 1e-3
+            brk[0] = True
+        elif first and real:
+            # a resumed session: the sensor may have restarted while it was down
+            t0 = self.tb.gauge_origin_s + cum[0] * 1e-3
+            brk[0] = brk[0] or t0 <= last or abs(th[0] - t0) > GAUGE_CLOCK_BREAK_S
+        self._gauge_unwrap = (int(ms[-1]), int(cum[-1]), float(th[-1]))
+        t = np.empty(cum.size)
+        starts = np.flatnonzero(brk)
+        edges = np.concatenate([[0], starts, [cum.size]])
+        for i, j in zip(edges[:-1], edges[1:]):
+            if j <= i:
+                continue
+            if brk[i]:  # a new clock segment: shifted by its own smallest latency (in this batch)
+                self.tb.gauge_origin_s = float(np.min(th[i:j] - cum[i:j] * 1e-3))
+            t[i:j] = self.tb.gauge_origin_s + cum[i:j] * 1e-3
         rows = np.column_stack([t, [r.gauge_m for r in recs]])
+        late = rows[:, 0] <= np.maximum.accumulate(np.concatenate([[last], rows[:-1, 0]]))
+        if real and np.any(late):  # never silently, as the odometer's
+            self.dropped["gauge"] = self.dropped.get("gauge", 0) + int(late.sum())
+            self.write_error = f"gauge: {self.dropped['gauge']} readings timed before the stored data were not stored"
+            rows = rows[~late]
         self._store("gauge_sample", GaugeRecord, rows)
         self.buffers.add("gauge", rows)
         self.samples["gauge"] += rows.shape[0]

@@ -292,7 +292,7 @@ class FieldSession(StationSetupSteps, LiveFiltering):
     def start_devices(self) -> None:
         """Start the twins (simulated) or open the ports, then check every device."""
         from drivers.serialport import DeviceError
-        from drivers.totalstation import TotalStation
+        from drivers.totalstation import DEFAULT_BAUD, TotalStation
 
         stored = self._stored_state() if self.resume else {"events": [], "last": {}}
         tb = TimeBase()
@@ -332,7 +332,9 @@ class FieldSession(StationSetupSteps, LiveFiltering):
             opts = dict(odometer=encoder.OdometerConfig(**self.device_options.get("odometer_config", {})),
                         imu_type=self.device_options.get("imu_type"),
                         imu_rate_hz=self.device_options.get("imu_rate_hz"),
-                        imu_axes=self.device_options.get("imu_axes", "x,y,z"))
+                        imu_axes=self.device_options.get("imu_axes", "x,y,z"),
+                        bauds={k: int(self.device_options[f"{k}_baud"]) for k in ("imu", "odometer", "gauge")
+                               if f"{k}_baud" in self.device_options})
         if "imu" not in self.ports or "totalstation" not in self.ports:
             raise SessionAbort("the devices file must name at least an imu and a totalstation port",
                                'e.g. {"imu": "/dev/ttyUSB0", "odometer": "/dev/ttyUSB1", "totalstation": "/dev/ttyUSB2"}')
@@ -346,7 +348,8 @@ class FieldSession(StationSetupSteps, LiveFiltering):
         except DeviceError as exc:
             raise SessionAbort(str(exc), "check the cable and the port name (--devices file); "
                                          "`trolley devices probe` tests one device") from None
-        self.ts = TotalStation(self.ports["totalstation"], raw_log=None, timeout_s=3.0)
+        self.ts = TotalStation(self.ports["totalstation"], raw_log=None, timeout_s=3.0,
+                               baudrate=int(self.device_options.get("totalstation_baud", DEFAULT_BAUD)))
         from survey.session.acquisition import RawTap, tap_writes
 
         self.ts.link.parser = RawTap(self.ts.link.parser, "totalstation", self.acq._raw)
