@@ -82,8 +82,11 @@ class SerialLink:
 
     # ------------------------------------------------------------------ open / close
     def _open(self) -> None:
+        # exclusive (flock): a second program on the port (another session, `devices record`)
+        # split the bytes with this one silently; it is now refused with "Could not exclusively
+        # lock port" (hunt27a)
         ser = serial.Serial(self.port, baudrate=self.baudrate, timeout=self.read_timeout_s,
-                            write_timeout=2.0)
+                            write_timeout=2.0, exclusive=True)
         self._ser = ser
         if self._was_open:
             with self.lock:

@@ -308,3 +308,25 @@ def test_gauge_unplug_replug_keeps_lines_and_counts_the_gap(tmp_path):
     assert stats.bad_checksum == 0 and stats.balanced()
     rep, _ = replay_gauge(tmp_path / "g.rawlog")
     assert rep == recs
+
+
+def test_a_second_program_on_an_open_port_is_refused_not_given_half_the_bytes():
+    """Two sessions (or a session and `trolley devices record`) on one port each got a share of
+    its bytes, silently (hunt27a): the port is now opened exclusively, and the second open fails
+    with the lock's reason, naming the device and the port."""
+    import os
+
+    from drivers.serialport import PortNotFound
+
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    first = SerialLink(path, gauge.GaugeParser(Stats()), name="gauge")
+    second = SerialLink(path, gauge.GaugeParser(Stats()), name="gauge")
+    try:
+        first.open(timeout_s=1.0)
+        with pytest.raises(PortNotFound, match=f"gauge: cannot open {path}: .*exclusively lock"):
+            second.open(timeout_s=0.1)
+    finally:
+        first.stop()
+        os.close(master)
+        os.close(slave)
