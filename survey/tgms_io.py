@@ -126,6 +126,9 @@ def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
                           start_station_m=_num(tr, "start_station_m", "track", fname, None, False))
     en = _get(doc, "encoder", "", fname)
     ppr = _num(en, "pulses_per_rev", "encoder", fname)
+    if ppr != round(ppr):
+        # (bug hunt 2026-11-27: 1440.7 became 1440 without a word)
+        raise TgmsFormatError(f"{fname}: encoder.pulses_per_rev must be a whole number of pulses, got {ppr!r}")
     enc = EncoderSettings(pulses_per_rev=int(ppr), wheel_diameter_m=_num(en, "wheel_diameter_m", "encoder", fname))
     imu = _get(doc, "imu", "", fname)
     rate = _num(imu, "rate_hz", "imu", fname)
