@@ -339,6 +339,7 @@ def read_recording(folder: str | os.PathLike) -> Recording:
         raise TgmsFormatError(f"encoder.csv: row {enc['_line'][i]}, column count: the count goes backwards "
                               f"({int(enc['count'][i])} after {int(enc['count'][i - 1])}): the vehicle must run one "
                               "way, with its encoder counting up")
+    _check_encoder_on_alignment(enc, cfg, alignment, al_path.name)
     lasers, raw = {}, {}
     for side in ("left", "right"):
         d = _read_csv(folder / f"laser_{side}.csv", ["frame", "t_s", "u_px", "v_px"], integer=("frame",))
@@ -358,6 +359,32 @@ def read_recording(folder: str | os.PathLike) -> Recording:
                      imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),
                      imu_f_m_s2=np.column_stack([imu["fx_m_s2"], imu["fy_m_s2"], imu["fz_m_s2"]]),
                      enc_t_s=enc["t_s"], enc_count=enc["count"], lasers=lasers)
+
+
+#: how far the encoder's nominal stations may run outside the alignment: 1 m plus this share of the
+#: distance ridden (an encoder scale error the odometry corrects)
+ENCODER_OFF_ALIGNMENT_SHARE = 0.01
+
+
+def _check_encoder_on_alignment(enc: dict, cfg: TgmsConfig, alignment, al_name: str) -> None:
+    """The stations the encoder gives (start_station_m + count x metres per count) lie on the
+    design alignment: beyond its ends the design is extrapolated as a straight line (bug hunt
+    2026-11-27: a ride 110 m past the end gave exit 0 and 32 mm of cross-level error; a count
+    starting at 1000000 ended in an internal IndexError)."""
+    s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else alignment.start_chainage_m
+    mpc = cfg.encoder.metres_per_count
+    s = s0 + enc["count"] * mpc
+    tol = 1.0 + ENCODER_OFF_ALIGNMENT_SHARE * float(s[-1] - s[0])
+    lo, hi = alignment.start_chainage_m, alignment.end_chainage_m
+    out = (s < lo - tol) | (s > hi + tol)
+    if out.any():
+        i = int(np.argmax(out))
+        side = "before the start" if s[i] < lo else "beyond the end"
+        raise TgmsFormatError(
+            f"encoder.csv: row {enc['_line'][i]}, column count: count {int(enc['count'][i])} puts the TGMS at "
+            f"{s[i]:.6g} m ({s0:g} m at count 0 + {mpc:.6g} m per count), {side} of the alignment {al_name} "
+            f"({lo:g} .. {hi:g} m): the design must cover the ride; check tgms.toml track.start_station_m, "
+            "encoder.wheel_diameter_m and pulses_per_rev, and that the count is 0 at start_station_m")
 
 
 #: largest gap in imu.csv, in sample periods: the strapdown solution has nothing to bridge it with
