@@ -528,6 +528,7 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
             n_cells = sum(int(((g >= lo) & (g <= hi)).sum()) for _, lo, hi in lost)
             out.append(f"laser_{side}.csv has no rows for {shown}{more}, which laser_{other}.csv has: no {side}-rail "
                        f"profile there; those {n_cells} cells of irregularities.csv are empty")
+    out += _both_cameras_lost(res, seen, gap)
     # camera frames farther apart than the grid interpolates across: the cells between them are
     # empty. A spacing between one step and this gap fills every cell by interpolation, so it is not
     # warned about (the tests' 40 Hz ride at 12 m/s has 0.3 m between frames on the 0.25 m grid).
@@ -548,6 +549,31 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
                    f"usable frame within {gap:g} m): {int((~ok).sum())} of {ok.size} camera frames were flagged by "
                    "the profile fit (too few laser points, a poor fit, no gauge face; docs/tgms.md, Pipeline 1)")
     return out
+
+
+def _both_cameras_lost(res: TgmsResult, seen: np.ndarray, gap: float) -> list[str]:
+    """Warnings for runs of frame numbers that neither laser file has, over at least ``gap`` m of
+    track between the frames either side (bug hunt 2026-11-27: both cameras silent for 2 s, 18.7 m,
+    left 76 empty cells without a word; only one camera's loss was warned about)."""
+    s = res.frames.s_m
+    if seen.size < 2:
+        return []
+    jumps = np.flatnonzero(np.diff(seen) > 1)
+    lost = []
+    for j in jumps:
+        a, b = seen[j], seen[j + 1]          # the last frame before the gap and the first after it
+        if np.isfinite(s[a]) and np.isfinite(s[b]) and s[b] - s[a] >= gap:
+            lost.append((a, b))
+    if not lost:
+        return []
+    t = res.vision.t_s
+    g = res.grid.s_m
+    shown = "; ".join(f"frames {a + 1}-{b - 1} (t_s {t[a]:.6g}-{t[b]:.6g} s, s {s[a]:.1f}-{s[b]:.1f} m)"
+                      for a, b in lost[:3])
+    more = f"; and {len(lost) - 3} more stretches" if len(lost) > 3 else ""
+    n_cells = sum(int(((g > s[a]) & (g < s[b])).sum()) for a, b in lost)
+    return [f"laser_left.csv and laser_right.csv both have no rows for {shown}{more}: no rail profile there; "
+            f"those {n_cells} cells of irregularities.csv are empty"]
 
 
 def write_recording(folder: str | os.PathLike, rec: Recording) -> None:

@@ -27,3 +27,36 @@ def test_values_in_the_wrong_unit_are_refused_naming_the_key(old, new, said):
     assert old in text
     with pytest.raises(TgmsFormatError, match=f"^tgms.toml: {said}"):
         parse_tgms_toml(text.replace(old, new, 1))
+
+
+def test_a_stretch_that_both_cameras_lost_is_warned_about():
+    """(bug hunt) Both laser files without frames 1200-1400 (18.7 m at 10 m/s) left 76 empty cells
+    and no warning; one camera's loss was warned about."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from survey.tgms_io import process_warnings
+    from trolley.tgms.irregularities import Irregularities
+    from trolley.tgms.recording import LaserPoints
+
+    n = 2000
+    frame = np.arange(n)
+    t = frame / 100.0
+    s = 10.0 + 10.0 * t
+    seen = (frame < 1200) | (frame > 1400)
+    lp = LaserPoints(frame=frame[seen], t_s=t[seen], u_px=np.zeros(seen.sum()), v_px=np.zeros(seen.sum()))
+    rec = SimpleNamespace(lasers={"left": lp, "right": lp},
+                          config=SimpleNamespace(track=SimpleNamespace(rail_inclination=40.0, rail_profile="60E1")))
+    fit = SimpleNamespace(angle_rad=np.zeros(n))
+    g = np.arange(10.0, 210.0, 0.25)
+    v = np.where((g > s[1199]) & (g < s[1401]), np.nan, 0.0)
+    grid = Irregularities(g, *([v] * 8))
+    res = SimpleNamespace(vision=SimpleNamespace(frame=frame, t_s=np.where(seen, t, np.nan), ok=seen, left=fit, right=fit),
+                          odometry=SimpleNamespace(scale_error=1e-3, sigma_scale_error=2e-4),
+                          frames=SimpleNamespace(s_m=np.where(seen, s, np.nan)), grid=grid)
+    w = process_warnings(rec, res, 0.25)
+    assert len(w) == 1 and w[0].startswith("laser_left.csv and laser_right.csv both have no rows for frames "
+                                           "1200-1400 (t_s 11.99-14.01 s, s 129.9-150.1 m)"), w
+    assert f"those {int(np.isnan(v).sum())} cells" in w[0]
+
