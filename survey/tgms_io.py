@@ -529,6 +529,7 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
             out.append(f"laser_{side}.csv has no rows for {shown}{more}, which laser_{other}.csv has: no {side}-rail "
                        f"profile there; those {n_cells} cells of irregularities.csv are empty")
     out += _both_cameras_lost(res, seen, gap)
+    out += _configuration_mismatch(rec, res)
     # camera frames farther apart than the grid interpolates across: the cells between them are
     # empty. A spacing between one step and this gap fills every cell by interpolation, so it is not
     # warned about (the tests' 40 Hz ride at 12 m/s has 0.3 m between frames on the 0.25 m grid).
@@ -548,6 +549,47 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
         out.append(f"{cells} of {total} cells of irregularities.csv ({100.0 * cells / total:.0f} %) are empty (no "
                    f"usable frame within {gap:g} m): {int((~ok).sum())} of {ok.size} camera frames were flagged by "
                    "the profile fit (too few laser points, a poor fit, no gauge face; docs/tgms.md, Pipeline 1)")
+    return out
+
+
+#: |encoder scale error| fitted by the odometry above which process warns: a measuring wheel is off
+#: by ~0.1 % (wear, diameter tolerance); a start station a few metres off is absorbed as a scale
+#: error by the fit, which keeps start_station_m fixed (bug hunt 2026-11-27: 5 m off on a 200 m
+#: ride gave k = -3.1 %, 1.4 mm of cross-level error, exit 0 and no word)
+ODOMETRY_SCALE_WARNING = 0.005
+#: |median of (right - left fitted rail angle) / 2| above which process warns, rad: both heads lean
+#: more or less towards the track centre than tgms.toml's rail_inclination and rail_profile say
+#: (bug hunt 2026-11-27: rail_inclination = 0 for 1:40 rails gave a 0.88 mm gauge bias, 54E1 for
+#: 60E1 rails 0.46 mm, both silent; the half-difference was 0.025 and 0.009 rad, 1e-4 when right)
+RAIL_TILT_WARNING_RAD = 0.008
+
+
+def _configuration_mismatch(rec: Recording, res: TgmsResult) -> list[str]:
+    """Warnings for tgms.toml values that the measurements contradict: an encoder scale the
+    odometry had to stretch implausibly far (a wrong start station or wheel diameter), and rail
+    heads fitted at another inclination than the configured one (a wrong rail_inclination or
+    rail_profile: a constant gauge bias that no band-pass shows)."""
+    out = []
+    k = float(getattr(res.odometry, "scale_error", float("nan")))
+    if np.isfinite(k) and abs(k) > ODOMETRY_SCALE_WARNING:
+        sk = float(res.odometry.sigma_scale_error)
+        out.append(f"the odometry fitted an encoder scale error of {100 * k:+.2f} % (+-{100 * sk:.2f} %), more than a "
+                   f"measuring wheel is off ({100 * ODOMETRY_SCALE_WARNING:g} %): check tgms.toml "
+                   "track.start_station_m (the chainage at count 0, taken as exact) and encoder.wheel_diameter_m; "
+                   "the stations and the irregularities near curves and cant ramps are likely wrong")
+    tr = rec.config.track
+    half = 0.5 * (res.vision.right.angle_rad - res.vision.left.angle_rad)
+    half = half[np.isfinite(half)]
+    if half.size >= 20:
+        m = float(np.median(half))
+        if abs(m) > RAIL_TILT_WARNING_RAD:
+            beta = (np.arctan(1.0 / tr.rail_inclination) if tr.rail_inclination else 0.0) - m
+            seen = f"1:{1.0 / np.tan(beta):.0f}" if beta > 1e-3 else ("upright" if abs(beta) <= 1e-3 else "outwards")
+            said = f"1:{tr.rail_inclination:g}" if tr.rail_inclination else "upright (0)"
+            out.append(f"the rail heads the cameras see lean {abs(m) * 1e3:.0f} mrad {'more' if m < 0 else 'less'} "
+                       f"towards the track centre than tgms.toml says (track.rail_inclination {said}, rail_profile "
+                       f"{tr.rail_profile}; seen as if {seen}): the gauge variation carries a constant bias; check "
+                       "track.rail_inclination and track.rail_profile")
     return out
 
 

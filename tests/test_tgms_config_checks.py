@@ -60,3 +60,31 @@ def test_a_stretch_that_both_cameras_lost_is_warned_about():
                                            "1200-1400 (t_s 11.99-14.01 s, s 129.9-150.1 m)"), w
     assert f"those {int(np.isnan(v).sum())} cells" in w[0]
 
+
+def _mismatch_case(k, half_angle, inclination=40.0, profile="60E1"):
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from survey.tgms_io import _configuration_mismatch
+
+    n = 200
+    noise = np.random.default_rng(0).normal(0, 1e-3, n)
+    rec = SimpleNamespace(config=SimpleNamespace(track=SimpleNamespace(rail_inclination=inclination,
+                                                                       rail_profile=profile)))
+    res = SimpleNamespace(odometry=SimpleNamespace(scale_error=k, sigma_scale_error=9e-4),
+                          vision=SimpleNamespace(left=SimpleNamespace(angle_rad=-half_angle + noise),
+                                                 right=SimpleNamespace(angle_rad=half_angle + noise)))
+    return _configuration_mismatch(rec, res)
+
+
+def test_an_implausible_encoder_scale_or_rail_tilt_is_warned_about():
+    """(bug hunt) start_station_m 5 m off (k = -3.1 %: 1.4 mm of cross-level error) and
+    rail_inclination = 0 for 1:40 rails (0.88 mm of gauge bias) gave exit 0 and no word."""
+    assert _mismatch_case(1.4e-3, 1e-4) == []
+    w = _mismatch_case(-3.06e-2, 1e-4)
+    assert len(w) == 1 and w[0].startswith("the odometry fitted an encoder scale error of -3.06 % (+-0.09 %)")
+    assert "track.start_station_m" in w[0]
+    w = _mismatch_case(1.4e-3, -0.025, inclination=0.0)
+    assert len(w) == 1 and "lean 25 mrad more towards the track centre" in w[0] and "as if 1:40" in w[0], w
+    assert _mismatch_case(float("nan"), 0.0) == []
