@@ -528,8 +528,6 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
             n_cells = sum(int(((g >= lo) & (g <= hi)).sum()) for _, lo, hi in lost)
             out.append(f"laser_{side}.csv has no rows for {shown}{more}, which laser_{other}.csv has: no {side}-rail "
                        f"profile there; those {n_cells} cells of irregularities.csv are empty")
-    out += _both_cameras_lost(res, seen, gap)
-    out += _configuration_mismatch(rec, res)
     # camera frames farther apart than the grid interpolates across: the cells between them are
     # empty. A spacing between one step and this gap fills every cell by interpolation, so it is not
     # warned about (the tests' 40 Hz ride at 12 m/s has 0.3 m between frames on the 0.25 m grid).
@@ -544,12 +542,15 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
                    f"{spacing * rate:.3g} m/s), more than the {gap:g} m across which irregularities.csv "
                    f"interpolates: {cells} of {total} cells are empty; record at {spacing * rate / gap:.3g} Hz or "
                    f"more, ride at {gap * rate:.3g} m/s or less, or use --step-m {spacing / 2:.3g} or more")
+    else:
+        # (not with frames too far apart everywhere: that warning says why the cells are empty)
+        out += _both_cameras_lost(res, seen, gap)
     if not out and cells > EMPTY_SHARE_WARNING * total:
         ok = res.vision.ok[seen]
         out.append(f"{cells} of {total} cells of irregularities.csv ({100.0 * cells / total:.0f} %) are empty (no "
                    f"usable frame within {gap:g} m): {int((~ok).sum())} of {ok.size} camera frames were flagged by "
                    "the profile fit (too few laser points, a poor fit, no gauge face; docs/tgms.md, Pipeline 1)")
-    return out
+    return out + _configuration_mismatch(rec, res)
 
 
 #: |encoder scale error| fitted by the odometry above which process warns: a measuring wheel is off
