@@ -126,6 +126,9 @@ def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
                           start_station_m=_num(tr, "start_station_m", "track", fname, None, False))
     en = _get(doc, "encoder", "", fname)
     ppr = _num(en, "pulses_per_rev", "encoder", fname)
+    if ppr != round(ppr):
+        # (bug hunt 2026-11-27: 1440.7 became 1440 without a word)
+        raise TgmsFormatError(f"{fname}: encoder.pulses_per_rev must be a whole number of pulses, got {ppr!r}")
     enc = EncoderSettings(pulses_per_rev=int(ppr), wheel_diameter_m=_num(en, "wheel_diameter_m", "encoder", fname))
     imu = _get(doc, "imu", "", fname)
     rate = _num(imu, "rate_hz", "imu", fname)
@@ -336,6 +339,7 @@ def read_recording(folder: str | os.PathLike) -> Recording:
         raise TgmsFormatError(f"encoder.csv: row {enc['_line'][i]}, column count: the count goes backwards "
                               f"({int(enc['count'][i])} after {int(enc['count'][i - 1])}): the vehicle must run one "
                               "way, with its encoder counting up")
+    _check_encoder_on_alignment(enc, cfg, alignment, al_path.name)
     lasers, raw = {}, {}
     for side in ("left", "right"):
         d = _read_csv(folder / f"laser_{side}.csv", ["frame", "t_s", "u_px", "v_px"], integer=("frame",))
@@ -355,6 +359,32 @@ def read_recording(folder: str | os.PathLike) -> Recording:
                      imu_w_rad_s=np.column_stack([imu["wx_rad_s"], imu["wy_rad_s"], imu["wz_rad_s"]]),
                      imu_f_m_s2=np.column_stack([imu["fx_m_s2"], imu["fy_m_s2"], imu["fz_m_s2"]]),
                      enc_t_s=enc["t_s"], enc_count=enc["count"], lasers=lasers)
+
+
+#: how far the encoder's nominal stations may run outside the alignment: 1 m plus this share of the
+#: distance ridden (an encoder scale error the odometry corrects)
+ENCODER_OFF_ALIGNMENT_SHARE = 0.01
+
+
+def _check_encoder_on_alignment(enc: dict, cfg: TgmsConfig, alignment, al_name: str) -> None:
+    """The stations the encoder gives (start_station_m + count x metres per count) lie on the
+    design alignment: beyond its ends the design is extrapolated as a straight line (bug hunt
+    2026-11-27: a ride 110 m past the end gave exit 0 and 32 mm of cross-level error; a count
+    starting at 1000000 ended in an internal IndexError)."""
+    s0 = cfg.track.start_station_m if cfg.track.start_station_m is not None else alignment.start_chainage_m
+    mpc = cfg.encoder.metres_per_count
+    s = s0 + enc["count"] * mpc
+    tol = 1.0 + ENCODER_OFF_ALIGNMENT_SHARE * float(s[-1] - s[0])
+    lo, hi = alignment.start_chainage_m, alignment.end_chainage_m
+    out = (s < lo - tol) | (s > hi + tol)
+    if out.any():
+        i = int(np.argmax(out))
+        side = "before the start" if s[i] < lo else "beyond the end"
+        raise TgmsFormatError(
+            f"encoder.csv: row {enc['_line'][i]}, column count: count {int(enc['count'][i])} puts the TGMS at "
+            f"{s[i]:.6g} m ({s0:g} m at count 0 + {mpc:.6g} m per count), {side} of the alignment {al_name} "
+            f"({lo:g} .. {hi:g} m): the design must cover the ride; check tgms.toml track.start_station_m, "
+            "encoder.wheel_diameter_m and pulses_per_rev, and that the count is 0 at start_station_m")
 
 
 #: largest gap in imu.csv, in sample periods: the strapdown solution has nothing to bridge it with
@@ -512,12 +542,81 @@ def process_warnings(rec: Recording, res: TgmsResult, step_m: float) -> list[str
                    f"{spacing * rate:.3g} m/s), more than the {gap:g} m across which irregularities.csv "
                    f"interpolates: {cells} of {total} cells are empty; record at {spacing * rate / gap:.3g} Hz or "
                    f"more, ride at {gap * rate:.3g} m/s or less, or use --step-m {spacing / 2:.3g} or more")
+    else:
+        # (not with frames too far apart everywhere: that warning says why the cells are empty)
+        out += _both_cameras_lost(res, seen, gap)
     if not out and cells > EMPTY_SHARE_WARNING * total:
         ok = res.vision.ok[seen]
         out.append(f"{cells} of {total} cells of irregularities.csv ({100.0 * cells / total:.0f} %) are empty (no "
                    f"usable frame within {gap:g} m): {int((~ok).sum())} of {ok.size} camera frames were flagged by "
                    "the profile fit (too few laser points, a poor fit, no gauge face; docs/tgms.md, Pipeline 1)")
+    return out + _configuration_mismatch(rec, res)
+
+
+#: |encoder scale error| fitted by the odometry above which process warns: a measuring wheel is off
+#: by ~0.1 % (wear, diameter tolerance); a start station a few metres off is absorbed as a scale
+#: error by the fit, which keeps start_station_m fixed (bug hunt 2026-11-27: 5 m off on a 200 m
+#: ride gave k = -3.1 %, 1.4 mm of cross-level error, exit 0 and no word)
+ODOMETRY_SCALE_WARNING = 0.005
+#: |median of (right - left fitted rail angle) / 2| above which process warns, rad: both heads lean
+#: more or less towards the track centre than tgms.toml's rail_inclination and rail_profile say
+#: (bug hunt 2026-11-27: rail_inclination = 0 for 1:40 rails gave a 0.88 mm gauge bias, 54E1 for
+#: 60E1 rails 0.46 mm, both silent; the half-difference was 0.025 and 0.009 rad, 1e-4 when right)
+RAIL_TILT_WARNING_RAD = 0.008
+
+
+def _configuration_mismatch(rec: Recording, res: TgmsResult) -> list[str]:
+    """Warnings for tgms.toml values that the measurements contradict: an encoder scale the
+    odometry had to stretch implausibly far (a wrong start station or wheel diameter), and rail
+    heads fitted at another inclination than the configured one (a wrong rail_inclination or
+    rail_profile: a constant gauge bias that no band-pass shows)."""
+    out = []
+    k = float(getattr(res.odometry, "scale_error", float("nan")))
+    if np.isfinite(k) and abs(k) > ODOMETRY_SCALE_WARNING:
+        sk = float(res.odometry.sigma_scale_error)
+        out.append(f"the odometry fitted an encoder scale error of {100 * k:+.2f} % (+-{100 * sk:.2f} %), more than a "
+                   f"measuring wheel is off ({100 * ODOMETRY_SCALE_WARNING:g} %): check tgms.toml "
+                   "track.start_station_m (the chainage at count 0, taken as exact) and encoder.wheel_diameter_m; "
+                   "the stations and the irregularities near curves and cant ramps are likely wrong")
+    tr = rec.config.track
+    half = 0.5 * (res.vision.right.angle_rad - res.vision.left.angle_rad)
+    half = half[np.isfinite(half)]
+    if half.size >= 20:
+        m = float(np.median(half))
+        if abs(m) > RAIL_TILT_WARNING_RAD:
+            beta = (np.arctan(1.0 / tr.rail_inclination) if tr.rail_inclination else 0.0) - m
+            seen = f"1:{1.0 / np.tan(beta):.0f}" if beta > 1e-3 else ("upright" if abs(beta) <= 1e-3 else "outwards")
+            said = f"1:{tr.rail_inclination:g}" if tr.rail_inclination else "upright (0)"
+            out.append(f"the rail heads the cameras see lean {abs(m) * 1e3:.0f} mrad {'more' if m < 0 else 'less'} "
+                       f"towards the track centre than tgms.toml says (track.rail_inclination {said}, rail_profile "
+                       f"{tr.rail_profile}; seen as if {seen}): the gauge variation carries a constant bias; check "
+                       "track.rail_inclination and track.rail_profile")
     return out
+
+
+def _both_cameras_lost(res: TgmsResult, seen: np.ndarray, gap: float) -> list[str]:
+    """Warnings for runs of frame numbers that neither laser file has, over at least ``gap`` m of
+    track between the frames either side (bug hunt 2026-11-27: both cameras silent for 2 s, 18.7 m,
+    left 76 empty cells without a word; only one camera's loss was warned about)."""
+    s = res.frames.s_m
+    if seen.size < 2:
+        return []
+    jumps = np.flatnonzero(np.diff(seen) > 1)
+    lost = []
+    for j in jumps:
+        a, b = seen[j], seen[j + 1]          # the last frame before the gap and the first after it
+        if np.isfinite(s[a]) and np.isfinite(s[b]) and s[b] - s[a] >= gap:
+            lost.append((a, b))
+    if not lost:
+        return []
+    t = res.vision.t_s
+    g = res.grid.s_m
+    shown = "; ".join(f"frames {a + 1}-{b - 1} (t_s {t[a]:.6g}-{t[b]:.6g} s, s {s[a]:.1f}-{s[b]:.1f} m)"
+                      for a, b in lost[:3])
+    more = f"; and {len(lost) - 3} more stretches" if len(lost) > 3 else ""
+    n_cells = sum(int(((g > s[a]) & (g < s[b])).sum()) for a, b in lost)
+    return [f"laser_left.csv and laser_right.csv both have no rows for {shown}{more}: no rail profile there; "
+            f"those {n_cells} cells of irregularities.csv are empty"]
 
 
 def write_recording(folder: str | os.PathLike, rec: Recording) -> None:

@@ -539,3 +539,20 @@ def test_camera_frames_outside_the_encoder_or_imu_record_are_refused(sim_folder,
     said = "laser_left.csv and laser_right.csv run to"
     assert r.exit_code == 2 and said in r.stderr and f"{name} ends at {end:.6g} s" in " ".join(r.stderr.split()), r.stderr
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("edit, said", [
+    (lambda d: (d / "tgms.toml").write_text((d / "tgms.toml").read_text().replace(
+        "start_station_m = 10.0", "start_station_m = 300.0")), "beyond the end of the alignment alignment.xml"),
+    (lambda d: (d / "encoder.csv").write_text("t_s,count\n" + "".join(
+        f"{t},{int(c) + 1000000}\n" for t, c in (ln.split(",") for ln in (d / "encoder.csv").read_text().split()[1:]))),
+     "encoder.csv: row 2, column count: count 1000000 puts the TGMS at"),
+], ids=["ride-past-the-end", "count-not-0-at-the-start"])
+def test_an_encoder_running_off_the_alignment_is_refused_naming_the_row(sim_folder, tmp_path, edit, said):
+    """(bug hunt) A ride past the design's end was processed on a straight extrapolation (exit 0,
+    32 mm of cross-level error); a count that does not start at 0 ended in an internal IndexError."""
+    dst = _copy(sim_folder, tmp_path)
+    edit(dst)
+    r = CliRunner().invoke(app, ["tgms", "process", str(dst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and said in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists()

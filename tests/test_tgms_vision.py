@@ -143,3 +143,22 @@ def test_frame_of_outliers_only_is_flagged():
                    np.concatenate([z, z_o]), 2, "right")
     assert fit.ok.tolist() == [True, False]
     assert np.isnan(fit.y_m[1]) and np.isnan(fit.z_m[1])
+
+
+def test_camera_matrix_with_misplaced_entries_is_rejected():
+    """(bug hunt) K written transposed, cx and cy in the last row, was accepted: 98 % of the frames
+    were flagged and the exit code was 0."""
+    cam = CAMS["left"]
+    bad = Camera(np.asarray(cam.K, float).T, cam.R_tgms_cam, cam.t_tgms_cam_m, cam.distortion, cam.laser_plane,
+                 name="left")
+    with pytest.raises(ValueError, match=r"camera left: K must be \[\[fx,0,cx\],\[0,fy,cy\],\[0,0,1\]\]"):
+        check_camera(bad)
+    check_camera(cam)
+
+
+def test_laser_plane_through_the_camera_centre_is_named_as_such():
+    cam = CAMS["right"]
+    x = float(cam.t_tgms_cam_m[0])
+    bad = Camera(cam.K, cam.R_tgms_cam, cam.t_tgms_cam_m, cam.distortion, np.array([1.0, 0.0, 0.0, -x]), name="right")
+    with pytest.raises(ValueError, match="camera right: the laser plane passes through the camera centre"):
+        check_camera(bad)

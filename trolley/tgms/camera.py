@@ -125,13 +125,24 @@ def check_camera(cam: Camera) -> None:
     laser plane does not meet the camera's view (the rays through the image centre, its corners
     and edge midpoints all miss it)."""
     K = np.asarray(cam.K, float)
-    if K.shape != (3, 3) or K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9:
-        raise ValueError(f"camera {cam.name}: K must be [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0")
+    # the zeros too: a K written transposed ([[fx,0,0],[0,fy,0],[cx,cy,1]]) passed and left 98 % of
+    # the frames flagged with exit 0 (bug hunt 2026-11-27)
+    if (K.shape != (3, 3) or K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9
+            or np.any(np.abs([K[1, 0], K[2, 0], K[2, 1]]) > 1e-9)):
+        raise ValueError(f"camera {cam.name}: K must be [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0 "
+                         f"(got {np.array2string(K, separator=',').replace(chr(10), '')})")
     R = np.asarray(cam.R_tgms_cam, float)
     if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise ValueError(f"camera {cam.name}: R_tgms_cam is not a rotation matrix")
     if np.linalg.norm(cam.laser_plane[:3]) < 1e-12:
         raise ValueError(f"camera {cam.name}: laser_plane normal [A, B, C] is zero")
+    plane = np.asarray(cam.laser_plane, float)
+    centre = np.asarray(cam.t_tgms_cam_m, float)
+    if abs(plane[:3] @ centre + plane[3]) / np.linalg.norm(plane[:3]) < 1e-6:
+        # every ray meets it at the camera itself: no triangulation (the message said "parallel to
+        # it or meet it behind the camera", which sent one looking at the rotation)
+        raise ValueError(f"camera {cam.name}: the laser plane passes through the camera centre t_tgms_cam_m "
+                         "(A x + B y + C z + D = 0 there): the camera must view the laser line from off its plane")
     w, h = cam.image_size_px
     # the centre, the four corners and the edge midpoints: a plane seen only near an edge of the
     # image (a camera looking past the rail) still meets the view

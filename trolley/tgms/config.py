@@ -11,6 +11,12 @@ from trolley.tgms.camera import Camera, check_camera
 from trolley.tgms.profiles import head_shape
 
 
+#: plausible measuring-wheel diameters, m (a trolley's small wheel to a large rail wheel)
+WHEEL_DIAMETER_RANGE_M = (0.02, 3.0)
+#: farthest a camera centre may be from the IMU, m (both sit on one measuring frame)
+CAMERA_DISTANCE_MAX_M = 10.0
+
+
 @dataclass(frozen=True)
 class TrackSettings:
     """[track] of tgms.toml.
@@ -68,9 +74,20 @@ class TgmsConfig:
             raise ValueError("track.rail_inclination must be >= 0")
         if self.encoder.pulses_per_rev <= 0 or self.encoder.wheel_diameter_m <= 0:
             raise ValueError("encoder.pulses_per_rev and encoder.wheel_diameter_m must be > 0")
+        # metres, not millimetres (bug hunt 2026-11-27: 840.0 gave exit 0 and 894514 empty rows
+        # running 90 km past a 400 m alignment)
+        lo, hi = WHEEL_DIAMETER_RANGE_M
+        if not lo <= self.encoder.wheel_diameter_m <= hi:
+            raise ValueError(f"encoder.wheel_diameter_m = {self.encoder.wheel_diameter_m:g} is not a plausible measuring "
+                             f"wheel diameter ({lo:g}-{hi:g} m): in metres?")
         if self.imu_rate_hz <= 0:
             raise ValueError("imu.rate_hz must be > 0")
         for side in ("left", "right"):
             if side not in self.cameras:
                 raise ValueError(f"camera.{side} is missing")
             check_camera(self.cameras[side])
+            d = float(np.linalg.norm(self.cameras[side].t_tgms_cam_m))
+            if d > CAMERA_DISTANCE_MAX_M:
+                # (bug hunt 2026-11-27: [-300, -547.5, 50] in mm ended in "no camera frame could be used")
+                raise ValueError(f"camera.{side}.t_tgms_cam_m is {d:g} m from the IMU (at most "
+                                 f"{CAMERA_DISTANCE_MAX_M:g} m on one measuring frame): in metres?")
