@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from survey.atomicwrite import write_csv_frame, write_text_atomic
+from survey.limits import refuse_unknown
 from survey.tgms_io import TgmsFormatError, _num, _read_csv
 
 FORMAT = "trolley-inservice/1"
@@ -238,21 +239,6 @@ MIN_SPEED_M_S = 1.0
 SAMPLING_TOLERANCE = 0.02
 
 
-def refuse_unknown(table: dict, known, where: str, fname: str, error: type[ValueError] = InserviceFormatError,
-                   qualify: bool = True, otherwise: str = "") -> None:
-    """A mistyped key would be read as absent (an optional one silently so): refused, with the
-    nearest known key (``where.key`` when ``qualify``), else ``otherwise`` as the hint. ``where``
-    is the table ("" at the top level); ``error`` names the file's own error type."""
-    import difflib
-
-    for key in table:
-        if key not in known:
-            near = difflib.get_close_matches(key, sorted(known), n=1)
-            dotted = f"{where}." if where else ""
-            hint = f" (did you mean {dotted if qualify else ''}{near[0]}?)" if near else otherwise
-            raise error(f"{fname}: unknown key {dotted}{key}{hint}")
-
-
 #: how far one step between sample times may lie from the recording's usual step, and one sample's
 #: time from the uniform grid, in steps: a logger's time stamps jitter (taken by software, rounded
 #: to the millisecond, epoch seconds in a float) while a dropped sample is a step of 2 and a gap more
@@ -331,10 +317,10 @@ def read_recording(folder: str | os.PathLike) -> InserviceRecording:
     data = parse_toml(toml_path)
     fname = toml_path.name
     veh, run, sen = data["vehicle"], data["run"], data["sensors"]
-    refuse_unknown(data, {"format", "vehicle", "run", "sensors"}, "", fname)
-    refuse_unknown(veh, {*VEHICLE_KEYS, *VEHICLE_EXTRA_KEYS, *BOGIE_KEYS, "name"}, "vehicle", fname)
-    refuse_unknown(run, RUN_KEYS, "run", fname)
-    refuse_unknown(sen, SENSORS_KEYS, "sensors", fname)
+    refuse_unknown(data, {"format", "vehicle", "run", "sensors"}, "", fname, InserviceFormatError)
+    refuse_unknown(veh, {*VEHICLE_KEYS, *VEHICLE_EXTRA_KEYS, *BOGIE_KEYS, "name"}, "vehicle", fname, InserviceFormatError)
+    refuse_unknown(run, RUN_KEYS, "run", fname, InserviceFormatError)
+    refuse_unknown(sen, SENSORS_KEYS, "sensors", fname, InserviceFormatError)
     name = veh.get("name")
     if name is not None and (not isinstance(name, str) or not name.strip()):
         raise InserviceFormatError(f"{fname}: vehicle.name must be a text, got {name!r}")

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from survey.atomicwrite import write_text_atomic
-from survey.inservice_io import parse_toml, refuse_unknown
+from survey.inservice_io import parse_toml
+from survey.limits import refuse_unknown
 
 FORMAT = "trolley-inservice-model/1"
 #: sample intervals a model file may hold, s (filter rates 5 Hz to 100 kHz)

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from survey.atomicwrite import write_text_atomic
-from survey.inservice_io import parse_toml, refuse_unknown
+from survey.inservice_io import parse_toml
+from survey.limits import refuse_unknown
 from survey.tgms_io import TgmsFormatError, _num
 
 FORMAT = "trolley-inservice-vehicle/1"

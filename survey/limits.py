@@ -148,3 +148,19 @@ def check_file_option(path: os.PathLike | str | None, option: str, what: str, us
     if not os.path.exists(path):          # (a link to nothing too)
         raise ValueError(f"{option} {path}: no such file")
     # (an unreadable file is typer's: its Path type says "--params: path 'p.toml' is not readable")
+
+
+def refuse_unknown(table: dict, known, where: str, fname: str, error: type[ValueError] = ValueError,
+                   qualify: bool = True, otherwise: str = "") -> None:
+    """A mistyped key would be read as absent (an optional one silently so): refused, with the
+    nearest known key (``where.key`` when ``qualify``), else ``otherwise`` as the hint. ``where``
+    is the table ("" at the top level); ``error`` names the file's own error type. The TOML files
+    of the in-service vehicle, recording and model and of a TGMS recording use it."""
+    import difflib
+
+    for key in table:
+        if key not in known:
+            near = difflib.get_close_matches(key, sorted(known), n=1)
+            dotted = f"{where}." if where else ""
+            hint = f" (did you mean {dotted if qualify else ''}{near[0]}?)" if near else otherwise
+            raise error(f"{fname}: unknown key {dotted}{key}{hint}")

@@ -28,6 +28,7 @@ from trolley.tgms.irregularities import empty_gap_m
 from trolley.tgms.recording import LaserPoints, Recording
 
 from survey.atomicwrite import write_csv_frame, write_text_atomic
+from survey.limits import refuse_unknown
 from survey.names import inside
 from survey.sessionio import PLAUSIBLE_ABS, implicit_index_problem, line_spans
 
@@ -106,6 +107,11 @@ def _array(table, key, where, fname, shape, default=None, required=True) -> np.n
     return a
 
 
+#: the keys of tgms.toml's tables (FORMATS.md section 3)
+TRACK_KEYS = ("rail_profile", "half_rail_spacing_m", "rail_inclination", "alignment", "start_station_m")
+CAMERA_KEYS = ("K", "R_tgms_cam", "t_tgms_cam_m", "distortion", "laser_plane", "image_size_px")
+
+
 def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
     """Configuration from the text of ``tgms.toml``; TgmsFormatError naming the key if invalid."""
     try:
@@ -115,6 +121,16 @@ def parse_tgms_toml(text: str, fname: str = "tgms.toml") -> TgmsConfig:
     fmt = doc.get("format")
     if fmt != FORMAT:
         raise TgmsFormatError(f"{fname}: format must be \"{FORMAT}\", got {fmt!r}")
+    # a misspelt optional key (distorsion, rail_inclinaton) fell back to its default without a word
+    # (bug hunt 2026-11-27)
+    refuse_unknown(doc, {"format", "track", "encoder", "imu", "camera"}, "", fname, TgmsFormatError)
+    for table, known in (("track", TRACK_KEYS), ("encoder", ("pulses_per_rev", "wheel_diameter_m")),
+                         ("imu", ("rate_hz",)), ("camera", ("left", "right"))):
+        if isinstance(doc.get(table), dict):
+            refuse_unknown(doc[table], known, table, fname, TgmsFormatError)
+    for side in ("left", "right"):
+        if isinstance(doc.get("camera", {}).get(side), dict):
+            refuse_unknown(doc["camera"][side], CAMERA_KEYS, f"camera.{side}", fname, TgmsFormatError)
     tr = _get(doc, "track", "", fname)
     prof = _get(tr, "rail_profile", "track", fname)
     if prof not in ("60E1", "54E1"):

@@ -29,6 +29,21 @@ def test_values_in_the_wrong_unit_are_refused_naming_the_key(old, new, said):
         parse_tgms_toml(text.replace(old, new, 1))
 
 
+@pytest.mark.parametrize("old, new, said", [
+    ("distortion = ", "distorsion = ", "unknown key camera.left.distorsion (did you mean camera.left.distortion?)"),
+    ("rail_inclination = ", "rail_inclinaton = ", "unknown key track.rail_inclinaton (did you mean track.rail_inclination?)"),
+    ('format = "trolley-tgms/1"', 'format = "trolley-tgms/1"\nmodel = "x"', "unknown key model"),
+], ids=["camera", "track", "top"])
+def test_a_misspelt_key_is_refused_with_the_nearest_one(old, new, said):
+    """(bug hunt 2026-11-27) A misspelt optional key fell back to its default without a word: no
+    distortion, or rails taken as tilted 1:40 whatever the file meant."""
+    text = _text()
+    assert old in text
+    with pytest.raises(TgmsFormatError) as e:
+        parse_tgms_toml(text.replace(old, new, 1))
+    assert str(e.value) == f"tgms.toml: {said}"
+
+
 def test_a_stretch_that_both_cameras_lost_is_warned_about():
     """(bug hunt) Both laser files without frames 1200-1400 (18.7 m at 10 m/s) left 76 empty cells
     and no warning; one camera's loss was warned about."""
