@@ -10,6 +10,7 @@ design LandXML named by the session's session.toml), computes every parameter
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import time
 from dataclasses import dataclass, field, replace
@@ -179,8 +180,8 @@ def build_report(track_csv: Path, tolerances: str = DEFAULT_TOLERANCES, design: 
     t1 = time.perf_counter()
     geometry = track_geometry(track, cfg)
     if geometry.gaps_m:
-        shown = (lambda x: x) if stationing is None else (lambda x: float(stationing.station(x)))
-        spans = ", ".join(f"{shown(a):.3f}-{shown(b):.3f} m" for a, b in geometry.gaps_m)
+        spans = ", ".join(f"{shown_station(stationing, a):.3f}-{shown_station(stationing, b):.3f} m"
+                          for a, b in geometry.gaps_m)
         notes.append(f"track.csv has no stations in {spans} (longer than {GAP_STEPS:g} steps of "
                      f"{geometry.step_m:g} m): the stations there are empty, not interpolated")
     absolute_checked = absolute_span(geometry, fixes, notes, stationing)
@@ -216,6 +217,11 @@ def unchecked_notes(rep: SurveyReport) -> list[str]:
     return [n for n in rep.notes if n.startswith(UNCHECKED_NOTES)]
 
 
+def shown_station(stationing, internal_m: float) -> float:
+    """The drawing station of an internal one in the notes (itself without station equations)."""
+    return float(internal_m) if stationing is None else float(stationing.station(internal_m))
+
+
 def absolute_span(geometry, fixes, notes: list[str], stationing=None) -> np.ndarray | None:
     """Per station, whether its absolute parameters (deviations from the design, slew, lift) are
     checked against the tolerances: between the first and the last fix the processing used
@@ -241,7 +247,7 @@ def absolute_span(geometry, fixes, notes: list[str], stationing=None) -> np.ndar
     outside = ~inside & np.isfinite(geometry.columns["lateral_dev_m"] + geometry.columns["vertical_dev_m"])
     if not outside.any():
         return None
-    shown = (lambda x: float(x)) if stationing is None else (lambda x: float(stationing.station(x)))
+    shown = functools.partial(shown_station, stationing)
     parts = []
     for side, sel, fix in (("before the first", outside & (s < acc.min()), acc.min()),
                            ("beyond the last", outside & (s > acc.max()), acc.max())):

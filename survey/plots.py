@@ -161,13 +161,13 @@ def draw_panel(ax, rep: SurveyReport, keys: list[str], marks: tuple[np.ndarray, 
             sig = by_key[SIGMA_OF[k]].display(rep.geometry.columns[SIGMA_OF[k]])
             ax.fill_between(s[sel], (v - sig)[sel], (v + sig)[sel], color=colours[n % 3], alpha=0.25, lw=0,
                             label="±1σ")
-        if k in ABSOLUTE_COLUMNS and rep.absolute_checked is not None and not drawn_unfixed:
-            # the stations outside the outermost fixes: dead reckoning from one fix, not checked
-            inside = np.flatnonzero(rep.absolute_checked)
-            spans = [(s[0], s[inside[0]]), (s[inside[-1]], s[-1])] if inside.size else [(s[0], s[-1])]
-            for j, (a, b) in enumerate(x for x in spans if x[1] > x[0]):
+        if k in ABSOLUTE_COLUMNS and not drawn_unfixed:
+            # the stations outside the outermost fixes (each standing for half a step either side):
+            # dead reckoning from one fix, not checked
+            h = 0.5 * rep.geometry.step_m
+            for j, (a, b) in enumerate(rep.unchecked_runs()):
                 # over the tolerance zones and the sigma band, under the line: washed out, not hidden
-                ax.axvspan(a, b, facecolor="0.92", alpha=0.75, lw=0, zorder=1.5,
+                ax.axvspan(s[a] - h, s[b] + h, facecolor="0.92", alpha=0.75, lw=0, zorder=1.5,
                            label="beyond the fixes: dead reckoning, not checked" if j == 0 else None)
             drawn_unfixed = True
         zones = edge_zones(s, rep.geometry.columns[k], rep.geometry.columns.get(band_source(k)), k)

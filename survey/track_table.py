@@ -358,6 +358,18 @@ class SurveyReport:
         """True when no defect was found."""
         return not self.defects
 
+    def unchecked_runs(self) -> list[tuple[int, int]]:
+        """The runs of stations (first, last index, inclusive) whose absolute parameters are not
+        checked: before the first and beyond the last fix used (:attr:`absolute_checked`); [] when
+        every station is. The Track sheet greys them, the plots wash them out."""
+        if self.absolute_checked is None:
+            return []
+        inside = np.flatnonzero(self.absolute_checked)
+        n = self.absolute_checked.size
+        if not inside.size:
+            return [(0, n - 1)]
+        return [(a, b) for a, b in ((0, int(inside[0]) - 1), (int(inside[-1]) + 1, n - 1)) if a <= b]
+
     @property
     def no_defects_text(self) -> str:
         """What a report without defects says of its values (the PDF's cover, the Defects sheet):

@@ -738,9 +738,9 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
         top, bottom = row0, end
         if lim.column in ABSOLUTE_COLUMNS and rep.absolute_checked is not None:
             # only the stations between the outermost fixes are checked (export.absolute_span)
-            rows = np.flatnonzero(rep.absolute_checked)
-            if not rows.size:
+            if not rep.absolute_checked.any():
                 continue
+            rows = np.flatnonzero(rep.absolute_checked)
             top, bottom = row0 + int(rows[0]), row0 + int(rows[-1])
         conds = []
         if math.isfinite(lo):
@@ -750,15 +750,12 @@ def _track_sheet_head(ws, rep: SurveyReport, n: int) -> None:
         # ISNUMBER: empty cells (no value) are not exceedances
         formula = f"AND(ISNUMBER({L}{top}),OR({','.join(conds)}))"
         ws.conditional_formatting.add(f"{L}{top}:{L}{bottom}", FormulaRule(formula=[formula], fill=red, font=font))
-    inside = np.flatnonzero(rep.absolute_checked) if rep.absolute_checked is not None else np.zeros(0, int)
-    for key in ABSOLUTE_COLUMNS if rep.absolute_checked is not None else ():
+    for key in (k for k in ABSOLUTE_COLUMNS if k in index):
         # beyond the outermost fixes in grey italics: shown, not checked (the Summary's note says why)
-        j = index.get(key)
-        spans = ((row0, row0 + int(inside[0]) - 1), (row0 + int(inside[-1]) + 1, end)) if inside.size else ((row0, end),)
-        for a, b in spans if j is not None else ():
-            if a <= b:
-                L = _col_letter(j)
-                ws.conditional_formatting.add(f"{L}{a}:{L}{b}", FormulaRule(formula=[f"ISNUMBER({L}{a})"], font=unchecked))
+        L = _col_letter(index[key])
+        for a, b in rep.unchecked_runs():
+            ws.conditional_formatting.add(f"{L}{row0 + a}:{L}{row0 + b}",
+                                          FormulaRule(formula=[f"ISNUMBER({L}{row0 + a})"], font=unchecked))
 
 
 def _sheet_part(z: zipfile.ZipFile, title: str) -> str:
