@@ -207,16 +207,17 @@ def _device_option_error(data: dict) -> str | None:
     if not isinstance(oc, dict):
         return "odometer_config must be an object of OdometerConfig fields (ppr, decode, wheel_diameter_m, ...)"
     fields = list(encoder.OdometerConfig.__dataclass_fields__)
+    WHOLE_FIELDS = ("ppr", "decode", "bits", "channel", "confirm")  # counts, not measures
     for key, v in oc.items():
         if key not in fields:
             near = difflib.get_close_matches(str(key), fields, n=1, cutoff=0.6)
             return (f"odometer_config: unknown field {key!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
                     + f"; the fields are {', '.join(fields)}")
-        whole = key in ("ppr", "decode", "bits", "channel", "confirm")
+        whole = key in WHOLE_FIELDS
         if not number(v) or not math.isfinite(v) or (whole and v != int(v)):
             return f"odometer_config: {key} must be a{' whole' if whole else ''} number, not {v!r}"
     try:
-        cfg = encoder.OdometerConfig(**{k: int(v) if k in ("ppr", "decode", "bits", "channel", "confirm") else float(v)
+        cfg = encoder.OdometerConfig(**{k: int(v) if k in WHOLE_FIELDS else float(v)
                                         for k, v in oc.items()})
     except ValueError as exc:
         return f"odometer_config: {exc}"

@@ -399,15 +399,21 @@ class Acquisition:
             self._odo_base = (recs[0].segment, self.tb.odo_count0, 0.0)
         d = np.empty(c.size)
         mpc = self.odo_cfg.metres_per_count
-        for i, r in enumerate(recs):
+        segment = np.array([r.segment for r in recs])
+        # runs of one parser segment (a new one is rare: numpy per run, not a loop per reply)
+        starts = np.flatnonzero(np.r_[segment[0] != self._odo_base[0], segment[1:] != segment[:-1]])
+        edges = np.r_[0, starts, c.size]
+        for i, j in zip(edges[:-1], edges[1:]):
+            if j <= i:
+                continue
             seg, c0, d0 = self._odo_base
-            if r.segment != seg:
+            if segment[i] != seg:
                 # the parser re-anchored on readings that do not continue the old ones (a counter
                 # restarted at 0 by a power-cycled unplug): the distance carries on from the last
                 # reply (it jumped back by the whole count, and the session saw the trolley move)
                 last = d[i - 1] if i else self._odo_last_d
-                self._odo_base = seg, c0, d0 = r.segment, int(c[i]), float(last)
-            d[i] = d0 + encoder.signed_delta(int(c[i]), c0, self.odo_cfg.bits) * mpc
+                self._odo_base = seg, c0, d0 = int(segment[i]), int(c[i]), float(last)
+            d[i:j] = d0 + encoder.signed_delta(c[i:j], c0, self.odo_cfg.bits) * mpc
         self._odo_last_d = float(d[-1])
         keep = np.append(np.diff(t) > 0, True)  # replies of one read share a host time
         rows = np.column_stack([t[keep], d[keep]])
